@@ -1,0 +1,69 @@
+"""Build the example delta-ISS model shipped as ``ltv_lstm_mpc/data/example_delta_iss_n3.npz``.
+
+The example is hand-shaped, not trained: n = 3 neurons, m = p = 1, random small recurrent
+weights and biases (sigma_f stays near 1/2, so rho(A_delta) < 1), a strong
+input path through the cell candidate (so the equilibrium output spans a useful range),
+and W_y, b_y scaled so that the equilibrium output over u in [-1, 1] spans about
+[-0.9, 0.9]. Its normalization pretends the pH plant's units (q3 in [12.5, 17] mL/s,
+pH in [5.9, 9.1]) so the paper's output constraint [6, 9] pH applies.
+
+Run: ``python experiments/make_example_model.py [OUT.npz]``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ltv_lstm_mpc import LSTMModel, Normalization, certify
+
+
+def build(seed: int = 7) -> LSTMModel:
+    """The example model (deterministic for a given seed)."""
+    rng = np.random.default_rng(seed)
+    n = 3
+    weights: dict[str, np.ndarray] = {}
+    for gate in "fioc":
+        weights[f"W_{gate}"] = rng.normal(scale=0.15, size=(n, 1))
+        weights[f"U_{gate}"] = rng.normal(scale=0.08, size=(n, n))
+        weights[f"b_{gate}"] = rng.normal(scale=0.1, size=n)
+    weights["W_c"] = np.array([[1.2], [-0.9], [0.7]])
+    weights["W_y"] = np.ones((1, n))
+    weights["b_y"] = np.zeros(1)
+    model = LSTMModel(**weights)
+    # Rescale the output so the equilibrium output over U spans [-0.9, 0.9].
+    outputs_grid = np.array(
+        [model.output(model.equilibrium(np.array([u])))[0] for u in np.linspace(-1, 1, 41)]
+    )
+    low, high = outputs_grid.min(), outputs_grid.max()
+    gain = 1.8 / (high - low)
+    weights["W_y"] = weights["W_y"] * gain
+    weights["b_y"] = np.array([-0.9 - gain * low])
+    normalization = Normalization(
+        u_phi_min=np.array([12.5]),
+        u_phi_max=np.array([17.0]),
+        y_phi_min=np.array([5.9]),
+        y_phi_max=np.array([9.1]),
+    )
+    return LSTMModel(**weights, normalization=normalization)
+
+
+def main() -> None:
+    default = (
+        Path(__file__).resolve().parents[1] / "ltv_lstm_mpc" / "data" / "example_delta_iss_n3.npz"
+    )
+    out = Path(sys.argv[1]) if len(sys.argv) > 1 else default
+    model = build()
+    certification = certify(model)
+    print(
+        f"rho(A_delta) = {certification.delta_iss.rho_A_delta:.4f}, "
+        f"rho_s = {certification.lyapunov.rho_s:.4f}, "
+        f"y0 interval (pH) = {certification.y0_interval_phi}"
+    )
+    print("wrote", model.save(out))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""Exception tree of :mod:`ltv_lstm_mpc`.
+
+Every exception subclasses :class:`LtvMpcError` and, where it makes sense, the
+built-in exception a user would expect (``ValueError`` for bad input,
+``ImportError`` for a missing solver), so both ``except LtvMpcError`` and
+``except ValueError`` work.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "DimensionError",
+    "InvalidValueError",
+    "LtvMpcError",
+    "NotDeltaISSError",
+    "ObserverGainError",
+    "SolverError",
+    "SolverNotFound",
+    "UnreachableSetpointError",
+]
+
+
+class LtvMpcError(Exception):
+    """Base class of every error raised by ltv_lstm_mpc."""
+
+
+class DimensionError(LtvMpcError, ValueError):
+    """An array has the wrong shape; the message names the array and the expected shape."""
+
+
+class InvalidValueError(LtvMpcError, ValueError):
+    """A value is out of its admissible range (NaN, inf, negative weight, ...)."""
+
+
+class NotDeltaISSError(LtvMpcError, ValueError):
+    """The LSTM model violates Assumption 2: rho(A_delta) >= 1.
+
+    Attributes
+    ----------
+    rho_A_delta : float
+        Spectral radius of A_delta (eq. delta_iss_matrix).
+    r1, r2 : float
+        Residuals of Remark 1 (both must be negative for delta-ISS).
+    """
+
+    def __init__(self, message: str, *, rho_A_delta: float, r1: float, r2: float) -> None:
+        super().__init__(message)
+        self.rho_A_delta = rho_A_delta
+        self.r1 = r1
+        self.r2 = r2
+
+
+class ObserverGainError(LtvMpcError, ValueError):
+    """Observer gains violate Assumption 3: rho(A_d) >= 1."""
+
+    def __init__(self, message: str, *, rho_A_d: float) -> None:
+        super().__init__(message)
+        self.rho_A_d = rho_A_d
+
+
+class UnreachableSetpointError(LtvMpcError, ValueError):
+    """The reference calculator (eq. reference_calculation) found no admissible equilibrium."""
+
+
+class SolverNotFound(LtvMpcError, ImportError):
+    """A requested solver backend is not installed; the message lists the installed ones."""
+
+
+class SolverError(LtvMpcError, RuntimeError):
+    """A solver failed in a way the caller asked to be raised rather than recorded."""

@@ -1,0 +1,142 @@
+r"""State and disturbance observer of the augmented LSTM, eq. (lstm_observer).
+
+.. math::
+
+    \hat c_{k+1} &= \sigma(W_f u_k + U_f \hat h_k + b_f + L_f (y_k - \hat y_k)) \circ \hat c_k \\
+      &\quad + \sigma(W_i u_k + U_i \hat h_k + b_i + L_i (y_k - \hat y_k))
+         \circ \tanh(W_c u_k + U_c \hat h_k + b_c) \\
+    \hat h_{k+1} &= \sigma(W_o u_k + U_o \hat h_k + b_o + L_o (y_k - \hat y_k))
+         \circ \tanh(\hat c_{k+1}) \\
+    \hat d_{k+1} &= \mathrm{sat}(\hat d_k + L_d (y_k - \hat y_k), d_{max}) \\
+    \hat y_k &= W_y \hat h_k + b_y + \hat d_k
+
+Timing convention: at time k the controller uses :math:`(\hat x_k, \hat d_k)`; after the
+input :math:`u_k` is chosen, ``step(y_k, u_k)`` returns :math:`(\hat x_{k+1}, \hat d_{k+1})`.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .certificates import ObserverGains
+from .exceptions import DimensionError, InvalidValueError
+from .model import LSTMModel, _sigmoid
+from .reference import ReferenceCalculator
+
+__all__ = ["Observer"]
+
+FloatArray = NDArray[np.float64]
+
+
+class Observer:
+    r"""LSTM state and output-disturbance observer, eq. (lstm_observer).
+
+    Parameters
+    ----------
+    model : LSTMModel
+    gains : ObserverGains
+        :math:`L_f, L_i, L_o` (n, p) and :math:`L_d` (p, p); certify them with
+        :func:`~ltv_lstm_mpc.certificates.observer_certificate`.
+    d_max : float
+        Saturation bound of :math:`\hat d` (:math:`\mathcal{D}`).
+    x_hat0, d_hat0 : array_like, optional
+        Initial estimate; default zero state and zero disturbance. Use
+        :meth:`initialize` to start at the equilibrium matching a measurement.
+    """
+
+    def __init__(
+        self,
+        model: LSTMModel,
+        gains: ObserverGains,
+        *,
+        d_max: float = 0.1,
+        x_hat0: ArrayLike | None = None,
+        d_hat0: ArrayLike | None = None,
+    ) -> None:
+        gains.check_model(model)
+        if not d_max > 0:
+            raise InvalidValueError(f"d_max must be positive, got {d_max}")
+        self.model = model
+        self.gains = gains
+        self.d_max = float(d_max)
+        n, p = model.n, model.p
+        # Stacked gate gains in the model's (f, i, o) order for one matmul per step.
+        self._L_gates = np.vstack([gains.L_f, gains.L_i, gains.L_o])
+        self.x_hat = np.zeros(2 * n)
+        self.d_hat = np.zeros(p)
+        self.reset(
+            np.zeros(2 * n) if x_hat0 is None else x_hat0,
+            np.zeros(p) if d_hat0 is None else d_hat0,
+        )
+
+    def reset(self, x_hat: ArrayLike, d_hat: ArrayLike) -> None:
+        """Set the estimate :math:`(\\hat x, \\hat d)` (d_hat is saturated to d_max)."""
+        x_arr = np.array(x_hat, dtype=np.float64)
+        d_arr = np.atleast_1d(np.array(d_hat, dtype=np.float64))
+        if x_arr.shape != (2 * self.model.n,):
+            raise DimensionError(f"x_hat has shape {x_arr.shape}, expected ({2 * self.model.n},)")
+        if d_arr.shape != (self.model.p,):
+            raise DimensionError(f"d_hat has shape {d_arr.shape}, expected ({self.model.p},)")
+        if not (np.all(np.isfinite(x_arr)) and np.all(np.isfinite(d_arr))):
+            raise InvalidValueError("x_hat and d_hat must be finite")
+        self.x_hat = x_arr
+        self.d_hat = np.clip(d_arr, -self.d_max, self.d_max)
+
+    def initialize(self, y: ArrayLike, *, reference: ReferenceCalculator | None = None) -> None:
+        r"""Start at the LSTM equilibrium whose output equals ``y``, with :math:`\hat d_0 = 0`.
+
+        This is the paper's initialization (Section V, SPEC 10b). When ``y`` is outside
+        the model's equilibrium output range, the closest equilibrium is used and a
+        warning names the mismatch.
+        """
+        calculator = reference or ReferenceCalculator(self.model, strict=False)
+        y_arr = np.atleast_1d(np.asarray(y, dtype=np.float64))
+        solution = calculator.solve(y_arr, np.zeros(self.model.p))
+        if not solution.converged:
+            warnings.warn(
+                f"no LSTM equilibrium has output {y_arr.tolist()}; the observer starts at the "
+                f"closest one found (residual {solution.residual:.3e})",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        self.reset(solution.x_bar, np.zeros(self.model.p))
+
+    @property
+    def y_hat(self) -> FloatArray:
+        r""":math:`\hat y_k = W_y \hat h_k + b_y + \hat d_k`, eq. (y_lstm_observer)."""
+        return np.asarray(self.model.output(self.x_hat) + self.d_hat, dtype=np.float64)
+
+    def step(self, y: ArrayLike, u: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        r"""Update with measurement :math:`y_k` and applied input :math:`u_k`.
+
+        Returns
+        -------
+        x_hat : ndarray, shape (2n,)
+            :math:`\hat x_{k+1}`.
+        d_hat : ndarray, shape (p,)
+            :math:`\hat d_{k+1}`.
+        """
+        model = self.model
+        n, p = model.n, model.p
+        y_arr = np.atleast_1d(np.asarray(y, dtype=np.float64))
+        u_arr = np.atleast_1d(np.asarray(u, dtype=np.float64))
+        if y_arr.shape != (p,):
+            raise DimensionError(f"y has shape {y_arr.shape}, expected ({p},)")
+        if u_arr.shape != (model.m,):
+            raise DimensionError(f"u has shape {u_arr.shape}, expected ({model.m},)")
+        if not (np.all(np.isfinite(y_arr)) and np.all(np.isfinite(u_arr))):
+            raise InvalidValueError(f"y and u must be finite, got y={y_arr}, u={u_arr}")
+        c, h = self.x_hat[:n], self.x_hat[n:]
+        innovation = y_arr - (h @ model.W_y.T + model.b_y + self.d_hat)
+        z = model._W_gates @ u_arr + model._U_gates @ h + model._b_gates
+        z[: 3 * n] += self._L_gates @ innovation
+        s = _sigmoid(z[: 3 * n])
+        g = np.tanh(z[3 * n :])
+        c_next = s[:n] * c + s[n : 2 * n] * g
+        h_next = s[2 * n :] * np.tanh(c_next)
+        self.x_hat = np.concatenate([c_next, h_next])
+        self.d_hat = np.clip(self.d_hat + self.gains.L_d @ innovation, -self.d_max, self.d_max)
+        return self.x_hat.copy(), self.d_hat.copy()

@@ -1,0 +1,341 @@
+r"""Reference calculator, eq. (reference_calculation), and :math:`\bar K` of Lemma 5.
+
+Given the set-point :math:`y^0` and the disturbance estimate :math:`\hat d`, find the
+equilibrium :math:`(\bar x, \bar u)` with
+
+.. math::
+
+    \bar x = f(\bar x, \bar u), \qquad y^0 = g(\bar x) + \hat d
+
+by Newton's method on the :math:`(2n + m)` square system (m = p, Assumption 1) with the
+analytic Jacobian of eq. (jacobian), warm-started from the previous solution.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .exceptions import DimensionError, InvalidValueError, UnreachableSetpointError
+from .model import LSTMModel
+
+__all__ = ["KBarEstimate", "ReferenceCalculator", "ReferenceSolution", "estimate_K_bar"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ReferenceSolution:
+    r"""Result of eq. (reference_calculation).
+
+    Attributes
+    ----------
+    x_bar : ndarray, shape (2n,)
+        State set-point :math:`\bar x = [\bar c; \bar h]`.
+    u_bar : ndarray, shape (m,)
+        Input set-point :math:`\bar u`.
+    residual : float
+        :math:`\|F(\bar x, \bar u)\|_\infty` of the stacked equations.
+    jacobian_condition : float
+        2-norm condition number of the Jacobian eq. (jacobian) at the solution
+        (Assumption 4 needs it finite).
+    u_admissible : bool
+        Whether :math:`\bar u \in \mathcal{U}` (:math:`\|\bar u\|_\infty \le u_{max}`).
+    converged : bool
+        Whether Newton reached the tolerance.
+    iterations : int
+        Newton iterations used (all restarts included).
+    """
+
+    x_bar: FloatArray
+    u_bar: FloatArray
+    residual: float
+    jacobian_condition: float
+    u_admissible: bool
+    converged: bool
+    iterations: int
+
+    @property
+    def ok(self) -> bool:
+        """Converged with an admissible input."""
+        return self.converged and self.u_admissible
+
+
+class ReferenceCalculator:
+    r"""Solve eq. (reference_calculation) by Newton's method with warm start.
+
+    Parameters
+    ----------
+    model : LSTMModel
+        Needs m = p (Assumption 1).
+    u_max : float
+        Input bound of :math:`\mathcal{U}` (normalized).
+    tol : float
+        Convergence tolerance on :math:`\|F\|_\infty`.
+    max_iter : int
+        Newton iterations per start.
+    strict : bool
+        If True (default), :meth:`solve` raises :class:`UnreachableSetpointError` when
+        Newton fails or :math:`\bar u \notin \mathcal{U}`; if False it returns the
+        solution with ``converged`` / ``u_admissible`` flags for the caller to act on.
+    grid_points : int
+        Inputs per channel of the equilibrium grid used for cold starts and for the
+        reachable-output range in error messages.
+
+    Notes
+    -----
+    A cold start picks the grid equilibrium whose output is closest to
+    :math:`y^0 - \hat d`; later calls start from the previous solution.
+    """
+
+    def __init__(
+        self,
+        model: LSTMModel,
+        *,
+        u_max: float = 1.0,
+        tol: float = 1e-12,
+        max_iter: int = 50,
+        strict: bool = True,
+        grid_points: int = 21,
+    ) -> None:
+        model.require_square()
+        if not u_max > 0:
+            raise InvalidValueError(f"u_max must be positive, got {u_max}")
+        self.model = model
+        self.u_max = float(u_max)
+        self.tol = float(tol)
+        self.max_iter = int(max_iter)
+        self.strict = strict
+        n2, m = 2 * model.n, model.m
+        self._eye = np.eye(n2)
+        self._jacobian = np.zeros((n2 + m, n2 + m))
+        self._jacobian[n2:, model.n : n2] = model.W_y
+        self._last: tuple[FloatArray, FloatArray] | None = None
+        per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points
+        axes = [np.linspace(-self.u_max, self.u_max, per_channel)] * m
+        grid_u = np.array(list(itertools.product(*axes)), dtype=np.float64)
+        grid_x = np.empty((grid_u.shape[0], n2))
+        x_start = None
+        for k, u in enumerate(grid_u):
+            grid_x[k] = model.equilibrium(u, x0=x_start)
+            x_start = grid_x[k]
+        self._grid_u = grid_u
+        self._grid_x = grid_x
+        self._grid_y = model.output(grid_x)
+
+    @property
+    def reachable_output_range(self) -> tuple[FloatArray, FloatArray]:
+        r"""Min and max equilibrium output :math:`g(x^*(u))` over the grid of inputs."""
+        return self._grid_y.min(axis=0), self._grid_y.max(axis=0)
+
+    def reset(self) -> None:
+        """Forget the warm start."""
+        self._last = None
+
+    def _residual(
+        self, z: FloatArray, target: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        n2 = 2 * self.model.n
+        x, u = z[:n2], z[n2:]
+        x_next, A, B = self.model.step_and_jacobians(x, u)
+        F = np.concatenate([x_next - x, self.model.output(x) - target])
+        return F, A, B
+
+    def _newton(self, z: FloatArray, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
+        n2 = 2 * self.model.n
+        J = self._jacobian
+        F, A, B = self._residual(z, target)
+        norm = float(np.max(np.abs(F)))
+        for iteration in range(1, self.max_iter + 1):
+            if norm < self.tol:
+                return z, norm, iteration - 1, True
+            J[:n2, :n2] = A - self._eye
+            J[:n2, n2:] = B
+            try:
+                step = np.linalg.solve(J, F)
+            except np.linalg.LinAlgError:
+                return z, norm, iteration, False
+            # Backtracking on the residual inf-norm (damped Newton).
+            t = 1.0
+            for _ in range(30):
+                z_trial = z - t * step
+                F_trial, A_trial, B_trial = self._residual(z_trial, target)
+                norm_trial = float(np.max(np.abs(F_trial)))
+                if norm_trial < norm or norm_trial < self.tol:
+                    break
+                t *= 0.5
+            else:
+                return z, norm, iteration, False
+            z, F, A, B, norm = z_trial, F_trial, A_trial, B_trial, norm_trial
+        return z, norm, self.max_iter, norm < self.tol
+
+    def solve(
+        self,
+        y0: ArrayLike,
+        d_hat: ArrayLike,
+        *,
+        warm: tuple[ArrayLike, ArrayLike] | None = None,
+    ) -> ReferenceSolution:
+        r"""Solve eq. (reference_calculation) for :math:`(\bar x, \bar u)`.
+
+        Parameters
+        ----------
+        y0 : array_like, shape (p,)
+            Normalized set-point :math:`y^0`.
+        d_hat : array_like, shape (p,)
+            Disturbance estimate :math:`\hat d`.
+        warm : (x_bar, u_bar), optional
+            Start point; default the previous solution (or a grid equilibrium).
+
+        Raises
+        ------
+        UnreachableSetpointError
+            In strict mode, when no admissible equilibrium is found.
+        """
+        model = self.model
+        p = model.p
+        y0_arr = np.atleast_1d(np.asarray(y0, dtype=np.float64))
+        d_arr = np.atleast_1d(np.asarray(d_hat, dtype=np.float64))
+        for name, value in (("y0", y0_arr), ("d_hat", d_arr)):
+            if value.shape != (p,):
+                raise DimensionError(f"{name} has shape {value.shape}, expected ({p},)")
+            if not np.all(np.isfinite(value)):
+                raise InvalidValueError(f"{name} contains NaN or inf: {value}")
+        target = y0_arr - d_arr  # g(x_bar) must equal y0 - d_hat
+        starts: list[FloatArray] = []
+        if warm is not None:
+            starts.append(np.concatenate([np.asarray(warm[0], float), np.asarray(warm[1], float)]))
+        elif self._last is not None:
+            starts.append(np.concatenate(self._last))
+        distance = np.max(np.abs(self._grid_y - target), axis=1)
+        closest = int(np.argmin(distance))
+        starts.append(np.concatenate([self._grid_x[closest], self._grid_u[closest]]))
+        total_iterations = 0
+        best: tuple[FloatArray, float, bool] | None = None
+        for z0 in starts:
+            z, norm, iterations, converged = self._newton(z0.copy(), target)
+            total_iterations += iterations
+            if best is None or norm < best[1]:
+                best = (z, norm, converged)
+            if converged:
+                break
+        assert best is not None
+        z, norm, converged = best
+        n2 = 2 * model.n
+        x_bar, u_bar = z[:n2].copy(), z[n2:].copy()
+        _, A, B = model.step_and_jacobians(x_bar, u_bar)
+        J = self._jacobian.copy()
+        J[:n2, :n2] = A - self._eye
+        J[:n2, n2:] = B
+        condition = float(np.linalg.cond(J))
+        u_admissible = bool(np.max(np.abs(u_bar)) <= self.u_max * (1 + 1e-12))
+        solution = ReferenceSolution(
+            x_bar=x_bar,
+            u_bar=u_bar,
+            residual=norm,
+            jacobian_condition=condition,
+            u_admissible=u_admissible,
+            converged=converged,
+            iterations=total_iterations,
+        )
+        if converged and u_admissible:
+            self._last = (x_bar, u_bar)
+        if self.strict and not solution.ok:
+            low, high = self.reachable_output_range
+            reason = (
+                f"Newton did not converge (residual {norm:.2e})"
+                if not converged
+                else f"it needs u_bar = {u_bar.tolist()} outside U = [-{self.u_max}, {self.u_max}]"
+            )
+            raise UnreachableSetpointError(
+                f"set-point y0 = {y0_arr.tolist()} with d_hat = {d_arr.tolist()} is not reachable: "
+                f"{reason}. The model's equilibrium output over U spans [{low.tolist()}, "
+                f"{high.tolist()}] (normalized), so y0 - d_hat must lie in it; choose y0 inside, "
+                "or pass strict=False to get the flagged solution."
+            )
+        return solution
+
+
+@dataclass(frozen=True)
+class KBarEstimate:
+    r""":math:`\bar K` of Lemma 5 estimated by gridding.
+
+    Attributes
+    ----------
+    K_bar : float
+        :math:`\max \|K_{\bar x}\|` over the grid points kept.
+    u_grid : ndarray, shape (G, m)
+        Grid of input set-points :math:`\bar u`.
+    y_grid : ndarray, shape (G, p)
+        Equilibrium outputs :math:`g(\bar x)` at the grid points.
+    K_x_norms : ndarray, shape (G,)
+        :math:`\|K_{\bar x}\|` at each grid point (NaN where excluded).
+    argmax_u : ndarray, shape (m,)
+        Grid input where the maximum is attained.
+    """
+
+    K_bar: float
+    u_grid: FloatArray
+    y_grid: FloatArray
+    K_x_norms: FloatArray
+    argmax_u: FloatArray
+
+
+def estimate_K_bar(
+    model: LSTMModel,
+    *,
+    u_max: float = 1.0,
+    y0_range: tuple[ArrayLike, ArrayLike] | None = None,
+    d_max: float = 0.1,
+    grid_points: int = 201,
+) -> KBarEstimate:
+    r"""Estimate :math:`\bar K` of Lemma 5 by gridding the equilibrium manifold.
+
+    At each equilibrium :math:`(\bar x, \bar u)` the implicit function theorem gives
+    :math:`K = -J_\zeta^{-1} [0_{2n,p}; I_p]` (proof of Lemma 5); :math:`K_{\bar x}` is
+    its first 2n rows and :math:`\bar K = \max \|K_{\bar x}\|`. The manifold is swept by
+    gridding :math:`\bar u \in \mathcal{U}`; with ``y0_range`` only points whose output
+    :math:`g(\bar x) = y^0 - \hat d` can occur for :math:`y^0` in the range and
+    :math:`\|\hat d\|_\infty \le d_{max}` are kept.
+    """
+    model.require_square()
+    n2, m, p = 2 * model.n, model.m, model.p
+    per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points
+    axes = [np.linspace(-u_max, u_max, per_channel)] * m
+    u_grid = np.array(list(itertools.product(*axes)), dtype=np.float64)
+    y_grid = np.empty((u_grid.shape[0], p))
+    norms = np.full(u_grid.shape[0], np.nan)
+    J = np.zeros((n2 + p, n2 + m))
+    J[n2:, model.n : n2] = model.W_y
+    rhs = np.vstack([np.zeros((n2, p)), np.eye(p)])
+    if y0_range is not None:
+        low = np.atleast_1d(np.asarray(y0_range[0], dtype=np.float64)) - d_max
+        high = np.atleast_1d(np.asarray(y0_range[1], dtype=np.float64)) + d_max
+    x_start = None
+    for k, u in enumerate(u_grid):
+        x_bar = model.equilibrium(u, x0=x_start)
+        x_start = x_bar
+        y_grid[k] = model.output(x_bar)
+        if y0_range is not None and (np.any(y_grid[k] < low) or np.any(y_grid[k] > high)):
+            continue
+        _, A, B = model.step_and_jacobians(x_bar, u)
+        J[:n2, :n2] = A - np.eye(n2)
+        J[:n2, n2:] = B
+        K = -np.linalg.solve(J, rhs)
+        norms[k] = np.linalg.norm(K[:n2], 2)
+    if np.all(np.isnan(norms)):
+        raise InvalidValueError(
+            f"no equilibrium output over U lies in y0_range +- d_max; outputs span "
+            f"[{y_grid.min(axis=0).tolist()}, {y_grid.max(axis=0).tolist()}]"
+        )
+    best = int(np.nanargmax(norms))
+    return KBarEstimate(
+        K_bar=float(norms[best]),
+        u_grid=u_grid,
+        y_grid=y_grid,
+        K_x_norms=norms,
+        argmax_u=u_grid[best].copy(),
+    )

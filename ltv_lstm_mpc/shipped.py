@@ -1,0 +1,32 @@
+"""Models and data files shipped inside the package (``ltv_lstm_mpc/data``)."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from .model import LSTMModel
+
+__all__ = ["load_model", "shipped_models", "shipped_path"]
+
+
+def shipped_models() -> list[str]:
+    """Names of the ``.npz`` models shipped in ``ltv_lstm_mpc/data``."""
+    folder = resources.files("ltv_lstm_mpc") / "data"
+    return sorted(entry.name for entry in folder.iterdir() if entry.name.endswith(".npz"))
+
+
+def shipped_path(name: str) -> Path:
+    """Path of a file shipped in ``ltv_lstm_mpc/data`` (e.g. ``"example_delta_iss_n3.npz"``)."""
+    candidate = resources.files("ltv_lstm_mpc") / "data" / name
+    if not candidate.is_file():
+        raise FileNotFoundError(f"no shipped file {name!r}; shipped models: {shipped_models()}")
+    return Path(str(candidate))
+
+
+def load_model(name_or_path: str | Path) -> LSTMModel:
+    """Load a model from a path, or by the name of a shipped model."""
+    path = Path(name_or_path)
+    if path.exists():
+        return LSTMModel.load(path)
+    return LSTMModel.load(shipped_path(str(name_or_path)))

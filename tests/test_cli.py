@@ -1,0 +1,60 @@
+"""The ``ltv-lstm-mpc`` command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ltv_lstm_mpc import CertificationSettings, certify, load_model
+from ltv_lstm_mpc.cli import main
+
+REQUIRED_KEYS = {
+    "rho_A_delta", "A_delta", "B_delta", "r1", "r2", "P_s", "rho_s", "c_s_l", "c_s_u", "c_s",
+    "A_d", "P_o", "rho_o", "c_o", "L_max", "w_max", "a", "b", "e_inf", "P_f", "y0_interval",
+    "K_bar", "inputs",
+}  # fmt: skip
+
+
+def test_certify_json_has_every_symbol_and_echoes_inputs(capsys) -> None:
+    assert main(["certify", "example_delta_iss_n3.npz", "--json", "--L-d", "0.1", "--N", "7"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert REQUIRED_KEYS <= set(data)
+    inputs = data["inputs"]
+    for key in ("u_max", "Q_s", "Q_o", "L_f", "L_i", "L_o", "L_d", "d_max", "w_bar", "Q", "N",
+                "y_min", "y_max"):  # fmt: skip
+        assert key in inputs
+    assert inputs["L_d"] == [[0.1]] and inputs["N"] == 7
+    assert len(data["a"]) == 8
+    # The same numbers as the library call with the echoed inputs.
+    model = load_model("example_delta_iss_n3.npz")
+    direct = certify(model, CertificationSettings(l_d=0.1, N=7))
+    assert data["rho_o"] == pytest.approx(direct.observer.rho_o, rel=1e-15)
+    np.testing.assert_allclose(data["a"], direct.tightening.a, rtol=1e-15)
+
+
+def test_certify_table_and_help(capsys) -> None:
+    assert main(["certify"]) == 0
+    out = capsys.readouterr().out
+    assert "rho_A_delta" in out and "y0_interval_phi" in out
+    with pytest.raises(SystemExit):
+        main(["certify", "--help"])
+    assert "--L-d" in capsys.readouterr().out
+
+
+def test_certify_errors_are_clean(capsys, tmp_path) -> None:
+    assert main(["certify", str(tmp_path / "missing.npz")]) == 1
+    assert "no shipped file" in capsys.readouterr().err
+    assert main(["certify", "--L-d", "3.0"]) == 1
+    assert "l_d must lie in (0, 2)" in capsys.readouterr().err
+
+
+def test_console_script_runs() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "ltv_lstm_mpc.cli", "certify", "--json"],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    assert json.loads(result.stdout)["is_delta_iss"] is True

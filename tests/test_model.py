@@ -1,0 +1,203 @@
+"""LSTMModel: dynamics, analytic Jacobians, equilibrium, file format, torch import, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from lstm_factories import random_delta_iss_lstm, random_lstm
+
+from ltv_lstm_mpc import (
+    DimensionError,
+    InvalidValueError,
+    LSTMModel,
+    LtvMpcError,
+    ModelFormatError,
+    Normalization,
+)
+from ltv_lstm_mpc.model import WEIGHT_NAMES
+
+
+def _sigmoid(z: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-z))
+
+
+def reference_step(model: LSTMModel, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """eq. (lstm) written out gate by gate, independent of the model's stacked matmul."""
+    c, h = x[: model.n], x[model.n :]
+    f = _sigmoid(model.W_f @ u + model.U_f @ h + model.b_f)
+    i = _sigmoid(model.W_i @ u + model.U_i @ h + model.b_i)
+    o = _sigmoid(model.W_o @ u + model.U_o @ h + model.b_o)
+    g = np.tanh(model.W_c @ u + model.U_c @ h + model.b_c)
+    c_next = f * c + i * g
+    return np.concatenate([c_next, o * np.tanh(c_next)])
+
+
+dims = st.tuples(st.integers(1, 5), st.integers(1, 3), st.integers(1, 3))
+
+
+@given(dims=dims, seed=st.integers(0, 2**32 - 1), scale=st.floats(0.1, 2.0))
+def test_step_matches_equations(dims: tuple[int, int, int], seed: int, scale: float) -> None:
+    n, m, p = dims
+    rng = np.random.default_rng(seed)
+    model = random_lstm(rng, n, m, p, scale=scale)
+    x = rng.normal(size=2 * n)
+    u = rng.normal(size=m)
+    np.testing.assert_allclose(
+        model.step(x, u), reference_step(model, x, u), rtol=1e-13, atol=1e-14
+    )
+    np.testing.assert_allclose(model.output(x), model.W_y @ x[n:] + model.b_y, rtol=1e-13)
+
+
+@given(dims=dims, seed=st.integers(0, 2**32 - 1), scale=st.floats(0.1, 2.0))
+def test_jacobians_match_central_differences(
+    dims: tuple[int, int, int], seed: int, scale: float
+) -> None:
+    n, m, p = dims
+    rng = np.random.default_rng(seed)
+    model = random_lstm(rng, n, m, p, scale=scale)
+    x = rng.normal(size=2 * n)
+    u = rng.normal(size=m)
+    A, B = model.jacobians(x, u)
+    eps = 1e-6
+    A_fd = np.column_stack(
+        [
+            (model.step(x + eps * e, u) - model.step(x - eps * e, u)) / (2 * eps)
+            for e in np.eye(2 * n)
+        ]
+    )
+    B_fd = np.column_stack(
+        [(model.step(x, u + eps * e) - model.step(x, u - eps * e)) / (2 * eps) for e in np.eye(m)]
+    )
+    assert A.shape == (2 * n, 2 * n) and B.shape == (2 * n, m)
+    np.testing.assert_allclose(A, A_fd, atol=1e-8)
+    np.testing.assert_allclose(B, B_fd, atol=1e-8)
+
+
+def test_batched_jacobians_equal_pointwise() -> None:
+    rng = np.random.default_rng(3)
+    model = random_lstm(rng, 4, 2, 2)
+    X = rng.normal(size=(6, 8))
+    U = rng.normal(size=(6, 2))
+    X_next, A, B = model.step_and_jacobians(X, U)
+    for k in range(6):
+        A_k, B_k = model.jacobians(X[k], U[k])
+        np.testing.assert_allclose(A[k], A_k, rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(B[k], B_k, rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(X_next[k], model.step(X[k], U[k]), rtol=1e-14)
+
+
+def test_simulate_alignment_and_shapes() -> None:
+    rng = np.random.default_rng(4)
+    model = random_lstm(rng, 3, 1, 1)
+    x0 = rng.normal(size=6) * 0.1
+    u_seq = rng.uniform(-1, 1, size=10)
+    states, outputs = model.simulate(x0, u_seq)
+    assert states.shape == (11, 6) and outputs.shape == (11, 1)
+    np.testing.assert_array_equal(states[0], x0)
+    np.testing.assert_allclose(states[5], model.step(states[4], u_seq[4:5]))
+    # No feed-through: outputs[k] depends on h_k only.
+    np.testing.assert_allclose(outputs[3], model.W_y @ states[3, 3:] + model.b_y)
+
+
+@given(seed=st.integers(0, 2**32 - 1), u=st.floats(-1, 1))
+def test_equilibrium_is_fixed_point_and_attractive(seed: int, u: float) -> None:
+    rng = np.random.default_rng(seed)
+    model = random_delta_iss_lstm(rng, 3)
+    x_eq = model.equilibrium(np.array([u]))
+    np.testing.assert_allclose(model.step(x_eq, [u]), x_eq, atol=1e-12)
+    # Lemma 3: trajectories under constant u converge to the unique equilibrium.
+    states, _ = model.simulate(rng.uniform(-0.5, 0.5, size=6), np.full(400, u))
+    np.testing.assert_allclose(states[-1], x_eq, atol=1e-9)
+
+
+def test_save_load_roundtrip(tmp_path) -> None:
+    rng = np.random.default_rng(5)
+    model = random_delta_iss_lstm(rng, 3, normalization=True)
+    path = model.save(tmp_path / "model.npz")
+    loaded = LSTMModel.load(path)
+    for name in WEIGHT_NAMES:
+        np.testing.assert_array_equal(getattr(loaded, name), getattr(model, name))
+    assert loaded.normalization is not None
+    np.testing.assert_array_equal(loaded.normalization.y_phi_max, [9.1])
+    with np.load(path) as data:
+        assert set(data.files) == set(WEIGHT_NAMES) | {
+            "u_phi_min",
+            "u_phi_max",
+            "y_phi_min",
+            "y_phi_max",
+        }
+
+
+def test_normalization_maps_are_inverse_and_hit_bounds() -> None:
+    norm = Normalization(np.array([12.5]), np.array([17.0]), np.array([5.9]), np.array([9.1]))
+    np.testing.assert_allclose(norm.normalize_u([12.5, 17.0]), [-1.0, 1.0])
+    np.testing.assert_allclose(norm.normalize_y(7.5), 0.0)
+    values = np.linspace(5, 10, 7)
+    np.testing.assert_allclose(norm.denormalize_y(norm.normalize_y(values)), values)
+    with pytest.raises(InvalidValueError, match="y_phi_max must be strictly greater"):
+        Normalization(np.array([0.0]), np.array([1.0]), np.array([2.0]), np.array([1.0]))
+
+
+def test_missing_key_and_bad_shape_and_nan_errors(tmp_path) -> None:
+    rng = np.random.default_rng(6)
+    arrays = random_lstm(rng, 3).weights()
+    partial = {k: v for k, v in arrays.items() if k != "U_c"}
+    np.savez(tmp_path / "partial.npz", **partial)
+    with pytest.raises(ModelFormatError, match=r"missing weight array\(s\) \['U_c'\]"):
+        LSTMModel.load(tmp_path / "partial.npz")
+    bad = dict(arrays, U_o=np.zeros((3, 2)))
+    with pytest.raises(DimensionError, match=r"U_o has shape \(3, 2\), expected \(3, 3\)"):
+        LSTMModel(**bad)
+    bad = dict(arrays, b_i=np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(InvalidValueError, match="b_i contains NaN"):
+        LSTMModel(**bad)
+    bad = dict(arrays, extra=np.zeros(2))
+    with pytest.raises(ModelFormatError, match="unexpected array"):
+        LSTMModel.from_arrays(bad)
+    model = LSTMModel(**arrays)
+    with pytest.raises(DimensionError, match=r"x has shape \(5,\), expected \(\.\.\., 6\)"):
+        model.step(np.zeros(5), [0.0])
+    with pytest.raises(LtvMpcError, match="no normalization"):
+        model.normalize_y(7.0)
+
+
+def test_require_square_names_m_and_p() -> None:
+    model = random_lstm(np.random.default_rng(7), 3, 2, 1)
+    with pytest.raises(DimensionError, match="m=2 inputs and p=1 outputs"):
+        model.require_square()
+
+
+@pytest.mark.torch
+def test_from_torch_state_dict_matches_torch_lstm() -> None:
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(0)
+    n, m, p, T = 4, 2, 1, 12
+    lstm = torch.nn.LSTM(m, n, batch_first=True).double()
+    linear = torch.nn.Linear(n, p).double()
+    state = {f"lstm.{k}": v for k, v in lstm.state_dict().items()}
+    state.update({f"head.{k}": v for k, v in linear.state_dict().items()})
+    model = LSTMModel.from_torch_state_dict(state)
+    u = torch.randn(1, T, m, dtype=torch.float64)
+    with torch.no_grad():
+        h_seq, _ = lstm(u)
+        y_torch = linear(h_seq)[0].numpy()
+    _, outputs = model.simulate(np.zeros(2 * n), u[0].numpy())
+    # torch's output after reading u_k is h_{k+1}: the model's outputs shifted by one (SPEC 1).
+    np.testing.assert_allclose(outputs[1:], y_torch, rtol=1e-12, atol=1e-12)
+
+
+def test_from_state_dict_rejects_multilayer() -> None:
+    rng = np.random.default_rng(8)
+    fake = {
+        "weight_ih_l0": rng.normal(size=(8, 1)),
+        "weight_hh_l0": rng.normal(size=(8, 2)),
+        "bias_ih_l0": np.zeros(8),
+        "bias_hh_l0": np.zeros(8),
+        "weight_ih_l1": rng.normal(size=(8, 2)),
+        "weight": rng.normal(size=(1, 2)),
+        "bias": np.zeros(1),
+    }
+    with pytest.raises(ModelFormatError, match="single-layer"):
+        LSTMModel.from_torch_state_dict(fake)

@@ -1,0 +1,116 @@
+"""Reference calculator, eq. (reference_calculation), and K_bar of Lemma 5."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from lstm_factories import random_delta_iss_lstm
+
+from ltv_lstm_mpc import (
+    DimensionError,
+    InvalidValueError,
+    Observer,
+    ObserverGains,
+    ReferenceCalculator,
+    UnreachableSetpointError,
+    estimate_K_bar,
+    load_model,
+)
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 5), u_star=st.floats(-0.95, 0.95),
+       d_hat=st.floats(-0.1, 0.1))  # fmt: skip
+def test_reference_residual_on_random_models(
+    seed: int, n: int, u_star: float, d_hat: float
+) -> None:
+    rng = np.random.default_rng(seed)
+    model = random_delta_iss_lstm(rng, n)
+    y_star = model.output(model.equilibrium(np.array([u_star])))
+    y0 = y_star + d_hat  # reachable by construction: u_bar = u_star
+    calculator = ReferenceCalculator(model)
+    solution = calculator.solve(y0, [d_hat])
+    assert solution.converged and solution.u_admissible
+    assert solution.residual < 1e-10
+    np.testing.assert_allclose(
+        model.step(solution.x_bar, solution.u_bar), solution.x_bar, atol=1e-10
+    )
+    np.testing.assert_allclose(model.output(solution.x_bar) + d_hat, y0, atol=1e-10)
+    grid_y = calculator._grid_y[:, 0]
+    if np.all(np.diff(grid_y) > 0) or np.all(np.diff(grid_y) < 0):
+        # Monotone equilibrium map: the solution is unique (Assumption 4), so u_bar = u_star.
+        np.testing.assert_allclose(solution.u_bar, [u_star], atol=1e-7)
+    assert np.isfinite(solution.jacobian_condition)
+    # Warm start: a nearby set-point converges in few iterations.
+    u_near = u_star - 0.01 * np.sign(u_star)
+    nearby = calculator.solve(model.output(model.equilibrium(np.array([u_near]))) + d_hat, [d_hat])
+    assert nearby.residual < 1e-10 and nearby.iterations <= 4
+
+
+def test_unreachable_setpoint_raises_or_flags() -> None:
+    model = load_model("example_delta_iss_n3.npz")
+    calculator = ReferenceCalculator(model)
+    _low, high = calculator.reachable_output_range
+    with pytest.raises(UnreachableSetpointError, match="not reachable") as info:
+        calculator.solve(high + 0.5, [0.0])
+    assert "spans" in str(info.value)
+    flagged = ReferenceCalculator(model, strict=False).solve(high + 0.5, [0.0])
+    assert not flagged.ok
+    assert not flagged.u_admissible or not flagged.converged
+
+
+def test_reference_input_validation() -> None:
+    calculator = ReferenceCalculator(load_model("example_delta_iss_n3.npz"))
+    with pytest.raises(DimensionError, match=r"y0 has shape \(2,\), expected \(1,\)"):
+        calculator.solve([0.0, 0.1], [0.0])
+    with pytest.raises(InvalidValueError, match="d_hat contains NaN"):
+        calculator.solve([0.0], [np.nan])
+
+
+def test_K_bar_matches_finite_difference_of_the_reference_map() -> None:
+    model = load_model("example_delta_iss_n3.npz")
+    estimate = estimate_K_bar(model, grid_points=41)
+    calculator = ReferenceCalculator(model)
+    h = 1e-6
+    for k in range(
+        1, 40, 4
+    ):  # interior points; ||K_x|| (Lemma 5's proof) = sensitivity of x_bar to y0
+        y = estimate.y_grid[k]
+        a = calculator.solve(y - h, [0.0]).x_bar
+        b = calculator.solve(y + h, [0.0]).x_bar
+        np.testing.assert_allclose(
+            np.linalg.norm(b - a) / (2 * h), estimate.K_x_norms[k], rtol=1e-4
+        )
+    assert estimate.K_bar == pytest.approx(np.max(estimate.K_x_norms))
+    restricted = estimate_K_bar(model, y0_range=([-0.2], [0.2]), d_max=0.1, grid_points=41)
+    assert restricted.K_bar < estimate.K_bar
+    kept = ~np.isnan(restricted.K_x_norms)
+    assert kept.any() and not kept.all()
+    assert np.all(np.abs(restricted.y_grid[kept, 0]) <= 0.3 + 1e-12)
+
+
+def test_observer_initialization_at_matching_equilibrium() -> None:
+    model = load_model("example_delta_iss_n3.npz")
+    observer = Observer(model, ObserverGains.disturbance_only(model, 0.1), d_max=0.1)
+    observer.initialize([0.3])
+    np.testing.assert_allclose(observer.y_hat, [0.3], atol=1e-10)
+    np.testing.assert_array_equal(observer.d_hat, [0.0])
+    # It is an equilibrium: one step with the matching input leaves it unchanged.
+    u_eq = ReferenceCalculator(model).solve([0.3], [0.0]).u_bar
+    x_before = observer.x_hat.copy()
+    observer.step([0.3], u_eq)
+    np.testing.assert_allclose(observer.x_hat, x_before, atol=1e-10)
+    with pytest.warns(RuntimeWarning, match="no LSTM equilibrium"):
+        observer.initialize([5.0])
+
+
+def test_observer_saturates_disturbance_and_checks_shapes() -> None:
+    model = random_delta_iss_lstm(np.random.default_rng(0), 2)
+    observer = Observer(model, ObserverGains.disturbance_only(model, 1.0), d_max=0.1)
+    _, d_hat = observer.step([10.0], [0.0])
+    np.testing.assert_array_equal(d_hat, [0.1])
+    with pytest.raises(DimensionError, match=r"u has shape \(2,\)"):
+        observer.step([0.0], [0.0, 1.0])
+    with pytest.raises(InvalidValueError):
+        observer.step([np.inf], [0.0])
