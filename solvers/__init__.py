@@ -1,9 +1,130 @@
 """Convex-subproblem solver layer, installed as :mod:`ltv_lstm_mpc.solvers`.
 
 It knows nothing about LSTMs: it takes a problem data class (matrices and
-cones) and returns a solution data class.
+cones) and returns a solution data class. The RTI controller poses one such
+subproblem per step (SPEC section 4).
+
+Representation
+--------------
+:class:`ConvexProblem` (``problem.py``)
+
+.. math::
+
+    \\min_z \\tfrac12 z^\\top P z + q^\\top z \\;\\text{s.t.}\\;
+    A_{eq} z = b_{eq},\\; l \\le G z \\le u,\\; lb \\le z \\le ub,\\;
+    \\|F_j z + g_j\\|_2 \\le e_j^\\top z + f_j \\;(\\text{SecondOrderCone}).
+
+Shapes and values are checked at construction; ``save``/``load`` round-trip
+through ``.npz`` (sparse as data/indices/indptr) so a subproblem met in a
+closed loop can be replayed offline; ``structure_key()`` hashes shapes,
+sparsity patterns and the finite-bound pattern; ``with_values(...)`` builds a
+problem with new values (a matrix may be given as its new ``.data``).
+
+:class:`Solution`: ``status`` (:class:`SolverStatus`: OPTIMAL,
+OPTIMAL_INACCURATE, INFEASIBLE, UNBOUNDED, MAX_ITER, FAILED, mapped from each
+backend's ``STATUS_MAP`` table, unknown codes -> FAILED with the code in
+``info``), ``z``, ``objective`` (computed by us), ``duals``, ``setup_time``,
+``solve_time`` (the solver's own), ``overhead_time`` (cvxpy canonicalization,
+parameter mapping, conversions), ``iterations``, ``backend``, ``solver``,
+``reformulation``, ``info``.
+
+Backends (``available_solvers()`` lists the installed ones)
+-----------------------------------------------------------
+============================  ===========================================================
+name                          what it is
+============================  ===========================================================
+``cvxpy:<SOLVER>``            ``cvxpy_.py``: one DPP problem per structure (all matrix
+                              nonzeros in one Parameter, all vectors in another), re-solved
+                              with new values. CLARABEL, ECOS, SCS take cones; OSQP, PIQP,
+                              PROXQP, DAQP, HIGHS take QPs. The flexible, exact-cone path
+                              (ms per solve), not the real-time one.
+``qpsolvers:<name>``          ``qpsolvers_.py``: every ``qpsolvers.available_solvers``
+                              entry, sparse or dense as the solver prefers. No in-place
+                              update (a session re-runs setup, recorded).
+``osqp``                      ``osqp_.py``: native OSQP, setup once, ``update(Px, Ax, q, l,
+                              u)``, warm start with primal and dual.
+``piqp``, ``piqp:sparse``,    ``piqp_.py``: native PIQP ``SparseSolver``/``DenseSolver``
+``piqp:dense``                (``piqp`` picks by density), setup once, ``update``.
+``daqp``                      ``daqp_.py``: native DAQP ``Model`` (dense active set),
+                              warm start through the working set; fastest on small
+                              condensed problems.
+============================  ===========================================================
+
+``Session(solver, tolerance=..., reformulation=None, **settings)`` keeps one
+workspace per structure: ``setup(problem)``, then ``update(problem)`` (same
+``structure_key``; backends that cannot update in place are set up afresh,
+recorded in ``Session.last_update`` and ``Solution.info``) and
+``solve(warm_start=None)``. ``solve(problem, solver, ...)`` is the one-shot
+form. ``warm_start=None`` is always a cold start; a backend that cannot warm
+start (PIQP, cvxpy:PROXQP) ignores a warm start and says so in ``info``.
+
+Tolerance
+---------
+One ``tolerance`` (default ``1e-8``) is mapped to each solver's own options
+(:data:`tolerances.TOLERANCE_OPTIONS`); user settings override them:
+
+=========  ==================================================================
+clarabel   ``tol_gap_abs``, ``tol_gap_rel``, ``tol_feas``
+daqp       ``primal_tol``, ``dual_tol``
+ecos       ``abstol``, ``reltol``, ``feastol``
+highs      ``primal_feasibility_tolerance``, ``dual_feasibility_tolerance``
+osqp       ``eps_abs``, ``eps_rel``
+piqp       ``eps_abs``, ``eps_rel``, ``eps_duality_gap_abs``, ``eps_duality_gap_rel``
+proxqp     ``eps_abs`` (and ``eps_rel = 0``: ProxQP's relative test is loose)
+quadprog   none (solves to machine precision)
+scs        ``eps_abs``, ``eps_rel``
+=========  ==================================================================
+
+Settings whose names the installed package exposes (osqp, piqp, daqp,
+clarabel, ecos, quadprog) are checked and unknown names rejected with
+:class:`~ltv_lstm_mpc.exceptions.InvalidValueError`; others are passed through
+to the solver's interface. ``verbose`` defaults to ``False``; PIQP's
+``compute_timings`` to ``True``.
+
+Cones on QP-only backends
+-------------------------
+Cones are never dropped. Without a ``reformulation`` a QP-only backend refuses
+a problem with cones (``InvalidValueError`` naming the cone solvers). A
+:class:`ConeReformulation` (``name``, ``apply(problem) -> ConvexProblem``)
+must return a cone-free problem whose feasible set is **inside** the original
+one (conservative), keeping the original variables first (it may append
+auxiliaries and bound the objective from above). It is applied only when the
+backend needs it, and ``Solution.reformulation`` records its name.
+:class:`PolyhedralInnerApproximation` is the generic one
+(``|F_i z + g_i| <= (e'z + f)/sqrt(k)``); the controller supplies the SPEC 4
+terminal-set and terminal-cost ones.
+
+A missing or unknown solver raises :class:`~ltv_lstm_mpc.exceptions.SolverNotFound`
+(an ``ImportError``) that lists the installed ones and
+``pip install "ltv_lstm_mpc[solvers]"``.
 """
 
 from __future__ import annotations
 
-__all__: list[str] = []
+from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus
+from .reformulation import ConeReformulation, PolyhedralInnerApproximation
+from .registry import (
+    DEFAULT_SOLVER,
+    Session,
+    available_solvers,
+    cone_solvers,
+    get_backend,
+    solve,
+)
+from .tolerances import TOLERANCE_OPTIONS
+
+__all__ = [
+    "DEFAULT_SOLVER",
+    "TOLERANCE_OPTIONS",
+    "ConeReformulation",
+    "ConvexProblem",
+    "PolyhedralInnerApproximation",
+    "SecondOrderCone",
+    "Session",
+    "Solution",
+    "SolverStatus",
+    "available_solvers",
+    "cone_solvers",
+    "get_backend",
+    "solve",
+]

@@ -1,0 +1,374 @@
+"""cvxpy backend (``"cvxpy:<SOLVER>"``): one DPP problem per structure, re-solved with new values.
+
+Construction (once per :meth:`ConvexProblem.structure_key`)
+    All matrix nonzeros live in ONE parameter vector ``theta`` and all vector
+    data in ONE parameter vector ``beta`` (PERF-NOTES: one parameter per stage
+    made assignment alone cost milliseconds). A sparse product ``M z`` is
+    written with the *parameter-on-nonzeros* trick,
+
+    .. math:: M z = R \\,(\\theta_M \\circ (C z)),
+
+    where the constant selectors ``C`` (nnz x n, picks ``z[col_k]``) and ``R``
+    (rows x nnz, sums into ``row_k``) encode the pattern; ``theta_M * (C z)`` is
+    a parameter times a parameter-free expression, so the problem is DPP and
+    cvxpy caches its canonicalization after the first solve.
+
+Objective
+    ``quad_form(z, P)`` with a parameter ``P`` is not DPP, so the objective is
+    ``1/2 ||L z||^2 + q'z`` with ``L'L = P``. ``L`` has a fixed pattern: one
+    dense block per connected component of the sparsity graph of ``P``
+    (``L_k = diag(sqrt(max(w, 0))) V'`` from ``eigh`` of the block, batched over
+    blocks of equal size), so block-diagonal MPC Hessians stay cheap.
+
+Infinite bounds
+    Only rows with a finite ``l``/``u``/``lb``/``ub`` are constraints; which
+    ones is part of the structure key.
+
+Timing
+    ``setup_time`` is the construction of the ``cp.Problem`` plus the solver's
+    own setup time when cvxpy reports one; ``solve_time`` is
+    ``problem.solver_stats.solve_time``; ``overhead_time`` is everything else
+    of ``problem.solve`` (canonicalization on the first solve, DPP parameter
+    mapping afterwards, retrieval).
+
+Warm start
+    ``warm_start`` sets ``z.value`` and calls ``solve(warm_start=True)``: cvxpy
+    then reuses the solver's cached workspace / previous iterate (OSQP, SCS, ...)
+    or the variable values (solver dependent). ``warm_start=None`` solves with
+    ``warm_start=False``. ``cvxpy:PROXQP`` ignores a warm start (noted in
+    ``info``): cvxpy 1.9.3 with proxsuite 0.8 raises ``TypeError`` in
+    ``update()`` (PERF-NOTES).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ltv_lstm_mpc.exceptions import SolverError
+
+from ._base import (
+    Backend,
+    FloatArray,
+    RawResult,
+    WarmStart,
+    check_settings,
+    map_status,
+    warm_start_vectors,
+)
+from .problem import ConvexProblem, SolverStatus
+from .tolerances import known_settings, solver_options
+
+#: cvxpy status string -> SolverStatus.
+STATUS_MAP: Mapping[str, SolverStatus] = {
+    "optimal": SolverStatus.OPTIMAL,
+    "optimal_inaccurate": SolverStatus.OPTIMAL_INACCURATE,
+    "infeasible": SolverStatus.INFEASIBLE,
+    "infeasible_inaccurate": SolverStatus.INFEASIBLE,
+    "unbounded": SolverStatus.UNBOUNDED,
+    "unbounded_inaccurate": SolverStatus.UNBOUNDED,
+    "infeasible_or_unbounded": SolverStatus.FAILED,
+    "user_limit": SolverStatus.MAX_ITER,
+    "solver_error": SolverStatus.FAILED,
+}
+
+#: cvxpy solvers that take second-order cones (others get QPs only).
+CONE_SOLVERS = frozenset({"CLARABEL", "ECOS", "SCS"})
+#: cvxpy solvers offered by the registry when installed.
+SUPPORTED = ("CLARABEL", "ECOS", "SCS", "OSQP", "PIQP", "PROXQP", "DAQP", "HIGHS")
+#: cvxpy-level keyword accepted next to the native settings.
+_INTERFACE_SETTINGS = ("verbose",)
+#: cvxpy solvers whose warm start is broken in the installed stack (see module docstring).
+_NO_WARM_START = frozenset({"PROXQP"})
+
+IntArray = npt.NDArray[np.int64]
+
+
+class _Pattern:
+    """Row/column indices (CSC order) of a matrix pattern and its cvxpy product."""
+
+    def __init__(self, rows: IntArray, cols: IntArray, shape: tuple[int, int]) -> None:
+        self.rows = rows
+        self.cols = cols
+        self.shape = shape
+        nnz = rows.size
+        self.C = sp.csc_matrix((np.ones(nnz), (np.arange(nnz), cols)), shape=(nnz, shape[1]))
+        self.R = sp.csc_matrix((np.ones(nnz), (rows, np.arange(nnz))), shape=(shape[0], nnz))
+
+    @classmethod
+    def of(cls, mat: sp.csc_matrix) -> _Pattern:
+        cols = np.repeat(np.arange(mat.shape[1]), np.diff(mat.indptr)).astype(np.int64)
+        return cls(np.asarray(mat.indices, dtype=np.int64), cols, mat.shape)
+
+    def product(self, values: Any, z: Any) -> Any:
+        import cvxpy as cp
+
+        if self.rows.size == 0:
+            return cp.Constant(np.zeros(self.shape[0]))
+        return self.R @ cp.multiply(values, self.C @ z)
+
+
+class _HessianFactor:
+    """Fixed-pattern factor ``L`` with ``L'L = P``: one dense block per component of ``P``."""
+
+    def __init__(self, P: sp.csc_matrix) -> None:
+        n = P.shape[0]
+        n_comp, labels = connected_components(P, directed=False)
+        has_entry = np.zeros(n, dtype=bool)
+        has_entry[np.asarray(P.indices)] = True
+        groups: dict[int, list[IntArray]] = {}
+        for c in range(n_comp):
+            idx = np.flatnonzero(labels == c).astype(np.int64)
+            if idx.size == 1 and not has_entry[idx[0]]:
+                continue  # variable absent from P
+            groups.setdefault(idx.size, []).append(idx)
+        self.groups = {b: np.stack(v) for b, v in groups.items()}  # size -> (K, b)
+        rows: list[IntArray] = []
+        cols: list[IntArray] = []
+        row0 = 0
+        for b, idx in self.groups.items():
+            K = idx.shape[0]
+            # block k, factor row i, column j -> row row0 + k*b + i, column idx[k, j]
+            r_blk = row0 + np.arange(K)[:, None, None] * b + np.arange(b)[None, :, None]
+            c_blk = np.broadcast_to(idx[:, None, :], (K, b, b))
+            rows.append(np.broadcast_to(r_blk, (K, b, b)).ravel())
+            cols.append(c_blk.ravel())
+            row0 += K * b
+        self.n_rows = row0
+        self.pattern = _Pattern(
+            np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64),
+            np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64),
+            (row0, n),
+        )
+
+    def values(self, P: sp.csc_matrix) -> FloatArray:
+        """Nonzero values of ``L`` in pattern order."""
+        if not self.groups:
+            return np.zeros(0)
+        Pd = P.toarray()
+        out = []
+        for idx in self.groups.values():
+            blocks = Pd[idx[:, :, None], idx[:, None, :]]  # (K, b, b)
+            w, V = np.linalg.eigh(blocks)
+            L = np.sqrt(np.maximum(w, 0.0))[:, :, None] * np.swapaxes(V, 1, 2)
+            out.append(L.ravel())
+        return np.concatenate(out)
+
+
+class CvxpyBackend(Backend):
+    """Persistent DPP cvxpy problem for one structure."""
+
+    backend: ClassVar[str] = "cvxpy"
+    supports_update: ClassVar[bool] = True
+    supports_warm_start: ClassVar[bool] = True
+
+    def __init__(
+        self, name: str, solver: str, tolerance: float, settings: Mapping[str, Any]
+    ) -> None:
+        """``solver`` is the cvxpy solver name (``"CLARABEL"``, ``"OSQP"``, ...)."""
+        known = known_settings(solver)
+        if known is not None:
+            extra = ("backend",) if solver == "PIQP" else ()
+            known = (*known, *_INTERFACE_SETTINGS, *extra)
+        check_settings(f"cvxpy:{solver}", settings, known)
+        super().__init__(name, solver, solver_options(solver, tolerance, settings))
+
+    def handles_cones(self) -> bool:
+        """Cones are solved exactly by CLARABEL, ECOS and SCS."""
+        return self.solver in CONE_SOLVERS
+
+    def _beta(self, problem: ConvexProblem) -> FloatArray:
+        parts: list[FloatArray] = [np.asarray(problem.q)]
+        if problem.b_eq is not None:
+            parts.append(np.asarray(problem.b_eq))
+        if problem.G is not None:
+            parts += [np.asarray(problem.u)[self._iu], np.asarray(problem.l)[self._il]]
+        if problem.lb is not None:
+            parts += [np.asarray(problem.ub)[self._iub], np.asarray(problem.lb)[self._ilb]]
+        for cone in problem.cones:
+            parts += [np.asarray(cone.g), np.asarray([cone.f])]
+        return np.concatenate(parts)
+
+    def setup(self, problem: ConvexProblem) -> None:
+        """Build the DPP problem (its canonicalization happens at the first solve)."""
+        import cvxpy as cp
+
+        n = problem.n_variables
+        self._n, self._p, self._m = n, problem.n_eq, problem.n_ineq
+        self._factor = _HessianFactor(problem.P)
+        self._iu = self._il = self._iub = self._ilb = np.zeros(0, dtype=np.int64)
+        if problem.G is not None:
+            self._iu = np.flatnonzero(np.isfinite(np.asarray(problem.u)))
+            self._il = np.flatnonzero(np.isfinite(np.asarray(problem.l)))
+        if problem.lb is not None:
+            self._iub = np.flatnonzero(np.isfinite(np.asarray(problem.ub)))
+            self._ilb = np.flatnonzero(np.isfinite(np.asarray(problem.lb)))
+        # The e-patterns are taken from the setup problem; later problems must share them.
+        self._e_patterns = [np.flatnonzero(cone.e) for cone in problem.cones]
+
+        theta_sizes = [self._factor.pattern.rows.size]
+        theta_sizes += [m.nnz for m in (problem.A_eq, problem.G) if m is not None]
+        for cone, e_idx in zip(problem.cones, self._e_patterns, strict=True):
+            theta_sizes += [cone.F.nnz, e_idx.size]
+        beta_size = n + problem.n_eq + self._iu.size + self._il.size
+        beta_size += self._iub.size + self._ilb.size
+        beta_size += sum(cone.dim + 1 for cone in problem.cones)
+
+        z = cp.Variable(n, name="z")
+        theta = cp.Parameter(int(sum(theta_sizes)), name="theta")
+        beta = cp.Parameter(beta_size, name="beta")
+        self._z, self._theta_par, self._beta_par = z, theta, beta
+        t_off = 0
+        b_off = 0
+
+        def take_theta(k: int) -> Any:
+            nonlocal t_off
+            sl = theta[t_off : t_off + k]
+            t_off += k
+            return sl
+
+        def take_beta(k: int) -> Any:
+            nonlocal b_off
+            sl = beta[b_off : b_off + k]
+            b_off += k
+            return sl
+
+        Lz = self._factor.pattern.product(take_theta(self._factor.pattern.rows.size), z)
+        q = take_beta(n)
+        objective = 0.5 * cp.sum_squares(Lz) + q @ z if self._factor.n_rows else q @ z
+        constraints: list[Any] = []
+        self._con: dict[str, Any] = {}
+        if problem.A_eq is not None:
+            Az = _Pattern.of(problem.A_eq).product(take_theta(problem.A_eq.nnz), z)
+            self._con["eq"] = Az == take_beta(problem.n_eq)
+            constraints.append(self._con["eq"])
+        if problem.G is not None:
+            Gz = _Pattern.of(problem.G).product(take_theta(problem.G.nnz), z)
+            if self._iu.size:
+                self._con["ineq_u"] = Gz[self._iu] <= take_beta(self._iu.size)
+                constraints.append(self._con["ineq_u"])
+            if self._il.size:
+                self._con["ineq_l"] = Gz[self._il] >= take_beta(self._il.size)
+                constraints.append(self._con["ineq_l"])
+        if problem.lb is not None:
+            if self._iub.size:
+                self._con["ub"] = z[self._iub] <= take_beta(self._iub.size)
+                constraints.append(self._con["ub"])
+            if self._ilb.size:
+                self._con["lb"] = z[self._ilb] >= take_beta(self._ilb.size)
+                constraints.append(self._con["lb"])
+        for cone, e_idx in zip(problem.cones, self._e_patterns, strict=True):
+            Fz = _Pattern.of(cone.F).product(take_theta(cone.F.nnz), z)
+            e_val = take_theta(e_idx.size)
+            g = take_beta(cone.dim)
+            f = take_beta(1)
+            lhs = cp.sum(cp.multiply(e_val, z[e_idx])) + f[0] if e_idx.size else f[0]
+            constraints.append(cp.SOC(lhs, Fz + g))
+        self._problem = cp.Problem(cp.Minimize(objective), constraints)
+        if not self._problem.is_dpp():  # pragma: no cover - guarded by construction
+            raise SolverError("internal error: the cvxpy problem is not DPP")
+        self._assign(problem)
+
+    def _assign(self, problem: ConvexProblem) -> None:
+        parts = [self._factor.values(problem.P)]
+        parts += [np.asarray(m.data) for m in (problem.A_eq, problem.G) if m is not None]
+        for cone, e_idx in zip(problem.cones, self._e_patterns, strict=True):
+            parts += [np.asarray(cone.F.data), np.asarray(cone.e)[e_idx]]
+        self._theta_par.value = np.concatenate(parts)
+        self._beta_par.value = self._beta(problem)
+
+    def update(self, problem: ConvexProblem) -> None:
+        """Assign the parameter values of ``problem`` (same structure)."""
+        self._assign(problem)
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        """Solve the DPP problem with the current parameter values."""
+        import cvxpy as cp
+
+        z0, _ = warm_start_vectors(warm_start, self._n)
+        notes: list[str] = []
+        use_warm = z0 is not None
+        if use_warm and self.solver in _NO_WARM_START:
+            notes.append(
+                f"warm start ignored: cvxpy:{self.solver} fails on warm start "
+                "(cvxpy 1.9.3 + proxsuite 0.8 TypeError in update())"
+            )
+            use_warm = False
+        if use_warm:
+            self._z.value = z0
+        options = {"verbose": False, **self.options}
+        try:
+            self._problem.solve(solver=self.solver, warm_start=use_warm, **options)
+        except cp.error.SolverError as exc:
+            return RawResult(
+                status=SolverStatus.FAILED,
+                native_status=f"cvxpy SolverError: {exc}",
+                z=None,
+                duals=None,
+                solve_time=0.0,
+                iterations=None,
+                notes=tuple(notes),
+            )
+        stats = self._problem.solver_stats
+        status, note = map_status(STATUS_MAP, self._problem.status)
+        if note:
+            notes.append(note)
+        z = duals = None
+        if status.has_solution and self._z.value is not None:
+            z = np.array(self._z.value, dtype=np.float64)
+            duals = self._duals()
+        solve_time = stats.solve_time if stats.solve_time is not None else 0.0
+        return RawResult(
+            status=status,
+            native_status=str(self._problem.status),
+            z=z,
+            duals=duals,
+            solve_time=float(solve_time),
+            iterations=None if stats.num_iters is None else int(stats.num_iters),
+            extra_setup_time=float(stats.setup_time or 0.0),
+            notes=tuple(notes),
+        )
+
+    def _dual(self, key: str) -> FloatArray | None:
+        con = self._con.get(key)
+        if con is None or con.dual_value is None:
+            return None
+        return np.atleast_1d(np.asarray(con.dual_value, dtype=np.float64))
+
+    def _duals(self) -> dict[str, FloatArray] | None:
+        eq = self._dual("eq")
+        ineq = np.zeros(self._m)
+        bounds = np.zeros(self._n)
+        for key, idx, sign, out in (
+            ("ineq_u", self._iu, 1.0, ineq),
+            ("ineq_l", self._il, -1.0, ineq),
+            ("ub", self._iub, 1.0, bounds),
+            ("lb", self._ilb, -1.0, bounds),
+        ):
+            if idx.size:
+                d = self._dual(key)
+                if d is None:
+                    return None
+                np.add.at(out, idx, sign * d)
+        if self._p and eq is None:
+            return None
+        return {"eq": np.zeros(0) if eq is None else eq, "ineq": ineq, "bounds": bounds}
+
+
+def supported_solvers(installed: Sequence[str]) -> list[str]:
+    """The cvxpy solvers of ``installed`` this backend offers, in :data:`SUPPORTED` order."""
+    return [s for s in SUPPORTED if s in installed]
+
+
+def factory(solver: str) -> Any:
+    """Registry factory for ``"cvxpy:<solver>"``."""
+
+    def make(name: str, tolerance: float, settings: Mapping[str, Any]) -> Backend:
+        return CvxpyBackend(name, solver, tolerance, settings)
+
+    return make

@@ -1,0 +1,285 @@
+"""Random test problems: generic QPs/SOCPs and MPC-shaped subproblems (SPEC section 4).
+
+Every generator builds a strictly feasible point first and derives the
+constraints around it, so the problems are feasible by construction, and a
+linear cost pulls the optimum away from it, so constraints are active.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+import scipy.sparse as sp
+
+from ltv_lstm_mpc.exceptions import InvalidValueError
+
+from .problem import ConvexProblem, SecondOrderCone
+
+__all__ = [
+    "MpcLayout",
+    "infeasible_problem",
+    "perturb",
+    "random_mpc_problem",
+    "random_qp",
+    "random_socp",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _spd(rng: np.random.Generator, n: int, cond: float = 10.0) -> FloatArray:
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    w = np.geomspace(1.0, cond, n)
+    return (Q * w) @ Q.T
+
+
+def random_qp(
+    n: int = 10, m: int = 8, p: int = 3, *, seed: int = 0, bounds: bool = True
+) -> ConvexProblem:
+    """Random strictly convex feasible QP with equalities, two-sided rows and bounds.
+
+    Some ``l``/``u``/``lb``/``ub`` entries are infinite (one-sided rows).
+    """
+    rng = np.random.default_rng(seed)
+    z0 = rng.uniform(-1.0, 1.0, n)
+    P = _spd(rng, n)
+    q = rng.standard_normal(n) * 10.0
+    A = rng.standard_normal((p, n)) if p else None
+    b = A @ z0 if A is not None else None
+    G = rng.standard_normal((m, n))
+    Gz = G @ z0
+    lo = Gz - rng.uniform(0.1, 1.0, m)
+    hi = Gz + rng.uniform(0.1, 1.0, m)
+    lo[::3] = -np.inf
+    hi[1::4] = np.inf
+    lb = ub = None
+    if bounds:
+        lb = z0 - rng.uniform(0.2, 1.0, n)
+        ub = z0 + rng.uniform(0.2, 1.0, n)
+        lb[::4] = -np.inf
+        ub[2::5] = np.inf
+    return ConvexProblem(P=P, q=q, A_eq=A, b_eq=b, G=G, l=lo, u=hi, lb=lb, ub=ub)
+
+
+def random_socp(
+    n: int = 10, m: int = 6, p: int = 2, n_cones: int = 2, *, seed: int = 0
+) -> ConvexProblem:
+    """Random feasible QP with ``n_cones`` second-order cones (strictly feasible point inside)."""
+    base = random_qp(n, m, p, seed=seed, bounds=True)
+    rng = np.random.default_rng(seed + 10_000)
+    # the same z0 as random_qp (first draw of its generator)
+    z0 = np.random.default_rng(seed).uniform(-1.0, 1.0, n)
+    cones = []
+    for _ in range(n_cones):
+        k = int(rng.integers(2, 5))
+        F = rng.standard_normal((k, n))
+        g = rng.standard_normal(k)
+        e = rng.standard_normal(n) * 0.1
+        margin = rng.uniform(0.2, 0.5)
+        f = float(np.linalg.norm(F @ z0 + g) - e @ z0 + margin)
+        cones.append(SecondOrderCone(F=F, g=g, e=e, f=f))
+    return base.with_values(cones=tuple(cones))
+
+
+def infeasible_problem(n: int = 6, *, seed: int = 0, cone: bool = False) -> ConvexProblem:
+    """QP (or SOCP) whose rows ``z_0 + z_1 >= 1`` and ``z_0 + z_1 <= -1`` contradict."""
+    rng = np.random.default_rng(seed)
+    G = np.zeros((2, n))
+    G[:, :2] = 1.0
+    cones: tuple[SecondOrderCone, ...] = ()
+    if cone:
+        cones = (SecondOrderCone(F=np.eye(n)[:2], g=np.zeros(2), e=np.zeros(n), f=10.0),)
+    return ConvexProblem(
+        P=_spd(rng, n),
+        q=rng.standard_normal(n),
+        G=G,
+        l=np.array([1.0, -np.inf]),
+        u=np.array([np.inf, -1.0]),
+        lb=np.full(n, -10.0),
+        ub=np.full(n, 10.0),
+        cones=cones,
+    )
+
+
+def perturb(problem: ConvexProblem, scale: float = 1e-2, *, seed: int = 0) -> ConvexProblem:
+    """Same structure, values of ``q`` and of the finite bounds changed by ``scale`` (relative).
+
+    Used for warm-start tests (a small change between consecutive RTI steps).
+    """
+    rng = np.random.default_rng(seed)
+    q = np.asarray(problem.q) * (1.0 + scale * rng.standard_normal(problem.n_variables))
+    values: dict[str, FloatArray] = {"q": q}
+    if problem.b_eq is not None:
+        values["b_eq"] = np.asarray(problem.b_eq) + scale * rng.standard_normal(problem.n_eq)
+    return problem.with_values(**values)
+
+
+class MpcLayout:
+    """Index layout of :func:`random_mpc_problem`'s variable ``z = (x_0..x_N, u_0..u_{N-1}, t)``."""
+
+    def __init__(self, N: int, nx: int, nu: int, terminal_cone: bool) -> None:
+        self.N, self.nx, self.nu = N, nx, nu
+        self.n_x = (N + 1) * nx
+        self.n_u = N * nu
+        self.n_t = 2 if terminal_cone else 0
+        self.n = self.n_x + self.n_u + self.n_t
+
+    def x(self, i: int) -> slice:
+        """Slice of ``x_i`` in ``z``."""
+        return slice(i * self.nx, (i + 1) * self.nx)
+
+    def u(self, i: int) -> slice:
+        """Slice of ``u_i`` in ``z``."""
+        return slice(self.n_x + i * self.nu, self.n_x + (i + 1) * self.nu)
+
+    @property
+    def t(self) -> slice:
+        """Slice of ``t = (t_c, t_h)`` in ``z`` (empty without terminal cone)."""
+        return slice(self.n_x + self.n_u, self.n)
+
+
+def random_mpc_problem(
+    N: int, nx: int = 10, nu: int = 1, *, seed: int = 0, terminal_cone: bool = True
+) -> ConvexProblem:
+    """MPC-shaped subproblem of SPEC section 4 in the sparse (state + input) form.
+
+    Variables ``z = (x_0, ..., x_N, u_0, ..., u_{N-1}, t_c, t_h)``:
+
+    - block-banded LTV dynamics equalities ``x_0 = x_init``,
+      ``x_{i+1} = A_i x_i + B_i u_i + c_i`` (``A_i`` with spectral norm 0.95);
+    - input box ``|u_i| <= 1`` (variable bounds), ``t >= 0``;
+    - output bounds ``|C x_i| <= y_max`` (rows of ``G``);
+    - terminal cones (``x_N = (c_N, h_N)`` split in halves like an LSTM state)
+      ``||c_N - c_bar|| <= t_c``, ``||h_N - h_bar|| <= t_h``,
+      ``||P_f^{1/2} t|| <= alpha`` and terminal cost ``t' P_f t``;
+      without ``terminal_cone`` there are no cones and no ``t``;
+    - cost ``sum_{i=0}^{N} (x_i - x_ref)' Q (x_i - x_ref) + sum_i u_i' R u_i``
+      (positive definite Hessian, as dense active-set solvers need), ``x_ref``
+      beyond the constraints so that some of them are active.
+
+    A nominal trajectory under random inputs with ``|u| <= 0.5`` is strictly
+    feasible, also for :class:`PolyhedralInnerApproximation` of the cones.
+
+    Parameters
+    ----------
+    N : int
+        Horizon (``>= 1``).
+    nx, nu : int
+        State and input dimensions (``nx >= 2``).
+    seed : int
+    terminal_cone : bool
+    """
+    if N < 1 or nx < 2 or nu < 1:
+        raise InvalidValueError(f"need N >= 1, nx >= 2, nu >= 1; got N={N}, nx={nx}, nu={nu}")
+    rng = np.random.default_rng(seed)
+    lay = MpcLayout(N, nx, nu, terminal_cone)
+    n = lay.n
+    A_list = []
+    for _ in range(N):
+        A = rng.standard_normal((nx, nx))
+        A_list.append(0.95 * A / np.linalg.norm(A, 2))
+    B_list = [rng.standard_normal((nx, nu)) for _ in range(N)]
+    c_list = [0.1 * rng.standard_normal(nx) for _ in range(N)]
+    x_init = rng.standard_normal(nx)
+    C = rng.standard_normal(nx) / math.sqrt(nx)
+
+    # nominal (strictly feasible) trajectory
+    u_nom = rng.uniform(-0.5, 0.5, (N, nu))
+    x_nom = [x_init]
+    for i in range(N):
+        x_nom.append(A_list[i] @ x_nom[i] + B_list[i] @ u_nom[i] + c_list[i])
+
+    # dynamics: rows block i (0..N): x_0 = x_init; x_{i+1} - A_i x_i - B_i u_i = c_i
+    rows, cols, vals = [], [], []
+
+    def add_block(r0: int, c0: int, M: FloatArray) -> None:
+        rr, cc = np.meshgrid(np.arange(M.shape[0]), np.arange(M.shape[1]), indexing="ij")
+        rows.append((r0 + rr).ravel())
+        cols.append((c0 + cc).ravel())
+        vals.append(M.ravel())
+
+    add_block(0, 0, np.eye(nx))
+    for i in range(N):
+        r0 = (i + 1) * nx
+        add_block(r0, lay.x(i + 1).start, np.eye(nx))
+        add_block(r0, lay.x(i).start, -A_list[i])
+        add_block(r0, lay.u(i).start, -B_list[i])
+    A_eq = sp.csc_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+        shape=((N + 1) * nx, n),
+    )
+    b_eq = np.concatenate([x_init, *c_list])
+
+    # output bounds on y_i = C x_i, i = 1..N
+    y_nom = np.array([C @ x_nom[i] for i in range(1, N + 1)])
+    y_max = float(np.max(np.abs(y_nom))) * 1.2 + 0.1
+    G = sp.csc_matrix(
+        (
+            np.tile(C, N),
+            (
+                np.repeat(np.arange(N), nx),
+                np.concatenate([np.arange(lay.x(i).start, lay.x(i).stop) for i in range(1, N + 1)]),
+            ),
+        ),
+        shape=(N, n),
+    )
+    l_y = np.full(N, -y_max)
+    u_y = np.full(N, y_max)
+
+    lb = np.full(n, -np.inf)
+    ub = np.full(n, np.inf)
+    lb[lay.n_x : lay.n_x + lay.n_u] = -1.0
+    ub[lay.n_x : lay.n_x + lay.n_u] = 1.0
+
+    # cost
+    Q = _spd(rng, nx, cond=10.0)
+    R = np.eye(nu) * 0.1
+    x_ref = 3.0 * rng.standard_normal(nx)
+    blocks = [Q] * (N + 1)
+    q = np.zeros(n)
+    for i in range(N + 1):
+        q[lay.x(i)] = -Q @ x_ref
+    cones: tuple[SecondOrderCone, ...] = ()
+    if terminal_cone:
+        P_f = np.array([[2.0, 0.5], [0.5, 1.0]])  # >= 0 entrywise, positive definite
+        blocks += [*([R] * N), P_f]
+        lb[lay.t] = 0.0
+        kc = nx // 2
+        kh = nx - kc
+        xN = x_nom[N]
+        x_bar = xN + 0.3 * rng.standard_normal(nx)
+        dev = xN - x_bar
+        # t feasible for the inner (inf-norm) approximation with a margin
+        t_nom = np.array(
+            [
+                math.sqrt(kc) * np.max(np.abs(dev[:kc])) * 1.2 + 0.05,
+                math.sqrt(kh) * np.max(np.abs(dev[kc:])) * 1.2 + 0.05,
+            ]
+        )
+        w, V = np.linalg.eigh(P_f)
+        Pf_half = (V * np.sqrt(w)) @ V.T
+        alpha = math.sqrt(2.0) * float(np.max(np.abs(Pf_half @ t_nom))) * 1.2
+        ixN = np.arange(lay.x(N).start, lay.x(N).stop)
+        it = np.arange(lay.t.start, lay.t.stop)
+        e_c = np.zeros(n)
+        e_c[it[0]] = 1.0
+        e_h = np.zeros(n)
+        e_h[it[1]] = 1.0
+        Fc = sp.csc_matrix((np.ones(kc), (np.arange(kc), ixN[:kc])), shape=(kc, n))
+        Fh = sp.csc_matrix((np.ones(kh), (np.arange(kh), ixN[kc:])), shape=(kh, n))
+        Ft = sp.csc_matrix(
+            (Pf_half.ravel(), (np.repeat(np.arange(2), 2), np.tile(it, 2))), shape=(2, n)
+        )
+        cones = (
+            SecondOrderCone(F=Fc, g=-x_bar[:kc], e=e_c, f=0.0),
+            SecondOrderCone(F=Fh, g=-x_bar[kc:], e=e_h, f=0.0),
+            SecondOrderCone(F=Ft, g=np.zeros(2), e=np.zeros(n), f=alpha),
+        )
+    else:
+        blocks += [R] * N
+    P = sp.csc_matrix(sp.block_diag(blocks, format="csc"))
+    return ConvexProblem(
+        P=P, q=q, A_eq=A_eq, b_eq=b_eq, G=G, l=l_y, u=u_y, lb=lb, ub=ub, cones=cones
+    )

@@ -1,0 +1,114 @@
+"""One ``tolerance`` mapped to each solver's own option names (the table), and known settings.
+
+The same numerical solver takes the same option names whichever interface
+drives it (native, cvxpy or qpsolvers), so both tables are keyed by the
+lower-case solver name.
+
+=========  ==================================================================
+solver     options set to ``tolerance``
+=========  ==================================================================
+clarabel   ``tol_gap_abs``, ``tol_gap_rel``, ``tol_feas``
+daqp       ``primal_tol``, ``dual_tol``
+ecos       ``abstol``, ``reltol``, ``feastol``
+highs      ``primal_feasibility_tolerance``, ``dual_feasibility_tolerance``
+osqp       ``eps_abs``, ``eps_rel``
+piqp       ``eps_abs``, ``eps_rel``, ``eps_duality_gap_abs``, ``eps_duality_gap_rel``
+proxqp     ``eps_abs``; ``eps_rel = 0`` (ProxQP's relative criterion scales with the
+           data norms and left a 1e-5 relative objective error at ``eps_rel = 1e-8``)
+quadprog   none (a dual active-set method that solves to machine precision)
+scs        ``eps_abs``, ``eps_rel``
+=========  ==================================================================
+
+User settings passed next to ``tolerance`` override these entries.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+from typing import Any
+
+from ltv_lstm_mpc.exceptions import InvalidValueError
+
+__all__ = ["TOLERANCE_OPTIONS", "known_settings", "solver_options"]
+
+#: Option names set to the single ``tolerance`` value, per solver (lower case).
+TOLERANCE_OPTIONS: Mapping[str, tuple[str, ...]] = {
+    "clarabel": ("tol_gap_abs", "tol_gap_rel", "tol_feas"),
+    "daqp": ("primal_tol", "dual_tol"),
+    "ecos": ("abstol", "reltol", "feastol"),
+    "highs": ("primal_feasibility_tolerance", "dual_feasibility_tolerance"),
+    "osqp": ("eps_abs", "eps_rel"),
+    "piqp": ("eps_abs", "eps_rel", "eps_duality_gap_abs", "eps_duality_gap_rel"),
+    "proxqp": ("eps_abs",),
+    "quadprog": (),
+    "scs": ("eps_abs", "eps_rel"),
+}
+
+#: Options fixed next to the tolerance (documented in the table above).
+_FIXED_OPTIONS: Mapping[str, Mapping[str, Any]] = {"proxqp": {"eps_rel": 0.0}}
+
+_ECOS_SETTINGS = (
+    "abstol",
+    "reltol",
+    "feastol",
+    "abstol_inacc",
+    "reltol_inacc",
+    "feastol_inacc",
+    "max_iters",
+    "nitref",
+)
+
+
+@functools.cache
+def known_settings(solver: str) -> tuple[str, ...] | None:
+    """Names of the native settings of ``solver``, or ``None`` when they cannot be listed.
+
+    Introspected from the installed package where it exposes them (osqp,
+    piqp, daqp, clarabel); ``None`` means the settings are passed through and
+    the solver's own interface decides what to do with unknown names.
+    """
+    key = solver.lower()
+    try:
+        if key == "osqp":
+            import osqp
+
+            names = [k for k in dir(osqp.OSQP().ext.OSQPSettings) if not k.startswith("_")]
+            return (*names, "solver_type", "cg_preconditioner")
+        if key == "piqp":
+            import piqp
+
+            return tuple(k for k in dir(piqp.SparseSolver().settings) if not k.startswith("_"))
+        if key == "daqp":
+            import daqp
+
+            return tuple(daqp.Model().settings)
+        if key == "clarabel":
+            import clarabel
+
+            return tuple(k for k in dir(clarabel.DefaultSettings()) if not k.startswith("_"))
+    except ImportError:  # pragma: no cover - only called for installed solvers
+        return None
+    if key == "ecos":
+        return _ECOS_SETTINGS
+    if key == "quadprog":
+        return ()
+    return None
+
+
+def solver_options(solver: str, tolerance: float, settings: Mapping[str, Any]) -> dict[str, Any]:
+    """Merge the tolerance options of ``solver`` with the user's ``settings`` (settings win).
+
+    Raises
+    ------
+    InvalidValueError
+        If ``tolerance`` is not a positive finite number.
+    """
+    tol = float(tolerance)
+    if not (tol > 0.0 and tol < float("inf")):
+        raise InvalidValueError(f"tolerance must be a positive finite float, got {tolerance!r}")
+    names = TOLERANCE_OPTIONS.get(solver.lower(), ())
+    options: dict[str, Any] = dict.fromkeys(names, tol)
+    options.update(_FIXED_OPTIONS.get(solver.lower(), {}))
+    options.update(settings)
+    return options
