@@ -1,0 +1,443 @@
+r"""The FHOCP of eq. (optimization) as one convex subproblem (SPEC section 4).
+
+At step k the LSTM is linearized along a trajectory :math:`(\tilde x_i, \tilde u_i)`
+(the shifted candidate of the proof of Theorem 3, Part 2b), and the FHOCP becomes
+
+.. math::
+
+    \min_{x, u, t} \; & \sum_{i=0}^{N-1} \|x_i - \bar x\|_Q^2 + \|u_i - \bar u\|_R^2
+        + t^\top P_f t \\
+    \text{s.t.}\; & x_0 = \hat x_k, \quad
+        x_{i+1} = f(\tilde x_i, \tilde u_i) + A_i (x_i - \tilde x_i) + B_i (u_i - \tilde u_i) \\
+    & \underline{y}_i \le W_y h_i + b_y \le \overline{y}_i \quad (i = 1, \dots, N-1) \\
+    & \|u_i\|_\infty \le u_{max} \\
+    & \|c_N - \bar c\| \le t_c, \; \|h_N - \bar h\| \le t_h, \;
+      \|P_f^{1/2} t\| \le \alpha_k, \; t \ge 0
+
+The tightened bounds :math:`\underline y_i, \overline y_i` come from
+eq. (optimization_constraint_yub)/(optimization_constraint_ylb); the i = 0 row involves
+only :math:`\hat h_k` and is checked by the caller (SPEC 1). Because :math:`P_f \ge 0`
+entrywise, :math:`\|\cdot\|_{P_f}` is monotone on the nonnegative orthant and the
+relaxation through t is exact, both for the terminal set eq. (terminal_constraint) and
+for the terminal cost.
+
+Variables are stacked as ``z = [x_0, ..., x_N, u_0, ..., u_{N-1}, t_c, t_h, slacks]``.
+The sparsity pattern is fixed at construction, so persistent solver sessions can update
+values in place.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from .exceptions import DimensionError, InvalidValueError
+from .solvers import ConvexProblem, SecondOrderCone
+
+__all__ = ["FHOCPSubproblem", "SubproblemLayout", "TerminalBoxReformulation"]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class SubproblemLayout:
+    """Index map of the stacked decision vector z.
+
+    Attributes
+    ----------
+    state_dim, input_dim, output_dim, N : int
+        2n, m, p and the horizon.
+    soft : bool
+        Whether exact-penalty slacks are present (one per tightened output row, and one
+        for the terminal level).
+    """
+
+    state_dim: int
+    input_dim: int
+    output_dim: int
+    N: int
+    soft: bool
+
+    @property
+    def n_states(self) -> int:
+        """Number of state variables, (N + 1) * 2n."""
+        return (self.N + 1) * self.state_dim
+
+    @property
+    def u_start(self) -> int:
+        """Index of u_0 in z."""
+        return self.n_states
+
+    @property
+    def t_start(self) -> int:
+        """Index of t_c in z (t_h follows)."""
+        return self.u_start + self.N * self.input_dim
+
+    @property
+    def s_start(self) -> int:
+        """Index of the first slack (soft constraints only)."""
+        return self.t_start + 2
+
+    @property
+    def n_output_slacks(self) -> int:
+        """One slack per tightened output row i = 1..N-1 when soft."""
+        return (self.N - 1) * self.output_dim if self.soft else 0
+
+    @property
+    def n_variables(self) -> int:
+        """Length of z."""
+        return self.s_start + (self.n_output_slacks + 1 if self.soft else 0)
+
+    def x(self, i: int) -> slice:
+        """Slice of x_i in z."""
+        return slice(i * self.state_dim, (i + 1) * self.state_dim)
+
+    def u(self, i: int) -> slice:
+        """Slice of u_i in z."""
+        start = self.u_start + i * self.input_dim
+        return slice(start, start + self.input_dim)
+
+    def split(self, z: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(x (N+1, 2n), u (N, m), t (2,))`` from a solution vector."""
+        x = z[: self.n_states].reshape(self.N + 1, self.state_dim)
+        u = z[self.u_start : self.t_start].reshape(self.N, self.input_dim)
+        return x, u, z[self.t_start : self.t_start + 2]
+
+
+class FHOCPSubproblem:
+    r"""Builds the convex subproblem of SPEC 4 with a fixed sparsity pattern.
+
+    Parameters
+    ----------
+    n, m, p : int
+        LSTM size (state dimension 2n), inputs and outputs.
+    N : int
+        Horizon.
+    Q : ndarray, shape (2n, 2n)
+        Stage state weight (positive definite).
+    R : ndarray, shape (m, m)
+        Stage input weight (positive definite).
+    P_f : ndarray, shape (2, 2)
+        Terminal weight (SPEC 2.6), entrywise nonnegative.
+    W_y, b_y : ndarray
+        Output map of eq. (y_lstm).
+    u_max : float
+        Input bound.
+    output_constraints : bool
+        Include the tightened output rows (False: the paper's fallback problem).
+    terminal_set : bool
+        Include :math:`\|P_f^{1/2} t\| \le \alpha_k` (False: the paper's fallback).
+    soft_penalty : float, optional
+        If given, the output rows and the terminal level get nonnegative slacks with
+        this exact-penalty (L1) weight; the problem is then always feasible.
+    """
+
+    def __init__(
+        self,
+        *,
+        n: int,
+        m: int,
+        p: int,
+        N: int,
+        Q: FloatArray,
+        R: FloatArray,
+        P_f: FloatArray,
+        W_y: FloatArray,
+        b_y: FloatArray,
+        u_max: float,
+        output_constraints: bool = True,
+        terminal_set: bool = True,
+        soft_penalty: float | None = None,
+    ) -> None:
+        n2 = 2 * n
+        if Q.shape != (n2, n2):
+            raise DimensionError(f"Q has shape {Q.shape}, expected ({n2}, {n2})")
+        if R.shape != (m, m):
+            raise DimensionError(f"R has shape {R.shape}, expected ({m}, {m})")
+        if P_f.shape != (2, 2) or np.any(P_f < 0):
+            raise InvalidValueError(f"P_f must be a (2, 2) entrywise nonnegative matrix, got {P_f}")
+        if soft_penalty is not None and not soft_penalty > 0:
+            raise InvalidValueError(f"soft_penalty must be positive, got {soft_penalty}")
+        self.n, self.m, self.p, self.N = n, m, p, N
+        self.output_constraints = output_constraints
+        self.terminal_set = terminal_set
+        self.soft_penalty = soft_penalty
+        soft = soft_penalty is not None
+        self.layout = layout = SubproblemLayout(n2, m, p, N, soft)
+        self.P_f = P_f
+        self.u_max = float(u_max)
+        nz = layout.n_variables
+
+        # ---- cost: 1/2 z'Pz + q'z (constant terms dropped)
+        blocks = [2.0 * Q] * N + [np.zeros((n2, n2))] + [2.0 * R] * N + [2.0 * P_f]
+        if soft:
+            blocks.append(np.zeros((layout.n_output_slacks + 1, layout.n_output_slacks + 1)))
+        self._P = sp.csc_matrix(sp.block_diag(blocks, format="csc"))
+        self._P.eliminate_zeros()
+        self._Q, self._R = Q, R
+        self._q = np.zeros(nz)
+        if soft:
+            self._q[layout.s_start :] = float(soft_penalty)  # type: ignore[arg-type]
+
+        # ---- equalities: x_0 = x_hat; x_{i+1} - A_i x_i - B_i u_i = r_i
+        rows: list[IntArray] = []
+        cols: list[IntArray] = []
+        eye_rows = np.arange(n2)
+        rows.append(eye_rows)
+        cols.append(eye_rows)
+        dense_r, dense_c = np.meshgrid(np.arange(n2), np.arange(n2), indexing="ij")
+        b_r, b_c = np.meshgrid(np.arange(n2), np.arange(m), indexing="ij")
+        self._n_fixed = n2  # entries of the x_0 identity
+        for i in range(N):
+            base = n2 * (i + 1)
+            rows.append(base + eye_rows)  # +I on x_{i+1}
+            cols.append(layout.x(i + 1).start + eye_rows)
+        for i in range(N):
+            base = n2 * (i + 1)
+            rows.append(base + dense_r.ravel())  # -A_i on x_i
+            cols.append(layout.x(i).start + dense_c.ravel())
+            rows.append(base + b_r.ravel())  # -B_i on u_i
+            cols.append(layout.u(i).start + b_c.ravel())
+        all_rows = np.concatenate(rows)
+        all_cols = np.concatenate(cols)
+        tags = np.arange(1, all_rows.size + 1, dtype=np.float64)
+        A_tagged = sp.csc_matrix(
+            (tags, (all_rows, all_cols)), shape=(n2 * (N + 1), nz)
+        )  # no duplicates
+        self._A_perm = A_tagged.data.astype(np.int64) - 1  # csc position -> entry index
+        self._A_struct = A_tagged
+        self._n_identity = n2 * (N + 1)
+        self._A_values = np.empty(all_rows.size)
+        self._A_values[: self._n_identity] = 1.0
+        self._n_eq = n2 * (N + 1)
+
+        # ---- tightened output rows on h_i, i = 1..N-1 (constant matrix)
+        self._G: sp.csc_matrix | None = None
+        if output_constraints and N > 1:
+            blocks_G = []
+            for i in range(1, N):
+                row = sp.lil_matrix((p, nz))
+                row[:, layout.x(i).start + n : layout.x(i).stop] = W_y
+                blocks_G.append(row)
+            G_out = sp.vstack(blocks_G).tocsc()
+            if soft:
+                # W_y h_i + s_i >= lower  and  W_y h_i - s_i <= upper
+                S = sp.lil_matrix((layout.n_output_slacks, nz))
+                for k in range(layout.n_output_slacks):
+                    S[k, layout.s_start + k] = 1.0
+                self._G = sp.vstack([G_out + S.tocsc(), G_out - S.tocsc()]).tocsc()
+            else:
+                self._G = G_out
+        self._b_y = b_y
+
+        # ---- bounds
+        self._lb = np.full(nz, -np.inf)
+        self._ub = np.full(nz, np.inf)
+        self._lb[layout.u_start : layout.t_start] = -self.u_max
+        self._ub[layout.u_start : layout.t_start] = self.u_max
+        self._lb[layout.t_start :] = 0.0
+
+        # ---- cone matrices (constant); g, f change every step
+        F_c = sp.lil_matrix((n, nz))
+        F_h = sp.lil_matrix((n, nz))
+        for j in range(n):
+            F_c[j, layout.x(N).start + j] = 1.0
+            F_h[j, layout.x(N).start + n + j] = 1.0
+        self._F_c, self._F_h = F_c.tocsc(), F_h.tocsc()
+        self._e_c = np.zeros(nz)
+        self._e_c[layout.t_start] = 1.0
+        self._e_h = np.zeros(nz)
+        self._e_h[layout.t_start + 1] = 1.0
+        P_f_sqrt = np.linalg.cholesky(P_f).T  # any square root: ||P_f^{1/2} t||^2 = t'P_f t
+        F_t = sp.lil_matrix((2, nz))
+        F_t[:, layout.t_start : layout.t_start + 2] = P_f_sqrt
+        self._F_t = F_t.tocsc()
+        self._e_t = np.zeros(nz)
+        if soft:
+            self._e_t[-1] = 1.0  # ||P_f^{1/2} t|| <= alpha + s_T
+        self.reformulation = TerminalBoxReformulation(self)
+
+    # ----------------------------------------------------------------------------- build
+    def build(
+        self,
+        *,
+        x_hat: FloatArray,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        x_lin: FloatArray,
+        u_lin: FloatArray,
+        f_lin: FloatArray,
+        A: FloatArray,
+        B: FloatArray,
+        y_lower: FloatArray | None,
+        y_upper: FloatArray | None,
+        alpha: float | None,
+    ) -> ConvexProblem:
+        r"""The subproblem for one linearization.
+
+        Parameters
+        ----------
+        x_hat : (2n,)
+            :math:`\hat x_k`.
+        x_bar, u_bar : (2n,), (m,)
+            Set-points from the reference calculator.
+        x_lin, u_lin : (N, 2n), (N, m)
+            Linearization points :math:`\tilde x_i, \tilde u_i`, i = 0..N-1.
+        f_lin, A, B : (N, 2n), (N, 2n, 2n), (N, 2n, m)
+            :math:`f(\tilde x_i, \tilde u_i)` and its Jacobians.
+        y_lower, y_upper : (N, p), optional
+            Tightened bounds on :math:`W_y h_i + b_y` (row 0 is ignored: it is fixed by
+            :math:`\hat x_k`). Needed when the problem has output constraints.
+        alpha : float, optional
+            Terminal level :math:`\alpha_k`; needed when the problem has the terminal set.
+        """
+        layout, N, n2 = self.layout, self.N, 2 * self.n
+        # Equality values in entry order: identities, then (-A_i, -B_i) for each stage.
+        values = self._A_values
+        offset = self._n_identity
+        m = self.m
+        for i in range(N):
+            values[offset : offset + n2 * n2] = -A[i].ravel()
+            offset += n2 * n2
+            values[offset : offset + n2 * m] = -B[i].ravel()
+            offset += n2 * m
+        A_eq = sp.csc_matrix(
+            (values[self._A_perm], self._A_struct.indices, self._A_struct.indptr),
+            shape=self._A_struct.shape,
+        )
+        residual = f_lin - np.einsum("kij,kj->ki", A, x_lin) - np.einsum("kij,kj->ki", B, u_lin)
+        b_eq = np.concatenate([x_hat, residual.ravel()])
+
+        q = self._q.copy()
+        qx = -2.0 * (self._Q @ x_bar)
+        qu = -2.0 * (self._R @ u_bar)
+        q[: N * n2] = np.tile(qx, N)
+        q[layout.u_start : layout.t_start] = np.tile(qu, N)
+
+        G = l_vec = u_vec = None
+        if self._G is not None:
+            if y_lower is None or y_upper is None:
+                raise InvalidValueError("output constraints need y_lower and y_upper")
+            lower = (y_lower[1:] - self._b_y).ravel()
+            upper = (y_upper[1:] - self._b_y).ravel()
+            G = self._G
+            if self.soft_penalty is not None:
+                inf = np.full(lower.size, np.inf)
+                l_vec = np.concatenate([lower, -inf])
+                u_vec = np.concatenate([inf, upper])
+            else:
+                l_vec, u_vec = lower, upper
+
+        n = self.n
+        cones = [
+            SecondOrderCone(self._F_c, -x_bar[:n], self._e_c, 0.0),
+            SecondOrderCone(self._F_h, -x_bar[n:], self._e_h, 0.0),
+        ]
+        if self.terminal_set:
+            if alpha is None:
+                raise InvalidValueError("the terminal set needs alpha")
+            cones.append(SecondOrderCone(self._F_t, np.zeros(2), self._e_t, float(alpha)))
+        return ConvexProblem(
+            P=self._P,
+            q=q,
+            A_eq=A_eq,
+            b_eq=b_eq,
+            G=G,
+            l=l_vec,
+            u=u_vec,
+            lb=self._lb,
+            ub=self._ub,
+            cones=tuple(cones),
+        )
+
+    def cost(self, x: FloatArray, u: FloatArray, x_bar: FloatArray, u_bar: FloatArray) -> float:
+        r"""Cost eq. (optimization_cost) of a trajectory, with the exact terminal term."""
+        dx = x[: self.N] - x_bar
+        du = u - u_bar
+        stage = float(
+            np.einsum("ki,ij,kj->", dx, self._Q, dx) + np.einsum("ki,ij,kj->", du, self._R, du)
+        )
+        n = self.n
+        t = np.array(
+            [np.linalg.norm(x[self.N, :n] - x_bar[:n]), np.linalg.norm(x[self.N, n:] - x_bar[n:])]
+        )
+        return stage + float(t @ self.P_f @ t)
+
+
+class TerminalBoxReformulation:
+    r"""Conservative QP replacement of the terminal cones (SPEC 4), for QP-only backends.
+
+    * Terminal cost: since :math:`2 t_c t_h \le t_c^2 + t_h^2` and :math:`P_{f,12} \ge 0`,
+      :math:`t^\top P_f t \le (P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`
+      (an upper bound: the QP minimizes a larger cost).
+    * Terminal set: the box :math:`|c_{N,j} - \bar c_j| \le \tau_c/\sqrt n`,
+      :math:`|h_{N,j} - \bar h_j| \le \tau_h/\sqrt n` implies
+      :math:`\|c_N - \bar c\| \le \tau_c`, :math:`\|h_N - \bar h\| \le \tau_h`; with
+      :math:`\tau^\top P_f \tau = \alpha_k^2` and :math:`P_{11}\tau_c^2 = P_{22}\tau_h^2`
+      (the largest-volume such box) it lies inside :math:`\mathcal{X}_f(k)`.
+
+    The t variables are kept (fixed to 0) so the variable layout does not change.
+    """
+
+    name = "terminal_box_and_quadratic_cost_bound"
+
+    def __init__(self, subproblem: FHOCPSubproblem) -> None:
+        self.subproblem = subproblem
+        P_f = subproblem.P_f
+        self.weight_c = float(P_f[0, 0] + P_f[0, 1])
+        self.weight_h = float(P_f[1, 1] + P_f[0, 1])
+        direction = np.array([1.0, np.sqrt(P_f[0, 0] / P_f[1, 1])])
+        self._unit_tau = direction / np.sqrt(direction @ P_f @ direction)
+
+    def apply(self, problem: ConvexProblem) -> ConvexProblem:
+        """Return the cone-free problem (see the class docstring)."""
+        sub = self.subproblem
+        layout, n, N = sub.layout, sub.n, sub.N
+        c_bar = -problem.cones[0].g
+        h_bar = -problem.cones[1].g
+        xN = layout.x(N)
+        weights = np.concatenate([np.full(n, self.weight_c), np.full(n, self.weight_h)])
+        diag = np.zeros(layout.n_variables)
+        diag[xN] = 2.0 * weights
+        # t is pinned to 0 below; a unit diagonal there (instead of 2 P_f) keeps P positive
+        # definite for solvers that need it (quadprog) without changing the solution.
+        diag[layout.t_start : layout.t_start + 2] = 1.0 - 2.0 * np.diag(sub.P_f)
+        P = problem.P + sp.diags(diag, format="csc")
+        t_block = sp.lil_matrix((layout.n_variables, layout.n_variables))
+        t_block[layout.t_start, layout.t_start + 1] = -2.0 * sub.P_f[0, 1]
+        t_block[layout.t_start + 1, layout.t_start] = -2.0 * sub.P_f[0, 1]
+        P = (P + t_block.tocsc()).tocsc()
+        P.eliminate_zeros()
+        q = problem.q.copy()
+        q[xN] += -2.0 * weights * np.concatenate([c_bar, h_bar])
+        assert problem.lb is not None and problem.ub is not None  # set by FHOCPSubproblem
+        lb, ub = problem.lb.copy(), problem.ub.copy()
+        lb[layout.t_start : layout.t_start + 2] = 0.0
+        ub[layout.t_start : layout.t_start + 2] = 0.0
+        if len(problem.cones) == 3:
+            alpha = problem.cones[2].f
+            if sub.soft_penalty is not None:
+                alpha = max(alpha, 0.0)  # the terminal slack has no QP counterpart
+            tau = max(alpha, 0.0) * self._unit_tau / np.sqrt(n)
+            centre = np.concatenate([c_bar, h_bar])
+            half = np.concatenate([np.full(n, tau[0]), np.full(n, tau[1])])
+            lb[xN] = centre - half
+            ub[xN] = centre + half
+            if sub.soft_penalty is not None:
+                lb[-1] = ub[-1] = 0.0
+        return ConvexProblem(
+            P=P,
+            q=q,
+            A_eq=problem.A_eq,
+            b_eq=problem.b_eq,
+            G=problem.G,
+            l=problem.l,
+            u=problem.u,
+            lb=lb,
+            ub=ub,
+            cones=(),
+        )
