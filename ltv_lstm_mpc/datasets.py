@@ -1,0 +1,390 @@
+r"""Identification data for the pH benchmark (paper Section V, "LSTM model identification").
+
+* :func:`multilevel_signal` — multilevel pseudo-random input: piecewise-constant levels drawn
+  uniformly in :math:`\mathcal{U}_\phi = [12.5, 17]` mL/s, each held a random integer number of
+  samples in [10, 100] (the last level is truncated at the end of the sequence).
+* :func:`generate_dataset` — 15 sequences x 1500 steps (Ts = 10 s, q2 = 0.55 mL/s nominal), split
+  10 train / 3 validation / 2 test, seeded and reproducible. Sequence ``i`` uses its own random
+  stream ``numpy.random.SeedSequence(seed).spawn(sequences)[i]``, so one split (or one sequence)
+  can be regenerated alone, bit for bit, with :func:`generate_split`.
+* :class:`IdentificationDataset` — the arrays per split plus metadata with units;
+  ``save``/``load`` (``.npz``), ``to_csv``; :meth:`IdentificationDataset.normalization` builds
+  the [-1, 1] normalization from the training split's min/max (SPEC 1), reusing
+  :class:`ltv_lstm_mpc.model.Normalization`.
+
+Conventions
+-----------
+Every sequence starts with the plant at its **nominal steady state** (q3 = 15.6 mL/s,
+q2 = 0.55 mL/s, pH 7.026). For a sequence of T steps, ``u_phi[k]`` (mL/s) is the base flow
+applied on [k Ts, (k+1) Ts) and ``y_phi[k]`` (pH) is measured at the instant k Ts, before
+``u_phi[k]`` acts: ``y_phi[0]`` is the initial steady-state pH and ``y_phi[k]`` depends on
+``u_phi[0..k-1]`` only — the same alignment as the LSTM output :math:`\xi_k = W_y h_k + b_y`
+(SPEC 1). Arrays have shape (sequences in the split, T).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .exceptions import DimensionError, InvalidValueError
+from .model import Normalization
+from .plants import PHNeutralizationPlant, ph_from_state, simulate_ph_batch
+
+__all__ = [
+    "SPLITS",
+    "IdentificationDataset",
+    "generate_dataset",
+    "generate_split",
+    "multilevel_signal",
+    "sequence_rng",
+    "split_indices",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Split names, in the order the sequences are assigned to them.
+SPLITS: tuple[str, ...] = ("train", "val", "test")
+
+#: Units of the stored signals.
+UNITS: dict[str, str] = {
+    "u_phi": "mL/s (base flow q3)",
+    "y_phi": "pH",
+    "d_phi": "mL/s (buffer flow q2)",
+    "Ts": "s",
+}
+
+FORMAT_VERSION = 1
+
+
+def multilevel_signal(
+    rng: np.random.Generator,
+    steps: int,
+    low: float = 12.5,
+    high: float = 17.0,
+    *,
+    min_hold: int = 10,
+    max_hold: int = 100,
+) -> FloatArray:
+    """Multilevel pseudo-random signal of ``steps`` samples.
+
+    Levels are uniform in [low, high]; each is held ``rng.integers(min_hold, max_hold + 1)``
+    samples (the last one is truncated at the end of the sequence).
+    """
+    if steps < 1:
+        raise InvalidValueError(f"steps must be >= 1, got {steps}")
+    if not 1 <= min_hold <= max_hold:
+        raise InvalidValueError(f"need 1 <= min_hold <= max_hold, got {min_hold}, {max_hold}")
+    if not high > low:
+        raise InvalidValueError(f"need high > low, got low={low}, high={high}")
+    out = np.empty(steps)
+    k = 0
+    while k < steps:
+        level = rng.uniform(low, high)
+        hold = int(rng.integers(min_hold, max_hold + 1))
+        out[k : k + hold] = level
+        k += hold
+    return out
+
+
+def sequence_rng(seed: int, index: int, sequences: int) -> np.random.Generator:
+    """Random generator of sequence ``index`` out of ``sequences`` for the master ``seed``."""
+    if not 0 <= index < sequences:
+        raise InvalidValueError(f"sequence index {index} outside [0, {sequences})")
+    return np.random.default_rng(np.random.SeedSequence(seed).spawn(sequences)[index])
+
+
+def split_indices(split_sizes: tuple[int, int, int] = (10, 3, 2)) -> dict[str, list[int]]:
+    """Sequence indices per split: the first ``split_sizes[0]`` go to train, and so on."""
+    if len(split_sizes) != 3 or any(int(s) != s or s < 0 for s in split_sizes):
+        raise InvalidValueError(
+            f"split_sizes must be three nonnegative integers, got {split_sizes}"
+        )
+    if split_sizes[0] < 1:
+        raise InvalidValueError("the training split needs at least one sequence")
+    start = 0
+    out: dict[str, list[int]] = {}
+    for name, size in zip(SPLITS, split_sizes, strict=True):
+        out[name] = list(range(start, start + int(size)))
+        start += int(size)
+    return out
+
+
+def _simulate(
+    indices: list[int],
+    *,
+    seed: int,
+    sequences: int,
+    steps: int,
+    plant: PHNeutralizationPlant,
+    min_hold: int,
+    max_hold: int,
+    progress: bool = False,
+) -> tuple[FloatArray, FloatArray]:
+    """(u_phi, y_phi) of shape (len(indices), steps) for the given sequence indices."""
+    u = np.empty((len(indices), steps))
+    for row, index in enumerate(indices):
+        rng = sequence_rng(seed, index, sequences)
+        u[row] = multilevel_signal(
+            rng, steps, plant.u_phi_min, plant.u_phi_max, min_hold=min_hold, max_hold=max_hold
+        )
+    if not indices:
+        return u, np.empty((0, steps))
+    x0 = np.tile(plant.steady_state_state(plant.q3_nominal, plant.q2_nominal), (len(indices), 1))
+    # Only y[0..T-1] are stored, so the last input need not be integrated.
+    states = simulate_ph_batch(
+        x0,
+        plant.saturate(u[:, : steps - 1]),
+        plant.q2_nominal,
+        Ts=plant.Ts,
+        substeps=plant.substeps,
+        params=plant.params,
+        progress=progress,
+    )
+    y = ph_from_state(states[..., 0], states[..., 1], pK1=plant.params.pK1, pK2=plant.params.pK2)
+    return u, np.asarray(y, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class IdentificationDataset:
+    """Input/output sequences of the identification experiment, per split.
+
+    Attributes
+    ----------
+    u_phi : mapping str -> ndarray, shape (S, T)
+        Base flow q3 (mL/s) per split ``"train"``, ``"val"``, ``"test"``.
+    y_phi : mapping str -> ndarray, shape (S, T)
+        pH per split; ``y_phi[s][:, k]`` is measured before ``u_phi[s][:, k]`` acts.
+    metadata : mapping
+        Units, seed, Ts, q1, q2, initial q3, hold range, sequence indices per split, ...
+    """
+
+    u_phi: Mapping[str, FloatArray]
+    y_phi: Mapping[str, FloatArray]
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        u_fixed: dict[str, FloatArray] = {}
+        y_fixed: dict[str, FloatArray] = {}
+        for name in SPLITS:
+            if name not in self.u_phi or name not in self.y_phi:
+                raise DimensionError(f"dataset needs the splits {SPLITS}; missing {name!r}")
+            u = np.array(self.u_phi[name], dtype=np.float64)
+            y = np.array(self.y_phi[name], dtype=np.float64)
+            if u.ndim != 2 or u.shape != y.shape:
+                raise DimensionError(
+                    f"split {name!r}: u_phi {u.shape} and y_phi {y.shape} must be equal (S, T)"
+                )
+            if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
+                raise InvalidValueError(f"split {name!r} contains NaN or inf")
+            u.setflags(write=False)
+            y.setflags(write=False)
+            u_fixed[name], y_fixed[name] = u, y
+        object.__setattr__(self, "u_phi", u_fixed)
+        object.__setattr__(self, "y_phi", y_fixed)
+        object.__setattr__(self, "metadata", dict(self.metadata))
+
+    def split(self, name: str) -> tuple[FloatArray, FloatArray]:
+        """``(u_phi, y_phi)`` of one split (``"train"``, ``"val"`` or ``"test"``)."""
+        if name not in SPLITS:
+            raise InvalidValueError(f"unknown split {name!r}; allowed: {list(SPLITS)}")
+        return self.u_phi[name], self.y_phi[name]
+
+    def normalization(self) -> Normalization:
+        """[-1, 1] normalization from the training split's min/max (SPEC 1)."""
+        u, y = self.split("train")
+        return Normalization(
+            u_phi_min=np.array([u.min()]),
+            u_phi_max=np.array([u.max()]),
+            y_phi_min=np.array([y.min()]),
+            y_phi_max=np.array([y.max()]),
+        )
+
+    def save(self, path: str | Path) -> Path:
+        """Save to ``.npz`` (arrays ``u_phi_<split>``, ``y_phi_<split>``, JSON ``metadata``)."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_suffix(".npz")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays: dict[str, Any] = {}
+        for name in SPLITS:
+            arrays[f"u_phi_{name}"] = self.u_phi[name]
+            arrays[f"y_phi_{name}"] = self.y_phi[name]
+        arrays["metadata"] = np.array(json.dumps(dict(self.metadata), sort_keys=True))
+        np.savez_compressed(path, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> IdentificationDataset:
+        """Load a dataset written by :meth:`save`."""
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"dataset file {path} does not exist")
+        with np.load(path, allow_pickle=False) as data:
+            missing = [
+                f"{kind}_{name}"
+                for name in SPLITS
+                for kind in ("u_phi", "y_phi")
+                if f"{kind}_{name}" not in data.files
+            ]
+            if missing:
+                raise DimensionError(f"{path}: not an identification dataset, missing {missing}")
+            u = {name: np.array(data[f"u_phi_{name}"]) for name in SPLITS}
+            y = {name: np.array(data[f"y_phi_{name}"]) for name in SPLITS}
+            meta = json.loads(str(data["metadata"])) if "metadata" in data.files else {}
+        return cls(u_phi=u, y_phi=y, metadata=meta)
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write one tidy CSV: ``split, sequence, k, time_s, u_phi_mL_s, y_phi_pH``."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        Ts = float(self.metadata.get("Ts", 10.0))
+        indices = self.metadata.get("sequence_indices", {})
+        with path.open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(["split", "sequence", "k", "time_s", "u_phi_mL_s", "y_phi_pH"])
+            for name in SPLITS:
+                u, y = self.split(name)
+                seq_ids = indices.get(name, list(range(u.shape[0])))
+                for row in range(u.shape[0]):
+                    for k in range(u.shape[1]):
+                        writer.writerow(
+                            [
+                                name,
+                                seq_ids[row],
+                                k,
+                                f"{k * Ts:g}",
+                                repr(float(u[row, k])),
+                                repr(float(y[row, k])),
+                            ]
+                        )
+        return path
+
+    def __repr__(self) -> str:
+        shapes = ", ".join(f"{name}={self.u_phi[name].shape}" for name in SPLITS)
+        return f"IdentificationDataset({shapes}, seed={self.metadata.get('seed')})"
+
+
+def _metadata(
+    seed: int,
+    sequences: int,
+    steps: int,
+    split_sizes: tuple[int, int, int],
+    plant: PHNeutralizationPlant,
+    min_hold: int,
+    max_hold: int,
+) -> dict[str, Any]:
+    return {
+        "format_version": FORMAT_VERSION,
+        "plant": "PHNeutralizationPlant",
+        "units": UNITS,
+        "seed": int(seed),
+        "sequences": int(sequences),
+        "steps": int(steps),
+        "split_sizes": [int(s) for s in split_sizes],
+        "sequence_indices": split_indices(split_sizes),
+        "Ts": plant.Ts,
+        "substeps": plant.substeps,
+        "q1": plant.params.q1,
+        "q2": plant.q2_nominal,
+        "q3_initial": plant.q3_nominal,
+        "u_phi_range": [plant.u_phi_min, plant.u_phi_max],
+        "hold_range": [int(min_hold), int(max_hold)],
+        "initial_state": "nominal steady state (q3 = q3_initial, q2 = q2)",
+        "alignment": "y_phi[k] measured at k*Ts, before u_phi[k] acts",
+    }
+
+
+def _check_sizes(sequences: int, steps: int, split_sizes: tuple[int, int, int]) -> None:
+    if steps < 2:
+        raise InvalidValueError(f"steps must be >= 2, got {steps}")
+    if sum(split_sizes) != sequences:
+        raise InvalidValueError(
+            f"split sizes {tuple(split_sizes)} must add up to sequences = {sequences}"
+        )
+
+
+def generate_split(
+    split: str,
+    *,
+    seed: int = 0,
+    sequences: int = 15,
+    steps: int = 1500,
+    split_sizes: tuple[int, int, int] = (10, 3, 2),
+    plant: PHNeutralizationPlant | None = None,
+    min_hold: int = 10,
+    max_hold: int = 100,
+) -> tuple[FloatArray, FloatArray]:
+    """Regenerate one split alone; identical to the same split of :func:`generate_dataset`.
+
+    Returns ``(u_phi, y_phi)``, each of shape (split size, steps).
+    """
+    if split not in SPLITS:
+        raise InvalidValueError(f"unknown split {split!r}; allowed: {list(SPLITS)}")
+    _check_sizes(sequences, steps, split_sizes)
+    plant = plant if plant is not None else PHNeutralizationPlant()
+    return _simulate(
+        split_indices(split_sizes)[split],
+        seed=seed,
+        sequences=sequences,
+        steps=steps,
+        plant=plant,
+        min_hold=min_hold,
+        max_hold=max_hold,
+    )
+
+
+def generate_dataset(
+    seed: int = 0,
+    sequences: int = 15,
+    steps: int = 1500,
+    split_sizes: tuple[int, int, int] = (10, 3, 2),
+    *,
+    plant: PHNeutralizationPlant | None = None,
+    min_hold: int = 10,
+    max_hold: int = 100,
+    progress: bool = False,
+) -> IdentificationDataset:
+    """Simulate the identification experiment of the paper (defaults reproduce it).
+
+    Parameters
+    ----------
+    seed : int
+        Master seed; sequence i uses ``SeedSequence(seed).spawn(sequences)[i]``.
+    sequences, steps : int
+        Number of sequences and samples per sequence (paper: 15 x 1500).
+    split_sizes : (int, int, int)
+        Train / validation / test sequence counts (paper: 10 / 3 / 2), assigned in order.
+    plant : PHNeutralizationPlant, optional
+        Plant to simulate (default: Table I, Ts = 10 s, q2 = 0.55 mL/s).
+    min_hold, max_hold : int
+        Range of the number of samples each level is held (paper: 10..100).
+    progress : bool
+        Show a tqdm progress bar over the simulated time steps.
+    """
+    split_sizes = tuple(int(s) for s in split_sizes)  # type: ignore[assignment]
+    _check_sizes(sequences, steps, split_sizes)
+    plant = plant if plant is not None else PHNeutralizationPlant()
+    u_all, y_all = _simulate(
+        list(range(sequences)),
+        seed=seed,
+        sequences=sequences,
+        steps=steps,
+        plant=plant,
+        min_hold=min_hold,
+        max_hold=max_hold,
+        progress=progress,
+    )
+    idx = split_indices(split_sizes)
+    return IdentificationDataset(
+        u_phi={name: u_all[idx[name]] for name in SPLITS},
+        y_phi={name: y_all[idx[name]] for name in SPLITS},
+        metadata=_metadata(seed, sequences, steps, split_sizes, plant, min_hold, max_hold),
+    )

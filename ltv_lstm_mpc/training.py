@@ -1,0 +1,775 @@
+r"""delta-ISS LSTM identification with torch (paper Section V, "LSTM model identification").
+
+This is the only module of :mod:`ltv_lstm_mpc` that imports torch, and only inside functions:
+``import ltv_lstm_mpc.training`` works without torch; calling :func:`train` or
+:func:`torch_residuals` without it raises an ImportError saying how to install it.
+
+Loss (paper, per batch)
+-----------------------
+.. math::
+
+    L = \frac{1}{N} \sum_k \|y_k - y_{real,k}\|^2 + \lambda_1 \max\{r_1, 0\}
+        + \lambda_1 \max\{r_2, 0\} + \lambda_2 \min\{r_1, 0\} + \lambda_2 \min\{r_2, 0\}
+
+in normalized units, with the Remark 1 residuals :math:`r_1, r_2` computed differentiably
+(:func:`torch_residuals`; identical to :func:`ltv_lstm_mpc.certificates.delta_iss_certificate`
+to rounding in float64, including the SPEC 2.2 correction of :math:`\alpha`).
+
+Design choices the paper leaves open
+------------------------------------
+* **Initial state.** Every identification sequence starts with the plant at its nominal steady
+  state (q3 = 15.6 mL/s, :mod:`ltv_lstm_mpc.datasets`), so every sequence starts the LSTM at its
+  equilibrium for that constant input, :math:`x_0 = f(x_0, N_u(15.6))`. In training this is
+  approximated differentiably (``equilibrium_steps`` iterations without gradient, then
+  ``equilibrium_grad_steps`` with gradient); in evaluation it is
+  :meth:`ltv_lstm_mpc.model.LSTMModel.equilibrium` (exact). An optional ``washout`` excludes the
+  first samples of each sequence from the loss (default 0: the initial state is consistent).
+* **Output alignment (SPEC 1).** The model output at time k is :math:`W_y h_k + b_y`, with
+  :math:`h_k` the state after reading :math:`u_0..u_{k-1}`. torch's ``nn.LSTM`` returns
+  :math:`h_{k+1}` after reading :math:`u_k`, so the prediction sequence is
+  :math:`[h_0, \text{out}_0, \dots, \text{out}_{T-2}]` mapped through the linear layer.
+* **Truncated back-propagation through time.** Each epoch runs the training sequences (in
+  batches of ``batch_size`` sequences, shuffled) through consecutive chunks of ``truncation``
+  samples, carrying the state from chunk to chunk (detached) and taking one Adam step per chunk.
+  The whole sequence is thus simulated from its true initial state (no state is guessed), and an
+  epoch makes several optimizer steps.
+* **Stopping rule (paper).** After ``epochs`` epochs training stops only if the current weights
+  are certified delta-ISS (numpy certificate on the exported float64 weights,
+  :math:`\rho(A_\delta) < 1`); otherwise it continues, at most ``max_extra_epochs`` more.
+  The exported model is the certified one with the best validation FIT seen at any evaluation;
+  if no evaluated weights were ever certified, :class:`TrainingError` is raised.
+* **FIT.** :math:`100 (1 - \|y_{real} - y\| / \|y_{real} - \bar y_{real}\|)` on the physical
+  outputs of all sequences of a split concatenated (one number per split), simulated with
+  :meth:`~ltv_lstm_mpc.model.LSTMModel.simulate` on the exported model from the equilibrium
+  above. The per-sequence FITs are reported too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .certificates import delta_iss_certificate, incremental_lyapunov_certificate
+from .datasets import SPLITS, IdentificationDataset
+from .exceptions import InvalidValueError, LtvMpcError
+from .model import LSTMModel, Normalization
+
+__all__ = [
+    "TORCH_INSTALL_HINT",
+    "TrainingConfig",
+    "TrainingError",
+    "TrainingResult",
+    "evaluate_model",
+    "fit_index",
+    "plot_prediction",
+    "torch_residuals",
+    "train",
+]
+
+FloatArray = NDArray[np.float64]
+
+TORCH_INSTALL_HINT = (
+    "training needs PyTorch, which is an optional dependency: install the CPU wheel with "
+    '`pip install torch==2.13.0`, then `pip install -e ".[train]"`'
+)
+CHECKPOINT_NAME = "checkpoint.pt"
+
+
+class TrainingError(LtvMpcError, RuntimeError):
+    """Training could not produce a certified delta-ISS model (or was misconfigured)."""
+
+
+def _import_torch() -> Any:
+    try:
+        import torch
+    except ImportError as error:  # pragma: no cover - depends on the environment
+        raise ImportError(TORCH_INSTALL_HINT) from error
+    return torch
+
+
+# --------------------------------------------------------------------------- config
+@dataclass(frozen=True)
+class TrainingConfig:
+    """Settings of :func:`train`; the defaults reproduce the paper where it fixes a value.
+
+    Attributes
+    ----------
+    n : int
+        Number of LSTM neurons (paper: 5).
+    lambda1, lambda2 : float
+        Weights of the delta-ISS terms of the loss (paper: 0.03, 0.02).
+    lr : float
+        Adam learning rate (paper: 1e-3).
+    epochs : int
+        Planned epochs (paper: 1000).
+    max_extra_epochs : int
+        Extra epochs allowed when the model is not delta-ISS after ``epochs`` (stopping rule).
+    seed : int
+        Seeds torch (weight initialization) and numpy (batch shuffling).
+    truncation : int
+        Chunk length of truncated back-propagation through time (0: whole sequences). Default
+        100 samples: 15 Adam steps per epoch over the 1500-sample sequences (not in the paper).
+        Measured (validation FIT): chunks of 250 with torch's default initialization, 64 %
+        after 100 epochs; chunks of 100, 91.4 % after 200 epochs, 94.2 % with
+        ``forget_bias_init = 2``.
+    batch_size : int
+        Sequences per batch (0: all training sequences in one batch).
+    washout : int
+        Samples at the start of each sequence excluded from the loss (default 0: the initial
+        state is the consistent equilibrium, see the module docstring).
+    equilibrium_steps, equilibrium_grad_steps : int
+        Iterations of the initial-equilibrium approximation without / with gradient.
+    forget_bias_init : float or None
+        Initial forget-gate bias (``bias_ih``; ``bias_hh`` set to 0); None keeps torch's
+        default. Default 2.0 (not in the paper): a slow initial memory like the plant's
+        (time constants 9-26 samples). Its sign does not matter for the certificate, which
+        uses absolute values; the delta-ISS penalty shrinks it as needed.
+    lr_final_factor : float
+        Cosine decay of the learning rate from ``lr`` to ``lr * lr_final_factor`` over the
+        planned epochs (1.0: constant, the paper's Adam setting).
+    threads : int
+        ``torch.set_num_threads``. Default 1: for n = 5 the matrices are tiny and a second
+        thread only adds synchronization (measured 0.41 vs 0.47 s per epoch on an idle 2-core
+        VM, and about 10x slower with 2 threads when other processes load the CPU).
+    dtype : str
+        ``"float64"`` or ``"float32"`` for training (export and certificates are float64).
+    checkpoint_every : int
+        Epochs between checkpoints (0: never).
+    eval_every : int
+        Epochs between validation evaluations (best-model tracking, progress bar).
+    u_max : float
+        Input bound of the delta-ISS certificate (normalized units, 1).
+    Q_s : float
+        :math:`Q_s = q I_2` of Lemma 2 for the reported :math:`\\rho_s` (paper: 1000).
+    """
+
+    n: int = 5
+    lambda1: float = 0.03
+    lambda2: float = 0.02
+    lr: float = 1e-3
+    epochs: int = 1000
+    max_extra_epochs: int = 1000
+    seed: int = 0
+    truncation: int = 100
+    batch_size: int = 0
+    washout: int = 0
+    equilibrium_steps: int = 400
+    equilibrium_grad_steps: int = 20
+    forget_bias_init: float | None = 2.0
+    lr_final_factor: float = 1.0
+    threads: int = 1
+    dtype: str = "float64"
+    checkpoint_every: int = 50
+    eval_every: int = 1
+    u_max: float = 1.0
+    Q_s: float = 1000.0
+
+    def __post_init__(self) -> None:
+        positive_ints = ("n", "epochs", "threads", "eval_every")
+        for name in positive_ints:
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise InvalidValueError(f"{name} must be a positive integer, got {value!r}")
+        nonnegative_ints = (
+            "max_extra_epochs",
+            "seed",
+            "truncation",
+            "batch_size",
+            "washout",
+            "equilibrium_steps",
+            "equilibrium_grad_steps",
+            "checkpoint_every",
+        )
+        for name in nonnegative_ints:
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 0:
+                raise InvalidValueError(f"{name} must be a nonnegative integer, got {value!r}")
+        for name in ("lambda1", "lambda2", "lr", "u_max", "Q_s", "lr_final_factor"):
+            value = float(getattr(self, name))
+            if (
+                not math.isfinite(value)
+                or value < 0
+                or (name in ("lr", "u_max", "Q_s") and value == 0)
+            ):
+                raise InvalidValueError(f"{name} must be a finite positive number, got {value!r}")
+        if self.dtype not in ("float64", "float32"):
+            raise InvalidValueError(f"dtype must be 'float64' or 'float32', got {self.dtype!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (JSON-serializable)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> TrainingConfig:
+        """Inverse of :meth:`to_dict`; rejects unknown keys."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise InvalidValueError(
+                f"unknown TrainingConfig keys {unknown}; allowed: {sorted(known)}"
+            )
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class TrainingResult:
+    """What :func:`train` produced.
+
+    Attributes
+    ----------
+    model : LSTMModel
+        The exported certified model (float64, with normalization).
+    report : dict
+        The JSON report (also written to ``report_path``).
+    model_path, report_path, plot_path : Path
+        Files written in ``out_dir`` (``plot_path`` is None if matplotlib failed).
+    history : list of dict
+        Per-evaluation records (epoch, loss, mse, r1, r2, fit_val, certified).
+    """
+
+    model: LSTMModel
+    report: dict[str, Any]
+    model_path: Path
+    report_path: Path
+    plot_path: Path | None
+    history: list[dict[str, float]] = field(default_factory=list)
+
+
+# ------------------------------------------------------------------------ metrics
+def fit_index(y_real: ArrayLike, y: ArrayLike) -> float:
+    r"""FIT index of the paper: :math:`100 (1 - \|y_{real} - y\| / \|y_{real} - \bar y_{real}\|)`.
+
+    Arrays of any (equal) shape are flattened (so a split's sequences are concatenated).
+    """
+    real = np.asarray(y_real, dtype=np.float64).ravel()
+    pred = np.asarray(y, dtype=np.float64).ravel()
+    if real.shape != pred.shape:
+        raise InvalidValueError(f"y_real {real.shape} and y {pred.shape} must have equal size")
+    denominator = float(np.linalg.norm(real - real.mean()))
+    if denominator == 0.0:
+        raise InvalidValueError("FIT is undefined for a constant y_real")
+    return 100.0 * (1.0 - float(np.linalg.norm(real - pred)) / denominator)
+
+
+def simulate_sequences(model: LSTMModel, u_phi: ArrayLike, q3_initial: float) -> FloatArray:
+    """Physical outputs of ``model`` for each row of ``u_phi`` (S, T), from the equilibrium of
+    the constant physical input ``q3_initial`` (the data's initial steady state); uses
+    :meth:`LSTMModel.simulate`. Returns (S, T): entry k is the output before ``u_phi[k]`` acts.
+    """
+    u_arr = np.atleast_2d(np.asarray(u_phi, dtype=np.float64))
+    x0 = model.equilibrium(model.normalize_u(np.array([q3_initial])))
+    out = np.empty(u_arr.shape)
+    for row in range(u_arr.shape[0]):
+        u_norm = model.normalize_u(u_arr[row][:, None])
+        _, y = model.simulate(x0, u_norm[:-1])
+        out[row] = model.denormalize_y(y)[:, 0]
+    return out
+
+
+def evaluate_model(
+    model: LSTMModel, dataset: IdentificationDataset, splits: tuple[str, ...] = SPLITS
+) -> dict[str, dict[str, Any]]:
+    """FIT per split (concatenated sequences) and per sequence, with numpy simulation.
+
+    Returns ``{split: {"fit": float, "fit_per_sequence": [...]}}``.
+    """
+    q3_initial = float(dataset.metadata.get("q3_initial", 15.6))
+    result: dict[str, dict[str, Any]] = {}
+    for name in splits:
+        u, y = dataset.split(name)
+        if u.shape[0] == 0:
+            continue
+        pred = simulate_sequences(model, u, q3_initial)
+        result[name] = {
+            "fit": fit_index(y, pred),
+            "fit_per_sequence": [fit_index(y[i], pred[i]) for i in range(y.shape[0])],
+        }
+    return result
+
+
+# ------------------------------------------------------------------ torch pieces
+def _gate_blocks(lstm: Any) -> dict[str, tuple[Any, Any, Any]]:
+    """(W, U, b) per gate f, i, o, c from a torch nn.LSTM (torch order i, f, g, o)."""
+    n = lstm.hidden_size
+    w_ih, w_hh = lstm.weight_ih_l0, lstm.weight_hh_l0
+    bias = lstm.bias_ih_l0 + lstm.bias_hh_l0
+    rows = {
+        "i": slice(0, n),
+        "f": slice(n, 2 * n),
+        "c": slice(2 * n, 3 * n),
+        "o": slice(3 * n, 4 * n),
+    }
+    return {g: (w_ih[r], w_hh[r], bias[r]) for g, r in rows.items()}
+
+
+def torch_residuals(blocks: dict[str, tuple[Any, Any, Any]], u_max: float = 1.0) -> tuple[Any, Any]:
+    r"""Differentiable residuals :math:`r_1, r_2` of Remark 1 (SPEC 2.2 alpha).
+
+    Parameters
+    ----------
+    blocks : dict
+        ``{"f": (W_f, U_f, b_f), "i": ..., "o": ..., "c": ...}`` torch tensors with shapes
+        (n, m), (n, n), (n,).
+    u_max : float
+        Input bound of the certificate.
+
+    Returns
+    -------
+    r1, r2 : torch scalar tensors
+        Equal (to rounding) to :func:`ltv_lstm_mpc.certificates.delta_iss_certificate`'s.
+    """
+    torch = _import_torch()
+
+    def row_norm(W: Any, U: Any, b: Any) -> Any:
+        return torch.max((W.abs() * u_max).sum(dim=1) + U.abs().sum(dim=1) + b.abs())
+
+    def spectral(M: Any) -> Any:
+        return torch.linalg.matrix_norm(M, ord=2)
+
+    W_f, U_f, b_f = blocks["f"]
+    W_i, U_i, b_i = blocks["i"]
+    W_o, U_o, b_o = blocks["o"]
+    W_c, U_c, b_c = blocks["c"]
+
+    def sigmoid(z: Any) -> Any:
+        # Same formula as the numpy certificate, so both round alike near sigma_f -> 1.
+        return 0.5 * (1.0 + torch.tanh(0.5 * z))
+
+    sigma_f = sigmoid(row_norm(W_f, U_f, b_f))
+    sigma_i = sigmoid(row_norm(W_i, U_i, b_i))
+    sigma_o = sigmoid(row_norm(W_o, U_o, b_o))
+    sigma_c = torch.tanh(row_norm(W_c, U_c, b_c))
+    c_bound = sigma_i * sigma_c / (1.0 - sigma_f)
+    sigma_x = torch.tanh(c_bound)
+    norm_U_o = spectral(U_o)
+    alpha = (
+        0.25 * spectral(U_f) * c_bound + sigma_i * spectral(U_c) + 0.25 * spectral(U_i) * sigma_c
+    )
+    r1 = (
+        -1.0
+        + sigma_f
+        + alpha * sigma_o
+        + 0.25 * sigma_x * norm_U_o
+        - 0.25 * sigma_f * sigma_x * norm_U_o
+    )
+    r2 = 0.25 * sigma_f * sigma_x * norm_U_o - 1.0
+    return r1, r2
+
+
+def _delta_iss_penalty(r1: Any, r2: Any, config: TrainingConfig) -> Any:
+    torch = _import_torch()
+    zero = torch.zeros((), dtype=r1.dtype)
+    return (
+        config.lambda1 * torch.maximum(r1, zero)
+        + config.lambda1 * torch.maximum(r2, zero)
+        + config.lambda2 * torch.minimum(r1, zero)
+        + config.lambda2 * torch.minimum(r2, zero)
+    )
+
+
+def _build_network(config: TrainingConfig) -> tuple[Any, Any]:
+    torch = _import_torch()
+    dtype = torch.float64 if config.dtype == "float64" else torch.float32
+    torch.manual_seed(config.seed)
+    lstm = torch.nn.LSTM(input_size=1, hidden_size=config.n, batch_first=True).to(dtype)
+    linear = torch.nn.Linear(config.n, 1).to(dtype)
+    if config.forget_bias_init is not None:
+        n = config.n
+        with torch.no_grad():
+            lstm.bias_ih_l0[n : 2 * n] = config.forget_bias_init
+            lstm.bias_hh_l0[n : 2 * n] = 0.0
+    return lstm, linear
+
+
+def _state_dict(lstm: Any, linear: Any) -> dict[str, Any]:
+    out = {f"lstm.{k}": v.detach().clone() for k, v in lstm.state_dict().items()}
+    out.update({f"linear.{k}": v.detach().clone() for k, v in linear.state_dict().items()})
+    return out
+
+
+def _export(state: dict[str, Any], normalization: Normalization) -> LSTMModel:
+    arrays = {k: v.detach().cpu().double().numpy() for k, v in state.items()}
+    return LSTMModel.from_torch_state_dict(arrays, normalization=normalization)
+
+
+def _initial_state(lstm: Any, u0: float, batch: int, config: TrainingConfig) -> tuple[Any, Any]:
+    """Approximate equilibrium (h, c) for the constant normalized input u0, expanded to a batch."""
+    torch = _import_torch()
+    dtype = lstm.weight_hh_l0.dtype
+    n = config.n
+    h = torch.zeros(1, 1, n, dtype=dtype)
+    c = torch.zeros(1, 1, n, dtype=dtype)
+    if config.equilibrium_steps > 0:
+        with torch.no_grad():
+            u = torch.full((1, config.equilibrium_steps, 1), u0, dtype=dtype)
+            _, (h, c) = lstm(u, (h, c))
+    if config.equilibrium_grad_steps > 0:
+        u = torch.full((1, config.equilibrium_grad_steps, 1), u0, dtype=dtype)
+        _, (h, c) = lstm(u, (h.detach(), c.detach()))
+    return h.expand(1, batch, n).contiguous(), c.expand(1, batch, n).contiguous()
+
+
+def _predict(lstm: Any, linear: Any, u: Any, state: tuple[Any, Any]) -> tuple[Any, tuple[Any, Any]]:
+    """Outputs aligned with the data (y_k from h_k) for inputs u (B, L, 1) from state (h, c)."""
+    torch = _import_torch()
+    out, new_state = lstm(u, state)
+    h_seq = torch.cat([state[0].transpose(0, 1), out[:, :-1]], dim=1)
+    return linear(h_seq), new_state
+
+
+def _torch_fit(lstm: Any, linear: Any, u: Any, y: Any, u0: float, config: TrainingConfig) -> float:
+    """Validation FIT (normalized units give the same FIT as physical ones: affine map)."""
+    torch = _import_torch()
+    with torch.no_grad():
+        state = _initial_state(lstm, u0, u.shape[0], config)
+        pred, _ = _predict(lstm, linear, u, state)
+        err = torch.linalg.vector_norm(y - pred)
+        den = torch.linalg.vector_norm(y - y.mean())
+        return float(100.0 * (1.0 - err / den))
+
+
+def _library_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("ltv_lstm_mpc")
+    except Exception:  # pragma: no cover - not installed
+        return "unknown"
+
+
+# --------------------------------------------------------------------------- plots
+def plot_prediction(
+    model: LSTMModel,
+    dataset: IdentificationDataset,
+    path: str | Path,
+    split: str = "test",
+) -> Path:
+    """PNG of the model's open-loop prediction against the plant on one split (Agg backend)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    u, y = dataset.split(split)
+    pred = simulate_sequences(model, u, float(dataset.metadata.get("q3_initial", 15.6)))
+    Ts = float(dataset.metadata.get("Ts", 10.0))
+    rows = u.shape[0]
+    fig, axes = plt.subplots(2 * rows, 1, figsize=(10, 3.2 * rows + 1), sharex=True, squeeze=False)
+    t = np.arange(u.shape[1]) * Ts / 60.0
+    for row in range(rows):
+        ax_y, ax_u = axes[2 * row, 0], axes[2 * row + 1, 0]
+        ax_y.plot(t, y[row], label="plant", color="k", lw=1.2)
+        ax_y.plot(t, pred[row], label="LSTM", color="tab:blue", lw=1.0, ls="--")
+        ax_y.set_ylabel("pH")
+        ax_y.set_title(f"{split} sequence {row}: FIT {fit_index(y[row], pred[row]):.1f} %")
+        ax_y.legend(loc="upper right")
+        ax_u.step(t, u[row], where="post", color="tab:orange", lw=1.0)
+        ax_u.set_ylabel("q3 (mL/s)")
+    axes[-1, 0].set_xlabel("time (min)")
+    fig.suptitle(f"Open-loop prediction on the {split} set: FIT {fit_index(y, pred):.2f} %")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------- train
+def train(
+    dataset: IdentificationDataset,
+    config: TrainingConfig | None = None,
+    out_dir: str | Path = "training_output",
+    *,
+    progress: bool = True,
+    resume: bool = True,
+    name: str | None = None,
+    callback: Callable[[dict[str, float]], None] | None = None,
+) -> TrainingResult:
+    """Train a delta-ISS LSTM on ``dataset`` and export model, report and plot to ``out_dir``.
+
+    Parameters
+    ----------
+    dataset : IdentificationDataset
+        Identification data (normalization from its training split).
+    config : TrainingConfig, optional
+        Defaults reproduce the paper.
+    out_dir : path
+        Output folder: ``<name>.npz`` (core model format), ``<name>_report.json``,
+        ``<name>_test_prediction.png`` and ``checkpoint.pt``.
+    progress : bool
+        Show a tqdm progress bar (loss, FIT(val), r1, r2).
+    resume : bool
+        Continue from ``out_dir/checkpoint.pt`` if it exists and its config matches.
+    name : str, optional
+        File stem; default ``ph_lstm_n<n>``.
+    callback : callable, optional
+        Called with each evaluation record.
+
+    Raises
+    ------
+    TrainingError
+        No certified delta-ISS weights after ``epochs + max_extra_epochs`` epochs.
+    ImportError
+        torch is not installed (the message says how to install it).
+    """
+    torch = _import_torch()
+    from tqdm.auto import tqdm
+
+    config = config if config is not None else TrainingConfig()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    name = name if name is not None else f"ph_lstm_n{config.n}"
+    torch.set_num_threads(config.threads)
+    dtype = torch.float64 if config.dtype == "float64" else torch.float32
+
+    normalization = dataset.normalization()
+    u_tr_phi, y_tr_phi = dataset.split("train")
+    u_va_phi, y_va_phi = dataset.split("val")
+    T = u_tr_phi.shape[1]
+    if config.washout >= T:
+        raise InvalidValueError(
+            f"washout {config.washout} must be shorter than the sequences ({T})"
+        )
+
+    def tensor(a: FloatArray) -> Any:
+        return torch.as_tensor(np.ascontiguousarray(a)[..., None], dtype=dtype)
+
+    u_tr = tensor(normalization.normalize_u(u_tr_phi[..., None])[..., 0])
+    y_tr = tensor(normalization.normalize_y(y_tr_phi[..., None])[..., 0])
+    has_val = u_va_phi.shape[0] > 0
+    u_va = tensor(normalization.normalize_u(u_va_phi[..., None])[..., 0]) if has_val else None
+    y_va = tensor(normalization.normalize_y(y_va_phi[..., None])[..., 0]) if has_val else None
+    q3_initial = float(dataset.metadata.get("q3_initial", 15.6))
+    u0 = float(normalization.normalize_u(np.array([q3_initial]))[0])
+
+    lstm, linear = _build_network(config)
+    params = list(lstm.parameters()) + list(linear.parameters())
+    optimizer = torch.optim.Adam(params, lr=config.lr)
+    rng = np.random.default_rng(config.seed)
+
+    S = u_tr.shape[0]
+    batch = config.batch_size if 0 < config.batch_size < S else S
+    chunk = config.truncation if 0 < config.truncation < T else T
+
+    epoch = 0
+    certified_now = False
+    history: list[dict[str, float]] = []
+    best: dict[str, Any] | None = None
+    elapsed_before = 0.0
+    ckpt_path = out / CHECKPOINT_NAME
+    if resume and ckpt_path.exists():
+        ckpt = torch.load(ckpt_path, weights_only=True)
+        if ckpt.get("config") != config.to_dict():
+            raise TrainingError(
+                f"{ckpt_path} was written with a different configuration; remove it or use "
+                "resume=False (--no-resume) to start over"
+            )
+        lstm.load_state_dict(ckpt["lstm"])
+        linear.load_state_dict(ckpt["linear"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        rng.bit_generator.state = ckpt["rng"]
+        epoch = int(ckpt["epoch"])
+        history = list(ckpt["history"])
+        best = ckpt["best"]
+        elapsed_before = float(ckpt["elapsed"])
+        certified_now = delta_iss_certificate(
+            _export(_state_dict(lstm, linear), normalization), config.u_max
+        ).is_delta_iss
+
+    def save_checkpoint() -> None:
+        tmp = ckpt_path.with_suffix(".tmp")
+        torch.save(
+            {
+                "config": config.to_dict(),
+                "lstm": lstm.state_dict(),
+                "linear": linear.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "rng": rng.bit_generator.state,
+                "epoch": epoch,
+                "history": history,
+                "best": best,
+                "elapsed": elapsed_before + (time.perf_counter() - start),
+            },
+            tmp,
+        )
+        tmp.replace(ckpt_path)
+
+    def lr_at(e: int) -> float:
+        """Cosine decay to lr * lr_final_factor over the planned epochs, then constant."""
+        cos = 0.5 * (1.0 + math.cos(math.pi * min(e, config.epochs) / config.epochs))
+        return config.lr * (config.lr_final_factor + (1.0 - config.lr_final_factor) * cos)
+
+    max_epochs = config.epochs + config.max_extra_epochs
+    start = time.perf_counter()
+    bar = tqdm(total=config.epochs, initial=min(epoch, config.epochs), disable=not progress,
+               desc="train", unit="epoch", dynamic_ncols=True)  # fmt: skip
+    try:
+        while epoch < max_epochs:
+            if epoch >= config.epochs and certified_now:
+                break
+            for group in optimizer.param_groups:
+                group["lr"] = lr_at(epoch)
+            order = rng.permutation(S)
+            loss_sum, mse_sum, steps = 0.0, 0.0, 0
+            for b0 in range(0, S, batch):
+                idx = torch.as_tensor(order[b0 : b0 + batch])
+                ub, yb = u_tr[idx], y_tr[idx]
+                state = _initial_state(lstm, u0, ub.shape[0], config)
+                for s0 in range(0, T, chunk):
+                    s1 = min(s0 + chunk, T)
+                    pred, new_state = _predict(lstm, linear, ub[:, s0:s1], state)
+                    lo = max(config.washout - s0, 0)
+                    blocks = _gate_blocks(lstm)
+                    r1, r2 = torch_residuals(blocks, config.u_max)
+                    penalty = _delta_iss_penalty(r1, r2, config)
+                    if lo < s1 - s0:
+                        mse = torch.mean((pred[:, lo:] - yb[:, s0 + lo : s1]) ** 2)
+                    else:
+                        mse = torch.zeros((), dtype=dtype)
+                    loss = mse + penalty
+                    optimizer.zero_grad(set_to_none=True)
+                    loss.backward()
+                    optimizer.step()
+                    state = (new_state[0].detach(), new_state[1].detach())
+                    loss_sum += float(loss.detach())
+                    mse_sum += float(mse.detach())
+                    steps += 1
+            epoch += 1
+            if epoch <= config.epochs:
+                bar.update(1)
+            model_np = _export(_state_dict(lstm, linear), normalization)
+            cert = delta_iss_certificate(model_np, config.u_max)
+            certified_now = cert.is_delta_iss
+            if epoch % config.eval_every == 0 or epoch >= config.epochs:
+                fit_val = (
+                    _torch_fit(lstm, linear, u_va, y_va, u0, config)
+                    if has_val
+                    else _torch_fit(lstm, linear, u_tr, y_tr, u0, config)
+                )
+                record = {
+                    "epoch": float(epoch),
+                    "loss": loss_sum / steps,
+                    "mse": mse_sum / steps,
+                    "r1": cert.r1,
+                    "r2": cert.r2,
+                    "rho_A_delta": cert.rho_A_delta,
+                    "fit_val": fit_val,
+                    "certified": float(certified_now),
+                }
+                history.append(record)
+                if callback is not None:
+                    callback(record)
+                if certified_now and (best is None or fit_val > best["fit_val"]):
+                    best = {"state": _state_dict(lstm, linear), "fit_val": fit_val, "epoch": epoch}
+                bar.set_postfix(
+                    loss=f"{record['loss']:.2e}",
+                    fit_val=f"{fit_val:.2f}",
+                    r1=f"{cert.r1:.3f}",
+                    r2=f"{cert.r2:.3f}",
+                    best=f"{best['fit_val']:.2f}" if best else "-",
+                )
+            if config.checkpoint_every and epoch % config.checkpoint_every == 0:
+                save_checkpoint()
+    finally:
+        bar.close()
+    if config.checkpoint_every:
+        save_checkpoint()
+    wall_time = elapsed_before + (time.perf_counter() - start)
+    if best is None:
+        last = history[-1] if history else {"r1": float("nan"), "r2": float("nan")}
+        raise TrainingError(
+            f"no delta-ISS certified weights after {epoch} epochs (the planned {config.epochs} "
+            f"plus at most {config.max_extra_epochs} extra; last r1 = {last['r1']:.4g}, "
+            f"r2 = {last['r2']:.4g}, both must be < 0). Increase lambda1, max_extra_epochs, or "
+            "reduce the learning rate; the checkpoint in the output folder allows resuming."
+        )
+    # If the last weights are not certified (extra epochs exhausted) the best certified ones
+    # seen earlier are still exported; the report records it ("final_weights_certified").
+    model = _export(best["state"], normalization)
+    return _finish(
+        model, dataset, config, out, name, history, best, epoch, wall_time, certified_now
+    )
+
+
+def _finish(
+    model: LSTMModel,
+    dataset: IdentificationDataset,
+    config: TrainingConfig,
+    out: Path,
+    name: str,
+    history: list[dict[str, float]],
+    best: dict[str, Any],
+    epochs_run: int,
+    wall_time: float,
+    final_certified: bool,
+) -> TrainingResult:
+    torch = _import_torch()
+    cert = delta_iss_certificate(model, config.u_max, require=True)
+    lyap = incremental_lyapunov_certificate(model, cert, Q_s=config.Q_s)
+    fits = evaluate_model(model, dataset)
+    model_path = model.save(out / f"{name}.npz")
+    report: dict[str, Any] = {
+        "model_file": model_path.name,
+        "fit": {split: value["fit"] for split, value in fits.items()},
+        "fit_per_sequence": {split: value["fit_per_sequence"] for split, value in fits.items()},
+        "fit_definition": (
+            "100 (1 - ||y_real - y|| / ||y_real - mean(y_real)||) % on the physical outputs (pH) "
+            "of all sequences of the split concatenated; open-loop simulation with "
+            "LSTMModel.simulate from the equilibrium of the data's initial input"
+        ),
+        "r1": cert.r1,
+        "r2": cert.r2,
+        "rho_A_delta": cert.rho_A_delta,
+        "delta_iss": cert.is_delta_iss,
+        "rho_s": lyap.rho_s,
+        "Q_s": config.Q_s,
+        "u_max": config.u_max,
+        "epochs_run": epochs_run,
+        "final_weights_certified": bool(final_certified),
+        "best_epoch": int(best["epoch"]),
+        "best_fit_val_torch": float(best["fit_val"]),
+        "wall_time_s": wall_time,
+        "seed": config.seed,
+        "config": config.to_dict(),
+        "dataset": dict(dataset.metadata),
+        "normalization": {
+            key: getattr(model.normalization, key).tolist()
+            for key in ("u_phi_min", "u_phi_max", "y_phi_min", "y_phi_max")
+        },
+        "initial_state": (
+            "LSTM equilibrium for the constant input q3_initial (the plant starts at its "
+            "steady state for it)"
+        ),
+        "library_version": _library_version(),
+        "torch_version": str(torch.__version__),
+        "numpy_version": np.__version__,
+        "python_version": platform.python_version(),
+        "machine": f"{platform.machine()}, {platform.processor() or 'unknown cpu'}",
+    }
+    report_path = out / f"{name}_report.json"
+    report_path.write_text(json.dumps(report, indent=2, sort_keys=False) + "\n")
+    plot_path: Path | None
+    try:
+        split = next(s for s in ("test", "val", "train") if dataset.u_phi[s].shape[0] > 0)
+        plot_path = plot_prediction(model, dataset, out / f"{name}_test_prediction.png", split)
+    except Exception:  # pragma: no cover - plotting is best effort
+        plot_path = None
+    return TrainingResult(
+        model=model,
+        report=report,
+        model_path=model_path,
+        report_path=report_path,
+        plot_path=plot_path,
+        history=history,
+    )

@@ -1,0 +1,255 @@
+"""Sub-commands ``generate-data`` and ``train`` of the ``ltv-lstm-mpc`` command line.
+
+:func:`register` adds them to an ``argparse`` sub-parser collection; each sets
+``func(args) -> int`` (exit status). Defaults reproduce the paper (Section V): 15 sequences x
+1500 steps split 10/3/2, n = 5, lambda1 = 0.03, lambda2 = 0.02, Adam lr 1e-3, 1000 epochs.
+torch is imported only when ``train`` runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Any
+
+from .datasets import IdentificationDataset, generate_dataset
+from .exceptions import LtvMpcError
+
+__all__ = ["generate_data_command", "register", "train_command"]
+
+_DEFAULT_DATA = "ph_identification_data.npz"
+
+
+def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
+    parser.add_argument(
+        seed_flag, dest="data_seed", type=int, default=0, help="master seed of the data (default 0)"
+    )
+    parser.add_argument(
+        "--sequences", type=int, default=15, help="number of sequences (default 15, the paper's)"
+    )
+    parser.add_argument(
+        "--steps", type=int, default=1500, help="samples per sequence, Ts = 10 s (default 1500)"
+    )
+    parser.add_argument(
+        "--split",
+        type=int,
+        nargs=3,
+        metavar=("TRAIN", "VAL", "TEST"),
+        default=None,
+        help="sequences per split (default 10 3 2, scaled to --sequences when it differs)",
+    )
+
+
+def _split_sizes(args: argparse.Namespace) -> tuple[int, int, int]:
+    if args.split is not None:
+        return (int(args.split[0]), int(args.split[1]), int(args.split[2]))
+    if args.sequences == 15:
+        return (10, 3, 2)
+    test = max(1, round(args.sequences * 2 / 15)) if args.sequences >= 3 else 0
+    val = max(1, round(args.sequences * 3 / 15)) if args.sequences >= 3 else 0
+    return (args.sequences - val - test, val, test)
+
+
+def _generate(args: argparse.Namespace) -> IdentificationDataset:
+    print(
+        f"simulating {args.sequences} sequences x {args.steps} steps of the pH plant "
+        f"(seed {args.data_seed})...",
+        file=sys.stderr,
+    )
+    return generate_dataset(
+        seed=args.data_seed,
+        sequences=args.sequences,
+        steps=args.steps,
+        split_sizes=_split_sizes(args),
+        progress=not getattr(args, "no_progress", False),
+    )
+
+
+def generate_data_command(args: argparse.Namespace) -> int:
+    """``ltv-lstm-mpc generate-data``: simulate the identification data and save it."""
+    try:
+        dataset = _generate(args)
+        path = dataset.save(args.out)
+        print(f"wrote {path} ({dataset!r})")
+        if args.csv is not None:
+            csv_path = dataset.to_csv(args.csv)
+            print(f"wrote {csv_path}")
+    except (LtvMpcError, OSError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def train_command(args: argparse.Namespace) -> int:
+    """``ltv-lstm-mpc train``: train a delta-ISS LSTM, write model, report and plot."""
+    try:
+        from .training import TrainingConfig, train
+    except ImportError as error:  # pragma: no cover - torch missing
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    overrides: dict[str, Any] = {
+        "n": args.neurons,
+        "epochs": args.epochs,
+        "max_extra_epochs": args.max_extra_epochs,
+        "seed": args.seed,
+        "threads": args.threads,
+        "lambda1": args.lambda1,
+        "lambda2": args.lambda2,
+        "lr": args.lr,
+        "truncation": args.truncation,
+        "batch_size": args.batch_size,
+        "washout": args.washout,
+        "checkpoint_every": args.checkpoint_every,
+        "dtype": args.dtype,
+        "forget_bias_init": args.forget_bias_init,
+        "lr_final_factor": args.lr_final_factor,
+    }
+    try:
+        config = dataclasses.replace(
+            TrainingConfig(),
+            **{k: v for k, v in overrides.items() if v is not None},
+        )
+        if args.data is not None:
+            dataset = IdentificationDataset.load(args.data)
+        else:
+            dataset = _generate(args)
+            out = Path(args.out)
+            out.mkdir(parents=True, exist_ok=True)
+            print(f"wrote {dataset.save(out / _DEFAULT_DATA)}", file=sys.stderr)
+        result = train(
+            dataset,
+            config,
+            args.out,
+            progress=not args.no_progress,
+            resume=args.resume,
+        )
+    except ImportError as error:  # pragma: no cover - torch missing
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except (LtvMpcError, OSError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    report = result.report
+    fit = report["fit"]
+    print(
+        "FIT "
+        + ", ".join(f"{k} {v:.2f} %" for k, v in fit.items())
+        + f"; rho(A_delta) = {report['rho_A_delta']:.4f}, rho_s = {report['rho_s']:.4f}, "
+        f"r1 = {report['r1']:.4f}, r2 = {report['r2']:.4f}; {report['epochs_run']} epochs in "
+        f"{report['wall_time_s']:.0f} s"
+    )
+    for path in (result.model_path, result.report_path, result.plot_path):
+        if path is not None:
+            print(f"wrote {path}")
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add ``generate-data`` and ``train`` to ``subparsers`` (from ``add_subparsers()``)."""
+    gen = subparsers.add_parser(
+        "generate-data",
+        help="simulate the pH plant's identification data (paper Section V)",
+        description=(
+            "Simulate the pH-neutralization plant under multilevel pseudo-random base flow "
+            "q3 in [12.5, 17] mL/s (levels held 10..100 samples, Ts = 10 s, q2 = 0.55 mL/s), "
+            "starting from the nominal steady state, and save the sequences split "
+            "train/val/test as .npz (optionally CSV)."
+        ),
+    )
+    gen.add_argument(
+        "--out",
+        default=_DEFAULT_DATA,
+        help=f"output .npz file (default {_DEFAULT_DATA})",
+    )
+    _add_data_options(gen, "--seed")
+    gen.add_argument("--csv", default=None, help="also write a tidy CSV to this file")
+    gen.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    gen.set_defaults(func=generate_data_command)
+
+    tr = subparsers.add_parser(
+        "train",
+        help="train a delta-ISS LSTM on the pH data (needs torch)",
+        description=(
+            "Train an LSTM with the paper's delta-ISS-penalized loss (MSE + lambda1 max(r1,0) "
+            "+ lambda1 max(r2,0) + lambda2 min(r1,0) + lambda2 min(r2,0)), Adam, stopping after "
+            "the planned epochs only once delta-ISS holds. Writes <out>/ph_lstm_n<N>.npz, a JSON "
+            "report and a PNG of the test-set prediction; checkpoints allow --resume. "
+            "Needs torch: pip install torch==2.13.0, then pip install -e '.[train]'."
+        ),
+    )
+    tr.add_argument(
+        "--data",
+        default=None,
+        help="dataset .npz from generate-data (default: generate it with --data-seed/--sequences/"
+        "--steps and save it in --out)",
+    )
+    tr.add_argument(
+        "--out", default="training_output", help="output folder (default training_output)"
+    )
+    _add_data_options(tr, "--data-seed")
+    tr.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="training seed (initialization, shuffling; default 0)",
+    )
+    tr.add_argument("--neurons", type=int, default=None, help="LSTM neurons n (default 5)")
+    tr.add_argument("--epochs", type=int, default=None, help="planned epochs (default 1000)")
+    tr.add_argument(
+        "--max-extra-epochs",
+        type=int,
+        default=None,
+        help="extra epochs allowed until delta-ISS holds (default 1000)",
+    )
+    tr.add_argument("--lambda1", type=float, default=None, help="delta-ISS penalty (default 0.03)")
+    tr.add_argument(
+        "--lambda2", type=float, default=None, help="delta-ISS margin reward (default 0.02)"
+    )
+    tr.add_argument("--lr", type=float, default=None, help="Adam learning rate (default 1e-3)")
+    tr.add_argument(
+        "--truncation",
+        type=int,
+        default=None,
+        help="truncated-BPTT chunk length in samples, 0 = whole sequences (default 100)",
+    )
+    tr.add_argument(
+        "--batch-size", type=int, default=None, help="sequences per batch, 0 = all (default 0)"
+    )
+    tr.add_argument(
+        "--washout",
+        type=int,
+        default=None,
+        help="initial samples excluded from the loss (default 0)",
+    )
+    tr.add_argument(
+        "--forget-bias-init",
+        type=float,
+        default=None,
+        help="initial forget-gate bias (default 2.0: slow memory, like the plant)",
+    )
+    tr.add_argument(
+        "--lr-final-factor",
+        type=float,
+        default=None,
+        help="cosine learning-rate decay to lr * factor over the epochs (default 1: constant)",
+    )
+    tr.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch.set_num_threads (default 1, fastest for n=5)",
+    )
+    tr.add_argument(
+        "--checkpoint-every", type=int, default=None, help="epochs between checkpoints (default 50)"
+    )
+    tr.add_argument("--dtype", choices=("float64", "float32"), default=None, help="default float64")
+    tr.add_argument(
+        "--resume",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="continue from <out>/checkpoint.pt when present (default on)",
+    )
+    tr.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    tr.set_defaults(func=train_command)
