@@ -22,6 +22,7 @@ from .certificates import (
     observer_certificate,
 )
 from .certify import Certification, CertificationSettings, certify
+from .controller import ControllerStep, OffsetFreeController
 from .exceptions import (
     DimensionError,
     InvalidValueError,
@@ -34,20 +35,27 @@ from .exceptions import (
 )
 from .model import LSTMModel, ModelFormatError, Normalization
 from .observer import Observer
+from .plants import LSTMPlant, PHNeutralizationPlant, Plant
 from .reference import KBarEstimate, ReferenceCalculator, ReferenceSolution, estimate_K_bar
+from .rti import MPCConfig, MPCSolution, RobustMPC
 from .shipped import load_model, shipped_models, shipped_path
+from .simulation import SimulationResult, simulate
 from .tightening import SetpointRateBound, TighteningCertificate, tightening_certificate
 
 __all__ = [
     "Certification",
     "CertificationSettings",
+    "ControllerStep",
     "DeltaISSCertificate",
     "DimensionError",
     "IncrementalLyapunovCertificate",
     "InvalidValueError",
     "KBarEstimate",
     "LSTMModel",
+    "LSTMPlant",
     "LtvMpcError",
+    "MPCConfig",
+    "MPCSolution",
     "ModelFormatError",
     "Normalization",
     "NotDeltaISSError",
@@ -55,9 +63,14 @@ __all__ = [
     "ObserverCertificate",
     "ObserverGainError",
     "ObserverGains",
+    "OffsetFreeController",
+    "PHNeutralizationPlant",
+    "Plant",
     "ReferenceCalculator",
     "ReferenceSolution",
+    "RobustMPC",
     "SetpointRateBound",
+    "SimulationResult",
     "SolverError",
     "SolverNotFound",
     "TighteningCertificate",
@@ -72,5 +85,6 @@ __all__ = [
     "observer_certificate",
     "shipped_models",
     "shipped_path",
+    "simulate",
     "tightening_certificate",
 ]

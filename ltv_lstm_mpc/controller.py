@@ -1,0 +1,190 @@
+r"""The offset-free control loop of the paper's Fig. 1, one ``step`` per sample.
+
+normalization -> :class:`~ltv_lstm_mpc.observer.Observer` (eq. lstm_observer) ->
+:class:`~ltv_lstm_mpc.reference.ReferenceCalculator` (eq. reference_calculation) ->
+:class:`~ltv_lstm_mpc.rti.RobustMPC` (eq. optimization) -> de-normalization.
+
+Timing convention: at sample k the controller holds :math:`(\hat x_k, \hat d_k)` and
+:math:`\hat e_{o,k}`. ``step(y_phi_k, y0_phi_k)`` computes :math:`u_k` from them, then
+feeds :math:`(y_k, u_k)` to the observer, which yields :math:`(\hat x_{k+1}, \hat d_{k+1})`,
+and advances :math:`\hat e_{o,k+1} = \rho_o \hat e_{o,k} + \bar w` (eq. eo_evolution).
+At the first call the observer starts at the LSTM equilibrium matching :math:`y_0`
+with :math:`\hat d_0 = 0` (SPEC 10b).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .exceptions import InvalidValueError, LtvMpcError
+from .model import LSTMModel
+from .observer import Observer
+from .reference import ReferenceCalculator, ReferenceSolution
+from .rti import MPCConfig, MPCSolution, RobustMPC
+
+__all__ = ["ControllerStep", "OffsetFreeController"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ControllerStep:
+    """Everything one :meth:`OffsetFreeController.step` computed (normalized unless ``_phi``).
+
+    Attributes
+    ----------
+    y, y0 : ndarray (p,)
+        Measured output and the (rate-limited) set-point used.
+    u : ndarray (m,)
+        Applied input; ``u_phi`` is its physical value.
+    x_hat, d_hat : ndarray
+        Estimates used at this step (before the observer update).
+    e_hat : float
+        :math:`\\hat e_{o,k}` used.
+    x_bar, u_bar : ndarray
+        Reference-calculator set-points.
+    reference_ok : bool
+        Reference converged with :math:`\\bar u \\in \\mathcal{U}`.
+    mpc : MPCSolution
+        The robust MPC result (status, policy, residuals, ...).
+    time_observer, time_reference, time_mpc : float
+        Wall time of each part, s.
+    """
+
+    y: FloatArray
+    y0: FloatArray
+    u: FloatArray
+    u_phi: FloatArray
+    x_hat: FloatArray
+    d_hat: FloatArray
+    e_hat: float
+    x_bar: FloatArray
+    u_bar: FloatArray
+    reference_ok: bool
+    mpc: MPCSolution
+    time_observer: float
+    time_reference: float
+    time_mpc: float
+
+    @property
+    def time_total(self) -> float:
+        """Observer + reference + MPC wall time, s."""
+        return self.time_observer + self.time_reference + self.time_mpc
+
+
+class OffsetFreeController:
+    r"""Robust offset-free LSTM MPC (paper Fig. 1) with physical inputs and outputs.
+
+    Parameters
+    ----------
+    model : LSTMModel
+        Needs a normalization (physical <-> normalized signals) and m = p.
+    config : MPCConfig, optional
+    setpoint_rate_limit : float, optional
+        Largest change of the normalized set-point per step (Theorem 3's
+        :math:`\Delta y^0_{max}`; see ``certification.rate_bound``). None: no limiter.
+    """
+
+    def __init__(
+        self,
+        model: LSTMModel,
+        config: MPCConfig | None = None,
+        *,
+        setpoint_rate_limit: float | None = None,
+    ) -> None:
+        if model.normalization is None:
+            raise InvalidValueError(
+                "OffsetFreeController works with physical signals and needs a model with a "
+                "normalization (u_phi_min, u_phi_max, y_phi_min, y_phi_max)"
+            )
+        if setpoint_rate_limit is not None and not setpoint_rate_limit > 0:
+            raise InvalidValueError(
+                f"setpoint_rate_limit must be positive, got {setpoint_rate_limit}"
+            )
+        self.model = model
+        self.config = config = config or MPCConfig()
+        self.mpc = RobustMPC(model, config)
+        self.certification = self.mpc.certification
+        self.observer = Observer(model, self.certification.observer.gains, d_max=config.d_max)
+        self.reference = ReferenceCalculator(model, u_max=config.u_max, strict=False)
+        self.setpoint_rate_limit = setpoint_rate_limit
+        self.records: list[ControllerStep] = []
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the uninitialized state (the next step initializes the observer)."""
+        self._initialized = False
+        self._y0: FloatArray | None = None
+        self._last_reference: ReferenceSolution | None = None
+        tightening = self.certification.tightening
+        self.e_hat = tightening.e_inf if self.config.e_hat0 is None else float(self.config.e_hat0)
+        self.mpc.reset()
+        self.reference.reset()
+        self.records = []
+
+    def _limit(self, y0_target: FloatArray) -> FloatArray:
+        if self._y0 is None or self.setpoint_rate_limit is None:
+            return y0_target
+        change = np.clip(y0_target - self._y0, -self.setpoint_rate_limit, self.setpoint_rate_limit)
+        return np.asarray(self._y0 + change, dtype=np.float64)
+
+    def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
+        """One sample: measured physical output and set-point in, physical input out."""
+        model = self.model
+        y = np.atleast_1d(np.asarray(model.normalize_y(np.atleast_1d(y_phi)), dtype=np.float64))
+        y0_target = np.atleast_1d(model.normalize_y(np.atleast_1d(y0_phi)))
+        if y.shape != (model.p,) or y0_target.shape != (model.p,):
+            raise InvalidValueError(f"y_phi and y0_phi must have {model.p} entries")
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(y0_target))):
+            raise InvalidValueError(f"y_phi and y0_phi must be finite, got {y_phi!r}, {y0_phi!r}")
+        t0 = time.perf_counter()
+        if not self._initialized:
+            self.observer.initialize(y, reference=self.reference)
+            self.reference.reset()
+            self._initialized = True
+        y0 = self._limit(y0_target)
+        self._y0 = y0
+        x_hat, d_hat = self.observer.x_hat.copy(), self.observer.d_hat.copy()
+        t1 = time.perf_counter()
+        reference = self.reference.solve(y0, d_hat)
+        if not reference.converged:
+            if self._last_reference is None:
+                raise LtvMpcError(
+                    f"the reference calculator found no equilibrium for y0 = {y0.tolist()}, "
+                    f"d_hat = {d_hat.tolist()} at the first step "
+                    f"(residual {reference.residual:.2e})"
+                )
+            reference = self._last_reference
+        self._last_reference = reference
+        t2 = time.perf_counter()
+        solution = self.mpc.solve(x_hat, reference.x_bar, reference.u_bar, y0, self.e_hat)
+        u = solution.u[0].copy()
+        t3 = time.perf_counter()
+        self.observer.step(y, u)
+        e_hat_used = self.e_hat
+        self.e_hat = self.certification.tightening.next_e_hat(self.e_hat)
+        t4 = time.perf_counter()
+        u_phi = np.asarray(model.denormalize_u(u), dtype=np.float64)
+        self.records.append(
+            ControllerStep(
+                y=y,
+                y0=y0,
+                u=u,
+                u_phi=u_phi,
+                x_hat=x_hat,
+                d_hat=d_hat,
+                e_hat=e_hat_used,
+                x_bar=reference.x_bar,
+                u_bar=reference.u_bar,
+                reference_ok=reference.ok,
+                mpc=solution,
+                time_observer=(t1 - t0) + (t4 - t3),
+                time_reference=t2 - t1,
+                time_mpc=t3 - t2,
+            )
+        )
+        return u_phi

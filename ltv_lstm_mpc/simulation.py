@@ -1,0 +1,153 @@
+"""Closed-loop simulation: plant -> controller -> plant, with a record of everything."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from tqdm.auto import tqdm
+
+from .controller import OffsetFreeController
+from .exceptions import DimensionError
+from .plants import Plant
+
+__all__ = ["SimulationResult", "simulate"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """Arrays of one closed-loop run (index k = sample k; physical units where ``_phi``).
+
+    Attributes
+    ----------
+    y_phi : (steps, p)
+        Measured plant output at sample k (before u_k is applied).
+    u_phi : (steps, m)
+        Applied input.
+    y0_phi : (steps, p)
+        Requested set-point; ``y0`` is the normalized set-point used (rate-limited).
+    d_phi : (steps, q)
+        Disturbance applied to the plant during step k (NaN where the plant default
+        was used).
+    d_hat : (steps, p)
+        Disturbance estimate (normalized).
+    x_hat : (steps, 2n)
+        State estimate.
+    e_hat, alpha : (steps,)
+        Observer-error bound and terminal level.
+    feasible : (steps,) bool
+        Nominal FHOCP solved.
+    policy : (steps,) str
+        Policy used (``"nominal"`` or the fallback).
+    status : (steps,) str
+        FHOCP status.
+    output_violation : (steps,)
+        Nonlinear violation of the tightened output rows by the applied plan (>= 0).
+    time_observer, time_reference, time_mpc, time_total : (steps,)
+        Per-step wall times, s.
+    """
+
+    y_phi: FloatArray
+    u_phi: FloatArray
+    y0_phi: FloatArray
+    y0: FloatArray
+    d_phi: FloatArray
+    d_hat: FloatArray
+    x_hat: FloatArray
+    e_hat: FloatArray
+    alpha: FloatArray
+    feasible: NDArray[np.bool_]
+    policy: NDArray[np.str_]
+    status: NDArray[np.str_]
+    output_violation: FloatArray
+    time_observer: FloatArray
+    time_reference: FloatArray
+    time_mpc: FloatArray
+    time_total: FloatArray
+
+
+def _as_schedule(
+    name: str, value: ArrayLike | Callable[[int], ArrayLike] | None, steps: int
+) -> list[FloatArray | None]:
+    if value is None:
+        return [None] * steps
+    if callable(value):
+        return [np.atleast_1d(np.asarray(value(k), dtype=np.float64)) for k in range(steps)]
+    array = np.asarray(value, dtype=np.float64)
+    if array.ndim == 0:
+        return [np.atleast_1d(array)] * steps
+    if array.shape[0] < steps:
+        raise DimensionError(f"{name} has {array.shape[0]} samples, need at least steps={steps}")
+    return [np.atleast_1d(array[k]) for k in range(steps)]
+
+
+def simulate(
+    plant: Plant,
+    controller: OffsetFreeController,
+    setpoints: ArrayLike | Callable[[int], ArrayLike],
+    disturbances: ArrayLike | Callable[[int], ArrayLike] | None = None,
+    steps: int | None = None,
+    *,
+    progress: bool = True,
+    description: str = "closed loop",
+) -> SimulationResult:
+    """Run plant and controller in closed loop.
+
+    Parameters
+    ----------
+    plant : Plant
+        Anything with ``output()`` and ``step(u_phi, d_phi)`` (pH plant, LSTM plant).
+        It is used as it is (call ``plant.reset()`` first if needed).
+    controller : OffsetFreeController
+        Reset before the run.
+    setpoints : array (steps, p) or (steps,), scalar, or callable k -> y0_phi
+        Physical set-point per sample.
+    disturbances : array, scalar, callable or None
+        Physical disturbance passed to ``plant.step`` at each sample (None: the plant's
+        default).
+    steps : int, optional
+        Number of samples (default: the length of ``setpoints``).
+    progress : bool
+        Show a tqdm progress bar.
+    """
+    if steps is None:
+        if callable(setpoints) or np.ndim(setpoints) == 0:
+            raise DimensionError("steps is required when setpoints is a scalar or a callable")
+        steps = int(np.shape(setpoints)[0])
+    y0_schedule = _as_schedule("setpoints", setpoints, steps)
+    d_schedule = _as_schedule("disturbances", disturbances, steps)
+    controller.reset()
+    y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
+    ys, us, y0s, ds = [], [], [], []
+    for k in tqdm(range(steps), disable=not progress, desc=description, leave=False):
+        u_phi = controller.step(y_phi, y0_schedule[k])
+        ys.append(y_phi)
+        us.append(u_phi)
+        y0s.append(y0_schedule[k])
+        d = d_schedule[k]
+        ds.append(np.full(1, np.nan) if d is None else d)
+        y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, d), dtype=np.float64))
+    records = controller.records
+    return SimulationResult(
+        y_phi=np.array(ys),
+        u_phi=np.array(us),
+        y0_phi=np.array(y0s),
+        y0=np.array([r.y0 for r in records]),
+        d_phi=np.array(ds),
+        d_hat=np.array([r.d_hat for r in records]),
+        x_hat=np.array([r.x_hat for r in records]),
+        e_hat=np.array([r.e_hat for r in records]),
+        alpha=np.array([r.mpc.alpha for r in records]),
+        feasible=np.array([r.mpc.feasible for r in records]),
+        policy=np.array([r.mpc.policy for r in records]),
+        status=np.array([r.mpc.status for r in records]),
+        output_violation=np.array([r.mpc.residuals["output_violation"] for r in records]),
+        time_observer=np.array([r.time_observer for r in records]),
+        time_reference=np.array([r.time_reference for r in records]),
+        time_mpc=np.array([r.time_mpc for r in records]),
+        time_total=np.array([r.time_total for r in records]),
+    )
