@@ -87,6 +87,10 @@ class OffsetFreeController:
     setpoint_rate_limit : float, optional
         Largest change of the normalized set-point per step (Theorem 3's
         :math:`\Delta y^0_{max}`; see ``certification.rate_bound``). None: no limiter.
+    mpc : RobustMPC-like, optional
+        The MPC to use (default ``RobustMPC(model, config)``). Anything with the same
+        ``solve(x_hat, x_bar, u_bar, y0, e_hat) -> MPCSolution``, ``reset()`` and
+        ``certification`` attributes fits (e.g. a fast-path or exact-NMPC solver).
     """
 
     def __init__(
@@ -95,6 +99,7 @@ class OffsetFreeController:
         config: MPCConfig | None = None,
         *,
         setpoint_rate_limit: float | None = None,
+        mpc: RobustMPC | None = None,
     ) -> None:
         if model.normalization is None:
             raise InvalidValueError(
@@ -107,7 +112,7 @@ class OffsetFreeController:
             )
         self.model = model
         self.config = config = config or MPCConfig()
-        self.mpc = RobustMPC(model, config)
+        self.mpc = mpc if mpc is not None else RobustMPC(model, config)
         self.certification = self.mpc.certification
         self.observer = Observer(model, self.certification.observer.gains, d_max=config.d_max)
         self.reference = ReferenceCalculator(model, u_max=config.u_max, strict=False)
