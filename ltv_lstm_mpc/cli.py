@@ -11,6 +11,7 @@ generate-data, train
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 from collections.abc import Sequence
@@ -26,6 +27,7 @@ from .shipped import shipped_path
 __all__ = ["build_parser", "main"]
 
 EXAMPLE_MODEL = "example_delta_iss_n3.npz"
+PH_MODEL = "ph_lstm_n5.npz"
 
 
 def _resolve_model_path(name: str) -> Path:
@@ -155,6 +157,134 @@ def _run_certify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_reproduce(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "reproduce",
+        help="run the paper's five closed-loop simulations and print a summary table",
+        description=(
+            "Reproduce the five simulations of the paper's Section V on the shipped pH model: "
+            "(1) LSTM plant under Theorem 3's conditions, (2) larger changes, (3) set-point "
+            "steps with infeasible instants, (4) pH plant with L_d = 0.01, (5) pH plant with "
+            "L_d = 0.1. Prints steady-state offsets, constraint violations, infeasible steps, "
+            "step times and the certificate numbers next to the paper's. With --out DIR, writes "
+            "a PNG, CSV and JSON per scenario and DIR/summary.json."
+        ),
+    )
+    parser.add_argument("--out", type=Path, default=None, help="output folder (PNG/CSV/JSON)")
+    parser.add_argument(
+        "--model", default=PH_MODEL, help=f"model file or shipped name (default {PH_MODEL})"
+    )
+    parser.add_argument(
+        "--only", nargs="*", default=None, help="run only scenarios whose name contains these"
+    )
+    parser.add_argument("--solver", default=None, help="solver backend (default cvxpy:CLARABEL)")
+    parser.add_argument("--short", action="store_true", help="quarter-length schedules (smoke)")
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG files")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.set_defaults(func=_run_reproduce)
+
+
+def _run_reproduce(args: argparse.Namespace) -> int:
+    from .reproduce import format_certificates, format_table, reproduce
+
+    path = _resolve_model_path(args.model)
+    model = LSTMModel.load(path)
+    report = reproduce(
+        model,
+        args.out,
+        only=args.only,
+        solver=args.solver,
+        short=args.short,
+        progress=not args.no_progress,
+        plot=not args.no_plots,
+        model_info={"path": str(path)},
+    )
+    print(format_table(report["scenarios"]))
+    print()
+    print(format_certificates(report["certificates"]))
+    print(
+        f"\nwall time {report['wall_time_s']:.1f} s"
+        + (f"; results in {args.out}" if args.out else "")
+    )
+    return 0
+
+
+def _add_simulate(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "simulate",
+        help="run one configurable closed-loop scenario",
+        description=(
+            "Closed loop of the offset-free LSTM MPC on the pH plant or the LSTM plant: a "
+            "piecewise-constant set-point and disturbance schedule, any solver, horizon and "
+            "observer gain. Writes PNG/CSV/JSON with --out."
+        ),
+    )
+    parser.add_argument("--model", default=PH_MODEL, help=f"model (default {PH_MODEL})")
+    parser.add_argument("--plant", choices=["ph", "lstm"], default="ph", help="plant (default ph)")
+    parser.add_argument(
+        "--setpoints", type=float, nargs="+", default=[7.5, 6.8, 8.0], help="set-points (pH)"
+    )
+    parser.add_argument(
+        "--disturbances",
+        type=float,
+        nargs="+",
+        default=None,
+        help="disturbance per segment (q2 in mL/s for ph, output pH offset for lstm)",
+    )
+    parser.add_argument("--segment", type=int, default=400, help="samples per segment (400)")
+    parser.add_argument("--solver", default="cvxpy:CLARABEL", help="solver backend")
+    parser.add_argument("--N", type=int, default=5, help="horizon (5)")
+    parser.add_argument("--L-d", type=float, default=0.1, help="observer gain L_d (0.1)")
+    parser.add_argument("--rate-limit", type=float, default=0.01, help="normalized y0 rate (0.01)")
+    parser.add_argument(
+        "--policy", choices=["paper", "soft", "shift"], default="paper", help="infeasibility policy"
+    )
+    parser.add_argument("--sqp-iterations", type=int, default=1, help="SQP iterations (1 = RTI)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (PNG/CSV/JSON)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(func=_run_simulate)
+
+
+def _run_simulate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .reproduce import format_table, write_scenario_outputs
+    from .rti import MPCConfig
+    from .scenarios import Scenario, run_scenario
+
+    model = LSTMModel.load(_resolve_model_path(args.model))
+    segments = len(args.setpoints)
+    nominal = 0.55 if args.plant == "ph" else 0.0
+    disturbances = args.disturbances or [nominal] * segments
+    if len(disturbances) != segments:
+        raise LtvMpcError(
+            f"give one disturbance per set-point: {segments} set-points, {len(disturbances)} "
+            "disturbances"
+        )
+    lengths = [args.segment] * segments
+    edges = np.concatenate([[0], np.cumsum(lengths)])
+    scenario = Scenario(
+        name="simulate",
+        title=f"{args.plant} plant, {args.solver}, N = {args.N}, L_d = {args.L_d}",
+        plant=args.plant,
+        setpoints=np.repeat(np.asarray(args.setpoints, dtype=float), args.segment),
+        disturbances=np.repeat(np.asarray(disturbances, dtype=float), args.segment),
+        config=MPCConfig(
+            N=args.N,
+            L_d=args.L_d,
+            solver=args.solver,
+            infeasibility_policy=args.policy,
+            sqp_iterations=args.sqp_iterations,
+        ),
+        setpoint_rate_limit=args.rate_limit if args.rate_limit > 0 else None,
+        segments=[(int(a), int(b)) for a, b in itertools.pairwise(edges)],
+    )
+    result = run_scenario(scenario, model, progress=not args.no_progress)
+    summary = write_scenario_outputs(result, args.out) if args.out is not None else result.summary()
+    print(format_table([summary]))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``ltv-lstm-mpc`` argument parser with every subcommand."""
     parser = argparse.ArgumentParser(
@@ -167,6 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_certify(subparsers)
+    _add_reproduce(subparsers)
+    _add_simulate(subparsers)
     _register_optional_commands(subparsers)
     return parser
 
@@ -190,7 +322,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args))
-    except (LtvMpcError, FileNotFoundError) as error:
+    except (LtvMpcError, FileNotFoundError, ValueError) as error:
         print(f"ltv-lstm-mpc {args.command}: error: {error}", file=sys.stderr)
         return 1
 

@@ -151,6 +151,8 @@ class OffsetFreeController:
             self.observer.initialize(y, reference=self.reference)
             self.reference.reset()
             self._initialized = True
+            if self.setpoint_rate_limit is not None:
+                self._y0 = y.copy()  # the limited set-point starts from the measured output
         y0 = self._limit(y0_target)
         self._y0 = y0
         x_hat, d_hat = self.observer.x_hat.copy(), self.observer.d_hat.copy()

@@ -1,0 +1,232 @@
+"""Reproduce the paper's five simulations: plots, CSV/JSON numbers and a summary table.
+
+Used by ``ltv-lstm-mpc reproduce`` / ``ltv-lstm-mpc simulate`` and
+``experiments/paper_scenarios.py``. Each scenario writes ``<name>.png`` (output vs
+set-point with the constraint, disturbance, input; grey bands where the FHOCP was
+infeasible), ``<name>.csv`` (one row per sample) and ``<name>.json`` (its summary);
+``summary.json`` collects all summaries and the certificate numbers next to the paper's.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .certify import CertificationSettings, certify
+from .model import LSTMModel
+from .scenarios import Y_PHI_MAX, Y_PHI_MIN, Scenario, ScenarioResult, paper_scenarios, run_scenario
+
+__all__ = ["PAPER_VALUES", "certificate_comparison", "reproduce", "write_scenario_outputs"]
+
+#: Numbers the paper reports (Section V) for its own trained model.
+PAPER_VALUES: dict[str, Any] = {
+    "FIT_test_percent": 94.0,
+    "rho_s": 0.92,
+    "L_d=0.01": {"rho_o": 0.99, "L_max": 8.4e-4, "w_max": 4.3e-5, "e_inf": 1.04, "K_bar": 2.67,
+                 "y0_interval_phi": [6.49, 8.51]},
+    "L_d=0.1": {"rho_o": 0.97, "L_max": 8.5e-3, "e_inf": 0.38, "y0_interval_phi": [6.57, 8.43]},
+}  # fmt: skip
+
+
+def certificate_comparison(model: LSTMModel) -> dict[str, Any]:
+    """Our certificate numbers for ``model`` next to the paper's, for L_d = 0.01 and 0.1."""
+    ours: dict[str, Any] = {}
+    for l_d in (0.01, 0.1):
+        cert = certify(model, CertificationSettings(l_d=l_d))
+        interval = cert.y0_interval_phi
+        ours[f"L_d={l_d}"] = {
+            "rho_A_delta": cert.delta_iss.rho_A_delta,
+            "rho_s": cert.lyapunov.rho_s,
+            "rho_o": cert.observer.rho_o,
+            "L_max": cert.observer.L_max,
+            "w_max": cert.observer.w_max,
+            "e_inf": cert.tightening.e_inf,
+            "K_bar": cert.K_bar.K_bar,
+            "delta_y0_max": cert.rate_bound.delta_y0_max if cert.rate_bound.holds else None,
+            "y0_interval_phi": None if interval is None else [float(v[0]) for v in interval],
+        }
+    return {"ours": ours, "paper": PAPER_VALUES}
+
+
+def _shade(ax: Any, mask: np.ndarray) -> None:
+    """Grey bands over the samples where ``mask`` is true."""
+    if not np.any(mask):
+        return
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        ax.axvspan(start - 0.5, stop - 0.5, color="0.8", lw=0, zorder=0)
+
+
+def plot_scenario(result: ScenarioResult, path: Path) -> Path:
+    """PNG like the paper's figures: output vs set-point, disturbance, input."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sim, sc = result.simulation, result.scenario
+    model = result.controller.model
+    k = np.arange(sc.steps)
+    infeasible = ~sim.feasible
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True, height_ratios=[3, 1.3, 1.3])
+    ax = axes[0]
+    _shade(ax, infeasible)
+    ax.plot(k, sim.y_phi[:, 0], color="tab:blue", lw=1.3, label="output $y_\\phi$")
+    ax.plot(k, sc.setpoints, "k--", lw=1.0, label="set-point $y^0_\\phi$ (requested)")
+    if sc.setpoint_rate_limit is not None:
+        ax.plot(k, model.denormalize_y(sim.y0[:, 0]), color="0.4", lw=0.8, ls=":",
+                label="rate-limited set-point")  # fmt: skip
+    ax.axhline(Y_PHI_MIN, color="tab:red", lw=0.8)
+    ax.axhline(Y_PHI_MAX, color="tab:red", lw=0.8, label="constraint [6, 9] pH")
+    ax.set_ylabel("pH")
+    ax.set_ylim(min(Y_PHI_MIN, sim.y_phi.min()) - 0.2, max(Y_PHI_MAX, sim.y_phi.max()) + 0.2)
+    ax.legend(loc="upper right", fontsize=8, ncol=2)
+    summary = result.summary()
+    ax.set_title(
+        f"{sc.title}\ninfeasible steps {summary['infeasible_steps']}, max violation "
+        f"{summary['max_output_violation']:.2g} pH, final offset {summary['final_offset']:.1e} pH",
+        fontsize=10,
+    )
+    ax = axes[1]
+    _shade(ax, infeasible)
+    label = "output disturbance $d$ (pH)" if sc.plant == "lstm" else "$q_2$ (mL/s)"
+    ax.plot(k, sc.disturbances, color="tab:orange", ls="-.", lw=1.2, label=label)
+    ax.legend(loc="upper right", fontsize=8)
+    ax = axes[2]
+    _shade(ax, infeasible)
+    ax.plot(k, sim.u_phi[:, 0], color="tab:green", lw=1.0, label="$q_3$ (mL/s)")
+    ax.set_xlabel(f"sample k (Ts = 10 s){'; grey: FHOCP infeasible' if infeasible.any() else ''}")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_scenario_outputs(
+    result: ScenarioResult, out: Path, *, plot: bool = True
+) -> dict[str, Any]:
+    """Write ``<name>.csv``, ``<name>.json`` and (optionally) ``<name>.png``; return the summary."""
+    out.mkdir(parents=True, exist_ok=True)
+    sim, sc = result.simulation, result.scenario
+    name = sc.name
+    columns = {
+        "k": np.arange(sc.steps),
+        "y_phi": sim.y_phi[:, 0],
+        "y0_phi": sc.setpoints,
+        "y0_used": result.controller.model.denormalize_y(sim.y0[:, 0]),
+        "u_phi": sim.u_phi[:, 0],
+        "disturbance": sc.disturbances,
+        "d_hat": sim.d_hat[:, 0],
+        "e_hat": sim.e_hat,
+        "alpha": sim.alpha,
+        "feasible": sim.feasible.astype(int),
+        "policy": sim.policy,
+        "status": sim.status,
+        "predicted_violation": sim.output_violation,
+        "time_observer_s": sim.time_observer,
+        "time_reference_s": sim.time_reference,
+        "time_mpc_s": sim.time_mpc,
+    }
+    with (out / f"{name}.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(columns)
+        writer.writerows(zip(*columns.values(), strict=True))
+    summary = result.summary()
+    (out / f"{name}.json").write_text(json.dumps(summary, indent=2))
+    if plot:
+        plot_scenario(result, out / f"{name}.png")
+    return summary
+
+
+def format_table(summaries: Sequence[dict[str, Any]]) -> str:
+    """Plain-text summary table, one row per scenario."""
+    header = (
+        f"{'scenario':<18} {'steps':>5} {'final offset':>12} {'max viol':>9} {'infeas':>6} "
+        f"{'fallback':>8} {'median ms':>9} {'max ms':>7}"
+    )
+    lines = [header, "-" * len(header)]
+    for s in summaries:
+        offset = "-" if s["final_offset"] is None else f"{s['final_offset']:.1e}"
+        lines.append(
+            f"{s['name']:<18} {s['steps']:>5} {offset:>12} {s['max_output_violation']:>9.2g} "
+            f"{s['infeasible_steps']:>6} {s['fallback_steps']:>8} "
+            f"{1e3 * s['median_step_time_s']:>9.2f} {1e3 * s['max_step_time_s']:>7.1f}"
+        )
+    return "\n".join(lines)
+
+
+def format_certificates(comparison: dict[str, Any]) -> str:
+    """Certificate numbers of the model next to the paper's."""
+    lines = [f"{'certificate':<22} {'ours':>22} {'paper':>16}"]
+    for key in ("L_d=0.01", "L_d=0.1"):
+        ours, paper = comparison["ours"][key], comparison["paper"][key]
+        for name in ("rho_o", "L_max", "w_max", "e_inf", "K_bar", "y0_interval_phi"):
+            value = ours[name]
+            if isinstance(value, list):
+                shown = f"[{value[0]:.2f}, {value[1]:.2f}]"
+            else:
+                shown = f"{value:.3g}"
+            ref = paper.get(name)
+            ref_shown = "-" if ref is None else (
+                f"[{ref[0]:.2f}, {ref[1]:.2f}]" if isinstance(ref, list) else f"{ref:.3g}"
+            )  # fmt: skip
+            lines.append(f"{key + ' ' + name:<22} {shown:>22} {ref_shown:>16}")
+    rho_s = comparison["ours"]["L_d=0.01"]["rho_s"]
+    lines.append(
+        f"{'rho_s (Q_s = 1000 I)':<22} {rho_s:>22.3g} {comparison['paper']['rho_s']:>16.3g}"
+    )
+    return "\n".join(lines)
+
+
+def reproduce(
+    model: LSTMModel,
+    out: Path | None = None,
+    *,
+    only: Sequence[str] | None = None,
+    solver: str | None = None,
+    short: bool = False,
+    progress: bool = True,
+    plot: bool = True,
+    model_info: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Run the paper's scenarios (all, or those whose name contains one of ``only``).
+
+    Returns
+    -------
+    dict
+        ``{"scenarios": [summary, ...], "certificates": {...}, "wall_time_s": float}``;
+        also written to ``out/summary.json`` when ``out`` is given.
+    """
+    start = time.perf_counter()
+    scenarios: list[Scenario] = [
+        sc
+        for sc in paper_scenarios(model, short=short)
+        if not only or any(o in sc.name for o in only)
+    ]
+    if not scenarios:
+        names = [sc.name for sc in paper_scenarios(model, short=True)]
+        raise ValueError(f"no scenario matches {list(only or [])}; scenarios: {names}")
+    summaries = []
+    for scenario in scenarios:
+        result = run_scenario(scenario, model, solver=solver, progress=progress)
+        if out is not None:
+            summaries.append(write_scenario_outputs(result, out, plot=plot))
+        else:
+            summaries.append(result.summary())
+    report = {
+        "model": model_info or {},
+        "scenarios": summaries,
+        "certificates": certificate_comparison(model),
+        "wall_time_s": time.perf_counter() - start,
+    }
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "summary.json").write_text(json.dumps(report, indent=2))
+    return report
