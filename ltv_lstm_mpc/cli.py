@@ -51,8 +51,11 @@ def _add_certify(subparsers: Any) -> None:
     parser.add_argument(
         "model",
         nargs="?",
-        default=EXAMPLE_MODEL,
-        help=f"model .npz file or the name of a shipped model (default: {EXAMPLE_MODEL})",
+        default=PH_MODEL,
+        help=(
+            f"model .npz file or the name of a shipped model (default: {PH_MODEL}; also "
+            f"shipped: {EXAMPLE_MODEL})"
+        ),
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--u-max", type=float, default=1.0, help="input bound u_max (default 1)")
