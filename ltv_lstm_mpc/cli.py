@@ -311,7 +311,7 @@ def _register_optional_commands(subparsers: Any) -> None:
     import importlib
     import importlib.util
 
-    for name in ("training_cli",):
+    for name in ("training_cli", "bench"):
         if importlib.util.find_spec(f"{__package__}.{name}") is not None:
             importlib.import_module(f"{__package__}.{name}").register(subparsers)
 

@@ -24,7 +24,7 @@ from .exceptions import InvalidValueError, LtvMpcError
 from .model import LSTMModel
 from .observer import Observer
 from .reference import ReferenceCalculator, ReferenceSolution
-from .rti import MPCConfig, MPCSolution, RobustMPC
+from .rti import MPCConfig, MPCSolution, MPCSolver, RobustMPC
 
 __all__ = ["ControllerStep", "OffsetFreeController"]
 
@@ -99,7 +99,7 @@ class OffsetFreeController:
         config: MPCConfig | None = None,
         *,
         setpoint_rate_limit: float | None = None,
-        mpc: RobustMPC | None = None,
+        mpc: MPCSolver | None = None,
     ) -> None:
         if model.normalization is None:
             raise InvalidValueError(
@@ -112,7 +112,7 @@ class OffsetFreeController:
             )
         self.model = model
         self.config = config = config or MPCConfig()
-        self.mpc = mpc if mpc is not None else RobustMPC(model, config)
+        self.mpc: MPCSolver = mpc if mpc is not None else RobustMPC(model, config)
         self.certification = self.mpc.certification
         self.observer = Observer(model, self.certification.observer.gains, d_max=config.d_max)
         self.reference = ReferenceCalculator(model, u_max=config.u_max, strict=False)

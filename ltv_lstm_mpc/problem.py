@@ -391,7 +391,8 @@ class TerminalBoxReformulation:
         self.weight_c = float(P_f[0, 0] + P_f[0, 1])
         self.weight_h = float(P_f[1, 1] + P_f[0, 1])
         direction = np.array([1.0, np.sqrt(P_f[0, 0] / P_f[1, 1])])
-        self._unit_tau = direction / np.sqrt(direction @ P_f @ direction)
+        #: tau for alpha_k = 1: (||c_N - c_bar||, ||h_N - h_bar||) bounds on the P_f-ellipse
+        self.unit_tau = direction / np.sqrt(direction @ P_f @ direction)
 
     def apply(self, problem: ConvexProblem) -> ConvexProblem:
         """Return the cone-free problem (see the class docstring)."""
@@ -422,7 +423,7 @@ class TerminalBoxReformulation:
             alpha = problem.cones[2].f
             if sub.soft_penalty is not None:
                 alpha = max(alpha, 0.0)  # the terminal slack has no QP counterpart
-            tau = max(alpha, 0.0) * self._unit_tau / np.sqrt(n)
+            tau = max(alpha, 0.0) * self.unit_tau / np.sqrt(n)
             centre = np.concatenate([c_bar, h_bar])
             half = np.concatenate([np.full(n, tau[0]), np.full(n, tau[1])])
             lb[xN] = centre - half

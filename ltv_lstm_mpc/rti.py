@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -33,8 +33,9 @@ from .exceptions import DimensionError, InvalidValueError
 from .model import LSTMModel
 from .problem import FHOCPSubproblem
 from .solvers import Session, SolverStatus
+from .tightening import TighteningCertificate
 
-__all__ = ["MPCConfig", "MPCSolution", "RobustMPC"]
+__all__ = ["MPCConfig", "MPCSolution", "MPCSolver", "RobustMPC"]
 
 FloatArray = NDArray[np.float64]
 InfeasibilityPolicy = Literal["paper", "soft", "shift"]
@@ -200,6 +201,8 @@ class MPCSolution:
         ``linearization_gap`` (:math:`\\max |x - x_{linear}|`).
     reformulation : str or None
         The conservative cone reformulation applied by a QP-only backend.
+    solver_iterations : int
+        Solver iterations spent in this call (all SQP iterations and fallbacks).
     """
 
     u: FloatArray
@@ -216,6 +219,34 @@ class MPCSolution:
     cost: float
     residuals: dict[str, float]
     reformulation: str | None
+    solver_iterations: int = 0
+
+
+class MPCSolver(Protocol):
+    """What :class:`~ltv_lstm_mpc.controller.OffsetFreeController` needs from an MPC.
+
+    Implemented by :class:`RobustMPC`, ``fast.FastRobustMPC`` and ``nmpc.ExactNMPC``.
+    """
+
+    certification: Certification
+    tightening: TighteningCertificate
+
+    def solve(
+        self,
+        x_hat: ArrayLike,
+        x_bar: ArrayLike,
+        u_bar: ArrayLike,
+        y0: ArrayLike,
+        e_hat: float,
+        *,
+        warm: ArrayLike | None = None,
+    ) -> MPCSolution:
+        """Solve the FHOCP of eq. (optimization) at the given estimates and set-points."""
+        ...
+
+    def reset(self) -> None:
+        """Forget the previous plan."""
+        ...
 
 
 class RobustMPC:
@@ -279,6 +310,7 @@ class RobustMPC:
             for name, sub in self._subproblems.items()
         }
         self._previous_u: FloatArray | None = None
+        self._solver_iterations = 0
 
     def reset(self) -> None:
         """Forget the previous plan (the next candidate is u_bar repeated)."""
@@ -333,6 +365,7 @@ class RobustMPC:
                 session.update(problem)
             solution = session.solve()
             solver_time += solution.setup_time + solution.solve_time + solution.overhead_time
+            self._solver_iterations += int(solution.iterations or 0)
             status = solution.status
             reformulation = solution.reformulation
             if not solution.ok or solution.z is None:
@@ -374,6 +407,7 @@ class RobustMPC:
         start = time.perf_counter()
         model, config, ti = self.model, self.config, self.tightening
         n2, m, N = 2 * model.n, model.m, config.N
+        self._solver_iterations = 0
         x_hat_arr = self._vector("x_hat", x_hat, n2)
         x_bar_arr = self._vector("x_bar", x_bar, n2)
         u_bar_arr = self._vector("u_bar", u_bar, m)
@@ -470,6 +504,7 @@ class RobustMPC:
             cost=sub.cost(x_plan, u_plan, x_bar_arr, u_bar_arr),
             residuals=residuals,
             reformulation=reformulation,
+            solver_iterations=self._solver_iterations,
         )
 
     @staticmethod

@@ -32,7 +32,7 @@ from .certify import certify
 from .controller import OffsetFreeController
 from .model import LSTMModel
 from .plants import LSTMPlant, PHNeutralizationPlant, Plant
-from .rti import MPCConfig, RobustMPC
+from .rti import MPCConfig, MPCSolver
 from .simulation import SimulationResult, simulate
 
 __all__ = [
@@ -120,7 +120,7 @@ class Scenario:
         self,
         model: LSTMModel,
         *,
-        mpc: Any | None = None,
+        mpc: MPCSolver | None = None,
         solver: str | None = None,
         N: int | None = None,
     ) -> OffsetFreeController:
@@ -281,7 +281,7 @@ def run_scenario(
     scenario: Scenario,
     model: LSTMModel,
     *,
-    mpc: RobustMPC | None = None,
+    mpc: MPCSolver | None = None,
     solver: str | None = None,
     N: int | None = None,
     progress: bool = False,

@@ -101,7 +101,10 @@ class DaqpBackend(Backend):
         self._sense = np.zeros(data["bupper"].shape[0], dtype=np.int32)
         self._sense[self._ms : self._ms + self._p] = _EQUALITY
         self._model = daqp.Model()
-        self._model.setup(sense=self._sense.copy(), **data)
+        flag, _ = self._model.setup(sense=self._sense.copy(), **data)
+        # A negative flag (e.g. -6, overdetermined initial working set) leaves no model:
+        # remember it so solve() reports a FAILED status instead of crashing in update().
+        self._setup_flag: int | None = int(flag) if int(flag) < 0 else None
         settings = self._model.settings
         for key, value in self.options.items():
             settings[key] = value
@@ -109,7 +112,10 @@ class DaqpBackend(Backend):
         self._data_now = data
 
     def update(self, problem: ConvexProblem) -> None:
-        """Write new dense values into the model."""
+        """Write new dense values into the model (a fresh setup if the last one failed)."""
+        if self._setup_flag is not None:
+            self.setup(problem)
+            return
         data = self._data(problem)
         self._model.update(**data)
         self._data_now = data
@@ -135,6 +141,18 @@ class DaqpBackend(Backend):
 
     def solve(self, warm_start: WarmStart | None) -> RawResult:
         """Solve from the working set given by the warm start (empty when ``None``)."""
+        if self._setup_flag is not None:
+            status, note = map_status(STATUS_MAP, self._setup_flag)
+            return RawResult(
+                status=status,
+                native_status=f"setup exitflag {self._setup_flag}",
+                z=None,
+                duals=None,
+                solve_time=0.0,
+                iterations=0,
+                extra_setup_time=0.0,
+                notes=("DAQP rejected the problem at setup",) + (() if note is None else (note,)),
+            )
         z0, sol = warm_start_vectors(warm_start, self._n)
         duals = sol.duals if sol is not None else None
         self._model.update(sense=self._warm_sense(z0, duals))

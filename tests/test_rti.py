@@ -104,3 +104,16 @@ def test_bad_inputs_are_rejected(model) -> None:
         mpc.solve(np.zeros(6), np.zeros(6), [0.0], [0.0], float("nan"))
     with pytest.raises(ValueError, match="infeasibility_policy"):
         MPCConfig(infeasibility_policy="ignore")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("solver", ["daqp", "osqp", "cvxpy:CLARABEL"])
+def test_soft_policy_never_crashes_and_is_recorded(model, solver) -> None:
+    """A backend that rejects the soft problem (DAQP: setup exit flag -6) is a recorded
+    status with the shift fallback, never an exception inside the loop."""
+    mpc = RobustMPC(model, MPCConfig(solver=solver, infeasibility_policy="soft"))
+    x_hat, ref = fixed_subproblem(model, mpc)
+    for _ in range(2):  # the second call exercises update() after a failed setup
+        solution = mpc.solve(x_hat, ref.x_bar, ref.u_bar, [0.3], e_hat=1e3)
+        assert not solution.feasible
+        assert solution.policy in ("soft", "soft+shift")
+        assert np.all(np.abs(solution.u) <= 1.0 + 1e-9)

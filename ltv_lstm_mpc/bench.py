@@ -1,0 +1,775 @@
+r"""Solver comparison benchmark (issue 6): every backend on the same closed loops, side by side.
+
+For each scenario (the paper's, :func:`ltv_lstm_mpc.scenarios.paper_scenarios`), horizon N
+and backend, the closed loop of Fig. 1 is run with the same plant, set-points and
+disturbances, and one CSV row records
+
+* controller step time (median, p95, max, microseconds) and its split into observer,
+  reference calculator (eq. reference_calculation), linearize + build, and solve;
+* first-input and closed-loop-cost difference to the exact NMPC
+  (:class:`~ltv_lstm_mpc.nmpc.ExactNMPC`) and the ratios of the median step to the exact
+  NMPC and to the fastest backend of the same scenario and N;
+* nonlinear (re-simulated) violations of the tightened output rows, plant output
+  violations of :math:`\mathcal Y`, infeasible steps and fallback uses;
+* solver status counts and iterations.
+
+Backends
+--------
+``nmpc:ipopt``
+    :class:`~ltv_lstm_mpc.nmpc.ExactNMPC` (needs the ``nmpc`` extra).
+``fast:<solver>``
+    :class:`~ltv_lstm_mpc.fast.FastOffsetFreeController` (fused step) with a native
+    dense solver (:func:`~ltv_lstm_mpc.fast.fast_solvers`).
+``fast-mpc:<solver>``
+    :class:`~ltv_lstm_mpc.fast.FastRobustMPC` inside the regular
+    :class:`~ltv_lstm_mpc.controller.OffsetFreeController`.
+``rti:<solver>``
+    :class:`~ltv_lstm_mpc.rti.RobustMPC` with every
+    :func:`ltv_lstm_mpc.solvers.available_solvers` entry.
+
+Saved subproblems (``save_subproblems``) are the RTI subproblems of one closed loop as
+``.npz`` (:meth:`ConvexProblem.save`), both with cones and in the conservative QP form,
+with the numbers each backend produced; :func:`replay` re-solves them offline and
+compares.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import fnmatch
+import json
+import math
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .certify import Certification, certify
+from .controller import OffsetFreeController
+from .exceptions import InvalidValueError
+from .model import LSTMModel
+from .rti import MPCConfig, RobustMPC
+
+__all__ = [
+    "CSV_COLUMNS",
+    "BenchScenario",
+    "available_backends",
+    "register",
+    "replay",
+    "run_bench",
+    "save_subproblems",
+]
+
+FloatArray = NDArray[np.float64]
+Y_PHI_BOUNDS = (6.0, 9.0)
+
+#: Columns of ``bench.csv`` (fixed order; times in microseconds).
+CSV_COLUMNS = (
+    "scenario",
+    "N",
+    "backend",
+    "family",
+    "solver",
+    "steps",
+    "steps_requested",
+    "subsampled",
+    "step_median_us",
+    "step_p95_us",
+    "step_max_us",
+    "observer_median_us",
+    "reference_median_us",
+    "build_median_us",
+    "solve_median_us",
+    "prepare_median_us",
+    "feedback_median_us",
+    "ratio_to_nmpc",
+    "ratio_to_fastest",
+    "u0_diff_max",
+    "u0_diff_median",
+    "cost",
+    "cost_diff_pct",
+    "output_violation_steps",
+    "output_violation_max",
+    "plant_violation_steps",
+    "infeasible_steps",
+    "fallback_steps",
+    "status_counts",
+    "iterations_median",
+    "iterations_max",
+    "reformulation",
+    "wall_s",
+    "error",
+)
+
+
+@dataclass(frozen=True)
+class BenchScenario:
+    """What the benchmark needs of a scenario (a view of ``scenarios.Scenario``).
+
+    Attributes
+    ----------
+    name : str
+    plant : {"lstm", "ph"}
+    setpoints, disturbances : ndarray (steps,)
+        Physical set-point (pH) and disturbance per sample.
+    config : MPCConfig
+    setpoint_rate_limit : float or None
+    make_plant : callable model -> plant
+    """
+
+    name: str
+    plant: str
+    setpoints: FloatArray
+    disturbances: FloatArray
+    config: MPCConfig
+    setpoint_rate_limit: float | None
+    make_plant: Callable[[LSTMModel], Any]
+
+    @property
+    def steps(self) -> int:
+        """Number of samples."""
+        return int(self.setpoints.shape[0])
+
+
+def standin_scenario(model: LSTMModel, steps: int = 300) -> BenchScenario:
+    """LSTM plant from pH 7.0, set-point 7.0 -> 7.5 -> 6.8 (rate 0.01/step normalized),
+    output disturbance 0.03 pH after step 100 (used when the paper scenarios are absent)."""
+    from .plants import LSTMPlant
+
+    k = np.arange(steps)
+    setpoints = np.where(k < 60, 7.0, np.where(k < 130, 7.5, 6.8)).astype(np.float64)
+    disturbances = np.where(k < 100, 0.0, 0.03).astype(np.float64)
+    return BenchScenario(
+        name="standin_lstm",
+        plant="lstm",
+        setpoints=setpoints,
+        disturbances=disturbances,
+        config=MPCConfig(),
+        setpoint_rate_limit=0.01,
+        make_plant=lambda m: LSTMPlant(m, y0_phi=7.0),
+    )
+
+
+def bench_scenarios(model: LSTMModel, *, short: bool = True) -> list[BenchScenario]:
+    """The paper's scenarios (``ltv_lstm_mpc.scenarios``), or the stand-in without it."""
+    try:
+        from .scenarios import paper_scenarios
+    except ImportError:
+        return [standin_scenario(model)]
+    out = []
+    for s in paper_scenarios(model, short=short):
+        out.append(
+            BenchScenario(
+                name=s.name,
+                plant=s.plant,
+                setpoints=np.asarray(s.setpoints, dtype=np.float64).reshape(-1),
+                disturbances=np.asarray(s.disturbances, dtype=np.float64).reshape(-1),
+                config=s.config,
+                setpoint_rate_limit=s.setpoint_rate_limit,
+                make_plant=s.make_plant,
+            )
+        )
+    return out
+
+
+def available_backends() -> list[str]:
+    """Every backend this installation can run (see the module docstring)."""
+    import importlib.util
+
+    from .fast import fast_solvers
+    from .solvers import available_solvers
+
+    names = []
+    if importlib.util.find_spec("casadi") is not None:
+        names.append("nmpc:ipopt")
+    names += [f"fast:{s}" for s in fast_solvers()]
+    names += [f"fast-mpc:{s}" for s in fast_solvers()[:1]]
+    names += [f"rti:{s}" for s in available_solvers()]
+    return names
+
+
+# -------------------------------------------------------------------------- one run
+def _make_controller(
+    backend: str, model: LSTMModel, scenario: BenchScenario, N: int, cert: Certification
+) -> OffsetFreeController:
+    """The controller of one backend; solver iterations come from ``MPCSolution``."""
+    family, _, solver = backend.partition(":")
+    config = replace(scenario.config, N=N)
+    rate = scenario.setpoint_rate_limit
+    if family == "nmpc":
+        from .nmpc import ExactNMPC
+
+        nmpc = ExactNMPC(model, config, certification=cert)
+        return OffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=nmpc)
+    if family in ("fast", "fast-mpc"):
+        from .fast import FastOffsetFreeController, FastRobustMPC
+
+        fast = FastRobustMPC(model, config, solver=solver, certification=cert)
+        if family == "fast":
+            return FastOffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=fast)
+        return OffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=fast)
+    if family == "rti":
+        mpc = RobustMPC(model, replace(config, solver=solver), certification=cert)
+        return OffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=mpc)
+    raise InvalidValueError(
+        f"unknown backend {backend!r}: use 'nmpc:ipopt', 'fast:<solver>', "
+        "'fast-mpc:<solver>' or 'rti:<solver>'"
+    )
+
+
+def _run(
+    backend: str,
+    model: LSTMModel,
+    scenario: BenchScenario,
+    N: int,
+    cert: Certification,
+    steps: int,
+    time_cap: float,
+) -> dict[str, Any]:
+    """One closed loop; returns per-step series and the summary fields."""
+    start = time.perf_counter()
+    controller = _make_controller(backend, model, scenario, N, cert)
+    plant = scenario.make_plant(model)
+    controller.reset()
+    y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
+    ys, us, iters, prep, feed = [], [], [], [], []
+    fast = getattr(controller, "fast_mpc", None) or getattr(controller.mpc, "prepare", None)
+    mpc = controller.mpc
+    for k in range(steps):
+        u_phi = controller.step(y_phi, scenario.setpoints[k])
+        iters.append(controller.records[-1].mpc.solver_iterations)
+        if fast is not None:
+            prep.append(getattr(mpc, "prepare_time", math.nan))
+            feed.append(getattr(mpc, "feedback_time", math.nan))
+        ys.append(y_phi)
+        us.append(u_phi)
+        d = scenario.disturbances[k]
+        y_phi = np.atleast_1d(
+            np.asarray(plant.step(u_phi, None if np.isnan(d) else d), dtype=np.float64)
+        )
+        if time.perf_counter() - start > time_cap:
+            break
+    records = controller.records
+    Q, R = replace(scenario.config, N=N).weights(model)
+    dx = np.array([r.x_hat - r.x_bar for r in records])
+    du = np.array([r.u - r.u_bar for r in records])
+    stage = np.einsum("ki,ij,kj->k", dx, Q, dx) + np.einsum("ki,ij,kj->k", du, R, du)
+    return {
+        "records": records,
+        "y_phi": np.array(ys),
+        "u_phi": np.array(us)[:, 0],
+        "stage_cost": stage,
+        "iterations": np.array(iters, dtype=float),
+        "prepare": np.array(prep, dtype=float),
+        "feedback": np.array(feed, dtype=float),
+        "wall": time.perf_counter() - start,
+    }
+
+
+def _summary(run: dict[str, Any]) -> dict[str, Any]:
+    records = run["records"]
+    us = 1e6
+    total = np.array([r.time_total for r in records]) * us
+    solve = np.array([r.mpc.solver_time for r in records]) * us
+    mpc = np.array([r.time_mpc for r in records]) * us
+    violation = np.array([r.mpc.residuals["output_violation"] for r in records])
+    y = run["y_phi"][:, 0]
+    statuses = Counter(r.mpc.status for r in records)
+    reformulations = {r.mpc.reformulation for r in records if r.mpc.reformulation}
+
+    def med(values: FloatArray) -> float:
+        return float(np.median(values)) if values.size and np.isfinite(values).any() else math.nan
+
+    return {
+        "steps": len(records),
+        "step_median_us": med(total),
+        "step_p95_us": float(np.percentile(total, 95)),
+        "step_max_us": float(np.max(total)),
+        "observer_median_us": med(np.array([r.time_observer for r in records]) * us),
+        "reference_median_us": med(np.array([r.time_reference for r in records]) * us),
+        "build_median_us": med(mpc - solve),
+        "solve_median_us": med(solve),
+        "prepare_median_us": med(run["prepare"] * us),
+        "feedback_median_us": med(run["feedback"] * us),
+        "cost": float(np.sum(run["stage_cost"])),
+        "output_violation_steps": int(np.sum(violation > 1e-9)),
+        "output_violation_max": float(np.max(violation)),
+        "plant_violation_steps": int(
+            np.sum((y < Y_PHI_BOUNDS[0] - 1e-9) | (y > Y_PHI_BOUNDS[1] + 1e-9))
+        ),
+        "infeasible_steps": int(sum(not r.mpc.feasible for r in records)),
+        "fallback_steps": int(sum(r.mpc.policy != "nominal" for r in records)),
+        "status_counts": ";".join(f"{k}:{v}" for k, v in sorted(statuses.items())),
+        "iterations_median": med(run["iterations"]),
+        "iterations_max": float(np.max(run["iterations"])),
+        "reformulation": ";".join(sorted(reformulations)),
+        "wall_s": run["wall"],
+    }
+
+
+# --------------------------------------------------------------------------- the bench
+def _steps_for(backend: str, N: int, scenario: BenchScenario, steps: int, slow: int) -> int:
+    """Steps to run: N >= 20 through cvxpy/qpsolvers/sparse DAQP is capped at ``slow``
+    (``subsampled`` = 1 in the CSV)."""
+    n = min(steps, scenario.steps)
+    family, _, solver = backend.partition(":")
+    if N >= 20 and family == "rti" and solver.split(":")[0] in ("cvxpy", "qpsolvers", "daqp"):
+        n = min(n, slow)
+    return n
+
+
+def run_bench(
+    model: LSTMModel,
+    *,
+    scenarios: Sequence[BenchScenario],
+    horizons: Sequence[int] = (5, 20, 50),
+    backends: Sequence[str] | None = None,
+    steps: int = 200,
+    slow_steps: int = 60,
+    time_cap: float = 60.0,
+    log: Callable[[str], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Run every backend on every scenario and horizon; returns the CSV rows.
+
+    Parameters
+    ----------
+    model : LSTMModel
+    scenarios : sequence of BenchScenario
+    horizons : sequence of int
+    backends : sequence of str, optional
+        Backend names or fnmatch patterns (default :func:`available_backends`).
+    steps : int
+        Samples per run (the first ``steps`` of each scenario).
+    slow_steps : int
+        Cap for N >= 50 through cvxpy / qpsolvers / sparse DAQP (``subsampled`` = 1).
+    time_cap : float
+        Wall-time cap per run, s (the run stops early; ``steps`` says how far it got).
+    """
+    everything = available_backends()
+    if backends is None:
+        chosen = everything
+    else:
+        chosen = [b for b in everything if any(fnmatch.fnmatch(b, pat) for pat in backends)]
+    rows: list[dict[str, Any]] = []
+    for scenario in scenarios:
+        for N in horizons:
+            config = replace(scenario.config, N=N)
+            cert = certify(model, config.certification_settings(model))
+            runs: dict[str, dict[str, Any]] = {}
+            group: list[dict[str, Any]] = []
+            for backend in chosen:
+                n_steps = _steps_for(backend, N, scenario, steps, slow_steps)
+                family, _, solver = backend.partition(":")
+                row: dict[str, Any] = {c: math.nan for c in CSV_COLUMNS}
+                row.update(
+                    scenario=scenario.name,
+                    N=N,
+                    backend=backend,
+                    family=family,
+                    solver=solver,
+                    steps_requested=n_steps,
+                    subsampled=int(n_steps < min(steps, scenario.steps)),
+                    error="",
+                )
+                try:
+                    run = _run(backend, model, scenario, N, cert, n_steps, time_cap)
+                    row.update(_summary(run))
+                    runs[backend] = run
+                except Exception as error:  # a backend failure is a result, not a crash
+                    row.update(error=f"{type(error).__name__}: {error}"[:200], steps=0)
+                if log is not None:
+                    log(
+                        f"{scenario.name} N={N} {backend}: {row['steps']} steps, "
+                        f"median {row['step_median_us']:.0f} us {row['error']}"
+                    )
+                group.append(row)
+            _compare(group, runs)
+            rows.extend(group)
+    return rows
+
+
+def _compare(group: list[dict[str, Any]], runs: dict[str, dict[str, Any]]) -> None:
+    """Ratios and differences to the exact NMPC and to the fastest backend (in place)."""
+    medians = [r["step_median_us"] for r in group if np.isfinite(r["step_median_us"])]
+    fastest = min(medians) if medians else math.nan
+    ref = runs.get("nmpc:ipopt")
+    ref_row = next((r for r in group if r["backend"] == "nmpc:ipopt"), None)
+    for row in group:
+        row["ratio_to_fastest"] = row["step_median_us"] / fastest
+        run = runs.get(row["backend"])
+        if ref is None or run is None or ref_row is None:
+            continue
+        row["ratio_to_nmpc"] = row["step_median_us"] / ref_row["step_median_us"]
+        k = min(len(run["u_phi"]), len(ref["u_phi"]))
+        if k == 0:
+            continue
+        diff = np.abs(run["u_phi"][:k] - ref["u_phi"][:k])
+        row["u0_diff_max"] = float(np.max(diff))
+        row["u0_diff_median"] = float(np.median(diff))
+        cost, cost_ref = np.sum(run["stage_cost"][:k]), np.sum(ref["stage_cost"][:k])
+        row["cost_diff_pct"] = float(100.0 * (cost - cost_ref) / cost_ref)
+
+
+# ------------------------------------------------------------------------------ output
+_MD_COLUMNS = (
+    ("scenario", "scenario"),
+    ("N", "N"),
+    ("backend", "backend"),
+    ("steps", "steps"),
+    ("step_median_us", "median µs"),
+    ("step_p95_us", "p95 µs"),
+    ("step_max_us", "max µs"),
+    ("observer_median_us", "obs µs"),
+    ("reference_median_us", "ref µs"),
+    ("build_median_us", "lin+build µs"),
+    ("solve_median_us", "solve µs"),
+    ("ratio_to_nmpc", "÷NMPC"),
+    ("ratio_to_fastest", "÷fastest"),
+    ("u0_diff_max", "max |Δu| (mL/s)"),
+    ("cost_diff_pct", "Δcost %"),
+    ("output_violation_steps", "viol."),
+    ("plant_violation_steps", "plant viol."),
+    ("infeasible_steps", "infeas."),
+    ("fallback_steps", "fallback"),
+    ("iterations_median", "iter."),
+    ("status_counts", "status"),
+)
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        if math.isnan(value):
+            return ""
+        if abs(value) >= 100:
+            return f"{value:.0f}"
+        return f"{value:.3g}"
+    return str(value)
+
+
+def write_outputs(rows: list[dict[str, Any]], out: Path, notes: Sequence[str] = ()) -> None:
+    """``bench.csv``, ``bench.md`` and ``bench_N<N>.png`` under ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "bench.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(CSV_COLUMNS))
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({c: row.get(c, "") for c in CSV_COLUMNS})
+    lines = ["# Solver comparison (times in µs; all runs in one process, side by side)", ""]
+    lines += [f"- {note}" for note in notes]
+    lines += ["", "| " + " | ".join(h for _, h in _MD_COLUMNS) + " |"]
+    lines.append("|" + "---|" * len(_MD_COLUMNS))
+    for row in rows:
+        lines.append("| " + " | ".join(_fmt(row.get(c)) for c, _ in _MD_COLUMNS) + " |")
+    (out / "bench.md").write_text("\n".join(lines) + "\n")
+    _plots(rows, out)
+
+
+def _plots(rows: list[dict[str, Any]], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for N in sorted({r["N"] for r in rows}):
+        sub = [r for r in rows if r["N"] == N and np.isfinite(r["step_median_us"])]
+        if not sub:
+            continue
+        scen = sorted({r["scenario"] for r in sub})
+        first = [r for r in sub if r["scenario"] == scen[0]]
+        first.sort(key=lambda r: r["step_median_us"])
+        labels = [r["backend"] for r in first]
+        parts = ("observer_median_us", "reference_median_us", "build_median_us", "solve_median_us")
+        fig, axes = plt.subplots(1, 2, figsize=(13, 0.32 * len(first) + 2))
+        y = np.arange(len(first))
+        med = np.array([r["step_median_us"] for r in first])
+        p95 = np.array([r["step_p95_us"] for r in first])
+        axes[0].barh(y, med, color="tab:blue", label="median")
+        axes[0].scatter(p95, y, color="k", marker="|", s=80, label="p95")
+        axes[0].set_xscale("log")
+        axes[0].set_yticks(y, labels, fontsize=7)
+        axes[0].set_xlabel("controller step [µs] (log)")
+        axes[0].legend(fontsize=7)
+        left = np.zeros(len(first))
+        for part in parts:
+            values = np.nan_to_num(np.array([r[part] for r in first], dtype=float))
+            axes[1].barh(y, values, left=left, label=part.replace("_median_us", ""))
+            left += values
+        axes[1].set_xscale("log")
+        axes[1].set_yticks(y, [""] * len(first))
+        axes[1].set_xlabel("median split [µs] (stacked, log)")
+        axes[1].legend(fontsize=7)
+        fig.suptitle(f"{scen[0]}, N = {N}")
+        fig.tight_layout()
+        fig.savefig(out / f"bench_N{N}.png", dpi=110)
+        plt.close(fig)
+
+
+# ------------------------------------------------------------------- replay subproblems
+def save_subproblems(
+    model: LSTMModel,
+    scenario: BenchScenario,
+    directory: Path,
+    *,
+    N: int = 5,
+    count: int = 8,
+    steps: int = 120,
+    solvers: Sequence[str] | None = None,
+) -> Path:
+    """Save ``count`` RTI subproblems of one closed loop and every backend's answer.
+
+    Runs the scenario with ``RobustMPC`` (CLARABEL when installed), rebuilds the
+    subproblem of evenly spaced steps exactly as RobustMPC does (candidate, simulation,
+    linearization, :meth:`FHOCPSubproblem.build`), saves it with cones
+    (``k<step>_cone.npz``) and in the conservative QP form (``k<step>_qp.npz``), solves
+    both with every installed solver and writes the numbers to ``replay_reference.csv``.
+    """
+    from .solvers import ConvexProblem, available_solvers, cone_solvers
+    from .solvers import solve as solve_problem
+
+    directory.mkdir(parents=True, exist_ok=True)
+    config = replace(scenario.config, N=N)
+    cert = certify(model, config.certification_settings(model))
+    cones = cone_solvers()
+    mpc = RobustMPC(
+        model, replace(config, solver=cones[0] if cones else "daqp"), certification=cert
+    )
+    ctrl = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, mpc=mpc
+    )
+    plant = scenario.make_plant(model)
+    y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
+    steps = min(steps, scenario.steps)
+    for k in range(steps):
+        u_phi = ctrl.step(y_phi, scenario.setpoints[k])
+        d = scenario.disturbances[k]
+        y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, None if np.isnan(d) else d)))
+    records = ctrl.records
+    sub = mpc._subproblems["nominal"]
+    ti = mpc.tightening
+    picks = np.unique(np.linspace(1, len(records) - 1, count).astype(int))
+    names = list(solvers) if solvers is not None else available_solvers()
+    rows = []
+    for k in picks:
+        rec, prev = records[k], records[k - 1]
+        cand = np.vstack([prev.mpc.u[1:], rec.u_bar[None, :]])
+        x_traj, _ = model.simulate(rec.x_hat, cand)
+        f_lin, A, B = model.step_and_jacobians(x_traj[:-1], cand)
+        lower, upper = ti.output_bounds(rec.e_hat)
+        problem = sub.build(
+            x_hat=rec.x_hat, x_bar=rec.x_bar, u_bar=rec.u_bar, x_lin=x_traj[:-1],
+            u_lin=cand, f_lin=f_lin, A=A, B=B, y_lower=lower, y_upper=upper,
+            alpha=ti.alpha(rec.y0, rec.e_hat),
+        )  # fmt: skip
+        qp = sub.reformulation.apply(problem)
+        files = {"cone": f"k{k:05d}_cone.npz", "qp": f"k{k:05d}_qp.npz"}
+        problem.save(directory / files["cone"])
+        qp.save(directory / files["qp"])
+        for solver in names:
+            kind = "cone" if solver in cones else "qp"
+            loaded = ConvexProblem.load(directory / files[kind])
+            rows.append(_replay_row(solve_problem, loaded, solver, files[kind], sub.layout.u_start))
+    meta = {"u_index": int(sub.layout.u_start), "model_n": model.n, "N": N}
+    (directory / "replay_meta.json").write_text(json.dumps(meta))
+    _write_rows(directory / "replay_reference.csv", rows)
+    return directory
+
+
+def _replay_row(
+    solve_problem: Callable[..., Any], problem: Any, solver: str, file: str, u_index: int
+) -> dict[str, Any]:
+    try:
+        sol = solve_problem(problem, solver)
+        ok = sol.z is not None
+        return {
+            "file": file,
+            "solver": solver,
+            "status": sol.status.name.lower(),
+            "u0": float(sol.z[u_index]) if ok else math.nan,
+            "objective": float(sol.objective) if ok and sol.objective is not None else math.nan,
+            "iterations": int(sol.iterations or 0),
+        }
+    except Exception as error:
+        return {
+            "file": file,
+            "solver": solver,
+            "status": f"error: {type(error).__name__}",
+            "u0": math.nan,
+            "objective": math.nan,
+            "iterations": 0,
+        }
+
+
+_REPLAY_COLUMNS = ("file", "solver", "status", "u0", "objective", "iterations")
+
+
+def _write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(_REPLAY_COLUMNS))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def replay(directory: str | Path, *, solvers: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """Re-solve saved subproblems offline with every backend and compare.
+
+    Returns one row per (file, solver): the saved and replayed status, first input and
+    objective, their differences, and the spread of the first input across backends
+    (``u0_spread``: replayed u0 minus the median over solvers of that file). Writes
+    ``replay.csv`` next to the saved files.
+    """
+    from .solvers import ConvexProblem
+    from .solvers import solve as solve_problem
+
+    directory = Path(directory)
+    meta = json.loads((directory / "replay_meta.json").read_text())
+    with open(directory / "replay_reference.csv", newline="") as handle:
+        saved = list(csv.DictReader(handle))
+    wanted = set(solvers) if solvers is not None else None
+    out = []
+    for row in saved:
+        if wanted is not None and row["solver"] not in wanted:
+            continue
+        problem = ConvexProblem.load(directory / row["file"])
+        new = _replay_row(solve_problem, problem, row["solver"], row["file"], meta["u_index"])
+        out.append(
+            {
+                "file": row["file"],
+                "solver": row["solver"],
+                "status_saved": row["status"],
+                "status_replayed": new["status"],
+                "u0_saved": float(row["u0"]),
+                "u0_replayed": new["u0"],
+                "u0_diff": abs(new["u0"] - float(row["u0"])),
+                "objective_diff": abs(new["objective"] - float(row["objective"])),
+            }
+        )
+    for file in {r["file"] for r in out}:
+        values = [r["u0_replayed"] for r in out if r["file"] == file]
+        centre = float(np.nanmedian(values)) if np.isfinite(values).any() else math.nan
+        for r in out:
+            if r["file"] == file:
+                r["u0_spread"] = r["u0_replayed"] - centre
+    if out:
+        with open(directory / "replay.csv", "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(out[0]))
+            writer.writeheader()
+            writer.writerows(out)
+    return out
+
+
+# --------------------------------------------------------------------------------- CLI
+def _parser_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--model", default="ph_lstm_n5.npz", help="model .npz or shipped name (ph_lstm_n5.npz)"
+    )
+    parser.add_argument("--out", default="bench_results", help="output folder (bench_results)")
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    parser.add_argument(
+        "--backends", nargs="+", default=None, help="backend names or patterns (default: all)"
+    )
+    parser.add_argument("--scenarios", nargs="+", default=None, help="scenario names (patterns)")
+    parser.add_argument("--steps", type=int, default=None, help="samples per run (default 200)")
+    parser.add_argument(
+        "--slow-steps", type=int, default=60, help="cap for N>=20 via cvxpy/qpsolvers (60)"
+    )
+    parser.add_argument(
+        "--all-scenarios", action="store_true", help="N > 5 on every scenario (default: first)"
+    )
+    parser.add_argument("--time-cap", type=float, default=60.0, help="wall cap per run, s (60)")
+    parser.add_argument(
+        "--smoke", action="store_true", help="seconds: 1 scenario, 30 steps, few backends, N=5"
+    )
+    parser.add_argument(
+        "--save-subproblems", metavar="DIR", default=None, help="also save replayable subproblems"
+    )
+    parser.add_argument("--quiet", action="store_true", help="no per-run log lines")
+
+
+DEFAULT_SCENARIOS = ("1_*", "4_*", "standin*")
+SMOKE_BACKENDS = ("nmpc:ipopt", "fast:daqp", "fast-mpc:daqp", "rti:daqp", "rti:cvxpy:CLARABEL")
+
+
+def main_bench(args: argparse.Namespace) -> int:
+    """``ltv-lstm-mpc bench``."""
+    from .cli import _resolve_model_path
+
+    model = LSTMModel.load(_resolve_model_path(args.model))
+    scenarios = bench_scenarios(model, short=True)
+    patterns = args.scenarios or list(DEFAULT_SCENARIOS)
+    scenarios = [s for s in scenarios if any(fnmatch.fnmatch(s.name, p) for p in patterns)]
+    if not scenarios:
+        raise InvalidValueError(f"no scenario matches {patterns}")
+    horizons, backends, steps = args.N, args.backends, args.steps or 200
+    notes = []
+    if args.smoke:
+        scenarios, horizons, steps = scenarios[:1], [5], args.steps or 30
+        backends = backends or list(SMOKE_BACKENDS)
+        notes.append("smoke mode: 1 scenario, N = 5, few backends, first steps only")
+    notes.append(
+        f"first {steps} samples of each scenario (short variants); N >= 20 through "
+        f"cvxpy/qpsolvers/sparse DAQP capped at {args.slow_steps} samples (column subsampled)"
+    )
+    notes.append(
+        "u0_diff and cost_diff compare the closed loops with the exact NMPC sample by "
+        "sample; cost = sum of the stage cost ||x_hat - x_bar||_Q^2 + ||u - u_bar||_R^2"
+    )
+    log = None if args.quiet else (lambda line: print(line, flush=True))
+    plan = [(scenarios, [N for N in horizons if N <= 5])]
+    if args.all_scenarios:
+        plan.append((scenarios, [N for N in horizons if N > 5]))
+    else:
+        plan.append((scenarios[:1], [N for N in horizons if N > 5]))
+        if len(scenarios) > 1 and any(N > 5 for N in horizons):
+            notes.append(f"N > 5 on {scenarios[0].name} only (--all-scenarios for all)")
+    rows = []
+    for group, group_horizons in plan:
+        if group_horizons:
+            rows += run_bench(
+                model,
+                scenarios=group,
+                horizons=group_horizons,
+                backends=backends,
+                steps=steps,
+                slow_steps=args.slow_steps,
+                time_cap=args.time_cap,
+                log=log,
+            )
+    out = Path(args.out)
+    write_outputs(rows, out, notes)
+    if args.save_subproblems:
+        save_subproblems(model, scenarios[0], Path(args.save_subproblems), N=horizons[0])
+    print(f"wrote {out / 'bench.csv'}, {out / 'bench.md'} and plots")
+    return 0
+
+
+def main_replay(args: argparse.Namespace) -> int:
+    """``ltv-lstm-mpc replay DIR``."""
+    rows = replay(args.directory, solvers=args.solvers)
+    worst = max((r["u0_diff"] for r in rows if np.isfinite(r["u0_diff"])), default=0.0)
+    changed = sum(r["status_saved"] != r["status_replayed"] for r in rows)
+    print(f"replayed {len(rows)} solves: max |u0 replayed - saved| = {worst:.3e}, ")
+    print(f"status changes: {changed}; details in {Path(args.directory) / 'replay.csv'}")
+    return 0 if changed == 0 and worst <= 1e-8 else 1
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``bench`` and ``replay`` subcommands to the ``ltv-lstm-mpc`` parser."""
+    bench = subparsers.add_parser(
+        "bench",
+        help="compare every solver backend on the paper's closed loops (issue 6)",
+        description=__doc__.split("\n\n")[0] if __doc__ else None,
+    )
+    _parser_args(bench)
+    bench.set_defaults(func=main_bench)
+    rep = subparsers.add_parser(
+        "replay", help="re-solve saved subproblems (.npz) with every backend and compare"
+    )
+    rep.add_argument("directory", help="folder written by bench --save-subproblems")
+    rep.add_argument("--solvers", nargs="+", default=None, help="only these solvers")
+    rep.set_defaults(func=main_replay)

@@ -1,0 +1,77 @@
+"""Benchmark command in smoke mode (issue 6): the CSV has the columns and sane values."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import importlib.util
+
+import numpy as np
+import pytest
+
+from ltv_lstm_mpc import bench
+
+HAS_CASADI = importlib.util.find_spec("casadi") is not None
+
+
+def _main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser()
+    bench.register(parser.add_subparsers())
+    args = parser.parse_args(argv)
+    return int(args.func(args))
+
+
+def test_bench_smoke_writes_sane_csv(tmp_path) -> None:
+    backends = ["fast:daqp", "fast-mpc:daqp", "rti:daqp", "nmpc:ipopt"]
+    out = tmp_path / "bench"
+    code = _main(
+        ["bench", "--smoke", "--steps", "15", "--quiet", "--out", str(out), "--backends", *backends]
+    )
+    assert code == 0
+    with open(out / "bench.csv", newline="") as handle:
+        reader = csv.DictReader(handle)
+        assert tuple(reader.fieldnames or ()) == bench.CSV_COLUMNS
+        rows = {row["backend"]: row for row in reader}
+    expected = set(backends) if HAS_CASADI else set(backends) - {"nmpc:ipopt"}
+    assert set(rows) == expected
+    for row in rows.values():
+        assert row["error"] == ""
+        assert int(row["steps"]) == 15 and row["N"] == "5"
+        median, p95, peak = (
+            float(row[c]) for c in ("step_median_us", "step_p95_us", "step_max_us")
+        )
+        assert 0 < median <= p95 <= peak
+        assert float(row["solve_median_us"]) > 0 and float(row["build_median_us"]) > 0
+        assert float(row["ratio_to_fastest"]) >= 1.0
+        counts = dict(item.split(":") for item in row["status_counts"].split(";"))
+        assert sum(int(v) for v in counts.values()) == 15
+        assert int(row["plant_violation_steps"]) == 0
+        assert int(row["infeasible_steps"]) <= int(row["fallback_steps"]) + 15
+    assert min(float(r["ratio_to_fastest"]) for r in rows.values()) == 1.0
+    assert "terminal_box" in rows["fast:daqp"]["reformulation"]
+    assert np.isfinite(float(rows["fast:daqp"]["prepare_median_us"]))
+    if HAS_CASADI:
+        assert float(rows["nmpc:ipopt"]["ratio_to_nmpc"]) == 1.0
+        for name in ("fast:daqp", "fast-mpc:daqp", "rti:daqp"):
+            assert float(rows[name]["u0_diff_max"]) < 1e-2  # mL/s
+            assert abs(float(rows[name]["cost_diff_pct"])) < 1.0
+            assert float(rows[name]["ratio_to_nmpc"]) < 1.0
+    assert (out / "bench.md").read_text().count("\n|") >= len(rows) + 1
+    assert (out / "bench_N5.png").stat().st_size > 0
+
+
+def test_unknown_backend_is_reported_not_raised(tmp_path) -> None:
+    model = bench.LSTMModel.load(bench_model_path())
+    scenario = bench.standin_scenario(model, steps=5)
+    rows = bench.run_bench(
+        model, scenarios=[scenario], horizons=[5], backends=["fast:daqp"], steps=5
+    )
+    assert len(rows) == 1 and rows[0]["steps"] == 5
+    with pytest.raises(bench.InvalidValueError):
+        bench._make_controller("bogus:x", model, scenario, 5, None)  # type: ignore[arg-type]
+
+
+def bench_model_path():
+    from ltv_lstm_mpc.shipped import shipped_path
+
+    return shipped_path("ph_lstm_n5.npz")
