@@ -35,7 +35,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from .exceptions import DimensionError, InvalidValueError
-from .solvers import ConvexProblem, SecondOrderCone
+from .solvers import ConvexProblem, SecondOrderCone, frozen_csc
 
 __all__ = ["FHOCPSubproblem", "SubproblemLayout", "TerminalBoxReformulation"]
 
@@ -176,8 +176,9 @@ class FHOCPSubproblem:
         blocks = [2.0 * Q] * N + [np.zeros((n2, n2))] + [2.0 * R] * N + [2.0 * P_f]
         if soft:
             blocks.append(np.zeros((layout.n_output_slacks + 1, layout.n_output_slacks + 1)))
-        self._P = sp.csc_matrix(sp.block_diag(blocks, format="csc"))
-        self._P.eliminate_zeros()
+        P = sp.csc_matrix(sp.block_diag(blocks, format="csc"))
+        P.eliminate_zeros()
+        self._P = frozen_csc(P, "P")  # constant: validated once, reused every step
         self._Q, self._R = Q, R
         self._q = np.zeros(nz)
         if soft:
@@ -229,9 +230,9 @@ class FHOCPSubproblem:
                 S = sp.lil_matrix((layout.n_output_slacks, nz))
                 for k in range(layout.n_output_slacks):
                     S[k, layout.s_start + k] = 1.0
-                self._G = sp.vstack([G_out + S.tocsc(), G_out - S.tocsc()]).tocsc()
+                self._G = frozen_csc(sp.vstack([G_out + S.tocsc(), G_out - S.tocsc()]), "G")
             else:
-                self._G = G_out
+                self._G = frozen_csc(G_out, "G")
         self._b_y = b_y
 
         # ---- bounds
@@ -247,7 +248,7 @@ class FHOCPSubproblem:
         for j in range(n):
             F_c[j, layout.x(N).start + j] = 1.0
             F_h[j, layout.x(N).start + n + j] = 1.0
-        self._F_c, self._F_h = F_c.tocsc(), F_h.tocsc()
+        self._F_c, self._F_h = frozen_csc(F_c, "F_c"), frozen_csc(F_h, "F_h")
         self._e_c = np.zeros(nz)
         self._e_c[layout.t_start] = 1.0
         self._e_h = np.zeros(nz)
@@ -255,7 +256,7 @@ class FHOCPSubproblem:
         P_f_sqrt = np.linalg.cholesky(P_f).T  # any square root: ||P_f^{1/2} t||^2 = t'P_f t
         F_t = sp.lil_matrix((2, nz))
         F_t[:, layout.t_start : layout.t_start + 2] = P_f_sqrt
-        self._F_t = F_t.tocsc()
+        self._F_t = frozen_csc(F_t, "F_t")
         self._e_t = np.zeros(nz)
         if soft:
             self._e_t[-1] = 1.0  # ||P_f^{1/2} t|| <= alpha + s_T

@@ -144,20 +144,23 @@ class ReferenceCalculator:
         F = np.concatenate([x_next - x, self.model.output(x) - target])
         return F, A, B
 
-    def _newton(self, z: FloatArray, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
+    def _newton(
+        self, z: FloatArray, target: FloatArray
+    ) -> tuple[FloatArray, float, int, bool, FloatArray, FloatArray]:
+        """Damped Newton from z: (z, residual, iterations, converged, A, B at z)."""
         n2 = 2 * self.model.n
         J = self._jacobian
         F, A, B = self._residual(z, target)
         norm = float(np.max(np.abs(F)))
         for iteration in range(1, self.max_iter + 1):
             if norm < self.tol:
-                return z, norm, iteration - 1, True
+                return z, norm, iteration - 1, True, A, B
             J[:n2, :n2] = A - self._eye
             J[:n2, n2:] = B
             try:
                 step = np.linalg.solve(J, F)
             except np.linalg.LinAlgError:
-                return z, norm, iteration, False
+                return z, norm, iteration, False, A, B
             # Backtracking on the residual inf-norm (damped Newton).
             t = 1.0
             for _ in range(30):
@@ -168,9 +171,9 @@ class ReferenceCalculator:
                     break
                 t *= 0.5
             else:
-                return z, norm, iteration, False
+                return z, norm, iteration, False, A, B
             z, F, A, B, norm = z_trial, F_trial, A_trial, B_trial, norm_trial
-        return z, norm, self.max_iter, norm < self.tol
+        return z, norm, self.max_iter, norm < self.tol, A, B
 
     def solve(
         self,
@@ -214,19 +217,18 @@ class ReferenceCalculator:
         closest = int(np.argmin(distance))
         starts.append(np.concatenate([self._grid_x[closest], self._grid_u[closest]]))
         total_iterations = 0
-        best: tuple[FloatArray, float, bool] | None = None
+        best: tuple[FloatArray, float, bool, FloatArray, FloatArray] | None = None
         for z0 in starts:
-            z, norm, iterations, converged = self._newton(z0.copy(), target)
+            z, norm, iterations, converged, A, B = self._newton(z0.copy(), target)
             total_iterations += iterations
             if best is None or norm < best[1]:
-                best = (z, norm, converged)
+                best = (z, norm, converged, A, B)
             if converged:
                 break
         assert best is not None
-        z, norm, converged = best
+        z, norm, converged, A, B = best
         n2 = 2 * model.n
         x_bar, u_bar = z[:n2].copy(), z[n2:].copy()
-        _, A, B = model.step_and_jacobians(x_bar, u_bar)
         J = self._jacobian.copy()
         J[:n2, :n2] = A - self._eye
         J[:n2, n2:] = B

@@ -244,7 +244,7 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
     )
     # 4 and 5: the pH plant with a q2 step.
     L4 = [1500 // scale, 1500 // scale, 1500 // scale]
-    q2 = _piecewise([0.55, 0.55, 0.7], [750 // scale, 750 // scale, 3000 // scale])
+    q2 = _piecewise([0.55, 0.7], [L4[0], L4[1] + L4[2]])  # q2 step with the 2nd set-point
     for name, title, l_d, lengths, disturbance in (
         ("4_ph_small_Ld", "pH plant, L_d = 0.01 (offset-free, slow)", 0.01, L4, q2),
         (

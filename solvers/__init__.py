@@ -101,7 +101,7 @@ A missing or unknown solver raises :class:`~ltv_lstm_mpc.exceptions.SolverNotFou
 
 from __future__ import annotations
 
-from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus
+from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, frozen_csc
 from .reformulation import ConeReformulation, PolyhedralInnerApproximation
 from .registry import (
     DEFAULT_SOLVER,
@@ -125,6 +125,7 @@ __all__ = [
     "SolverStatus",
     "available_solvers",
     "cone_solvers",
+    "frozen_csc",
     "get_backend",
     "solve",
 ]

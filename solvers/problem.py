@@ -19,6 +19,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import math
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from os import PathLike
@@ -37,6 +38,7 @@ __all__ = [
     "SecondOrderCone",
     "Solution",
     "SolverStatus",
+    "frozen_csc",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -51,13 +53,40 @@ _SYMMETRY_RTOL = 1e-9
 # --------------------------------------------------------------------------------------
 # validation helpers
 # --------------------------------------------------------------------------------------
+def _is_frozen(value: Any) -> bool:
+    """A CSC matrix already validated by :func:`frozen_csc` (canonical, finite, read-only)."""
+    return (
+        isinstance(value, sp.csc_matrix)
+        and value.dtype == np.float64
+        and not value.data.flags.writeable
+        and not value.indices.flags.writeable
+        and not value.indptr.flags.writeable
+        and bool(value.has_canonical_format)
+    )
+
+
+def frozen_csc(value: Any, name: str = "matrix") -> sp.csc_matrix:
+    """Validated, canonical, read-only float64 CSC copy of ``value``.
+
+    Passing the result to :class:`ConvexProblem` again costs no copy and no check: a
+    constant matrix reused every step of a loop (cost Hessian, output rows, cone
+    matrices) is validated once.
+    """
+    return _as_csc(name, value, None)
+
+
 def _as_csc(name: str, value: Any, shape: tuple[int, int] | None) -> sp.csc_matrix:
     """Convert ``value`` to a canonical float64 CSC matrix and check its shape and values.
 
     Explicit zeros of a sparse input are *kept* (they are part of the sparsity
     pattern used by :meth:`ConvexProblem.structure_key`); zeros of a dense input
-    are dropped.
+    are dropped. A matrix that is already frozen (see :func:`frozen_csc`) is returned
+    as it is: its arrays are read-only, so it cannot have changed since its check.
     """
+    if _is_frozen(value):
+        if shape is not None and value.shape != shape:
+            raise DimensionError(f"{name} must have shape {shape}, got {value.shape}")
+        return value
     if sp.issparse(value):
         mat = sp.csc_matrix(value, dtype=np.float64, copy=True)
     else:
@@ -185,6 +214,9 @@ class SecondOrderCone:
 # --------------------------------------------------------------------------------------
 # problem
 # --------------------------------------------------------------------------------------
+#: Frozen Hessians already checked for symmetry, by id (weak values: an entry vanishes
+#: with its matrix, so a reused id never matches a stale entry).
+_SYMMETRIC: weakref.WeakValueDictionary[int, sp.csc_matrix] = weakref.WeakValueDictionary()
 _MATRIX_FIELDS = ("P", "A_eq", "G")
 _VECTOR_FIELDS = ("q", "b_eq", "l", "u", "lb", "ub")
 
@@ -250,10 +282,13 @@ class ConvexProblem:
         setattr_ = object.__setattr__
         setattr_(self, "q", _as_vector("q", q, n))
         P = _as_csc("P", self.P, (n, n))
-        asym = abs(P - P.T).max() if P.nnz else 0.0
-        scale = max(1.0, abs(P).max() if P.nnz else 0.0)
-        if asym > _SYMMETRY_RTOL * scale:
-            raise InvalidValueError(f"P must be symmetric; max |P - P^T| = {asym:.3g}")
+        if _SYMMETRIC.get(id(P)) is not P:  # a frozen P is checked once, not every step
+            asym = abs(P - P.T).max() if P.nnz else 0.0
+            scale = max(1.0, abs(P).max() if P.nnz else 0.0)
+            if asym > _SYMMETRY_RTOL * scale:
+                raise InvalidValueError(f"P must be symmetric; max |P - P^T| = {asym:.3g}")
+            if _is_frozen(P):
+                _SYMMETRIC[id(P)] = P
         setattr_(self, "P", P)
 
         if (self.A_eq is None) != (self.b_eq is None):

@@ -178,3 +178,22 @@ def test_polyhedral_inner_approximation_is_conservative(seed: int, k: int, scale
     inside = np.all(Z @ r.G.T.toarray() <= r.u, axis=1)
     for z in Z[inside]:
         assert cone.residual(z) <= 1e-9
+
+
+def test_frozen_matrices_are_reused_without_copy_and_still_checked() -> None:
+    import scipy.sparse as sp
+    from ltv_lstm_mpc.solvers import ConvexProblem, frozen_csc
+
+    from ltv_lstm_mpc.exceptions import InvalidValueError
+
+    P = frozen_csc(sp.csc_matrix(np.diag([2.0, 1.0])), "P")
+    assert not P.data.flags.writeable
+    first = ConvexProblem(P=P, q=np.zeros(2))
+    second = ConvexProblem(P=P, q=np.ones(2))
+    assert first.P is P and second.P is P  # validated once, no copy per problem
+    with pytest.raises(InvalidValueError, match="symmetric"):
+        ConvexProblem(
+            P=frozen_csc(sp.csc_matrix(np.array([[1.0, 1.0], [0.0, 1.0]]))), q=np.zeros(2)
+        )
+    with pytest.raises(InvalidValueError, match="non-finite"):
+        frozen_csc(sp.csc_matrix(np.array([[np.nan, 0.0], [0.0, 1.0]])))
