@@ -98,6 +98,16 @@ def _as_spd(name: str, Q: ArrayLike, size: int) -> FloatArray:
     return Q_arr
 
 
+def _require_nonnegative(name: str, P: FloatArray, weight: str) -> None:
+    """The proofs of Lemma 2 / Theorem 2 need ||.||_P monotone on the nonnegative orthant."""
+    if np.any(P < -1e-12 * float(np.max(np.abs(P)))):
+        raise InvalidValueError(
+            f"{name} = {np.array2string(P, precision=4)} has negative entries: the proof needs "
+            f"{name} >= 0 entrywise so that its norm is monotone on the nonnegative orthant "
+            f"(otherwise the bound can fail). Use a diagonal or entrywise nonnegative {weight}."
+        )
+
+
 def _positive(name: str, value: float) -> float:
     value = float(value)
     if not np.isfinite(value) or value <= 0:
@@ -331,6 +341,7 @@ def incremental_lyapunov_certificate(
     delta_iss.require()
     Q = _as_spd("Q_s", Q_s, 2)
     P_s = solve_lyapunov(delta_iss.A_delta, Q)
+    _require_nonnegative("P_s", P_s, "Q_s")
     eig_P = np.linalg.eigvalsh(P_s)
     P_inv_sqrt = matrix_inverse_sqrt(P_s)
     row_norms = np.linalg.norm(model.W_y, axis=1)
@@ -589,6 +600,7 @@ def observer_certificate(
             rho_A_d=rho_A_d,
         )
     P_o = solve_lyapunov(A_d, Q)
+    _require_nonnegative("P_o", P_o, "Q_o")
     eig_P = np.linalg.eigvalsh(P_o)
     P_inv_sqrt = matrix_inverse_sqrt(P_o)
     row_norms = np.linalg.norm(model.W_y, axis=1)

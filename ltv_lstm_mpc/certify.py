@@ -75,6 +75,10 @@ class CertificationSettings:
         :math:`P_f` margin (SPEC 2.6), 0.01.
     e_y_bar : float
         :math:`\bar e_y` of Lemma 5 for the rate bound, 0.03.
+    y0_operating_range : (float, float), optional
+        Normalized set-point range over which Theorem 3's rate bound must hold; it uses the
+        smallest :math:`\alpha_k` there. Default: the middle half of the admissible
+        interval of Assumption 5 (the bound shrinks to 0 at its edges).
     K_bar_grid_points : int
         Grid size for :math:`\bar K`.
     """
@@ -96,6 +100,7 @@ class CertificationSettings:
     epsilon: float = 0.01
     e_y_bar: float = 0.03
     K_bar_grid_points: int = 201
+    y0_operating_range: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         for name in ("u_max", "Q_s", "Q_o", "d_max", "w_bar", "Q", "epsilon", "e_y_bar"):
@@ -143,6 +148,7 @@ class Certification:
     rate_bound: SetpointRateBound
     y0_interval: tuple[FloatArray, FloatArray]
     y0_interval_phi: tuple[FloatArray, FloatArray] | None
+    rate_bound_y0_range: tuple[FloatArray, FloatArray] | None = None
     model_info: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -208,6 +214,9 @@ class Certification:
             "delta_y0_max": self.rate_bound.delta_y0_max,
             "rate_bound_holds": self.rate_bound.holds,
             "rate_bound_alpha": self.rate_bound.alpha,
+            "rate_bound_y0_range": None
+            if self.rate_bound_y0_range is None
+            else [lst(self.rate_bound_y0_range[0]), lst(self.rate_bound_y0_range[1])],
             "inputs": {
                 **{k: v for k, v in asdict(self.settings).items() if k not in ("y_min", "y_max")},
                 "L_f": lst(ob.gains.L_f),
@@ -278,10 +287,17 @@ def certify(
         d_max=settings.d_max,
         grid_points=settings.K_bar_grid_points,
     )
-    # Rate bound at the centre of the admissible interval (the largest alpha there).
-    centre = 0.5 * (interval[0] + interval[1])
+    # Theorem 3's rate bound with the smallest alpha over the operating range.
+    if settings.y0_operating_range is not None:
+        operating = (
+            np.full(model.p, float(settings.y0_operating_range[0])),
+            np.full(model.p, float(settings.y0_operating_range[1])),
+        )
+    else:
+        quarter = 0.25 * (interval[1] - interval[0])
+        operating = (interval[0] + quarter, interval[1] - quarter)
     rate_bound = tightening.setpoint_rate_bound(
-        tightening.alpha(centre, tightening.e_inf),
+        tightening.alpha_min(operating[0], operating[1], tightening.e_inf),
         tightening.e_inf,
         K_bar=K_bar.K_bar,
         e_y_bar=settings.e_y_bar,
@@ -300,5 +316,6 @@ def certify(
         rate_bound=rate_bound,
         y0_interval=interval,
         y0_interval_phi=interval_phi,
+        rate_bound_y0_range=operating,
         model_info=info,
     )

@@ -93,6 +93,17 @@ def _add_certify(subparsers: Any) -> None:
         ),
     )
     parser.add_argument("--e-y-bar", type=float, default=0.03, help="e_y_bar of Lemma 5 (0.03)")
+    parser.add_argument(
+        "--y0-range",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("LOW", "HIGH"),
+        help=(
+            "normalized set-point range for Theorem 3's rate bound (default: the middle half "
+            "of the admissible interval)"
+        ),
+    )
     parser.set_defaults(func=_run_certify)
 
 
@@ -151,6 +162,7 @@ def _run_certify(args: argparse.Namespace) -> int:
         y_min=args.y_min,
         y_max=args.y_max,
         e_y_bar=args.e_y_bar,
+        y0_operating_range=None if args.y0_range is None else tuple(args.y0_range),
     )
     certification = certify(model, settings, model_info={"path": str(path)})
     if args.json:

@@ -48,7 +48,11 @@ class ControllerStep:
     x_bar, u_bar : ndarray
         Reference-calculator set-points.
     reference_ok : bool
-        Reference converged with :math:`\\bar u \\in \\mathcal{U}`.
+        The reference converged at this step with :math:`\\bar u \\in \\mathcal{U}`.
+    stale_reference : bool
+        Newton failed at this step: the previous :math:`(\\bar x, \\bar u)` was reused and
+        the MPC got the set-point it actually encodes, :math:`g(\\bar x) + \\hat d`, so that
+        the terminal set still implies the output constraints (Part 2a of Theorem 3's proof).
     mpc : MPCSolution
         The robust MPC result (status, policy, residuals, ...).
     time_observer, time_reference, time_mpc : float
@@ -69,6 +73,7 @@ class ControllerStep:
     time_observer: float
     time_reference: float
     time_mpc: float
+    stale_reference: bool = False
 
     @property
     def time_total(self) -> float:
@@ -137,6 +142,26 @@ class OffsetFreeController:
         change = np.clip(y0_target - self._y0, -self.setpoint_rate_limit, self.setpoint_rate_limit)
         return np.asarray(self._y0 + change, dtype=np.float64)
 
+    def _reference(
+        self, reference: ReferenceSolution, y0: FloatArray, d_hat: FloatArray
+    ) -> tuple[ReferenceSolution, FloatArray, bool]:
+        """Use ``reference``, or the last one if Newton failed; returns (ref, y0 for MPC, stale).
+
+        With a stale reference the MPC gets :math:`y^0 = g(\\bar x) + \\hat d`, the set-point
+        the reused equilibrium encodes, keeping eq. (reference_calculation_output) true for
+        the terminal set (Theorem 3, Part 2a).
+        """
+        if reference.converged:
+            self._last_reference = reference
+            return reference, y0, False
+        if self._last_reference is None:
+            raise LtvMpcError(
+                f"the reference calculator found no equilibrium for y0 = {y0.tolist()}, "
+                f"d_hat = {d_hat.tolist()} at the first step (residual {reference.residual:.2e})"
+            )
+        last = self._last_reference
+        return last, np.asarray(self.model.output(last.x_bar) + d_hat, dtype=np.float64), True
+
     def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
         """One sample: measured physical output and set-point in, physical input out."""
         model = self.model
@@ -157,18 +182,9 @@ class OffsetFreeController:
         self._y0 = y0
         x_hat, d_hat = self.observer.x_hat.copy(), self.observer.d_hat.copy()
         t1 = time.perf_counter()
-        reference = self.reference.solve(y0, d_hat)
-        if not reference.converged:
-            if self._last_reference is None:
-                raise LtvMpcError(
-                    f"the reference calculator found no equilibrium for y0 = {y0.tolist()}, "
-                    f"d_hat = {d_hat.tolist()} at the first step "
-                    f"(residual {reference.residual:.2e})"
-                )
-            reference = self._last_reference
-        self._last_reference = reference
+        reference, y0_mpc, stale = self._reference(self.reference.solve(y0, d_hat), y0, d_hat)
         t2 = time.perf_counter()
-        solution = self.mpc.solve(x_hat, reference.x_bar, reference.u_bar, y0, self.e_hat)
+        solution = self.mpc.solve(x_hat, reference.x_bar, reference.u_bar, y0_mpc, self.e_hat)
         u = solution.u[0].copy()
         t3 = time.perf_counter()
         self.observer.step(y, u)
@@ -187,11 +203,12 @@ class OffsetFreeController:
                 e_hat=e_hat_used,
                 x_bar=reference.x_bar,
                 u_bar=reference.u_bar,
-                reference_ok=reference.ok,
+                reference_ok=reference.ok and not stale,
                 mpc=solution,
                 time_observer=(t1 - t0) + (t4 - t3),
                 time_reference=t2 - t1,
                 time_mpc=t3 - t2,
+                stale_reference=stale,
             )
         )
         return u_phi

@@ -1257,19 +1257,10 @@ class FastOffsetFreeController(OffsetFreeController):
         self._y0 = y0
         x_hat, d_hat = self.observer.x_hat, self.observer.d_hat
         t1 = time.perf_counter()
-        reference = self.fast_reference.solve(y0, d_hat)
-        if not reference.converged:
-            if self._last_reference is None:
-                raise LtvMpcError(
-                    f"the reference calculator found no equilibrium for y0 = {y0.tolist()}, "
-                    f"d_hat = {d_hat.tolist()} at the first step "
-                    f"(residual {reference.residual:.2e})"
-                )
-            reference = self._last_reference
-        self._last_reference = reference
+        reference, y0_mpc, stale = self._reference(self.fast_reference.solve(y0, d_hat), y0, d_hat)
         t2 = time.perf_counter()
         mpc = self.fast_mpc
-        mpc.prepare(reference.x_bar, reference.u_bar, y0, self.e_hat, x_pred=x_hat)
+        mpc.prepare(reference.x_bar, reference.u_bar, y0_mpc, self.e_hat, x_pred=x_hat)
         solution = mpc.feedback(x_hat)
         u = solution.u[0].copy()
         t3 = time.perf_counter()
@@ -1289,11 +1280,12 @@ class FastOffsetFreeController(OffsetFreeController):
                 e_hat=e_hat_used,
                 x_bar=reference.x_bar,
                 u_bar=reference.u_bar,
-                reference_ok=reference.ok,
+                reference_ok=reference.ok and not stale,
                 mpc=solution,
                 time_observer=(t1 - t0) + (t4 - t3),
                 time_reference=t2 - t1,
                 time_mpc=t3 - t2,
+                stale_reference=stale,
             )
         )
         return u_phi

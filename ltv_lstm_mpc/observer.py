@@ -102,6 +102,14 @@ class Observer:
                 RuntimeWarning,
                 stacklevel=2,
             )
+        elif not solution.u_admissible:
+            warnings.warn(
+                f"the LSTM equilibrium with output {y_arr.tolist()} needs u = "
+                f"{solution.u_bar.tolist()} outside U: the initial estimate may lie outside "
+                "the invariant set of Lemma 4 assumed by Theorem 2",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         self.reset(solution.x_bar, np.zeros(self.model.p))
 
     @property

@@ -133,7 +133,10 @@ class FHOCPSubproblem:
         Include :math:`\|P_f^{1/2} t\| \le \alpha_k` (False: the paper's fallback).
     soft_penalty : float, optional
         If given, the output rows and the terminal level get nonnegative slacks with
-        this exact-penalty (L1) weight; the problem is then always feasible.
+        this exact-penalty (L1) weight; with cone solvers the problem is then always
+        feasible. The QP reformulation keeps its terminal box hard (alpha clipped at 0), so
+        on QP-only backends it can still be infeasible; the MPC then falls back to the
+        shifted plan and records ``"soft+shift"``.
     """
 
     def __init__(

@@ -366,10 +366,11 @@ class RobustMPC:
             solution = session.solve()
             solver_time += solution.setup_time + solution.solve_time + solution.overhead_time
             self._solver_iterations += int(solution.iterations or 0)
-            status = solution.status
-            reformulation = solution.reformulation
             if not solution.ok or solution.z is None:
+                if iterations == 1:  # otherwise keep the last successful SQP iterate
+                    status, reformulation = solution.status, solution.reformulation
                 break
+            status, reformulation = solution.status, solution.reformulation
             x_linear, u_new, _ = sub.layout.split(np.asarray(solution.z))
             u_new = np.clip(u_new, -config.u_max, config.u_max)  # solver tolerance
             step = float(np.max(np.abs(u_new - u_lin)))

@@ -190,14 +190,24 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
     """
     scale = 1 if not short else 4
     base = MPCConfig()
-    slow_cert = certify(model, base.certification_settings(model))
-    rate = slow_cert.rate_bound.delta_y0_max if slow_cert.rate_bound.holds else 0.002
+    levels1 = [7.5, 6.9, 7.6, 7.2]
+    range1 = (min(*levels1, 7.0), max(*levels1, 7.0))  # with the initial output 7.0 pH
+    # Theorem 3's rate bound with the smallest alpha over scenario 1's set-point range.
+    operating = model.normalize_y(np.array(range1))
+    settings = replace(
+        base.certification_settings(model),
+        y0_operating_range=(float(operating[0]), float(operating[1])),
+    )
+    slow_cert = certify(model, settings)
+    if not slow_cert.rate_bound.holds:
+        raise ValueError("Theorem 3's rate condition cannot hold for this model and range")
+    rate = slow_cert.rate_bound.delta_y0_max
     y_scale = float(model.normalization.y_scale[0]) if model.normalization is not None else 1.0
     w_max_phi = slow_cert.observer.w_max * y_scale  # pH per step
     scenarios: list[Scenario] = []
 
     # 1: Theorem 3's conditions (rate-limited set-point, |w| <= w_max).
-    L = [900 // scale, 600 // scale, 600 // scale, 600 // scale]
+    L = [900 // scale, 900 // scale, 900 // scale, 600 // scale]
     d_ramp = np.clip(np.arange(sum(L)) - 50 // scale, 0, None) * 0.8 * w_max_phi
     d_ramp = np.minimum(d_ramp, 0.02)
     scenarios.append(
@@ -205,12 +215,15 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
             name="1_lstm_theorem3",
             title="LSTM plant, slow changes satisfying Theorem 3",
             plant="lstm",
-            setpoints=_piecewise([7.6, 6.8, 7.9, 7.2], L),
+            setpoints=_piecewise(levels1, L),
             disturbances=d_ramp,
             config=base,
             setpoint_rate_limit=rate,
             segments=_segments(L),
-            notes=f"rate limit {rate:.4g} (normalized/step, SPEC 2.10c); |w| <= 0.8 w_max",
+            notes=(
+                f"rate limit {rate:.4g} (normalized/step, SPEC 2.10c, valid over "
+                f"[{range1[0]}, {range1[1]}] pH); |w| <= 0.8 w_max"
+            ),
         )
     )
     # 2: larger changes: 10x faster set-point, disturbance steps.

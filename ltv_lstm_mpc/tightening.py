@@ -11,6 +11,7 @@ All values are in normalized units (SPEC 1).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -174,6 +175,17 @@ class TighteningCertificate:
         alpha_min = (y0_arr - self.y_min - margin) / self.kappa
         return float(min(np.min(alpha_max), np.min(alpha_min)))
 
+    def alpha_min(self, y0_low: ArrayLike, y0_high: ArrayLike, e_hat: float) -> float:
+        r"""Smallest :math:`\alpha_k` over the set-point box [y0_low, y0_high].
+
+        :math:`\alpha_k` is a minimum of affine functions of :math:`y^0`, hence concave, so
+        its minimum over a box is attained at a corner.
+        """
+        low = np.atleast_1d(np.asarray(y0_low, dtype=np.float64))
+        high = np.atleast_1d(np.asarray(y0_high, dtype=np.float64))
+        corners = itertools.product(*zip(low, high, strict=True))
+        return min(self.alpha(np.array(corner), e_hat) for corner in corners)
+
     def setpoint_interval(self, e_hat: float | None = None) -> tuple[FloatArray, FloatArray]:
         r"""Admissible set-point interval of Assumption 5 (normalized).
 
@@ -210,7 +222,8 @@ class TighteningCertificate:
         Parameters
         ----------
         alpha : float
-            A lower bound of :math:`\alpha_{k+1}` over the set-points of interest.
+            A lower bound of :math:`\alpha_{k+1}` over the set-points of interest (e.g.
+            :meth:`alpha_min` over the operating range): the bound holds only there.
         e_hat : float
             :math:`\hat e_{o,k}`.
         K_bar : float

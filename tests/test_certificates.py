@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from lstm_factories import random_delta_iss_lstm, random_lstm
 
 from ltv_lstm_mpc import (
+    InvalidValueError,
     LSTMModel,
     NotDeltaISSError,
     Observer,
@@ -266,3 +267,17 @@ def test_design_observer_gains_never_worse_than_fallback() -> None:
     assert designed.rho_A_d < 1
     assert designed.rho_A_d + designed.L_max <= fallback.rho_A_d + fallback.L_max + 1e-12
     np.testing.assert_allclose(gains.L_d, np.eye(1))
+
+
+def test_non_monotone_lyapunov_weights_are_rejected() -> None:
+    """A Q_s with a negative off-diagonal gives P_s < 0 somewhere; Lemma 2's proof (and the
+    bound, by counterexample in review) then fails, so the certificate refuses it."""
+    model = random_delta_iss_lstm(np.random.default_rng(5), 3)
+    cert = delta_iss_certificate(model)
+    with pytest.raises(InvalidValueError, match=r"(?s)P_s = .* has negative entries"):
+        incremental_lyapunov_certificate(
+            model, cert, 1000.0 * np.array([[1.0, -0.99], [-0.99, 1.0]])
+        )
+    with pytest.raises(InvalidValueError, match=r"(?s)P_o = .* has negative entries"):
+        Q_o = 1000.0 * np.array([[1.0, 0.0, -0.9], [0.0, 1.0, 0.0], [-0.9, 0.0, 1.0]])
+        observer_certificate(model, cert, ObserverGains.disturbance_only(model, 0.1), Q_o=Q_o)

@@ -31,16 +31,15 @@ def test_offset_free_on_lstm_plant_with_constant_output_disturbance(model) -> No
 
 
 def test_constraints_hold_under_slow_setpoint_changes(model) -> None:
-    """Theorem 3 conditions: rate-limited set-point inside the admissible interval."""
+    """Theorem 3 conditions: set-points in a range, rate-limited by the bound valid there."""
+    low, high = 6.7, 7.6  # pH, inside the admissible interval, 7.0 (start) included
+    rate = controller_rate(model, (low, high))
     controller = OffsetFreeController(
-        model,
-        MPCConfig(L_d=0.01, solver="cvxpy:CLARABEL"),
-        setpoint_rate_limit=controller_rate(model),
+        model, MPCConfig(L_d=0.01, solver="cvxpy:CLARABEL"), setpoint_rate_limit=rate
     )
     plant = LSTMPlant(model, y0_phi=7.0)
-    low, high = controller.certification.y0_interval_phi
     steps = 160
-    setpoints = np.where(np.arange(steps) < 80, high[0] - 0.05, low[0] + 0.05)
+    setpoints = np.where(np.arange(steps) < 80, high, low)
     result = simulate(plant, controller, setpoints, 0.0, progress=False)
     assert result.feasible.all()
     assert np.all(result.output_violation == 0.0)
@@ -48,7 +47,33 @@ def test_constraints_hold_under_slow_setpoint_changes(model) -> None:
     assert np.all(result.y_phi >= y_min) and np.all(result.y_phi <= y_max)
 
 
-def controller_rate(model) -> float:
-    bound = certify(model, CertificationSettings(l_d=0.01)).rate_bound
+def controller_rate(model, range_phi: tuple[float, float]) -> float:
+    normalized = model.normalize_y(np.array(range_phi))
+    settings = CertificationSettings(l_d=0.01, y0_operating_range=tuple(normalized))
+    bound = certify(model, settings).rate_bound
     assert bound.holds
     return bound.delta_y0_max
+
+
+def test_stale_reference_is_recorded_and_consistent(model) -> None:
+    """A Newton failure reuses the last equilibrium, flags it, and hands the MPC the
+    set-point that equilibrium encodes (g(x_bar) + d_hat), not the new one."""
+    from dataclasses import replace
+
+    controller = OffsetFreeController(model, MPCConfig(solver="osqp"))
+    controller.step([7.0], [7.2])
+    good = controller.records[-1]
+    assert good.reference_ok and not good.stale_reference
+    original = controller.reference.solve
+
+    def failing(y0, d_hat, **kwargs):  # type: ignore[no-untyped-def]
+        return replace(original(y0, d_hat, **kwargs), converged=False)
+
+    controller.reference.solve = failing  # type: ignore[method-assign]
+    controller.step([7.05], [7.5])
+    stale = controller.records[-1]
+    assert stale.stale_reference and not stale.reference_ok
+    np.testing.assert_array_equal(stale.x_bar, good.x_bar)
+    consistent_y0 = model.output(good.x_bar) + stale.d_hat
+    expected_alpha = controller.certification.tightening.alpha(consistent_y0, stale.e_hat)
+    assert stale.mpc.alpha == pytest.approx(expected_alpha, rel=1e-12)

@@ -128,3 +128,18 @@ def test_paper_scaling_invariances() -> None:
         c1.tightening.a * c1.tightening.e_inf, c2.tightening.a * c2.tightening.e_inf, rtol=1e-9
     )
     np.testing.assert_allclose(c1.y0_interval, c2.y0_interval, rtol=1e-9)
+
+
+def test_alpha_min_and_rate_bound_over_a_range() -> None:
+    *_, ti = build(6)
+    low, high = ti.setpoint_interval()
+    grid = np.linspace(low[0], high[0], 201)
+    inner = (low[0] + 0.3 * (high[0] - low[0]), high[0] - 0.2 * (high[0] - low[0]))
+    dense = [ti.alpha([y], ti.e_inf) for y in grid if inner[0] <= y <= inner[1]]
+    assert ti.alpha_min([inner[0]], [inner[1]], ti.e_inf) == pytest.approx(min(dense), abs=1e-3)
+    # The rate bound is monotone in alpha: a wider operating range can only shrink it.
+    narrow = ti.setpoint_rate_bound(ti.alpha_min([-0.05], [0.05], ti.e_inf), ti.e_inf,
+                                    K_bar=2.0, e_y_bar=0.03)  # fmt: skip
+    wide = ti.setpoint_rate_bound(ti.alpha_min([inner[0]], [inner[1]], ti.e_inf), ti.e_inf,
+                                  K_bar=2.0, e_y_bar=0.03)  # fmt: skip
+    assert wide.delta_y0_max <= narrow.delta_y0_max
