@@ -702,9 +702,13 @@ def main_bench(args: argparse.Namespace) -> int:
     model = LSTMModel.load(_resolve_model_path(args.model))
     scenarios = bench_scenarios(model, short=True)
     patterns = args.scenarios or list(DEFAULT_SCENARIOS)
-    scenarios = [s for s in scenarios if any(fnmatch.fnmatch(s.name, p) for p in patterns)]
+    names = [s.name for s in scenarios]
+    # A pattern is a glob (fnmatch) or, like ``reproduce --only``, a substring of the name.
+    scenarios = [
+        s for s in scenarios if any(fnmatch.fnmatch(s.name, p) or p in s.name for p in patterns)
+    ]
     if not scenarios:
-        raise InvalidValueError(f"no scenario matches {patterns}")
+        raise InvalidValueError(f"no scenario matches {patterns}; scenarios: {names}")
     horizons, backends, steps = args.N, args.backends, args.steps or 200
     notes = []
     if args.smoke:
