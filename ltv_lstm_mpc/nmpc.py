@@ -36,7 +36,7 @@ from .certify import Certification, certify
 from .exceptions import DimensionError, InvalidValueError
 from .model import LSTMModel
 from .problem import FHOCPSubproblem
-from .rti import MPCConfig, MPCSolution
+from .rti import MPCConfig, MPCSolution, plan_residuals
 
 __all__ = ["ExactNMPC"]
 
@@ -298,7 +298,7 @@ class ExactNMPC:
         """
         start = time.perf_counter()
         model, config, ti = self.model, self.config, self.tightening
-        n, n2, m, N = model.n, 2 * model.n, model.m, config.N
+        n2, m, N = 2 * model.n, model.m, config.N
         x_hat_a = _vector("x_hat", x_hat, n2)
         x_bar_a = _vector("x_bar", x_bar, n2)
         u_bar_a = _vector("u_bar", u_bar, m)
@@ -346,21 +346,7 @@ class ExactNMPC:
         x_plan, y_plan = model.simulate(x_hat_a, u_plan)
         self._previous_u = u_plan.copy()
         self.ipopt_iterations = iterations
-        t = np.array(
-            [
-                np.linalg.norm(x_plan[N, :n] - x_bar_a[:n]),
-                np.linalg.norm(x_plan[N, n:] - x_bar_a[n:]),
-            ]
-        )
-        residuals = {
-            "output_violation": float(
-                max(0.0, np.max(lower - y_plan[:N]), np.max(y_plan[:N] - upper))
-            ),
-            "terminal_residual": float(np.sqrt(t @ ti.P_f @ t) - alpha),
-            "linearization_gap": float(np.max(np.abs(x_plan - X)))
-            if np.all(np.isfinite(X))
-            else float("nan"),
-        }
+        residuals = plan_residuals(model, ti, x_plan, y_plan, X, x_bar_a, (lower, upper), alpha)
         return MPCSolution(
             u=u_plan,
             x=x_plan,

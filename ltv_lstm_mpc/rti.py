@@ -35,7 +35,7 @@ from .problem import FHOCPSubproblem
 from .solvers import Session, SolverStatus
 from .tightening import TighteningCertificate
 
-__all__ = ["MPCConfig", "MPCSolution", "MPCSolver", "RobustMPC"]
+__all__ = ["MPCConfig", "MPCSolution", "MPCSolver", "RobustMPC", "plan_residuals"]
 
 FloatArray = NDArray[np.float64]
 InfeasibilityPolicy = Literal["paper", "soft", "shift"]
@@ -220,6 +220,38 @@ class MPCSolution:
     residuals: dict[str, float]
     reformulation: str | None
     solver_iterations: int = 0
+
+
+def plan_residuals(
+    model: LSTMModel,
+    tightening: TighteningCertificate,
+    x_plan: FloatArray,
+    y_plan: FloatArray,
+    x_linear: FloatArray,
+    x_bar: FloatArray,
+    bounds: tuple[FloatArray, FloatArray],
+    alpha: float,
+) -> dict[str, float]:
+    r"""Nonlinear checks of a plan re-simulated on the true LSTM (``MPCSolution.residuals``).
+
+    ``output_violation``: largest violation (>= 0) of the tightened output rows
+    i = 0..N-1, eq. (optimization_constraint_yub)/(ylb); ``terminal_residual``:
+    :math:`\|[\|c_N-\bar c\|, \|h_N-\bar h\|]\|_{P_f} - \alpha_k` (<= 0 inside
+    :math:`\mathcal{X}_f(k)`); ``linearization_gap``: :math:`\max|x - x_{linear}|` (NaN when
+    no linearized prediction exists, e.g. the shift policy).
+    """
+    N, n = x_plan.shape[0] - 1, model.n
+    lower, upper = bounds
+    t = np.array(
+        [np.linalg.norm(x_plan[N, :n] - x_bar[:n]), np.linalg.norm(x_plan[N, n:] - x_bar[n:])]
+    )
+    return {
+        "output_violation": float(max(0.0, np.max(lower - y_plan[:N]), np.max(y_plan[:N] - upper))),
+        "terminal_residual": float(np.sqrt(t @ tightening.P_f @ t) - alpha),
+        "linearization_gap": float(np.max(np.abs(x_plan - x_linear)))
+        if np.all(np.isfinite(x_linear))
+        else float("nan"),
+    }
 
 
 class MPCSolver(Protocol):
@@ -474,22 +506,9 @@ class RobustMPC:
         x_plan, y_plan = model.simulate(x_hat_arr, u_plan)
         self._previous_u = u_plan.copy()
         sub = self._subproblems["nominal"]
-        n = model.n
-        t = np.array(
-            [
-                np.linalg.norm(x_plan[N, :n] - x_bar_arr[:n]),
-                np.linalg.norm(x_plan[N, n:] - x_bar_arr[n:]),
-            ]
+        residuals = plan_residuals(
+            model, ti, x_plan, y_plan, x_linear, x_bar_arr, (lower, upper), alpha
         )
-        residuals = {
-            "output_violation": float(
-                max(0.0, np.max(lower - y_plan[:N]), np.max(y_plan[:N] - upper))
-            ),
-            "terminal_residual": float(np.sqrt(t @ ti.P_f @ t) - alpha),
-            "linearization_gap": float(np.nanmax(np.abs(x_plan - x_linear)))
-            if np.all(np.isfinite(x_linear))
-            else float("nan"),
-        }
         return MPCSolution(
             u=u_plan,
             x=x_plan,
