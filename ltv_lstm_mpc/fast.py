@@ -51,7 +51,7 @@ from .exceptions import DimensionError, InvalidValueError, LtvMpcError, SolverNo
 from .model import LSTMModel
 from .problem import FHOCPSubproblem
 from .reference import ReferenceCalculator, ReferenceSolution
-from .rti import MPCConfig, MPCSolution
+from .rti import MPCConfig, MPCSolution, checked_vector, precheck_status, shifted_candidate
 
 __all__ = [
     "FAST_SOLVERS",
@@ -809,9 +809,7 @@ class FastRobustMPC:
 
     def candidate(self, u_bar: FloatArray) -> FloatArray:
         """Proof candidate: previous plan shifted by one with u_bar appended (SPEC 4)."""
-        if self._previous_u is None:
-            return np.tile(u_bar, (self.N, 1))
-        return np.vstack([self._previous_u[1:], u_bar[None, :]])
+        return shifted_candidate(self._previous_u, u_bar, self.N)
 
     def prepare(
         self,
@@ -1007,17 +1005,11 @@ class FastRobustMPC:
         n2 = 2 * n
         x_hat_a = np.asarray(x_hat, dtype=np.float64)
         lower, upper, alpha = self._lower, self._upper, self._alpha
-        y_first = (self._W_y_T.T @ x_hat_a[n:]).tolist()
-        # SPEC 1: the i = 0 row involves only h_hat; no solver can fix it.
-        if any(
-            not lo - 1e-12 <= yf + by <= up + 1e-12
-            for yf, by, lo, up in zip(y_first, self._b_y_list, *self._row0, strict=True)
-        ):
-            status = "infeasible_initial"
-        elif alpha <= 0:
-            status = "alpha_nonpositive"
-        else:
-            status = ""
+        y_first = [
+            yf + by
+            for yf, by in zip((self._W_y_T.T @ x_hat_a[n:]).tolist(), self._b_y_list, strict=True)
+        ]
+        status = precheck_status(y_first, *self._row0, alpha)
         S = self._traj.S
         dx0 = x_hat_a - S[0, :n2]
         f = self._F @ dx0
@@ -1127,30 +1119,21 @@ class FastRobustMPC:
         """
         model = self.model
         n2, m, p = 2 * model.n, model.m, model.p
-        x_hat_a = _vector("x_hat", x_hat, n2)
+        x_hat_a = checked_vector("x_hat", x_hat, n2)
         e_hat = float(e_hat)
         if not np.isfinite(e_hat) or e_hat < 0:
             raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
         if warm is not None and np.shape(warm) != (self.N, m):
             raise DimensionError(f"warm has shape {np.shape(warm)}, expected ({self.N}, {m})")
         self.prepare(
-            _vector("x_bar", x_bar, n2),
-            _vector("u_bar", u_bar, m),
-            _vector("y0", y0, p),
+            checked_vector("x_bar", x_bar, n2),
+            checked_vector("u_bar", u_bar, m),
+            checked_vector("y0", y0, p),
             e_hat,
             x_pred=x_hat_a,
             warm=warm,
         )
         return self.feedback(x_hat_a)
-
-
-def _vector(name: str, value: ArrayLike, size: int) -> FloatArray:
-    array = np.atleast_1d(np.asarray(value, dtype=np.float64))
-    if array.shape != (size,):
-        raise DimensionError(f"{name} has shape {array.shape}, expected ({size},)")
-    if not np.all(np.isfinite(array)):
-        raise InvalidValueError(f"{name} contains NaN or inf: {array}")
-    return array
 
 
 # =====================================================================================

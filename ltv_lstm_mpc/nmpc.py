@@ -33,10 +33,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .certify import Certification, certify
-from .exceptions import DimensionError, InvalidValueError
+from .exceptions import InvalidValueError
 from .model import LSTMModel
 from .problem import FHOCPSubproblem
-from .rti import MPCConfig, MPCSolution, plan_residuals
+from .rti import MPCConfig, MPCSolution, fhocp_inputs, plan_residuals, shifted_candidate
 
 __all__ = ["ExactNMPC"]
 
@@ -241,9 +241,7 @@ class ExactNMPC:
 
     def candidate(self, u_bar: FloatArray) -> FloatArray:
         """Proof candidate: previous plan shifted by one with u_bar appended (SPEC 4)."""
-        if self._previous_u is None:
-            return np.tile(u_bar, (self.config.N, 1))
-        return np.vstack([self._previous_u[1:], u_bar[None, :]])
+        return shifted_candidate(self._previous_u, u_bar, self.config.N)
 
     def _solve_nlp(
         self,
@@ -298,26 +296,10 @@ class ExactNMPC:
         """
         start = time.perf_counter()
         model, config, ti = self.model, self.config, self.tightening
-        n2, m, N = 2 * model.n, model.m, config.N
-        x_hat_a = _vector("x_hat", x_hat, n2)
-        x_bar_a = _vector("x_bar", x_bar, n2)
-        u_bar_a = _vector("u_bar", u_bar, m)
-        y0_a = _vector("y0", y0, model.p)
-        e_hat = float(e_hat)
-        if not np.isfinite(e_hat) or e_hat < 0:
-            raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
-        cand = self.candidate(u_bar_a) if warm is None else np.asarray(warm, dtype=np.float64)
-        if cand.shape != (N, m):
-            raise DimensionError(f"warm has shape {cand.shape}, expected ({N}, {m})")
-        lower, upper = ti.output_bounds(e_hat)
-        alpha = ti.alpha(y0_a, e_hat)
-        y_first = model.output(x_hat_a)
-        if np.any(y_first < lower[0] - 1e-12) or np.any(y_first > upper[0] + 1e-12):
-            status = "infeasible_initial"
-        elif alpha <= 0:
-            status = "alpha_nonpositive"
-        else:
-            status = ""
+        n2, N = 2 * model.n, config.N
+        data = fhocp_inputs(model, ti, N, self._previous_u, x_hat, x_bar, u_bar, y0, e_hat, warm)
+        x_hat_a, x_bar_a, u_bar_a, cand = data.x_hat, data.x_bar, data.u_bar, data.candidate
+        lower, upper, alpha, status = data.lower, data.upper, data.alpha, data.status
         solver_time = 0.0
         iterations = 0
         u_plan: FloatArray | None = None
@@ -364,12 +346,3 @@ class ExactNMPC:
             reformulation=None,
             solver_iterations=iterations,
         )
-
-
-def _vector(name: str, value: ArrayLike, size: int) -> FloatArray:
-    array = np.atleast_1d(np.asarray(value, dtype=np.float64))
-    if array.shape != (size,):
-        raise DimensionError(f"{name} has shape {array.shape}, expected ({size},)")
-    if not np.all(np.isfinite(array)):
-        raise InvalidValueError(f"{name} contains NaN or inf: {array}")
-    return array

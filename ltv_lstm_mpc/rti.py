@@ -22,6 +22,7 @@ reports anything but optimal) triggers the configured policy:
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
@@ -35,7 +36,18 @@ from .problem import FHOCPSubproblem
 from .solvers import Session, SolverStatus
 from .tightening import TighteningCertificate
 
-__all__ = ["MPCConfig", "MPCSolution", "MPCSolver", "RobustMPC", "plan_residuals"]
+__all__ = [
+    "FHOCPInputs",
+    "MPCConfig",
+    "MPCSolution",
+    "MPCSolver",
+    "RobustMPC",
+    "checked_vector",
+    "fhocp_inputs",
+    "plan_residuals",
+    "precheck_status",
+    "shifted_candidate",
+]
 
 FloatArray = NDArray[np.float64]
 InfeasibilityPolicy = Literal["paper", "soft", "shift"]
@@ -222,6 +234,104 @@ class MPCSolution:
     solver_iterations: int = 0
 
 
+def checked_vector(name: str, value: ArrayLike, size: int) -> FloatArray:
+    """``value`` as a finite float64 vector of shape (size,); clear errors otherwise."""
+    array = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    if array.shape != (size,):
+        raise DimensionError(f"{name} has shape {array.shape}, expected ({size},)")
+    if not np.all(np.isfinite(array)):
+        raise InvalidValueError(f"{name} contains NaN or inf: {array}")
+    return array
+
+
+def shifted_candidate(previous_u: FloatArray | None, u_bar: FloatArray, N: int) -> FloatArray:
+    """Candidate of Theorem 3's proof (Part 2b): the previous plan shifted by one with
+    :math:`\\bar u_k` appended; :math:`\\bar u_k` repeated when there is no previous plan."""
+    if previous_u is None:
+        return np.tile(u_bar, (N, 1))
+    return np.vstack([previous_u[1:], u_bar[None, :]])
+
+
+def precheck_status(
+    y_first: Iterable[float], lower_row: Iterable[float], upper_row: Iterable[float], alpha: float
+) -> str:
+    """Checks no solver can fix, made before any solver call.
+
+    ``"infeasible_initial"``: the i = 0 tightened output row, which involves only
+    :math:`\\hat h_k` (SPEC 1), fails; ``"alpha_nonpositive"``: :math:`\\alpha_k \\le 0`
+    (Assumption 5 violated, empty terminal set); ``""``: both pass.
+    """
+    tol = 1e-12
+    for y, low, high in zip(y_first, lower_row, upper_row, strict=True):
+        if not low - tol <= y <= high + tol:
+            return "infeasible_initial"
+    return "alpha_nonpositive" if alpha <= 0 else ""
+
+
+@dataclass(frozen=True)
+class FHOCPInputs:
+    """Validated data of one FHOCP, eq. (optimization) (see :func:`fhocp_inputs`)."""
+
+    x_hat: FloatArray
+    x_bar: FloatArray
+    u_bar: FloatArray
+    y0: FloatArray
+    e_hat: float
+    candidate: FloatArray
+    lower: FloatArray
+    upper: FloatArray
+    alpha: float
+    status: str
+
+
+def fhocp_inputs(
+    model: LSTMModel,
+    tightening: TighteningCertificate,
+    N: int,
+    previous_u: FloatArray | None,
+    x_hat: ArrayLike,
+    x_bar: ArrayLike,
+    u_bar: ArrayLike,
+    y0: ArrayLike,
+    e_hat: float,
+    warm: ArrayLike | None,
+) -> FHOCPInputs:
+    r"""Check the arguments of an MPC ``solve`` and compute what every solver needs.
+
+    The linearization/initial-guess sequence (``warm``, default :func:`shifted_candidate`),
+    the tightened output bounds (eq. optimization_constraint_yub/ylb), :math:`\alpha_k`
+    (eq. def_alpha) and the :func:`precheck_status`.
+    """
+    n2, m = 2 * model.n, model.m
+    x_hat_arr = checked_vector("x_hat", x_hat, n2)
+    x_bar_arr = checked_vector("x_bar", x_bar, n2)
+    u_bar_arr = checked_vector("u_bar", u_bar, m)
+    y0_arr = checked_vector("y0", y0, model.p)
+    e_hat = float(e_hat)
+    if not np.isfinite(e_hat) or e_hat < 0:
+        raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
+    if warm is None:
+        candidate = shifted_candidate(previous_u, u_bar_arr, N)
+    else:
+        candidate = np.asarray(warm, dtype=np.float64)
+        if candidate.shape != (N, m):
+            raise DimensionError(f"warm has shape {candidate.shape}, expected ({N}, {m})")
+    lower, upper = tightening.output_bounds(e_hat)
+    alpha = tightening.alpha(y0_arr, e_hat)
+    return FHOCPInputs(
+        x_hat=x_hat_arr,
+        x_bar=x_bar_arr,
+        u_bar=u_bar_arr,
+        y0=y0_arr,
+        e_hat=e_hat,
+        candidate=candidate,
+        lower=lower,
+        upper=upper,
+        alpha=alpha,
+        status=precheck_status(model.output(x_hat_arr), lower[0], upper[0], alpha),
+    )
+
+
 def plan_residuals(
     model: LSTMModel,
     tightening: TighteningCertificate,
@@ -350,9 +460,7 @@ class RobustMPC:
 
     def candidate(self, u_bar: FloatArray) -> FloatArray:
         """Proof candidate: previous plan shifted by one with u_bar appended (SPEC 4)."""
-        if self._previous_u is None:
-            return np.tile(u_bar, (self.config.N, 1))
-        return np.vstack([self._previous_u[1:], u_bar[None, :]])
+        return shifted_candidate(self._previous_u, u_bar, self.config.N)
 
     def _solve_subproblem(
         self,
@@ -439,28 +547,12 @@ class RobustMPC:
         """
         start = time.perf_counter()
         model, config, ti = self.model, self.config, self.tightening
-        n2, m, N = 2 * model.n, model.m, config.N
+        n2, N = 2 * model.n, config.N
         self._solver_iterations = 0
-        x_hat_arr = self._vector("x_hat", x_hat, n2)
-        x_bar_arr = self._vector("x_bar", x_bar, n2)
-        u_bar_arr = self._vector("u_bar", u_bar, m)
-        y0_arr = self._vector("y0", y0, model.p)
-        e_hat = float(e_hat)
-        if not np.isfinite(e_hat) or e_hat < 0:
-            raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
-        candidate = self.candidate(u_bar_arr) if warm is None else np.asarray(warm, float)
-        if candidate.shape != (N, m):
-            raise DimensionError(f"warm has shape {candidate.shape}, expected ({N}, {m})")
-        lower, upper = ti.output_bounds(e_hat)
-        alpha = ti.alpha(y0_arr, e_hat)
-        y_first = model.output(x_hat_arr)
-        # SPEC 1: the i = 0 row involves only h_hat; no solver can fix it.
-        if np.any(y_first < lower[0] - 1e-12) or np.any(y_first > upper[0] + 1e-12):
-            status_name = "infeasible_initial"
-        elif alpha <= 0:
-            status_name = "alpha_nonpositive"
-        else:
-            status_name = ""
+        data = fhocp_inputs(model, ti, N, self._previous_u, x_hat, x_bar, u_bar, y0, e_hat, warm)
+        x_hat_arr, x_bar_arr, u_bar_arr = data.x_hat, data.x_bar, data.u_bar
+        candidate, lower, upper, alpha = data.candidate, data.lower, data.upper, data.alpha
+        status_name = data.status
         solver_time = 0.0
         result = None
         if not status_name:
@@ -526,12 +618,3 @@ class RobustMPC:
             reformulation=reformulation,
             solver_iterations=self._solver_iterations,
         )
-
-    @staticmethod
-    def _vector(name: str, value: ArrayLike, size: int) -> FloatArray:
-        array = np.atleast_1d(np.asarray(value, dtype=np.float64))
-        if array.shape != (size,):
-            raise DimensionError(f"{name} has shape {array.shape}, expected ({size},)")
-        if not np.all(np.isfinite(array)):
-            raise InvalidValueError(f"{name} contains NaN or inf: {array}")
-        return array
