@@ -162,8 +162,9 @@ class OffsetFreeController:
         last = self._last_reference
         return last, np.asarray(self.model.output(last.x_bar) + d_hat, dtype=np.float64), True
 
-    def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
-        """One sample: measured physical output and set-point in, physical input out."""
+    # Parts of one step; a faster controller overrides these, not the loop in ``step``.
+    def _normalize(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Normalized measurement and set-point, checked (SPEC 1)."""
         model = self.model
         y = np.atleast_1d(np.asarray(model.normalize_y(np.atleast_1d(y_phi)), dtype=np.float64))
         y0_target = np.atleast_1d(model.normalize_y(np.atleast_1d(y0_phi)))
@@ -171,6 +172,29 @@ class OffsetFreeController:
             raise InvalidValueError(f"y_phi and y0_phi must have {model.p} entries")
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(y0_target))):
             raise InvalidValueError(f"y_phi and y0_phi must be finite, got {y_phi!r}, {y0_phi!r}")
+        return y, y0_target
+
+    def _solve_reference(self, y0: FloatArray, d_hat: FloatArray) -> ReferenceSolution:
+        """eq. (reference_calculation) at this step."""
+        return self.reference.solve(y0, d_hat)
+
+    def _solve_mpc(
+        self, x_hat: FloatArray, reference: ReferenceSolution, y0: FloatArray
+    ) -> MPCSolution:
+        """The FHOCP eq. (optimization) at this step."""
+        return self.mpc.solve(x_hat, reference.x_bar, reference.u_bar, y0, self.e_hat)
+
+    def _update_observer(self, y: FloatArray, u: FloatArray) -> None:
+        """eq. (lstm_observer): (y_k, u_k) -> (x_hat_{k+1}, d_hat_{k+1})."""
+        self.observer.step(y, u)
+
+    def _denormalize_u(self, u: FloatArray) -> FloatArray:
+        """Physical input from the normalized one."""
+        return np.asarray(self.model.denormalize_u(u), dtype=np.float64)
+
+    def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
+        """One sample: measured physical output and set-point in, physical input out."""
+        y, y0_target = self._normalize(y_phi, y0_phi)
         t0 = time.perf_counter()
         if not self._initialized:
             self.observer.initialize(y, reference=self.reference)
@@ -180,18 +204,19 @@ class OffsetFreeController:
                 self._y0 = y.copy()  # the limited set-point starts from the measured output
         y0 = self._limit(y0_target)
         self._y0 = y0
-        x_hat, d_hat = self.observer.x_hat.copy(), self.observer.d_hat.copy()
+        # No copies: the observer update rebinds x_hat and d_hat, it never mutates them.
+        x_hat, d_hat = self.observer.x_hat, self.observer.d_hat
         t1 = time.perf_counter()
-        reference, y0_mpc, stale = self._reference(self.reference.solve(y0, d_hat), y0, d_hat)
+        reference, y0_mpc, stale = self._reference(self._solve_reference(y0, d_hat), y0, d_hat)
         t2 = time.perf_counter()
-        solution = self.mpc.solve(x_hat, reference.x_bar, reference.u_bar, y0_mpc, self.e_hat)
+        solution = self._solve_mpc(x_hat, reference, y0_mpc)
         u = solution.u[0].copy()
         t3 = time.perf_counter()
-        self.observer.step(y, u)
+        self._update_observer(y, u)
         e_hat_used = self.e_hat
         self.e_hat = self.certification.tightening.next_e_hat(self.e_hat)
         t4 = time.perf_counter()
-        u_phi = np.asarray(model.denormalize_u(u), dtype=np.float64)
+        u_phi = self._denormalize_u(u)
         self.records.append(
             ControllerStep(
                 y=y,

@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .certify import Certification, certify
-from .controller import ControllerStep, OffsetFreeController
+from .controller import OffsetFreeController
 from .exceptions import DimensionError, InvalidValueError, LtvMpcError, SolverNotFound
 from .model import LSTMModel
 from .problem import FHOCPSubproblem
@@ -1219,56 +1219,36 @@ class FastOffsetFreeController(OffsetFreeController):
         np.maximum(d_new, -obs.d_max, out=d_new)
         obs.d_hat = d_new
 
-    def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
-        """One sample: measured physical output and set-point in, physical input out."""
-        model = self.model
-        y = (np.asarray(y_phi, dtype=np.float64).reshape(model.p) - self._y_min) / self._y_scale
-        y -= 1.0
-        y0_target = np.asarray(y0_phi, dtype=np.float64).reshape(model.p) - self._y_min
-        y0_target = y0_target / self._y_scale - 1.0
+    # Hooks of OffsetFreeController.step (same loop, same records), lean versions.
+    def _normalize(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Normalized measurement and set-point without the generic helpers' overhead."""
+        p = self.model.p
+        y_arr = np.asarray(y_phi, dtype=np.float64)
+        y0_arr = np.asarray(y0_phi, dtype=np.float64)
+        if y_arr.size != p or y0_arr.size != p:
+            raise InvalidValueError(f"y_phi and y0_phi must have {p} entries")
+        y = (y_arr.reshape(p) - self._y_min) / self._y_scale - 1.0
+        y0_target = (y0_arr.reshape(p) - self._y_min) / self._y_scale - 1.0
         if not math.isfinite(float(y.sum() + y0_target.sum())):
             raise InvalidValueError(f"y_phi and y0_phi must be finite, got {y_phi!r}, {y0_phi!r}")
-        t0 = time.perf_counter()  # as OffsetFreeController: timing starts after normalization
-        if not self._initialized:
-            self.observer.initialize(y, reference=self.reference)
-            self.reference.reset()
-            self.fast_reference.reset()
-            self._initialized = True
-            if self.setpoint_rate_limit is not None:
-                self._y0 = y.copy()  # the limited set-point starts from the measured output
-        y0 = self._limit(y0_target)
-        self._y0 = y0
-        x_hat, d_hat = self.observer.x_hat, self.observer.d_hat
-        t1 = time.perf_counter()
-        reference, y0_mpc, stale = self._reference(self.fast_reference.solve(y0, d_hat), y0, d_hat)
-        t2 = time.perf_counter()
+        return y, y0_target
+
+    def _solve_reference(self, y0: FloatArray, d_hat: FloatArray) -> ReferenceSolution:
+        """Chord-Newton eq. (reference_calculation), falling back to the full solver."""
+        return self.fast_reference.solve(y0, d_hat)
+
+    def _solve_mpc(
+        self, x_hat: FloatArray, reference: ReferenceSolution, y0: FloatArray
+    ) -> MPCSolution:
+        """prepare (candidate, linearization, condensing) then feedback (insert x_hat, solve)."""
         mpc = self.fast_mpc
-        mpc.prepare(reference.x_bar, reference.u_bar, y0_mpc, self.e_hat, x_pred=x_hat)
-        solution = mpc.feedback(x_hat)
-        u = solution.u[0].copy()
-        t3 = time.perf_counter()
+        mpc.prepare(reference.x_bar, reference.u_bar, y0, self.e_hat, x_pred=x_hat)
+        return mpc.feedback(x_hat)
+
+    def _update_observer(self, y: FloatArray, u: FloatArray) -> None:
+        """eq. (lstm_observer) on the lean kernel."""
         self._observer_step(y, u)
-        e_hat_used = self.e_hat
-        self.e_hat = self.certification.tightening.next_e_hat(self.e_hat)
-        t4 = time.perf_counter()
-        u_phi = (u + 1.0) * self._u_scale + self._u_min
-        self.records.append(
-            ControllerStep(
-                y=y,
-                y0=y0,
-                u=u,
-                u_phi=u_phi,
-                x_hat=x_hat,
-                d_hat=d_hat,
-                e_hat=e_hat_used,
-                x_bar=reference.x_bar,
-                u_bar=reference.u_bar,
-                reference_ok=reference.ok and not stale,
-                mpc=solution,
-                time_observer=(t1 - t0) + (t4 - t3),
-                time_reference=t2 - t1,
-                time_mpc=t3 - t2,
-                stale_reference=stale,
-            )
-        )
-        return u_phi
+
+    def _denormalize_u(self, u: FloatArray) -> FloatArray:
+        """Physical input from the normalized one."""
+        return np.asarray((u + 1.0) * self._u_scale + self._u_min, dtype=np.float64)
