@@ -37,6 +37,7 @@ same records as :class:`~ltv_lstm_mpc.controller.OffsetFreeController`.
 
 from __future__ import annotations
 
+import abc
 import math
 import time
 from collections.abc import Mapping
@@ -356,7 +357,7 @@ class FastReferenceCalculator:
 # =====================================================================================
 # Dense QP backends:  min 1/2 x'Hx + f'x  s.t.  lo <= A x <= up,  lb <= x <= ub
 # =====================================================================================
-class _DenseQP:
+class _DenseQP(abc.ABC):
     """One persistent workspace per structure key; returns (status, x, iterations)."""
 
     name = ""
@@ -365,6 +366,7 @@ class _DenseQP:
         self.tolerance = tolerance
         self.settings = dict(settings)
 
+    @abc.abstractmethod
     def solve(
         self,
         key: str,
@@ -376,7 +378,7 @@ class _DenseQP:
         lb: FloatArray,
         ub: FloatArray,
     ) -> tuple[str, FloatArray | None, int]:
-        raise NotImplementedError
+        """Solve the dense QP of this workspace: (status name, x or None, iterations)."""
 
 
 class _Daqp(_DenseQP):

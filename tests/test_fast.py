@@ -167,3 +167,15 @@ def test_fast_path_same_control_as_cvxpy_path_on_scenario_1(model) -> None:
     assert all(r.mpc.feasible for r in fused.records)
     assert all(r.mpc.reformulation for r in fused.records)
     assert fused.records[-1].time_total > 0
+
+
+def test_cached_alpha_equals_the_tightening_definition(model, robust, reference) -> None:
+    """The fast path caches alpha_k (eq. def_alpha) in Python floats for speed; it must equal
+    TighteningCertificate.alpha for every set-point and observer-error bound."""
+    fast = FastRobustMPC(model, robust.config, certification=robust.certification)
+    tightening = robust.tightening
+    x = model.equilibrium(np.array([0.1]))
+    for y0 in np.linspace(-0.6, 0.6, 7):
+        for e_hat in (0.0, tightening.e_inf, 3.0 * tightening.e_inf):
+            solution = fast.solve(x, reference.x_bar, reference.u_bar, [y0], e_hat)
+            assert solution.alpha == pytest.approx(tightening.alpha([y0], e_hat), abs=1e-13)
