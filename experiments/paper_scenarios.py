@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 
-from ltv_lstm_mpc.cli import main
+from ltv_lstm_mpc.cli.main import main
 
 if __name__ == "__main__":
     sys.exit(main(["reproduce", *sys.argv[1:]]))

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from ltv_lstm_mpc import load_model
-from ltv_lstm_mpc.rti import RobustMPC
-from ltv_lstm_mpc.scenarios import ScenarioResult, paper_scenarios, run_scenario
+from ltv_lstm_mpc.mpc.rti import RobustMPC
+from ltv_lstm_mpc.paper.scenarios import ScenarioResult, paper_scenarios, run_scenario
 
 
 def closed_loop_cost(result: ScenarioResult) -> float:

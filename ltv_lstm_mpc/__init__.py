@@ -11,7 +11,8 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from .certificates import (
+from ltv_lstm_mpc.certificates.certify import Certification, CertificationSettings, certify
+from ltv_lstm_mpc.certificates.stability import (
     DeltaISSCertificate,
     IncrementalLyapunovCertificate,
     ObserverCertificate,
@@ -21,9 +22,12 @@ from .certificates import (
     incremental_lyapunov_certificate,
     observer_certificate,
 )
-from .certify import Certification, CertificationSettings, certify
-from .controller import ControllerStep, OffsetFreeController
-from .exceptions import (
+from ltv_lstm_mpc.certificates.tightening import (
+    SetpointRateBound,
+    TighteningCertificate,
+    tightening_certificate,
+)
+from ltv_lstm_mpc.exceptions import (
     DimensionError,
     InvalidValueError,
     LtvMpcError,
@@ -33,14 +37,21 @@ from .exceptions import (
     SolverNotFound,
     UnreachableSetpointError,
 )
-from .model import LSTMModel, ModelFormatError, Normalization
-from .observer import Observer
-from .plants import LSTMPlant, PHNeutralizationPlant, Plant
-from .reference import KBarEstimate, ReferenceCalculator, ReferenceSolution, estimate_K_bar
-from .rti import MPCConfig, MPCSolution, RobustMPC
-from .shipped import load_model, shipped_models, shipped_path
-from .simulation import SimulationResult, simulate
-from .tightening import SetpointRateBound, TighteningCertificate, tightening_certificate
+from ltv_lstm_mpc.loop.controller import ControllerStep, OffsetFreeController
+from ltv_lstm_mpc.loop.observer import Observer
+from ltv_lstm_mpc.loop.reference import (
+    KBarEstimate,
+    ReferenceCalculator,
+    ReferenceSolution,
+    estimate_K_bar,
+)
+from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
+from ltv_lstm_mpc.lstm.model import LSTMModel, ModelFormatError, Normalization
+from ltv_lstm_mpc.lstm.shipped import load_model, shipped_models, shipped_path
+from ltv_lstm_mpc.mpc.rti import MPCConfig, MPCSolution, RobustMPC
+from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
+from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
+from ltv_lstm_mpc.plants.protocol import Plant
 
 __all__ = [
     "Certification",

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ltv_lstm_mpc.certificates import delta_iss_certificate
-from ltv_lstm_mpc.model import LSTMModel, Normalization
+from ltv_lstm_mpc.certificates.stability import delta_iss_certificate
+from ltv_lstm_mpc.lstm.model import LSTMModel, Normalization
 
 
 def random_lstm(

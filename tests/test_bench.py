@@ -9,7 +9,7 @@ import importlib.util
 import numpy as np
 import pytest
 
-from ltv_lstm_mpc import bench
+from ltv_lstm_mpc.bench import harness as bench
 
 HAS_CASADI = importlib.util.find_spec("casadi") is not None
 
@@ -72,6 +72,6 @@ def test_unknown_backend_is_reported_not_raised(tmp_path) -> None:
 
 
 def bench_model_path():
-    from ltv_lstm_mpc.shipped import shipped_path
+    from ltv_lstm_mpc.lstm.shipped import shipped_path
 
     return shipped_path("ph_lstm_n5.npz")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ltv_lstm_mpc import CertificationSettings, certify, load_model
-from ltv_lstm_mpc.cli import main
+from ltv_lstm_mpc.cli.main import main
 
 REQUIRED_KEYS = {
     "rho_A_delta", "A_delta", "B_delta", "r1", "r2", "P_s", "rho_s", "c_s_l", "c_s_u", "c_s",
@@ -54,7 +54,7 @@ def test_certify_errors_are_clean(capsys, tmp_path) -> None:
 
 def test_console_script_runs() -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "ltv_lstm_mpc.cli", "certify", "--json"],
+        [sys.executable, "-m", "ltv_lstm_mpc.cli.main", "certify", "--json"],
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     assert json.loads(result.stdout)["is_delta_iss"] is True

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from ltv_lstm_mpc import CertificationSettings, certify, load_model
-from ltv_lstm_mpc.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.simulation import simulate
+from ltv_lstm_mpc.mpc.rti import MPCConfig
 from ltv_lstm_mpc.plants import LSTMPlant
-from ltv_lstm_mpc.rti import MPCConfig
-from ltv_lstm_mpc.simulation import simulate
 
 MODEL = "example_delta_iss_n3.npz"
 

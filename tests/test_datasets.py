@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ltv_lstm_mpc.datasets import (
+from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.lstm.model import Normalization
+from ltv_lstm_mpc.training.datasets import (
     SPLITS,
     IdentificationDataset,
     generate_dataset,
@@ -17,8 +19,6 @@ from ltv_lstm_mpc.datasets import (
     sequence_rng,
     split_indices,
 )
-from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.model import Normalization
 
 
 def _runs(signal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

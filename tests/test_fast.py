@@ -7,14 +7,14 @@ import pytest
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, RobustMPC, load_model
 from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError, SolverNotFound
-from ltv_lstm_mpc.fast import (
+from ltv_lstm_mpc.loop.reference import ReferenceCalculator
+from ltv_lstm_mpc.mpc.fast import (
     FastOffsetFreeController,
     FastReferenceCalculator,
     FastRobustMPC,
     LSTMKernel,
     fast_solvers,
 )
-from ltv_lstm_mpc.reference import ReferenceCalculator
 
 #: First-input agreement with RobustMPC (same QP, TerminalBoxReformulation) per solver.
 TOL = {"daqp": 1e-9, "quadprog": 1e-9, "osqp": 1e-5, "piqp": 1e-6, "proxqp": 1e-4}
@@ -132,7 +132,7 @@ def test_fast_reference_matches(model) -> None:
 
 
 def _scenario_1(model, steps):
-    from ltv_lstm_mpc.bench import bench_scenarios
+    from ltv_lstm_mpc.bench.harness import bench_scenarios
 
     return bench_scenarios(model)[0], steps
 

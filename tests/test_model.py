@@ -16,7 +16,7 @@ from ltv_lstm_mpc import (
     ModelFormatError,
     Normalization,
 )
-from ltv_lstm_mpc.model import WEIGHT_NAMES
+from ltv_lstm_mpc.lstm.model import WEIGHT_NAMES
 
 
 def _sigmoid(z: np.ndarray) -> np.ndarray:

@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.model import LSTMModel, Normalization
+from ltv_lstm_mpc.lstm.model import LSTMModel, Normalization
 from ltv_lstm_mpc.plants import (
     LSTMPlant,
     PHNeutralizationPlant,

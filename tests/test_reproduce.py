@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from ltv_lstm_mpc import load_model
-from ltv_lstm_mpc.cli import main
-from ltv_lstm_mpc.reproduce import reproduce
-from ltv_lstm_mpc.scenarios import paper_scenarios
+from ltv_lstm_mpc.cli.main import main
+from ltv_lstm_mpc.paper.reproduce import reproduce
+from ltv_lstm_mpc.paper.scenarios import paper_scenarios
 
 SUMMARY_KEYS = {"max_output_violation", "infeasible_steps", "final_offset", "median_step_time_s"}
 

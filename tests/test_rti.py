@@ -7,7 +7,7 @@ import pytest
 from ltv_lstm_mpc.solvers import available_solvers
 
 from ltv_lstm_mpc import ReferenceCalculator, load_model
-from ltv_lstm_mpc.rti import MPCConfig, RobustMPC
+from ltv_lstm_mpc.mpc.rti import MPCConfig, RobustMPC
 
 MODEL = "example_delta_iss_n3.npz"
 

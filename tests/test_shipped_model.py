@@ -10,10 +10,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from ltv_lstm_mpc.certificates import delta_iss_certificate, incremental_lyapunov_certificate
-from ltv_lstm_mpc.datasets import generate_split
-from ltv_lstm_mpc.model import LSTMModel
-from ltv_lstm_mpc.training import fit_index, simulate_sequences
+from ltv_lstm_mpc.certificates.stability import (
+    delta_iss_certificate,
+    incremental_lyapunov_certificate,
+)
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.training.datasets import generate_split
+from ltv_lstm_mpc.training.train import fit_index, simulate_sequences
 
 DATA = resources.files("ltv_lstm_mpc") / "data"
 

@@ -18,7 +18,7 @@ from ltv_lstm_mpc import (
     observer_certificate,
     tightening_certificate,
 )
-from ltv_lstm_mpc.certificates import matrix_inverse_sqrt
+from ltv_lstm_mpc.certificates.stability import matrix_inverse_sqrt
 
 
 def build(seed: int, l_d: float = 0.01, N: int = 5):

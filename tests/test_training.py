@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ltv_lstm_mpc.certificates import delta_iss_certificate
-from ltv_lstm_mpc.datasets import IdentificationDataset, generate_dataset
+from ltv_lstm_mpc.certificates.stability import delta_iss_certificate
 from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.training.datasets import IdentificationDataset, generate_dataset
 
 # Torch-free imports must work without torch installed.
-from ltv_lstm_mpc.training import TrainingConfig, fit_index
+from ltv_lstm_mpc.training.train import TrainingConfig, fit_index
 
 
 # ------------------------------------------------------------------- no torch needed
@@ -45,7 +45,7 @@ def test_config_defaults_follow_the_paper_and_validate() -> None:
 
 
 def test_missing_torch_gives_install_hint(monkeypatch: pytest.MonkeyPatch) -> None:
-    from ltv_lstm_mpc import training
+    from ltv_lstm_mpc.training import train as training
 
     monkeypatch.setitem(sys.modules, "torch", None)
     with pytest.raises(ImportError, match=r"pip install torch==2\.13\.0"):
@@ -53,7 +53,7 @@ def test_missing_torch_gives_install_hint(monkeypatch: pytest.MonkeyPatch) -> No
 
 
 def _parser() -> argparse.ArgumentParser:
-    from ltv_lstm_mpc.training_cli import register
+    from ltv_lstm_mpc.training.cli import register
 
     parser = argparse.ArgumentParser(prog="ltv-lstm-mpc")
     register(parser.add_subparsers(dest="command", required=True))
@@ -99,7 +99,7 @@ def _random_weights(rng: np.random.Generator, n: int, scale: float) -> dict[str,
 @pytest.mark.parametrize("seed", range(20))
 def test_torch_residuals_equal_numpy_certificate(seed: int) -> None:
     torch = pytest.importorskip("torch")
-    from ltv_lstm_mpc.training import torch_residuals
+    from ltv_lstm_mpc.training.train import torch_residuals
 
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 8))
@@ -122,7 +122,7 @@ def test_torch_residuals_equal_numpy_certificate(seed: int) -> None:
 @pytest.mark.torch
 def test_torch_residuals_from_nn_lstm_are_differentiable_and_match_export() -> None:
     torch = pytest.importorskip("torch")
-    from ltv_lstm_mpc.training import _export, _gate_blocks, _state_dict, torch_residuals
+    from ltv_lstm_mpc.training.train import _export, _gate_blocks, _state_dict, torch_residuals
 
     torch.manual_seed(0)
     lstm = torch.nn.LSTM(1, 4, batch_first=True).double()
@@ -136,7 +136,7 @@ def test_torch_residuals_from_nn_lstm_are_differentiable_and_match_export() -> N
     assert abs(float(r1.detach()) - cert.r1) <= 1e-10
     assert abs(float(r2.detach()) - cert.r2) <= 1e-10
     # Output alignment (SPEC 1): torch's shifted outputs equal LSTMModel.simulate.
-    from ltv_lstm_mpc.training import _predict
+    from ltv_lstm_mpc.training.train import _predict
 
     u = np.linspace(-1, 1, 30)
     x0 = np.zeros(8)
@@ -168,7 +168,7 @@ def test_short_training_decreases_loss_and_exports(
     tiny_dataset: IdentificationDataset, tmp_path: Path
 ) -> None:
     pytest.importorskip("torch")
-    from ltv_lstm_mpc.training import train
+    from ltv_lstm_mpc.training.train import train
 
     result = train(tiny_dataset, _tiny_config(), tmp_path, progress=False, resume=False)
     history = result.history
@@ -186,7 +186,7 @@ def test_short_training_decreases_loss_and_exports(
     for key in ("r1", "r2", "rho_s", "wall_time_s", "seed", "config", "library_version"):
         assert key in report
     assert result.plot_path is not None and result.plot_path.stat().st_size > 1000
-    from ltv_lstm_mpc.training import evaluate_model
+    from ltv_lstm_mpc.training.train import evaluate_model
 
     assert evaluate_model(loaded, tiny_dataset)["test"]["fit"] == pytest.approx(
         report["fit"]["test"], abs=1e-9
@@ -198,7 +198,7 @@ def test_checkpoint_resume_is_deterministic(
     tiny_dataset: IdentificationDataset, tmp_path: Path
 ) -> None:
     pytest.importorskip("torch")
-    from ltv_lstm_mpc.training import TrainingError, train
+    from ltv_lstm_mpc.training.train import TrainingError, train
 
     config = _tiny_config(epochs=20, checkpoint_every=5, max_extra_epochs=200, lr=0.03)
     straight = tmp_path / "straight"
@@ -233,7 +233,7 @@ def test_uncertified_training_fails_with_clear_message(
     tiny_dataset: IdentificationDataset, tmp_path: Path
 ) -> None:
     pytest.importorskip("torch")
-    from ltv_lstm_mpc.training import TrainingError, train
+    from ltv_lstm_mpc.training.train import TrainingError, train
 
     # forget-gate bias 2 starts far from delta-ISS (r1 > 0): one epoch cannot certify it.
     config = _tiny_config(epochs=1, max_extra_epochs=1, lr=1e-4)
@@ -264,7 +264,7 @@ def test_cli_train_tiny(tiny_dataset: IdentificationDataset, tmp_path: Path) -> 
 def test_default_training_reproduces_the_shipped_targets(tmp_path: Path) -> None:
     """Full paper configuration (about 4-5 min on 2 cores): the issue's targets hold."""
     pytest.importorskip("torch")
-    from ltv_lstm_mpc.training import train
+    from ltv_lstm_mpc.training.train import train
 
     dataset = generate_dataset()
     result = train(dataset, TrainingConfig(), tmp_path, progress=False, resume=False)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from .model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = ["load_model", "shipped_models", "shipped_path"]
 

@@ -14,8 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .datasets import IdentificationDataset, generate_dataset
-from .exceptions import LtvMpcError
+from ltv_lstm_mpc.exceptions import LtvMpcError
+from ltv_lstm_mpc.training.datasets import IdentificationDataset, generate_dataset
 
 __all__ = ["generate_data_command", "register", "train_command"]
 
@@ -85,7 +85,7 @@ def generate_data_command(args: argparse.Namespace) -> int:
 def train_command(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc train``: train a delta-ISS LSTM, write model, report and plot."""
     try:
-        from .training import TrainingConfig, train
+        from ltv_lstm_mpc.training.train import TrainingConfig, train
     except ImportError as error:  # pragma: no cover - torch missing
         print(f"error: {error}", file=sys.stderr)
         return 1

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .exceptions import DimensionError, InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 
 __all__ = ["WEIGHT_NAMES", "LSTMModel", "ModelFormatError", "Normalization"]
 

@@ -1,13 +1,13 @@
 r"""Solver comparison benchmark (issue 6): every backend on the same closed loops, side by side.
 
-For each scenario (the paper's, :func:`ltv_lstm_mpc.scenarios.paper_scenarios`), horizon N
+For each scenario (the paper's, :func:`ltv_lstm_mpc.paper.scenarios.paper_scenarios`), horizon N
 and backend, the closed loop of Fig. 1 is run with the same plant, set-points and
 disturbances, and one CSV row records
 
 * controller step time (median, p95, max, microseconds) and its split into observer,
   reference calculator (eq. reference_calculation), linearize + build, and solve;
 * first-input and closed-loop-cost difference to the exact NMPC
-  (:class:`~ltv_lstm_mpc.nmpc.ExactNMPC`) and the ratios of the median step to the exact
+  (:class:`~ltv_lstm_mpc.mpc.nmpc.ExactNMPC`) and the ratios of the median step to the exact
   NMPC and to the fastest backend of the same scenario and N;
 * nonlinear (re-simulated) violations of the tightened output rows, plant output
   violations of :math:`\mathcal Y`, infeasible steps and fallback uses;
@@ -16,15 +16,15 @@ disturbances, and one CSV row records
 Backends
 --------
 ``nmpc:ipopt``
-    :class:`~ltv_lstm_mpc.nmpc.ExactNMPC` (needs the ``nmpc`` extra).
+    :class:`~ltv_lstm_mpc.mpc.nmpc.ExactNMPC` (needs the ``nmpc`` extra).
 ``fast:<solver>``
-    :class:`~ltv_lstm_mpc.fast.FastOffsetFreeController` (fused step) with a native
-    dense solver (:func:`~ltv_lstm_mpc.fast.fast_solvers`).
+    :class:`~ltv_lstm_mpc.mpc.fast.FastOffsetFreeController` (fused step) with a native
+    dense solver (:func:`~ltv_lstm_mpc.mpc.fast.fast_solvers`).
 ``fast-mpc:<solver>``
-    :class:`~ltv_lstm_mpc.fast.FastRobustMPC` inside the regular
-    :class:`~ltv_lstm_mpc.controller.OffsetFreeController`.
+    :class:`~ltv_lstm_mpc.mpc.fast.FastRobustMPC` inside the regular
+    :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController`.
 ``rti:<solver>``
-    :class:`~ltv_lstm_mpc.rti.RobustMPC` with every
+    :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` with every
     :func:`ltv_lstm_mpc.solvers.available_solvers` entry.
 
 Saved subproblems (``save_subproblems``) are the RTI subproblems of one closed loop as
@@ -50,11 +50,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .certify import Certification, certify
-from .controller import OffsetFreeController
-from .exceptions import InvalidValueError
-from .model import LSTMModel
-from .rti import MPCConfig, RobustMPC
+from ltv_lstm_mpc.certificates.certify import Certification, certify
+from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.rti import MPCConfig, RobustMPC
 
 __all__ = [
     "CSV_COLUMNS",
@@ -140,7 +140,7 @@ class BenchScenario:
 def standin_scenario(model: LSTMModel, steps: int = 300) -> BenchScenario:
     """LSTM plant from pH 7.0, set-point 7.0 -> 7.5 -> 6.8 (rate 0.01/step normalized),
     output disturbance 0.03 pH after step 100 (used when the paper scenarios are absent)."""
-    from .plants import LSTMPlant
+    from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 
     k = np.arange(steps)
     setpoints = np.where(k < 60, 7.0, np.where(k < 130, 7.5, 6.8)).astype(np.float64)
@@ -157,9 +157,9 @@ def standin_scenario(model: LSTMModel, steps: int = 300) -> BenchScenario:
 
 
 def bench_scenarios(model: LSTMModel, *, short: bool = True) -> list[BenchScenario]:
-    """The paper's scenarios (``ltv_lstm_mpc.scenarios``), or the stand-in without it."""
+    """The paper's scenarios (``ltv_lstm_mpc.paper.scenarios``), or the stand-in without it."""
     try:
-        from .scenarios import paper_scenarios
+        from ltv_lstm_mpc.paper.scenarios import paper_scenarios
     except ImportError:
         return [standin_scenario(model)]
     out = []
@@ -182,8 +182,8 @@ def available_backends() -> list[str]:
     """Every backend this installation can run (see the module docstring)."""
     import importlib.util
 
-    from .fast import fast_solvers
-    from .solvers import available_solvers
+    from ltv_lstm_mpc.mpc.fast import fast_solvers
+    from ltv_lstm_mpc.solvers import available_solvers
 
     names = []
     if importlib.util.find_spec("casadi") is not None:
@@ -203,12 +203,12 @@ def _make_controller(
     config = replace(scenario.config, N=N)
     rate = scenario.setpoint_rate_limit
     if family == "nmpc":
-        from .nmpc import ExactNMPC
+        from ltv_lstm_mpc.mpc.nmpc import ExactNMPC
 
         nmpc = ExactNMPC(model, config, certification=cert)
         return OffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=nmpc)
     if family in ("fast", "fast-mpc"):
-        from .fast import FastOffsetFreeController, FastRobustMPC
+        from ltv_lstm_mpc.mpc.fast import FastOffsetFreeController, FastRobustMPC
 
         fast = FastRobustMPC(model, config, solver=solver, certification=cert)
         if family == "fast":
@@ -529,8 +529,8 @@ def save_subproblems(
     (``k<step>_cone.npz``) and in the conservative QP form (``k<step>_qp.npz``), solves
     both with every installed solver and writes the numbers to ``replay_reference.csv``.
     """
-    from .solvers import ConvexProblem, available_solvers, cone_solvers
-    from .solvers import solve as solve_problem
+    from ltv_lstm_mpc.solvers import ConvexProblem, available_solvers, cone_solvers
+    from ltv_lstm_mpc.solvers import solve as solve_problem
 
     directory.mkdir(parents=True, exist_ok=True)
     config = replace(scenario.config, N=N)
@@ -623,8 +623,8 @@ def replay(directory: str | Path, *, solvers: Sequence[str] | None = None) -> li
     (``u0_spread``: replayed u0 minus the median over solvers of that file). Writes
     ``replay.csv`` next to the saved files.
     """
-    from .solvers import ConvexProblem
-    from .solvers import solve as solve_problem
+    from ltv_lstm_mpc.solvers import ConvexProblem
+    from ltv_lstm_mpc.solvers import solve as solve_problem
 
     directory = Path(directory)
     meta = json.loads((directory / "replay_meta.json").read_text())
@@ -697,7 +697,7 @@ SMOKE_BACKENDS = ("nmpc:ipopt", "fast:daqp", "fast-mpc:daqp", "rti:daqp", "rti:c
 
 def main_bench(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc bench``."""
-    from .cli import _resolve_model_path
+    from ltv_lstm_mpc.cli.main import _resolve_model_path
 
     model = LSTMModel.load(_resolve_model_path(args.model))
     scenarios = bench_scenarios(model, short=True)

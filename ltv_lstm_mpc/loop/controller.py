@@ -1,8 +1,8 @@
 r"""The offset-free control loop of the paper's Fig. 1, one ``step`` per sample.
 
-normalization -> :class:`~ltv_lstm_mpc.observer.Observer` (eq. lstm_observer) ->
-:class:`~ltv_lstm_mpc.reference.ReferenceCalculator` (eq. reference_calculation) ->
-:class:`~ltv_lstm_mpc.rti.RobustMPC` (eq. optimization) -> de-normalization.
+normalization -> :class:`~ltv_lstm_mpc.loop.observer.Observer` (eq. lstm_observer) ->
+:class:`~ltv_lstm_mpc.loop.reference.ReferenceCalculator` (eq. reference_calculation) ->
+:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (eq. optimization) -> de-normalization.
 
 Timing convention: at sample k the controller holds :math:`(\hat x_k, \hat d_k)` and
 :math:`\hat e_{o,k}`. ``step(y_phi_k, y0_phi_k)`` computes :math:`u_k` from them, then
@@ -20,11 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .exceptions import InvalidValueError, LtvMpcError
-from .model import LSTMModel
-from .observer import Observer
-from .reference import ReferenceCalculator, ReferenceSolution
-from .rti import MPCConfig, MPCSolution, MPCSolver, RobustMPC
+from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.loop.observer import Observer
+from ltv_lstm_mpc.loop.reference import ReferenceCalculator, ReferenceSolution
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.rti import MPCConfig, MPCSolution, MPCSolver, RobustMPC
 
 __all__ = ["ControllerStep", "OffsetFreeController"]
 

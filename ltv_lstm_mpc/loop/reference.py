@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .exceptions import DimensionError, InvalidValueError, UnreachableSetpointError
-from .model import LSTMModel
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, UnreachableSetpointError
+from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = ["KBarEstimate", "ReferenceCalculator", "ReferenceSolution", "estimate_K_bar"]
 

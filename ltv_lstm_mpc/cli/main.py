@@ -5,7 +5,7 @@ Subcommands
 certify
     Print every certificate number of the paper for a model (``--json`` for one JSON object).
 generate-data, train
-    Identification data and delta-ISS LSTM training (see ``ltv_lstm_mpc.training_cli``).
+    Identification data and delta-ISS LSTM training (see ``ltv_lstm_mpc.training.cli``).
 """
 
 from __future__ import annotations
@@ -18,11 +18,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from . import __version__
-from .certify import PAPER_Y_PHI_BOUNDS, Certification, CertificationSettings, certify
-from .exceptions import LtvMpcError
-from .model import LSTMModel
-from .shipped import shipped_path
+from ltv_lstm_mpc import __version__
+from ltv_lstm_mpc.certificates.certify import (
+    PAPER_Y_PHI_BOUNDS,
+    Certification,
+    CertificationSettings,
+    certify,
+)
+from ltv_lstm_mpc.exceptions import LtvMpcError
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.shipped import shipped_path
 
 __all__ = ["build_parser", "main"]
 
@@ -200,7 +205,7 @@ def _add_reproduce(subparsers: Any) -> None:
 
 
 def _run_reproduce(args: argparse.Namespace) -> int:
-    from .reproduce import format_certificates, format_table, reproduce
+    from ltv_lstm_mpc.paper.reproduce import format_certificates, format_table, reproduce
 
     path = _resolve_model_path(args.model)
     model = LSTMModel.load(path)
@@ -263,9 +268,9 @@ def _add_simulate(subparsers: Any) -> None:
 def _run_simulate(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from .reproduce import format_table, write_scenario_outputs
-    from .rti import MPCConfig
-    from .scenarios import Scenario, run_scenario
+    from ltv_lstm_mpc.mpc.rti import MPCConfig
+    from ltv_lstm_mpc.paper.reproduce import format_table, write_scenario_outputs
+    from ltv_lstm_mpc.paper.scenarios import Scenario, run_scenario
 
     model = LSTMModel.load(_resolve_model_path(args.model))
     segments = len(args.setpoints)

@@ -9,9 +9,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm.auto import tqdm
 
-from .controller import OffsetFreeController
-from .exceptions import DimensionError
-from .plants import Plant
+from ltv_lstm_mpc.exceptions import DimensionError
+from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.plants.protocol import Plant
 
 __all__ = ["SimulationResult", "simulate"]
 

@@ -1,7 +1,7 @@
 r"""delta-ISS LSTM identification with torch (paper Section V, "LSTM model identification").
 
 This is the only module of :mod:`ltv_lstm_mpc` that imports torch, and only inside functions:
-``import ltv_lstm_mpc.training`` works without torch; calling :func:`train` or
+``import ltv_lstm_mpc.training.train`` works without torch; calling :func:`train` or
 :func:`torch_residuals` without it raises an ImportError saying how to install it.
 
 Loss (paper, per batch)
@@ -12,17 +12,20 @@ Loss (paper, per batch)
         + \lambda_1 \max\{r_2, 0\} + \lambda_2 \min\{r_1, 0\} + \lambda_2 \min\{r_2, 0\}
 
 in normalized units, with the Remark 1 residuals :math:`r_1, r_2` computed differentiably
-(:func:`torch_residuals`; identical to :func:`ltv_lstm_mpc.certificates.delta_iss_certificate`
+(:func:`torch_residuals`; identical to
+:func:`ltv_lstm_mpc.certificates.stability.delta_iss_certificate`
 to rounding in float64, including the SPEC 2.2 correction of :math:`\alpha`).
 
 Design choices the paper leaves open
 ------------------------------------
 * **Initial state.** Every identification sequence starts with the plant at its nominal steady
-  state (q3 = 15.6 mL/s, :mod:`ltv_lstm_mpc.datasets`), so every sequence starts the LSTM at its
+  state (q3 = 15.6 mL/s, :mod:`ltv_lstm_mpc.training.datasets`), so every sequence starts the
+  LSTM at its
   equilibrium for that constant input, :math:`x_0 = f(x_0, N_u(15.6))`. In training this is
   approximated differentiably (``equilibrium_steps`` iterations without gradient, then
   ``equilibrium_grad_steps`` with gradient); in evaluation it is
-  :meth:`ltv_lstm_mpc.model.LSTMModel.equilibrium` (exact). An optional ``washout`` excludes the
+  :meth:`ltv_lstm_mpc.lstm.model.LSTMModel.equilibrium` (exact). An optional ``washout``
+  excludes the
   first samples of each sequence from the loss (default 0: the initial state is consistent).
 * **Output alignment (SPEC 1).** The model output at time k is :math:`W_y h_k + b_y`, with
   :math:`h_k` the state after reading :math:`u_0..u_{k-1}`. torch's ``nn.LSTM`` returns
@@ -40,7 +43,7 @@ Design choices the paper leaves open
   if no evaluated weights were ever certified, :class:`TrainingError` is raised.
 * **FIT.** :math:`100 (1 - \|y_{real} - y\| / \|y_{real} - \bar y_{real}\|)` on the physical
   outputs of all sequences of a split concatenated (one number per split), simulated with
-  :meth:`~ltv_lstm_mpc.model.LSTMModel.simulate` on the exported model from the equilibrium
+  :meth:`~ltv_lstm_mpc.lstm.model.LSTMModel.simulate` on the exported model from the equilibrium
   above. The per-sequence FITs are reported too.
 """
 
@@ -59,10 +62,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .certificates import delta_iss_certificate, incremental_lyapunov_certificate
-from .datasets import SPLITS, IdentificationDataset
-from .exceptions import InvalidValueError, LtvMpcError
-from .model import LSTMModel, Normalization
+from ltv_lstm_mpc.certificates.stability import (
+    delta_iss_certificate,
+    incremental_lyapunov_certificate,
+)
+from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.lstm.model import LSTMModel, Normalization
+from ltv_lstm_mpc.training.datasets import SPLITS, IdentificationDataset
 
 __all__ = [
     "TORCH_INSTALL_HINT",
@@ -326,7 +332,7 @@ def torch_residuals(blocks: dict[str, tuple[Any, Any, Any]], u_max: float = 1.0)
     Returns
     -------
     r1, r2 : torch scalar tensors
-        Equal (to rounding) to :func:`ltv_lstm_mpc.certificates.delta_iss_certificate`'s.
+        Equal (to rounding) to :func:`ltv_lstm_mpc.certificates.stability.delta_iss_certificate`'s.
     """
     torch = _import_torch()
 

@@ -1,7 +1,7 @@
 r"""Exact nonlinear MPC baseline: the FHOCP of eq. (optimization) solved by IPOPT (issue 6).
 
-The accuracy reference for the RTI answers (:class:`~ltv_lstm_mpc.rti.RobustMPC`,
-:class:`~ltv_lstm_mpc.fast.FastRobustMPC`): the *nonlinear* problem
+The accuracy reference for the RTI answers (:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC`,
+:class:`~ltv_lstm_mpc.mpc.fast.FastRobustMPC`): the *nonlinear* problem
 
 .. math::
 
@@ -32,11 +32,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .certify import Certification, certify
-from .exceptions import InvalidValueError
-from .model import LSTMModel
-from .problem import FHOCPSubproblem
-from .rti import MPCConfig, MPCSolution, fhocp_inputs, plan_residuals, shifted_candidate
+from ltv_lstm_mpc.certificates.certify import Certification, certify
+from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.rti import (
+    MPCConfig,
+    MPCSolution,
+    fhocp_inputs,
+    plan_residuals,
+    shifted_candidate,
+)
+from ltv_lstm_mpc.mpc.sparse import FHOCPSubproblem
 
 __all__ = ["ExactNMPC"]
 
@@ -67,7 +73,7 @@ def _import_casadi() -> Any:
 class ExactNMPC:
     r"""Exact NMPC of eq. (optimization) with CasADi + IPOPT (the accuracy reference).
 
-    Same interface as :class:`~ltv_lstm_mpc.rti.RobustMPC`: ``solve(x_hat, x_bar, u_bar,
+    Same interface as :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC`: ``solve(x_hat, x_bar, u_bar,
     y0, e_hat, *, warm=None) -> MPCSolution``, ``reset()``, ``certification``,
     ``tightening``; usable as ``OffsetFreeController(model, config, mpc=ExactNMPC(...))``.
     The i = 0 output row and :math:`\alpha_k > 0` are checked first (SPEC 1); when they
@@ -291,7 +297,7 @@ class ExactNMPC:
     ) -> MPCSolution:
         r"""Solve the nonlinear FHOCP at :math:`(\hat x_k, \bar x_k, \bar u_k, y^0_k, \hat e_k)`.
 
-        Parameters are those of :meth:`~ltv_lstm_mpc.rti.RobustMPC.solve`; ``warm`` is
+        Parameters are those of :meth:`~ltv_lstm_mpc.mpc.rti.RobustMPC.solve`; ``warm`` is
         the initial input guess (default: the shifted previous plan).
         """
         start = time.perf_counter()

@@ -28,8 +28,13 @@ import scipy.linalg
 import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
-from .exceptions import DimensionError, InvalidValueError, NotDeltaISSError, ObserverGainError
-from .model import LSTMModel
+from ltv_lstm_mpc.exceptions import (
+    DimensionError,
+    InvalidValueError,
+    NotDeltaISSError,
+    ObserverGainError,
+)
+from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = [
     "DeltaISSCertificate",

@@ -21,10 +21,10 @@ import warnings
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .certificates import ObserverGains
-from .exceptions import DimensionError, InvalidValueError
-from .model import LSTMModel, _sigmoid
-from .reference import ReferenceCalculator
+from ltv_lstm_mpc.certificates.stability import ObserverGains
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.loop.reference import ReferenceCalculator
+from ltv_lstm_mpc.lstm.model import LSTMModel, _sigmoid
 
 __all__ = ["Observer"]
 
@@ -39,7 +39,7 @@ class Observer:
     model : LSTMModel
     gains : ObserverGains
         :math:`L_f, L_i, L_o` (n, p) and :math:`L_d` (p, p); certify them with
-        :func:`~ltv_lstm_mpc.certificates.observer_certificate`.
+        :func:`~ltv_lstm_mpc.certificates.stability.observer_certificate`.
     d_max : float
         Saturation bound of :math:`\hat d` (:math:`\mathcal{D}`).
     x_hat0, d_hat0 : array_like, optional

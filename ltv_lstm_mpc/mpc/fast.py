@@ -1,6 +1,6 @@
 r"""Fast embedded-style RTI path: no cvxpy, condensed QP, native solvers (issue 6).
 
-The same robust MPC as :class:`~ltv_lstm_mpc.rti.RobustMPC` (eq. optimization, one
+The same robust MPC as :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (eq. optimization, one
 real-time iteration on the shifted candidate of SPEC 4), organised the way embedded
 RTI codes are (acados ``prepare`` / ``feedback``):
 
@@ -25,14 +25,14 @@ RTI codes are (acados ``prepare`` / ``feedback``):
 
 QP-only solvers cannot take the terminal cones, so the terminal set and cost get the
 conservative replacement of SPEC 4, exactly the math of
-:class:`~ltv_lstm_mpc.problem.TerminalBoxReformulation` (box inside
+:class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` (box inside
 :math:`\mathcal X_f(k)`, cost bound
 :math:`(P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`); its name is
-recorded in every :class:`~ltv_lstm_mpc.rti.MPCSolution`.
+recorded in every :class:`~ltv_lstm_mpc.mpc.rti.MPCSolution`.
 
 :class:`FastOffsetFreeController` fuses the whole Fig. 1 step (observer eq.
 lstm_observer, warm-started Newton for eq. reference_calculation, the RTI step) with the
-same records as :class:`~ltv_lstm_mpc.controller.OffsetFreeController`.
+same records as :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController`.
 """
 
 from __future__ import annotations
@@ -46,13 +46,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .certify import Certification, certify
-from .controller import OffsetFreeController
-from .exceptions import DimensionError, InvalidValueError, LtvMpcError, SolverNotFound
-from .model import LSTMModel
-from .problem import FHOCPSubproblem
-from .reference import ReferenceCalculator, ReferenceSolution
-from .rti import MPCConfig, MPCSolution, checked_vector, precheck_status, shifted_candidate
+from ltv_lstm_mpc.certificates.certify import Certification, certify
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError, SolverNotFound
+from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.reference import ReferenceCalculator, ReferenceSolution
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.rti import (
+    MPCConfig,
+    MPCSolution,
+    checked_vector,
+    precheck_status,
+    shifted_candidate,
+)
+from ltv_lstm_mpc.mpc.sparse import FHOCPSubproblem
 
 __all__ = [
     "FAST_SOLVERS",
@@ -230,7 +236,7 @@ class FastReferenceCalculator:
     iteration) and refreshed only when the contraction is slower than 1e-2 per
     iteration. At steady state the call is one residual check. When an iteration with
     a fresh Jacobian does not decrease the residual, or there is no previous solution,
-    it falls back to :class:`~ltv_lstm_mpc.reference.ReferenceCalculator` (damped
+    it falls back to :class:`~ltv_lstm_mpc.loop.reference.ReferenceCalculator` (damped
     Newton with grid restarts). ``jacobian_condition`` is NaN on the fast path.
 
     Parameters
@@ -385,7 +391,7 @@ class _Daqp(_DenseQP):
     name = "daqp"
 
     def __init__(self, tolerance: float, settings: Mapping[str, Any]) -> None:
-        from .solvers.tolerances import solver_options
+        from ltv_lstm_mpc.solvers.tolerances import solver_options
 
         super().__init__(tolerance, settings)
         self.options = solver_options("daqp", tolerance, settings)
@@ -462,7 +468,7 @@ class _Proxqp(_DenseQP):
     name = "proxqp"
 
     def __init__(self, tolerance: float, settings: Mapping[str, Any]) -> None:
-        from .solvers.tolerances import solver_options
+        from ltv_lstm_mpc.solvers.tolerances import solver_options
 
         super().__init__(tolerance, settings)
         self.options = solver_options("proxqp", tolerance, settings)
@@ -511,7 +517,7 @@ class _Piqp(_DenseQP):
     name = "piqp"
 
     def __init__(self, tolerance: float, settings: Mapping[str, Any]) -> None:
-        from .solvers.tolerances import solver_options
+        from ltv_lstm_mpc.solvers.tolerances import solver_options
 
         super().__init__(tolerance, settings)
         self.options = solver_options("piqp", tolerance, settings)
@@ -559,7 +565,7 @@ class _Osqp(_DenseQP):
     name = "osqp"
 
     def __init__(self, tolerance: float, settings: Mapping[str, Any]) -> None:
-        from .solvers.tolerances import solver_options
+        from ltv_lstm_mpc.solvers.tolerances import solver_options
 
         super().__init__(tolerance, settings)
         self.options = {"verbose": False, **solver_options("osqp", tolerance, settings)}
@@ -626,7 +632,7 @@ class _Qpsolvers(_DenseQP):
     def __init__(self, solver: str, tolerance: float, settings: Mapping[str, Any]) -> None:
         import qpsolvers
 
-        from .solvers.tolerances import solver_options
+        from ltv_lstm_mpc.solvers.tolerances import solver_options
 
         super().__init__(tolerance, settings)
         if solver not in qpsolvers.available_solvers:
@@ -689,12 +695,12 @@ def _make_qp(solver: str, tolerance: float, settings: Mapping[str, Any]) -> _Den
 class FastRobustMPC:
     r"""The robust MPC of eq. (optimization), RTI on a condensed QP, split prepare/feedback.
 
-    Same interface as :class:`~ltv_lstm_mpc.rti.RobustMPC` (``solve``, ``reset``,
+    Same interface as :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (``solve``, ``reset``,
     ``certification``, ``tightening``) plus :meth:`prepare` / :meth:`feedback`. The
     i = 0 output row and :math:`\alpha_k > 0` are checked first and the configured
     infeasibility policy (``"paper"``, ``"soft"``, ``"shift"``) is applied exactly as in
     RobustMPC; the terminal cones always get the
-    :class:`~ltv_lstm_mpc.problem.TerminalBoxReformulation` (recorded in
+    :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` (recorded in
     ``MPCSolution.reformulation``). ``config.solver`` is ignored; ``sqp_iterations`` is
     1 (one real-time iteration).
 
@@ -828,7 +834,7 @@ class FastRobustMPC:
         Parameters
         ----------
         x_bar, u_bar, y0, e_hat
-            As in :meth:`~ltv_lstm_mpc.rti.RobustMPC.solve`.
+            As in :meth:`~ltv_lstm_mpc.mpc.rti.RobustMPC.solve`.
         x_pred : (2n,), optional
             Predicted :math:`\hat x_k` to linearize from; default the previous plan's
             :math:`x_{1|k-1}` (required at the first call).
@@ -1117,7 +1123,7 @@ class FastRobustMPC:
     ) -> MPCSolution:
         r"""``prepare`` from :math:`\hat x_k` then ``feedback`` (RobustMPC's interface).
 
-        Parameters are those of :meth:`~ltv_lstm_mpc.rti.RobustMPC.solve`.
+        Parameters are those of :meth:`~ltv_lstm_mpc.mpc.rti.RobustMPC.solve`.
         """
         model = self.model
         n2, m, p = 2 * model.n, model.m, model.p
@@ -1144,7 +1150,7 @@ class FastRobustMPC:
 class FastOffsetFreeController(OffsetFreeController):
     r"""Fig. 1 in one lean step: observer, reference calculator and the fast RTI step.
 
-    Behaves as :class:`~ltv_lstm_mpc.controller.OffsetFreeController` with
+    Behaves as :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController` with
     ``mpc=FastRobustMPC(...)`` (same timing convention, rate limiter, records and
     :math:`\hat e_{o,k}` update eq. eo_evolution) but with the observer eq.
     (lstm_observer) on the lean kernel and the warm-started

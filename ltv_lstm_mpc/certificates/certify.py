@@ -1,10 +1,11 @@
 r"""All certificate numbers of the paper for one model and one tuning, in one call.
 
-:func:`certify` chains :func:`~ltv_lstm_mpc.certificates.delta_iss_certificate`
-(Assumption 2), :func:`~ltv_lstm_mpc.certificates.incremental_lyapunov_certificate`
-(Lemma 2), :func:`~ltv_lstm_mpc.certificates.observer_certificate` (Theorem 2),
-:func:`~ltv_lstm_mpc.tightening.tightening_certificate` (eq. constraint_tightening_parameters,
-terminal set), :func:`~ltv_lstm_mpc.reference.estimate_K_bar` (Lemma 5) and the set-point
+:func:`certify` chains :func:`~ltv_lstm_mpc.certificates.stability.delta_iss_certificate`
+(Assumption 2), :func:`~ltv_lstm_mpc.certificates.stability.incremental_lyapunov_certificate`
+(Lemma 2), :func:`~ltv_lstm_mpc.certificates.stability.observer_certificate` (Theorem 2),
+:func:`~ltv_lstm_mpc.certificates.tightening.tightening_certificate`
+(eq. constraint_tightening_parameters,
+terminal set), :func:`~ltv_lstm_mpc.loop.reference.estimate_K_bar` (Lemma 5) and the set-point
 rate bound of Theorem 3 (SPEC 2.10c). :class:`CertificationSettings` defaults are the
 paper's values (Section V).
 """
@@ -17,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .certificates import (
+from ltv_lstm_mpc.certificates.stability import (
     DeltaISSCertificate,
     IncrementalLyapunovCertificate,
     ObserverCertificate,
@@ -27,10 +28,14 @@ from .certificates import (
     incremental_lyapunov_certificate,
     observer_certificate,
 )
-from .exceptions import InvalidValueError
-from .model import LSTMModel
-from .reference import KBarEstimate, estimate_K_bar
-from .tightening import SetpointRateBound, TighteningCertificate, tightening_certificate
+from ltv_lstm_mpc.certificates.tightening import (
+    SetpointRateBound,
+    TighteningCertificate,
+    tightening_certificate,
+)
+from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.loop.reference import KBarEstimate, estimate_K_bar
+from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = ["Certification", "CertificationSettings", "certify"]
 
@@ -59,7 +64,8 @@ class CertificationSettings:
         optimization; default 0, the certified fallback of Remark 3). Ignored when
         ``design_gains`` is True.
     design_gains : bool
-        Choose :math:`L_f, L_i, L_o` by :func:`~ltv_lstm_mpc.certificates.design_observer_gains`.
+        Choose :math:`L_f, L_i, L_o` by
+        :func:`~ltv_lstm_mpc.certificates.stability.design_observer_gains`.
     d_max : float
         :math:`d_{max}`, 0.1.
     w_bar : float

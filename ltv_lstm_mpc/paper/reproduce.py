@@ -18,9 +18,16 @@ from typing import Any
 
 import numpy as np
 
-from .certify import CertificationSettings, certify
-from .model import LSTMModel
-from .scenarios import Y_PHI_MAX, Y_PHI_MIN, Scenario, ScenarioResult, paper_scenarios, run_scenario
+from ltv_lstm_mpc.certificates.certify import CertificationSettings, certify
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.paper.scenarios import (
+    Y_PHI_MAX,
+    Y_PHI_MIN,
+    Scenario,
+    ScenarioResult,
+    paper_scenarios,
+    run_scenario,
+)
 
 __all__ = ["PAPER_VALUES", "certificate_comparison", "reproduce", "write_scenario_outputs"]
 

@@ -17,15 +17,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .certificates import (
+from ltv_lstm_mpc.certificates.stability import (
     DeltaISSCertificate,
     IncrementalLyapunovCertificate,
     ObserverCertificate,
     matrix_inverse_sqrt,
     solve_lyapunov,
 )
-from .exceptions import DimensionError, InvalidValueError, LtvMpcError
-from .model import LSTMModel
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = ["SetpointRateBound", "TighteningCertificate", "tightening_certificate"]
 
@@ -228,7 +228,7 @@ class TighteningCertificate:
             :math:`\hat e_{o,k}`.
         K_bar : float
             :math:`\bar K` of Lemma 5 (estimate with
-            :func:`ltv_lstm_mpc.reference.estimate_K_bar`; paper: 2.67).
+            :func:`ltv_lstm_mpc.loop.reference.estimate_K_bar`; paper: 2.67).
         e_y_bar : float
             Bound on :math:`|y - \hat y|` (paper: 0.03).
         """
@@ -269,9 +269,9 @@ def tightening_certificate(
     ----------
     model : LSTMModel
     delta_iss, lyapunov, observer : certificates
-        From :func:`~ltv_lstm_mpc.certificates.delta_iss_certificate`,
-        :func:`~ltv_lstm_mpc.certificates.incremental_lyapunov_certificate`,
-        :func:`~ltv_lstm_mpc.certificates.observer_certificate`.
+        From :func:`~ltv_lstm_mpc.certificates.stability.delta_iss_certificate`,
+        :func:`~ltv_lstm_mpc.certificates.stability.incremental_lyapunov_certificate`,
+        :func:`~ltv_lstm_mpc.certificates.stability.observer_certificate`.
     N : int
         Prediction horizon (paper: 5).
     Q : float or array_like, shape (2n, 2n)

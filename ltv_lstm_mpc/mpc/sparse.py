@@ -34,8 +34,8 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .exceptions import DimensionError, InvalidValueError
-from .solvers import ConvexProblem, SecondOrderCone, frozen_csc
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.solvers import ConvexProblem, SecondOrderCone, frozen_csc
 
 __all__ = ["FHOCPSubproblem", "SubproblemLayout", "TerminalBoxReformulation"]
 

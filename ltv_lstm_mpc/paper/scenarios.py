@@ -28,12 +28,14 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .certify import certify
-from .controller import OffsetFreeController
-from .model import LSTMModel
-from .plants import LSTMPlant, PHNeutralizationPlant, Plant
-from .rti import MPCConfig, MPCSolver
-from .simulation import SimulationResult, simulate
+from ltv_lstm_mpc.certificates.certify import certify
+from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.rti import MPCConfig, MPCSolver
+from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
+from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
+from ltv_lstm_mpc.plants.protocol import Plant
 
 __all__ = [
     "Scenario",

@@ -10,7 +10,7 @@ r"""Identification data for the pH benchmark (paper Section V, "LSTM model ident
 * :class:`IdentificationDataset` — the arrays per split plus metadata with units;
   ``save``/``load`` (``.npz``), ``to_csv``; :meth:`IdentificationDataset.normalization` builds
   the [-1, 1] normalization from the training split's min/max (SPEC 1), reusing
-  :class:`ltv_lstm_mpc.model.Normalization`.
+  :class:`ltv_lstm_mpc.lstm.model.Normalization`.
 
 Conventions
 -----------
@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .exceptions import DimensionError, InvalidValueError
-from .model import Normalization
-from .plants import PHNeutralizationPlant, ph_from_state, simulate_ph_batch
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.lstm.model import Normalization
+from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant, ph_from_state, simulate_ph_batch
 
 __all__ = [
     "SPLITS",

@@ -3,7 +3,7 @@ r"""Robust MPC of eq. (optimization) solved by real-time iterations (SPEC sectio
 At step k the LSTM is linearized along the candidate of the proof of Theorem 3
 (Part 2b): the previous optimal inputs shifted by one, with :math:`\bar u_k` appended
 (:math:`\bar u_k` repeated at the first step). One convex subproblem
-(:class:`~ltv_lstm_mpc.problem.FHOCPSubproblem`) is solved; optional SQP iterations
+(:class:`~ltv_lstm_mpc.mpc.sparse.FHOCPSubproblem`) is solved; optional SQP iterations
 re-linearize at the new iterate until the input step is small. Every plan is
 re-simulated on the true LSTM and its nonlinear constraint residuals are recorded: a
 linearized solution is a proposal, not a certificate.
@@ -29,12 +29,12 @@ from typing import Literal, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .certify import Certification, CertificationSettings, certify
-from .exceptions import DimensionError, InvalidValueError
-from .model import LSTMModel
-from .problem import FHOCPSubproblem
-from .solvers import Session, SolverStatus
-from .tightening import TighteningCertificate
+from ltv_lstm_mpc.certificates.certify import Certification, CertificationSettings, certify
+from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.sparse import FHOCPSubproblem
+from ltv_lstm_mpc.solvers import Session, SolverStatus
 
 __all__ = [
     "FHOCPInputs",
@@ -84,7 +84,7 @@ class MPCConfig:
     solver : str
         Backend name, e.g. ``"cvxpy:CLARABEL"`` (cones, exact), ``"osqp"``, ``"daqp"``,
         ``"qpsolvers:piqp"`` (QP-only: the terminal cones get the conservative
-        :class:`~ltv_lstm_mpc.problem.TerminalBoxReformulation`, recorded per step).
+        :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation`, recorded per step).
     tolerance : float
         Solver tolerance (mapped per solver).
     sqp_iterations : int
@@ -365,7 +365,7 @@ def plan_residuals(
 
 
 class MPCSolver(Protocol):
-    """What :class:`~ltv_lstm_mpc.controller.OffsetFreeController` needs from an MPC.
+    """What :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController` needs from an MPC.
 
     Implemented by :class:`RobustMPC`, ``fast.FastRobustMPC`` and ``nmpc.ExactNMPC``.
     """
@@ -399,7 +399,7 @@ class RobustMPC:
     model : LSTMModel
     config : MPCConfig, optional
     certification : Certification, optional
-        Precomputed certificates (default: :func:`~ltv_lstm_mpc.certify.certify` with
+        Precomputed certificates (default: :func:`~ltv_lstm_mpc.certificates.certify.certify` with
         ``config.certification_settings(model)``).
     """
 
