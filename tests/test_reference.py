@@ -42,10 +42,10 @@ def test_reference_residual_on_random_models(
         # Monotone equilibrium map: the solution is unique (Assumption 4), so u_bar = u_star.
         np.testing.assert_allclose(solution.u_bar, [u_star], atol=1e-7)
     assert np.isfinite(solution.jacobian_condition)
-    # Warm start: a nearby set-point converges in few iterations.
+    # Warm start: a nearby set-point converges in few (chord) iterations.
     u_near = u_star - 0.01 * np.sign(u_star)
     nearby = calculator.solve(model.output(model.equilibrium(np.array([u_near]))) + d_hat, [d_hat])
-    assert nearby.residual < 1e-10 and nearby.iterations <= 4
+    assert nearby.residual < 1e-10 and nearby.iterations <= 6
 
 
 def test_unreachable_setpoint_raises_or_flags() -> None:

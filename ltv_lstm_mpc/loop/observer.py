@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.certificates.stability import ObserverGains
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
-from ltv_lstm_mpc.lstm.model import LSTMModel, _sigmoid
+from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = ["Observer"]
 
@@ -63,8 +63,9 @@ class Observer:
         self.gains = gains
         self.d_max = float(d_max)
         n, p = model.n, model.p
-        # Stacked gate gains in the model's (f, i, o) order for one matmul per step.
-        self._L_gates = np.vstack([gains.L_f, gains.L_i, gains.L_o])
+        # Gate gains in the kernel's (f, i, o, c) order; None when all are zero (Remark 3).
+        L_gates = np.vstack([gains.L_f, gains.L_i, gains.L_o, np.zeros((n, p))])
+        self._L_gates: FloatArray | None = L_gates if np.any(L_gates) else None
         self.x_hat = np.zeros(2 * n)
         self.d_hat = np.zeros(p)
         self.reset(
@@ -117,6 +118,22 @@ class Observer:
         r""":math:`\hat y_k = W_y \hat h_k + b_y + \hat d_k`, eq. (y_lstm_observer)."""
         return np.asarray(self.model.output(self.x_hat) + self.d_hat, dtype=np.float64)
 
+    def advance(self, innovation: FloatArray, u: FloatArray) -> None:
+        r"""eq. (lstm_observer) for a computed innovation :math:`y_k - \hat y_k` (no checks).
+
+        The state update is the model's kernel with the gate injection
+        :math:`[L_f; L_i; L_o; 0](y_k - \hat y_k)`; then
+        :math:`\hat d_{k+1} = \mathrm{sat}_{d_{max}}(\hat d_k + L_d (y_k - \hat y_k))`.
+        The hot-loop entry point of the controller; :meth:`step` validates and calls it.
+        """
+        extra = None if self._L_gates is None else self._L_gates @ innovation
+        self.x_hat = self.model.kernel.step(self.x_hat, u, extra)
+        d_new = self.gains.L_d @ innovation
+        d_new += self.d_hat
+        np.minimum(d_new, self.d_max, out=d_new)
+        np.maximum(d_new, -self.d_max, out=d_new)
+        self.d_hat = d_new
+
     def step(self, y: ArrayLike, u: ArrayLike) -> tuple[FloatArray, FloatArray]:
         r"""Update with measurement :math:`y_k` and applied input :math:`u_k`.
 
@@ -137,14 +154,6 @@ class Observer:
             raise DimensionError(f"u has shape {u_arr.shape}, expected ({model.m},)")
         if not (np.all(np.isfinite(y_arr)) and np.all(np.isfinite(u_arr))):
             raise InvalidValueError(f"y and u must be finite, got y={y_arr}, u={u_arr}")
-        c, h = self.x_hat[:n], self.x_hat[n:]
-        innovation = y_arr - (h @ model.W_y.T + model.b_y + self.d_hat)
-        z = model._W_gates @ u_arr + model._U_gates @ h + model._b_gates
-        z[: 3 * n] += self._L_gates @ innovation
-        s = _sigmoid(z[: 3 * n])
-        g = np.tanh(z[3 * n :])
-        c_next = s[:n] * c + s[n : 2 * n] * g
-        h_next = s[2 * n :] * np.tanh(c_next)
-        self.x_hat = np.concatenate([c_next, h_next])
-        self.d_hat = np.clip(self.d_hat + self.gains.L_d @ innovation, -self.d_max, self.d_max)
+        innovation = y_arr - (self.x_hat[n:] @ model.W_y.T + model.b_y + self.d_hat)
+        self.advance(innovation, u_arr)
         return self.x_hat.copy(), self.d_hat.copy()

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.lstm.kernel import LSTMKernel
 
 __all__ = ["WEIGHT_NAMES", "LSTMModel", "ModelFormatError", "Normalization"]
 
@@ -251,6 +252,8 @@ class LSTMModel:
         self._W_gates = np.vstack([self.W_f, self.W_i, self.W_o, self.W_c])
         self._U_gates = np.vstack([self.U_f, self.U_i, self.U_o, self.U_c])
         self._b_gates = np.concatenate([self.b_f, self.b_i, self.b_o, self.b_c])
+        #: The one implementation of eq. (lstm) and eq. (jacobian) (see :mod:`.kernel`).
+        self.kernel = LSTMKernel(self)
 
     # ------------------------------------------------------------------ basics
     @property
@@ -294,26 +297,25 @@ class LSTMModel:
         return u_arr
 
     # ---------------------------------------------------------------- dynamics
-    def _gates(
-        self, x: FloatArray, u: FloatArray
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Gate activations ``(f, i, o, g, c, h)`` at (x, u); g = tanh(W_c u + U_c h + b_c)."""
-        n = self.n
-        c, h = x[..., :n], x[..., n:]
-        z = u @ self._W_gates.T + h @ self._U_gates.T + self._b_gates
-        s = _sigmoid(z[..., : 3 * n])
-        f, i, o = s[..., :n], s[..., n : 2 * n], s[..., 2 * n :]
-        g = np.tanh(z[..., 3 * n :])
-        return f, i, o, g, c, h
+    def _pairs(self, x_arr: FloatArray, u_arr: FloatArray) -> tuple[tuple[int, ...], Any, Any]:
+        """Broadcast (x, u) batches to flat (K, 2n), (K, m) arrays."""
+        batch = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1])
+        xs = np.broadcast_to(x_arr, (*batch, 2 * self.n)).reshape(-1, 2 * self.n)
+        us = np.broadcast_to(u_arr, (*batch, self.m)).reshape(-1, self.m)
+        return batch, xs, us
 
     def step(self, x: ArrayLike, u: ArrayLike) -> FloatArray:
-        """State update :math:`x_{k+1} = f(x_k, u_k)` of eq. (lstm); batches broadcast."""
+        """State update :math:`x_{k+1} = f(x_k, u_k)` of eq. (lstm); batches broadcast.
+
+        Evaluated by the one kernel :class:`~ltv_lstm_mpc.lstm.kernel.LSTMKernel`.
+        """
         x_arr = self._check_state(x)
         u_arr = self._check_input(u)
-        f, i, o, g, c, _ = self._gates(x_arr, u_arr)
-        c_next = f * c + i * g
-        h_next = o * np.tanh(c_next)
-        return np.concatenate([c_next, h_next], axis=-1)
+        if x_arr.ndim == 1 and u_arr.ndim == 1:
+            return self.kernel.step(x_arr, u_arr)
+        batch, xs, us = self._pairs(x_arr, u_arr)
+        traj = self.kernel.pairs(xs, us, jacobians=False)
+        return np.array(traj.pair_next).reshape(*batch, 2 * self.n)  # type: ignore[attr-defined]
 
     def output(self, x: ArrayLike) -> FloatArray:
         r"""Output :math:`\xi_k = g(x_k) = W_y h_k + b_y`, eq. (y_lstm)."""
@@ -349,10 +351,7 @@ class LSTMModel:
             raise DimensionError(f"u_seq has shape {u_arr.shape}, expected (T, {self.m})")
         if not np.all(np.isfinite(u_arr)):
             raise InvalidValueError("u_seq contains NaN or inf")
-        states = np.empty((u_arr.shape[0] + 1, 2 * self.n))
-        states[0] = x_current
-        for k in range(u_arr.shape[0]):
-            states[k + 1] = self.step(states[k], u_arr[k])
+        states = self.kernel.simulate(x_current, u_arr)
         return states, self.output(states)
 
     def jacobians(self, x: ArrayLike, u: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -384,38 +383,13 @@ class LSTMModel:
         """
         x_arr = self._check_state(x)
         u_arr = self._check_input(u)
-        n = self.n
-        f, i, o, g, c, _ = self._gates(x_arr, u_arr)
-        c_next = f * c + i * g
-        tc = np.tanh(c_next)
-        h_next = o * tc
-        # d c_next / d z_gate (elementwise), per gate.
-        dc_dzf = c * f * (1.0 - f)
-        dc_dzi = g * i * (1.0 - i)
-        dc_dzc = i * (1.0 - g * g)
-        dh_dzo = tc * o * (1.0 - o)
-        dh_dc = o * (1.0 - tc * tc)  # d h_next / d c_next
-        dc_dh = (
-            dc_dzf[..., :, None] * self.U_f
-            + dc_dzi[..., :, None] * self.U_i
-            + dc_dzc[..., :, None] * self.U_c
-        )
-        dc_du = (
-            dc_dzf[..., :, None] * self.W_f
-            + dc_dzi[..., :, None] * self.W_i
-            + dc_dzc[..., :, None] * self.W_c
-        )
-        batch = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1])
-        A = np.zeros((*batch, 2 * n, 2 * n))
-        B = np.empty((*batch, 2 * n, self.m))
-        diag = np.arange(n)
-        A[..., diag, diag] = f
-        A[..., :n, n:] = dc_dh
-        A[..., n:, :n] = (dh_dc * f)[..., :, None] * np.eye(n)
-        A[..., n:, n:] = dh_dzo[..., :, None] * self.U_o + dh_dc[..., :, None] * dc_dh
-        B[..., :n, :] = dc_du
-        B[..., n:, :] = dh_dzo[..., :, None] * self.W_o + dh_dc[..., :, None] * dc_du
-        return np.concatenate([c_next, h_next], axis=-1), A, B
+        batch, xs, us = self._pairs(x_arr, u_arr)
+        traj = self.kernel.pairs(xs, us, jacobians=True)
+        n2, K = 2 * self.n, xs.shape[0]
+        x_next = np.array(traj.pair_next).reshape(*batch, n2)  # type: ignore[attr-defined]
+        A = np.array(traj.A[:K]).reshape(*batch, n2, n2)
+        B = np.array(traj.B[:K]).reshape(*batch, n2, self.m)
+        return x_next, A, B
 
     def output_jacobian(self) -> FloatArray:
         r""":math:`\partial g / \partial x = [0_{p,n}\; W_y]`, shape (p, 2n)."""
