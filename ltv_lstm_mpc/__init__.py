@@ -48,7 +48,10 @@ from ltv_lstm_mpc.loop.reference import (
 from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel, ModelFormatError, Normalization
 from ltv_lstm_mpc.lstm.shipped import load_model, shipped_models, shipped_path
-from ltv_lstm_mpc.mpc.rti import MPCConfig, MPCSolution, RobustMPC
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.fhocp import MPCSolution
+from ltv_lstm_mpc.mpc.nmpc import ExactNMPC
+from ltv_lstm_mpc.mpc.rti import RobustMPC, resolve_transcription
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
 from ltv_lstm_mpc.plants.protocol import Plant
@@ -59,6 +62,7 @@ __all__ = [
     "ControllerStep",
     "DeltaISSCertificate",
     "DimensionError",
+    "ExactNMPC",
     "IncrementalLyapunovCertificate",
     "InvalidValueError",
     "KBarEstimate",
@@ -94,6 +98,7 @@ __all__ = [
     "incremental_lyapunov_certificate",
     "load_model",
     "observer_certificate",
+    "resolve_transcription",
     "shipped_models",
     "shipped_path",
     "simulate",

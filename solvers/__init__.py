@@ -46,9 +46,37 @@ name                          what it is
 ``piqp``, ``piqp:sparse``,    ``piqp_.py``: native PIQP ``SparseSolver``/``DenseSolver``
 ``piqp:dense``                (``piqp`` picks by density), setup once, ``update``.
 ``daqp``                      ``daqp_.py``: native DAQP ``Model`` (dense active set),
-                              warm start through the working set; fastest on small
-                              condensed problems.
+                              warm start through the working set; dense: the one-shot
+                              ``daqp.solve`` (fastest on small condensed problems).
+``quadprog``                  ``quadprog_.py``: Goldfarb-Idnani dual active set, dense
+                              only (ConvexProblems through the dense adapter), machine
+                              precision, no settings, no warm start.
+``proxqp``                    ``proxqp_.py``: proxsuite dense ProxQP, ``init`` once,
+                              ``update``, warm start from the previous result; dense
+                              only (ConvexProblems through the dense adapter).
+user names                    :func:`register_backend` (``factory`` and/or
+                              ``dense_factory``); ``testing.faulty`` registers
+                              fault-injecting wrappers.
 ============================  ===========================================================
+
+:func:`solver_info` gives a :class:`SolverInfo` (``family``, ``supports_cones``,
+``native_dense``, ``first_order``) per name.
+
+Dense QPs
+---------
+:class:`DenseQP` (``dense.py``) holds a condensed QP ``min 1/2 x'Hx + f'x``
+s.t. ``lo <= A x <= up``, ``lb <= x <= ub`` in preallocated, mutable arrays;
+:class:`DenseSession` ``(solver, tolerance=..., **settings)`` solves one per
+call with ``solve(qp, warm_start=None)``: a setup (with :meth:`DenseQP.check`)
+on the first call or a new ``(n, m_A)``, else an in-place update, then the
+solve, with a few µs of Python around the solver. Every registered solver
+accepts a DenseQP: the ``native_dense`` ones (``daqp``, ``quadprog``,
+``proxqp``, ``piqp``, ``piqp:dense``, ``osqp``, ``qpsolvers:*``) with a
+dedicated dense backend, the others through ``DenseQP.to_convex_problem()``.
+
+:func:`feasibility_tolerance` ``(solver, tolerance)`` is the tolerance to which
+a caller should check a returned point (``max(1e-7, 100 tol)``, first-order
+solvers ``max(1e-5, 1e3 tol)``).
 
 ``Session(solver, tolerance=..., reformulation=None, **settings)`` keeps one
 workspace per structure: ``setup(problem)``, then ``update(problem)`` (same
@@ -101,31 +129,46 @@ A missing or unknown solver raises :class:`~ltv_lstm_mpc.exceptions.SolverNotFou
 
 from __future__ import annotations
 
+from .dense import DenseBackend, DenseQP, DenseSession
 from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, frozen_csc
 from .reformulation import ConeReformulation, PolyhedralInnerApproximation
 from .registry import (
     DEFAULT_SOLVER,
     Session,
+    SolverInfo,
     available_solvers,
     cone_solvers,
     get_backend,
+    get_dense_backend,
+    register_backend,
     solve,
+    solver_info,
+    unregister_backend,
 )
-from .tolerances import TOLERANCE_OPTIONS
+from .tolerances import TOLERANCE_OPTIONS, feasibility_tolerance
 
 __all__ = [
     "DEFAULT_SOLVER",
     "TOLERANCE_OPTIONS",
     "ConeReformulation",
     "ConvexProblem",
+    "DenseBackend",
+    "DenseQP",
+    "DenseSession",
     "PolyhedralInnerApproximation",
     "SecondOrderCone",
     "Session",
     "Solution",
+    "SolverInfo",
     "SolverStatus",
     "available_solvers",
     "cone_solvers",
+    "feasibility_tolerance",
     "frozen_csc",
     "get_backend",
+    "get_dense_backend",
+    "register_backend",
     "solve",
+    "solver_info",
+    "unregister_backend",
 ]

@@ -4,6 +4,12 @@ OSQP solves ``min 1/2 x'Px + q'x  s.t.  l <= A x <= u``; the problem is mapped t
 ``A = [A_eq; G; I_bounds]`` (only the variables with a finite bound get a row)
 and the upper triangle of ``P``. The sparsity patterns are fixed at setup and
 values are written with ``OSQP.update(q=, l=, u=, Px=, Ax=)`` (osqp-python 1.x).
+
+:class:`OsqpDense` is the dense backend (:class:`~ltv_lstm_mpc.solvers.DenseSession`):
+a fixed dense pattern (the whole upper triangle of ``H``, ``[I; A]`` with every
+entry), so any new values are one ``update`` away. ``warm_start=None`` resets
+the iterates to zero, a :class:`Solution` restarts from its primal and dual
+point, an array from that primal point.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
+from .dense import DenseBackend, DenseQP
 from .problem import ConvexProblem, SolverStatus
 from .tolerances import known_settings, solver_options
 
@@ -151,3 +158,98 @@ class OsqpBackend(Backend):
 def make(name: str, tolerance: float, settings: Mapping[str, Any]) -> Backend:
     """Registry factory."""
     return OsqpBackend(name, tolerance, settings)
+
+
+class OsqpDense(DenseBackend):
+    """OSQP on a fixed dense pattern (upper triangle of ``H``, ``[I; A]``), ``update`` in place."""
+
+    backend: ClassVar[str] = "osqp"
+    supports_update: ClassVar[bool] = True
+    supports_warm_start: ClassVar[bool] = True
+
+    def __init__(self, name: str, tolerance: float, settings: Mapping[str, Any]) -> None:
+        """Merge tolerance options and settings and check the setting names."""
+        import osqp
+
+        check_settings("osqp", settings, known_settings("osqp"))
+        options = {"verbose": False, **solver_options("osqp", tolerance, settings)}
+        super().__init__(name, "osqp", options)
+        self._osqp = osqp
+
+    def setup(self, qp: DenseQP) -> None:
+        """Build the fixed patterns and the OSQP workspace."""
+        n, m = qp.n_variables, qp.n_rows
+        self._n, self._m = n, m
+        cols = np.repeat(np.arange(n), np.arange(1, n + 1))
+        rows = np.concatenate([np.arange(j + 1) for j in range(n)])
+        self._p_idx = (rows, cols)  # CSC order of the upper triangle
+        P = sp.csc_matrix(
+            (qp.H[self._p_idx], rows, np.concatenate([[0], np.cumsum(np.arange(1, n + 1))])),
+            shape=(n, n),
+        )
+        # [I; A] in CSC: column j holds (j, 1) then (n + i, A[i, j]) for every i.
+        self._Ax2 = np.empty((n, 1 + m))
+        self._Ax2[:, 0] = 1.0
+        self._Ax2[:, 1:] = qp.A.T
+        indices = np.empty((n, 1 + m), dtype=np.int64)
+        indices[:, 0] = np.arange(n)
+        indices[:, 1:] = n + np.arange(m)
+        A = sp.csc_matrix(
+            (self._Ax2.ravel(), indices.ravel(), np.arange(n + 1) * (1 + m)), shape=(n + m, n)
+        )
+        self._l = np.concatenate([qp.lb, qp.lo])
+        self._u = np.concatenate([qp.ub, qp.up])
+        self._y0 = np.zeros(n + m)
+        self._x0 = np.zeros(n)
+        solver = self._osqp.OSQP()
+        solver.setup(P=P, q=qp.f, A=A, l=self._l, u=self._u, **self.options)
+        self._solver = solver
+
+    def update(self, qp: DenseQP) -> None:
+        """Write ``H``, ``f``, ``A`` and the bounds with one ``update``."""
+        n = self._n
+        self._Ax2[:, 1:] = qp.A.T
+        self._l[:n] = qp.lb
+        self._l[n:] = qp.lo
+        self._u[:n] = qp.ub
+        self._u[n:] = qp.up
+        self._solver.update(
+            q=qp.f, l=self._l, u=self._u, Px=qp.H[self._p_idx], Ax=self._Ax2.ravel()
+        )
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        """Solve from zero (``None``), a previous solution, or a primal point."""
+        n = self._n
+        if warm_start is None:
+            self._solver.warm_start(x=self._x0, y=self._y0)
+        else:
+            z0, sol = warm_start_vectors(warm_start, n)
+            y0 = self._y0
+            if sol is not None and sol.duals is not None:
+                bnd, ineq = sol.duals.get("bounds"), sol.duals.get("ineq")
+                if bnd is not None and ineq is not None and bnd.shape == (n,):
+                    if ineq.shape == (self._m,):
+                        y0 = np.concatenate([bnd, ineq])
+            self._solver.warm_start(x=self._x0 if z0 is None else z0, y=y0)
+        res = self._solver.solve(raise_error=False)
+        info = res.info
+        status, note = map_status(STATUS_MAP, int(info.status_val))
+        z = duals = None
+        if status.has_solution:
+            z = np.array(res.x, dtype=np.float64)
+            y = np.array(res.y, dtype=np.float64)
+            duals = {"ineq": y[n:], "bounds": y[:n]}
+        return RawResult(
+            status=status,
+            native_status=f"{info.status} ({info.status_val})",
+            z=z,
+            duals=duals,
+            solve_time=float(info.solve_time) + float(info.polish_time),
+            iterations=int(info.iter),
+            notes=() if note is None else (note,),
+        )
+
+
+def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
+    """Registry dense factory for ``"osqp"``."""
+    return OsqpDense(name, tolerance, settings)

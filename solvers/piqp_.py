@@ -10,6 +10,11 @@ PIQP has no warm start (interior-point iterates cannot be warm started
 usefully); a warm start passed to it is ignored and said so in
 ``Solution.info``. ``compute_timings`` is switched on by default so that
 ``solve_time`` is PIQP's own.
+
+:class:`PiqpDense` is the dense backend of ``"piqp"`` and ``"piqp:dense"`` for
+:class:`~ltv_lstm_mpc.solvers.DenseSession`: a ``piqp.DenseSolver`` set up once
+and updated in place (``G = A``, ``h_l = lo``, ``h_u = up``, ``x_l = lb``,
+``x_u = ub``).
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
+from .dense import DenseBackend, DenseQP
 from .problem import ConvexProblem, SolverStatus
 from .tolerances import known_settings, solver_options
 
@@ -163,3 +169,79 @@ def make_sparse(name: str, tolerance: float, settings: Mapping[str, Any]) -> Bac
 def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> Backend:
     """Registry factory for ``"piqp:dense"``."""
     return PiqpBackend(name, tolerance, settings, "dense")
+
+
+class PiqpDense(DenseBackend):
+    """Dense PIQP workspace (``piqp.DenseSolver``), set up once, ``update`` in place."""
+
+    backend: ClassVar[str] = "piqp"
+    supports_update: ClassVar[bool] = True
+    supports_warm_start: ClassVar[bool] = False
+
+    def __init__(self, name: str, tolerance: float, settings: Mapping[str, Any]) -> None:
+        """Merge tolerance options and settings and check the setting names."""
+        import piqp
+
+        check_settings("piqp", settings, known_settings("piqp"))
+        options = {
+            "verbose": False,
+            "compute_timings": True,
+            **solver_options("piqp", tolerance, settings),
+        }
+        super().__init__(name, "piqp", options)
+        self._piqp = piqp
+
+    @staticmethod
+    def _data(qp: DenseQP) -> dict[str, Any]:
+        data: dict[str, Any] = {"P": qp.H, "c": qp.f, "x_l": qp.lb, "x_u": qp.ub}
+        if qp.A.shape[0]:
+            data.update(G=qp.A, h_l=qp.lo, h_u=qp.up)
+        return data
+
+    def setup(self, qp: DenseQP) -> None:
+        """Create the dense solver and run PIQP's setup."""
+        self._n, self._m = qp.n_variables, qp.n_rows
+        solver = self._piqp.DenseSolver()
+        for key, value in self.options.items():
+            setattr(solver.settings, key, value)
+        solver.setup(**self._data(qp))
+        self._solver = solver
+
+    def update(self, qp: DenseQP) -> None:
+        """Write new values with ``update``."""
+        self._solver.update(**self._data(qp))
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        """Solve; a warm start is ignored (noted)."""
+        notes: tuple[str, ...] = ()
+        if warm_start is not None:
+            warm_start_vectors(warm_start, self._n)  # validated, then ignored
+            notes = ("warm start ignored: PIQP (interior point) has no warm start",)
+        code = self._solver.solve()
+        res = self._solver.result
+        status, note = map_status(STATUS_MAP, int(code.value))
+        if note:
+            notes = (*notes, note)
+        z = duals = None
+        if status.has_solution:
+            z = np.array(res.x, dtype=np.float64)
+            ineq = np.asarray(res.z_u) - np.asarray(res.z_l) if self._m else np.zeros(0)
+            duals = {
+                "ineq": np.asarray(ineq, dtype=np.float64).reshape(self._m),
+                "bounds": np.asarray(res.z_bu, dtype=np.float64)
+                - np.asarray(res.z_bl, dtype=np.float64),
+            }
+        return RawResult(
+            status=status,
+            native_status=f"{code.name} ({int(code.value)})",
+            z=z,
+            duals=duals,
+            solve_time=float(res.info.solve_time),
+            iterations=int(res.info.iter),
+            notes=notes,
+        )
+
+
+def make_dense_qp(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
+    """Registry dense factory for ``"piqp"`` and ``"piqp:dense"``."""
+    return PiqpDense(name, tolerance, settings)

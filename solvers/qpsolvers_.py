@@ -5,6 +5,12 @@ The problem is passed as a :class:`qpsolvers.Problem` (``G z <= h``, ``A z = b``
 rows of ``G z <= u`` and ``-G z <= -l``. Matrices are CSC for the solvers in
 ``qpsolvers.sparse_solvers`` and dense arrays otherwise.
 
+:class:`DenseQpsolversBackend` is the dense backend of the same names (for
+:class:`~ltv_lstm_mpc.solvers.DenseSession`): rows with ``lo = up`` become
+equalities ``A_eq x = b``, the others ``lo <= A x <= up`` the finite rows of
+``A x <= up`` and ``-A x <= -lo``; it stores the values at ``update`` and calls
+qpsolvers at ``solve``.
+
 qpsolvers builds a new solver object at every call, so a session cannot update
 in place: each :meth:`Session.update` is a fresh setup (recorded), and a warm
 start is passed as ``initvals`` (qpsolvers warns when a solver ignores it; the
@@ -19,6 +25,7 @@ status is not available (daqp, highs, quadprog: an infeasible problem is then
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from collections.abc import Callable, Mapping
@@ -27,7 +34,7 @@ from typing import Any, ClassVar
 import numpy as np
 import scipy.sparse as sp
 
-from . import daqp_, osqp_, piqp_
+from . import daqp_, osqp_, piqp_, proxqp_
 from ._base import (
     Backend,
     FloatArray,
@@ -37,6 +44,7 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
+from .dense import DenseBackend, DenseQP
 from .problem import ConvexProblem, SolverStatus
 from .tolerances import known_settings, solver_options
 
@@ -85,15 +93,8 @@ SCS_STATUS_MAP: Mapping[int, SolverStatus] = {
     -7: SolverStatus.INFEASIBLE,  # SCS_INFEASIBLE_INACCURATE
 }
 
-#: proxsuite ``QPSolverOutput`` name -> SolverStatus.
-PROXQP_STATUS_MAP: Mapping[str, SolverStatus] = {
-    "PROXQP_SOLVED": SolverStatus.OPTIMAL,
-    "PROXQP_MAX_ITER_REACHED": SolverStatus.MAX_ITER,
-    "PROXQP_PRIMAL_INFEASIBLE": SolverStatus.INFEASIBLE,
-    "PROXQP_SOLVED_CLOSEST_PRIMAL_FEASIBLE": SolverStatus.INFEASIBLE,
-    "PROXQP_DUAL_INFEASIBLE": SolverStatus.UNBOUNDED,
-    "PROXQP_NOT_RUN": SolverStatus.FAILED,
-}
+#: proxsuite status table (the one of the native backend, :mod:`.proxqp_`).
+PROXQP_STATUS_MAP = proxqp_.STATUS_MAP
 
 
 def _name(code: Any) -> str:
@@ -122,75 +123,91 @@ _BOUNDS_AS_ROWS = frozenset({"ecos"})
 _INTERFACE_SETTINGS: Mapping[str, tuple[str, ...]] = {}
 
 
-class QpsolversBackend(Backend):
-    """Calls :func:`qpsolvers.solve_problem` on stored data (no in-place update)."""
+class _QpsolversCore:
+    """Conversion to :class:`qpsolvers.Problem` and the call, shared by both backends."""
 
-    backend: ClassVar[str] = "qpsolvers"
-    supports_update: ClassVar[bool] = False
-    supports_warm_start: ClassVar[bool] = True
+    solver: str
+    options: dict[str, Any]
 
-    def __init__(
-        self, name: str, solver: str, tolerance: float, settings: Mapping[str, Any]
-    ) -> None:
-        """``solver`` is the qpsolvers name (``"osqp"``, ``"quadprog"``, ...)."""
+    def _init_core(
+        self, solver: str, tolerance: float, settings: Mapping[str, Any]
+    ) -> dict[str, Any]:
         known = known_settings(solver)
         if known is not None:
             known = (*known, *_INTERFACE_SETTINGS.get(solver, ()))
         check_settings(solver, settings, known)
-        super().__init__(name, solver, solver_options(solver, tolerance, settings))
+        return solver_options(solver, tolerance, settings)
 
-    def setup(self, problem: ConvexProblem) -> None:
-        """Convert to a :class:`qpsolvers.Problem` (sparse or dense as the solver prefers).
+    def _build(
+        self,
+        P: Any,
+        q: FloatArray,
+        A_eq: Any,
+        b_eq: FloatArray | None,
+        G: Any,
+        l: FloatArray | None,
+        u: FloatArray | None,
+        lb: FloatArray | None,
+        ub: FloatArray | None,
+    ) -> None:
+        """Store a :class:`qpsolvers.Problem` (matrices sparse or dense as the solver prefers).
 
-        All arrays are copied (the problem's are read-only and some bindings
-        reject those). For the solvers in :data:`_BOUNDS_AS_ROWS` the finite
-        variable bounds become rows of ``G`` (ECOS rejects infinite bounds).
+        All arrays are copied (read-only arrays are rejected by some bindings).
+        For the solvers in :data:`_BOUNDS_AS_ROWS` the finite variable bounds
+        become rows of ``G`` (ECOS rejects infinite bounds).
         """
         import qpsolvers
 
         sparse = self.solver in qpsolvers.sparse_solvers
 
-        def mat(m: sp.csc_matrix | None) -> Any:
+        def mat(m: Any) -> Any:
             if m is None:
                 return None
-            return sp.csc_matrix(m, copy=True) if sparse else m.toarray()
+            if sparse:
+                return sp.csc_matrix(m, dtype=np.float64, copy=True)
+            return m.toarray() if sp.issparse(m) else np.array(m, dtype=np.float64)
 
         def vec(v: FloatArray | None) -> FloatArray | None:
             return None if v is None else np.array(v, dtype=np.float64)
 
-        n = problem.n_variables
-        self._n, self._m = n, problem.n_ineq
-        blocks: list[sp.csc_matrix] = []
+        stack = (lambda bs: sp.csc_matrix(sp.vstack(bs))) if sparse else np.vstack
+        n = int(np.shape(q)[0])
+        self._n = n
+        self._m = 0 if G is None else int(G.shape[0])
+        blocks: list[Any] = []
         h_parts: list[FloatArray] = []
         self._iu = self._il = self._ibu = self._ibl = np.zeros(0, dtype=np.int64)
-        if problem.G is not None and problem.l is not None and problem.u is not None:
-            self._iu = np.flatnonzero(np.isfinite(problem.u))
-            self._il = np.flatnonzero(np.isfinite(problem.l))
-            blocks += [problem.G[self._iu], -problem.G[self._il]]
-            h_parts += [problem.u[self._iu], -problem.l[self._il]]
-        lb, ub = vec(problem.lb), vec(problem.ub)
-        if self.solver in _BOUNDS_AS_ROWS and lb is not None and ub is not None:
-            eye = sp.identity(n, format="csr")
-            self._ibu = np.flatnonzero(np.isfinite(ub))
-            self._ibl = np.flatnonzero(np.isfinite(lb))
+        if G is not None and l is not None and u is not None:
+            Gm = mat(G)
+            if sparse:
+                Gm = sp.csr_matrix(Gm)
+            self._iu = np.flatnonzero(np.isfinite(u))
+            self._il = np.flatnonzero(np.isfinite(l))
+            blocks += [Gm[self._iu], -Gm[self._il]]
+            h_parts += [np.asarray(u)[self._iu], -np.asarray(l)[self._il]]
+        lbv, ubv = vec(lb), vec(ub)
+        if self.solver in _BOUNDS_AS_ROWS and lbv is not None and ubv is not None:
+            eye = sp.identity(n, format="csr") if sparse else np.eye(n)
+            self._ibu = np.flatnonzero(np.isfinite(ubv))
+            self._ibl = np.flatnonzero(np.isfinite(lbv))
             blocks += [eye[self._ibu], -eye[self._ibl]]
-            h_parts += [ub[self._ibu], -lb[self._ibl]]
-            lb = ub = None
+            h_parts += [ubv[self._ibu], -lbv[self._ibl]]
+            lbv = ubv = None
         n_rows = sum(b.shape[0] for b in blocks)
-        G = sp.csc_matrix(sp.vstack(blocks)) if n_rows else None
+        G_all = stack(blocks) if n_rows else None
         h = np.concatenate(h_parts) if n_rows else None
         self._qp = qpsolvers.Problem(
-            P=mat(problem.P),
-            q=np.array(problem.q, dtype=np.float64),
-            G=mat(G),
+            P=mat(P),
+            q=np.array(q, dtype=np.float64),
+            G=G_all,
             h=h,
-            A=mat(problem.A_eq),
-            b=vec(problem.b_eq),
-            lb=lb,
-            ub=ub,
+            A=mat(A_eq),
+            b=vec(b_eq),
+            lb=lbv,
+            ub=ubv,
         )
 
-    def solve(self, warm_start: WarmStart | None) -> RawResult:
+    def _run(self, warm_start: WarmStart | None) -> RawResult:
         """Solve once with :func:`qpsolvers.solve_problem`."""
         import qpsolvers
 
@@ -283,10 +300,107 @@ class QpsolversBackend(Backend):
         }
 
 
+class QpsolversBackend(_QpsolversCore, Backend):
+    """Calls :func:`qpsolvers.solve_problem` on stored data (no in-place update)."""
+
+    backend: ClassVar[str] = "qpsolvers"
+    supports_update: ClassVar[bool] = False
+    supports_warm_start: ClassVar[bool] = True
+
+    def __init__(
+        self, name: str, solver: str, tolerance: float, settings: Mapping[str, Any]
+    ) -> None:
+        """``solver`` is the qpsolvers name (``"osqp"``, ``"quadprog"``, ...)."""
+        Backend.__init__(self, name, solver, self._init_core(solver, tolerance, settings))
+
+    def setup(self, problem: ConvexProblem) -> None:
+        """Convert to a :class:`qpsolvers.Problem` (sparse or dense as the solver prefers)."""
+        self._build(
+            problem.P,
+            problem.q,
+            problem.A_eq,
+            problem.b_eq,
+            problem.G,
+            problem.l,
+            problem.u,
+            problem.lb,
+            problem.ub,
+        )
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        """Solve once with :func:`qpsolvers.solve_problem`."""
+        return self._run(warm_start)
+
+
+class DenseQpsolversBackend(_QpsolversCore, DenseBackend):
+    """Dense QPs through :func:`qpsolvers.solve_problem` (no workspace; ``update`` stores)."""
+
+    backend: ClassVar[str] = "qpsolvers"
+    supports_update: ClassVar[bool] = True
+    supports_warm_start: ClassVar[bool] = True
+
+    def __init__(
+        self, name: str, solver: str, tolerance: float, settings: Mapping[str, Any]
+    ) -> None:
+        """``solver`` is the qpsolvers name (``"osqp"``, ``"quadprog"``, ...)."""
+        DenseBackend.__init__(self, name, solver, self._init_core(solver, tolerance, settings))
+
+    def setup(self, qp: DenseQP) -> None:
+        """Convert to a :class:`qpsolvers.Problem`."""
+        self.update(qp)
+
+    def update(self, qp: DenseQP) -> None:
+        """Convert the new values (qpsolvers has no workspace to update)."""
+        eq = qp.lo == qp.up
+        self._eq = np.flatnonzero(eq) if eq.any() else None
+        if self._eq is None:
+            G = qp.A if qp.A.shape[0] else None
+            lo = qp.lo if G is not None else None
+            up = qp.up if G is not None else None
+            self._build(qp.H, qp.f, None, None, G, lo, up, qp.lb, qp.ub)
+            return
+        ineq = ~eq
+        self._ineq = np.flatnonzero(ineq)
+        Gi = qp.A[ineq] if ineq.any() else None
+        self._build(
+            qp.H,
+            qp.f,
+            qp.A[eq],
+            qp.lo[eq],
+            Gi,
+            None if Gi is None else qp.lo[ineq],
+            None if Gi is None else qp.up[ineq],
+            qp.lb,
+            qp.ub,
+        )
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        """Solve once with :func:`qpsolvers.solve_problem` (duals without ``"eq"``)."""
+        raw = self._run(warm_start)
+        if raw.duals is not None:
+            duals = {k: v for k, v in raw.duals.items() if k != "eq"}
+            if self._eq is not None:
+                rows = np.zeros(self._eq.size + self._ineq.size)
+                rows[self._eq] = raw.duals["eq"]
+                rows[self._ineq] = raw.duals["ineq"]
+                duals["ineq"] = rows
+            raw = dataclasses.replace(raw, duals=duals)
+        return raw
+
+
 def factory(solver: str) -> Callable[[str, float, Mapping[str, Any]], Backend]:
     """Registry factory for ``"qpsolvers:<solver>"``."""
 
     def make(name: str, tolerance: float, settings: Mapping[str, Any]) -> Backend:
         return QpsolversBackend(name, solver, tolerance, settings)
+
+    return make
+
+
+def dense_factory(solver: str) -> Callable[[str, float, Mapping[str, Any]], DenseBackend]:
+    """Registry dense factory for ``"qpsolvers:<solver>"``."""
+
+    def make(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
+        return DenseQpsolversBackend(name, solver, tolerance, settings)
 
     return make

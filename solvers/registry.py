@@ -3,55 +3,122 @@
 from __future__ import annotations
 
 import functools
+import importlib
 import importlib.util
+import re
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ltv_lstm_mpc.exceptions import InvalidValueError, SolverError, SolverNotFound
 
+from ._adapters import convex_from_dense, dense_from_convex
 from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart
+from .dense import DenseBackendFactory
 from .problem import ConvexProblem, Solution, SolverStatus
 from .reformulation import ConeReformulation
 
-__all__ = ["DEFAULT_SOLVER", "Session", "available_solvers", "get_backend", "solve"]
+__all__ = [
+    "DEFAULT_SOLVER",
+    "Session",
+    "SolverInfo",
+    "available_solvers",
+    "cone_solvers",
+    "get_backend",
+    "get_dense_backend",
+    "register_backend",
+    "solve",
+    "solver_info",
+    "unregister_backend",
+]
 
 #: Solver used when none is named: exact cones, interior point, high accuracy.
 DEFAULT_SOLVER = "cvxpy:CLARABEL"
 _EXTRA_HINT = 'pip install "ltv_lstm_mpc[solvers]"'
+#: Accepted registry names: letters, digits and ``_ . : @ , + -`` (no spaces).
+_NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.:@,+\-]*")
+#: Native solver names (lower case, last part of a registry name) of first-order methods.
+FIRST_ORDER = frozenset({"osqp", "scs", "proxqp"})
+
+
+@dataclass(frozen=True)
+class SolverInfo:
+    """What a registered solver can do.
+
+    Attributes
+    ----------
+    name : str
+        Registry name.
+    family : str
+        ``"cvxpy"``, ``"qpsolvers"``, ``"osqp"``, ``"piqp"``, ``"daqp"``,
+        ``"quadprog"``, ``"proxqp"`` or ``"user"`` (:func:`register_backend`).
+    supports_cones : bool
+        Solves second-order cones exactly.
+    native_dense : bool
+        Has a dedicated :class:`~ltv_lstm_mpc.solvers.dense.DenseBackend` (no
+        conversion to a ConvexProblem), i.e. is meant for condensed MPC QPs.
+    first_order : bool
+        A first-order method (OSQP, SCS, ProxQP): accurate to about ``1e3 *
+        tolerance``, see :func:`~ltv_lstm_mpc.solvers.feasibility_tolerance`.
+    """
+
+    name: str
+    family: str
+    supports_cones: bool
+    native_dense: bool
+    first_order: bool
+
+
+@dataclass(frozen=True)
+class _Entry:
+    info: SolverInfo
+    factory: BackendFactory | None
+    dense_factory: DenseBackendFactory | None
 
 
 def _installed(module: str) -> bool:
     return importlib.util.find_spec(module) is not None
 
 
-def _native_factories() -> dict[str, Callable[[], BackendFactory]]:
-    """Native backends: name -> loader of the factory (imports only when installed)."""
-    out: dict[str, Callable[[], BackendFactory]] = {}
-    if _installed("osqp"):
-        out["osqp"] = lambda: __import__(f"{__package__}.osqp_", fromlist=["make"]).make
-    if _installed("piqp"):
-        out["piqp"] = lambda: __import__(f"{__package__}.piqp_", fromlist=["x"]).make_auto
-        out["piqp:sparse"] = lambda: __import__(f"{__package__}.piqp_", fromlist=["x"]).make_sparse
-        out["piqp:dense"] = lambda: __import__(f"{__package__}.piqp_", fromlist=["x"]).make_dense
-    if _installed("daqp"):
-        out["daqp"] = lambda: __import__(f"{__package__}.daqp_", fromlist=["make"]).make
-    return out
+def _module(name: str) -> Any:
+    return importlib.import_module(f"{__package__}.{name}")
+
+
+def _native_entries() -> list[tuple[str, str, Callable[[], tuple[Any, Any]]]]:
+    """(name, module to find, loader of (factory, dense_factory)) of the native backends."""
+    return [
+        ("osqp", "osqp", lambda: (_module("osqp_").make, _module("osqp_").make_dense)),
+        ("piqp", "piqp", lambda: (_module("piqp_").make_auto, _module("piqp_").make_dense_qp)),
+        ("piqp:sparse", "piqp", lambda: (_module("piqp_").make_sparse, None)),
+        (
+            "piqp:dense",
+            "piqp",
+            lambda: (_module("piqp_").make_dense, _module("piqp_").make_dense_qp),
+        ),
+        ("daqp", "daqp", lambda: (_module("daqp_").make, _module("daqp_").make_dense)),
+        ("quadprog", "quadprog", lambda: (None, _module("quadprog_").make_dense)),
+        ("proxqp", "proxsuite", lambda: (None, _module("proxqp_").make_dense)),
+    ]
 
 
 @functools.cache
-def _registry() -> dict[str, BackendFactory]:
-    """Name -> factory for every backend that imports (guarded imports, computed once)."""
-    reg: dict[str, BackendFactory] = {}
+def _registry() -> dict[str, _Entry]:
+    """Name -> entry for every backend that imports (guarded imports, computed once)."""
+    reg: dict[str, _Entry] = {}
     try:
         import cvxpy as cp
 
         from . import cvxpy_
 
         for s in cvxpy_.supported_solvers(cp.installed_solvers()):
-            reg[f"cvxpy:{s}"] = cvxpy_.factory(s)
+            name = f"cvxpy:{s}"
+            info = SolverInfo(
+                name, "cvxpy", s in cvxpy_.CONE_SOLVERS, False, s.lower() in FIRST_ORDER
+            )
+            reg[name] = _Entry(info, cvxpy_.factory(s), None)
     except ImportError:
         pass
     try:
@@ -60,37 +127,56 @@ def _registry() -> dict[str, BackendFactory]:
         from . import qpsolvers_
 
         for s in sorted(qpsolvers.available_solvers):
-            reg[f"qpsolvers:{s}"] = qpsolvers_.factory(s)
+            name = f"qpsolvers:{s}"
+            info = SolverInfo(name, "qpsolvers", False, True, s.lower() in FIRST_ORDER)
+            reg[name] = _Entry(info, qpsolvers_.factory(s), qpsolvers_.dense_factory(s))
     except ImportError:
         pass
-    for name, loader in _native_factories().items():
+    for name, module, loader in _native_entries():
+        if not _installed(module):
+            continue
         try:
-            reg[name] = loader()
+            factory, dense = loader()
         except ImportError:
             continue
+        family = name.split(":")[0]
+        info = SolverInfo(name, family, False, dense is not None, family in FIRST_ORDER)
+        reg[name] = _Entry(info, factory, dense)
     return reg
 
 
 def available_solvers() -> list[str]:
-    """Names of the installed solvers, e.g. ``["cvxpy:CLARABEL", ..., "osqp", "piqp"]``.
+    """Names of the installed solvers, each once, e.g. ``["cvxpy:CLARABEL", ..., "daqp"]``.
 
     ``cvxpy:<SOLVER>`` for the cvxpy solvers this layer supports (CLARABEL, ECOS,
     SCS for cones; OSQP, PIQP, PROXQP, DAQP, HIGHS for QPs), ``qpsolvers:<name>``
-    for every solver in ``qpsolvers.available_solvers``, and the native
-    ``osqp``, ``piqp`` (``piqp:sparse``, ``piqp:dense``) and ``daqp``.
+    for every solver in ``qpsolvers.available_solvers``, the native ``osqp``,
+    ``piqp`` (``piqp:sparse``, ``piqp:dense``), ``daqp``, ``quadprog`` and
+    ``proxqp``, then the solvers added with :func:`register_backend`.
     """
     return list(_registry())
 
 
 def cone_solvers() -> list[str]:
     """Installed solvers that solve second-order cones exactly."""
-    from .cvxpy_ import CONE_SOLVERS
-
-    return [s for s in available_solvers() if s.startswith("cvxpy:") and s[6:] in CONE_SOLVERS]
+    return [name for name, entry in _registry().items() if entry.info.supports_cones]
 
 
-def get_backend(name: str) -> BackendFactory:
-    """Factory of the backend ``name``.
+def _entry(name: str) -> _Entry:
+    reg = _registry()
+    entry = reg.get(name) if isinstance(name, str) else None
+    if entry is not None:
+        return entry
+    raise SolverNotFound(
+        f"solver {name!r} is not available. Installed: {', '.join(reg) or 'none'}. "
+        f"Names are 'cvxpy:<SOLVER>', 'qpsolvers:<solver>', 'osqp', 'piqp', 'daqp', "
+        f"'quadprog', 'proxqp' or one added with register_backend(); "
+        f"install the solvers with: {_EXTRA_HINT}"
+    )
+
+
+def solver_info(name: str) -> SolverInfo:
+    """Capabilities of the solver ``name``.
 
     Raises
     ------
@@ -98,14 +184,128 @@ def get_backend(name: str) -> BackendFactory:
         If ``name`` is not installed (or unknown); the message lists the
         installed solvers and the extra to install.
     """
+    return _entry(name).info
+
+
+def get_backend(name: str) -> BackendFactory:
+    """ConvexProblem factory of the backend ``name`` (a dense-only one through an adapter).
+
+    Raises
+    ------
+    SolverNotFound
+        If ``name`` is not installed (or unknown); the message lists the
+        installed solvers and the extra to install.
+    """
+    entry = _entry(name)
+    if entry.factory is not None:
+        return entry.factory
+    assert entry.dense_factory is not None  # an entry has at least one factory
+    return convex_from_dense(entry.dense_factory)
+
+
+def get_dense_backend(name: str) -> DenseBackendFactory:
+    """Dense factory of the backend ``name`` (a ConvexProblem-only one through an adapter).
+
+    Raises
+    ------
+    SolverNotFound
+        As :func:`get_backend`.
+    """
+    entry = _entry(name)
+    if entry.dense_factory is not None:
+        return entry.dense_factory
+    assert entry.factory is not None
+    return dense_from_convex(entry.factory)
+
+
+def _check_name(name: object) -> str:
+    if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+        raise InvalidValueError(
+            f"solver name must be a non-empty string of letters, digits and '_.:@,+-' "
+            f"(no spaces), got {name!r}"
+        )
+    return name
+
+
+def _add(name: str, entry: _Entry, replace: bool) -> str:
     reg = _registry()
-    if name in reg:
-        return reg[name]
-    raise SolverNotFound(
-        f"solver {name!r} is not available. Installed: {', '.join(reg) or 'none'}. "
-        f"Names are 'cvxpy:<SOLVER>', 'qpsolvers:<solver>', 'osqp', 'piqp', 'daqp'; "
-        f"install the solvers with: {_EXTRA_HINT}"
-    )
+    if name in reg and not replace:
+        raise InvalidValueError(
+            f"solver {name!r} is already registered; pass replace=True to replace it"
+        )
+    reg[name] = entry
+    return name
+
+
+def register_backend(
+    name: str,
+    factory: BackendFactory | None = None,
+    *,
+    dense_factory: DenseBackendFactory | None = None,
+    supports_cones: bool = False,
+    first_order: bool = False,
+    replace: bool = False,
+) -> str:
+    """Add a solver of your own to the registry (the public extension point).
+
+    Parameters
+    ----------
+    name : str
+        Registry name: letters, digits and ``_ . : @ , + -``, no spaces.
+    factory : callable, optional
+        ``factory(name, tolerance, settings) -> Backend`` (a subclass of
+        :class:`~ltv_lstm_mpc.solvers._base.Backend`) for ConvexProblems
+        (:class:`Session`, :func:`solve`).
+    dense_factory : callable, optional
+        ``dense_factory(name, tolerance, settings) -> DenseBackend`` for
+        :class:`~ltv_lstm_mpc.solvers.DenseSession`. At least one of the two
+        factories is needed; the missing one is served by a generic adapter
+        (dense QPs converted to ConvexProblems, or cone-free ConvexProblems
+        converted to dense QPs).
+    supports_cones : bool
+        Whether ``factory``'s backend solves second-order cones exactly
+        (listed by :func:`cone_solvers`; its ``Backend.supports_cones`` decides
+        what a session does).
+    first_order : bool
+        Whether it is a first-order method (:func:`feasibility_tolerance`).
+    replace : bool
+        Replace an existing entry of that name (else that is an error).
+
+    Returns
+    -------
+    str
+        ``name``, now listed by :func:`available_solvers`.
+
+    Raises
+    ------
+    InvalidValueError
+        Bad name, no factory, a factory that is not callable, or an existing
+        name without ``replace=True``.
+    """
+    _check_name(name)
+    if factory is None and dense_factory is None:
+        raise InvalidValueError(
+            f"register_backend({name!r}): give factory=..., dense_factory=... or both"
+        )
+    for label, f in (("factory", factory), ("dense_factory", dense_factory)):
+        if f is not None and not callable(f):
+            raise InvalidValueError(
+                f"register_backend({name!r}): {label} must be callable, got {type(f).__name__}"
+            )
+    info = SolverInfo(name, "user", bool(supports_cones), dense_factory is not None, first_order)
+    return _add(name, _Entry(info, factory, dense_factory), replace)
+
+
+def unregister_backend(name: str) -> None:
+    """Remove ``name`` from the registry (any entry, built-in ones included).
+
+    Raises
+    ------
+    SolverNotFound
+        If ``name`` is not registered.
+    """
+    _entry(name)
+    del _registry()[name]
 
 
 class Session:
@@ -177,7 +377,7 @@ class Session:
     # ---------------------------------------------------------------------------------
     @property
     def backend(self) -> str:
-        """Backend family (``"cvxpy"``, ``"qpsolvers"``, ``"osqp"``, ``"piqp"``, ``"daqp"``)."""
+        """Backend family (``"cvxpy"``, ``"qpsolvers"``, ``"osqp"``, ``"daqp"``, ...)."""
         return self._backend.backend
 
     @property

@@ -1,13 +1,19 @@
-"""Random test problems: generic QPs/SOCPs and MPC-shaped subproblems (SPEC section 4).
+"""Random test problems (QPs/SOCPs, MPC-shaped, dense QPs) and fault injection.
 
 Every generator builds a strictly feasible point first and derives the
 constraints around it, so the problems are feasible by construction, and a
 linear cost pulls the optimum away from it, so constraints are active.
+
+:func:`faulty` registers a wrapper of an installed solver that misbehaves on
+chosen calls (NaN or garbage points reported optimal, exceptions, spurious
+infeasibility), to test a caller's failure handling.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -15,12 +21,18 @@ import scipy.sparse as sp
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
 
-from .problem import ConvexProblem, SecondOrderCone
+from ._base import Backend, RawResult, WarmStart
+from .dense import DenseBackend, DenseQP
+from .problem import ConvexProblem, SecondOrderCone, SolverStatus
 
 __all__ = [
+    "FAULTS",
     "MpcLayout",
+    "faulty",
+    "infeasible_dense_qp",
     "infeasible_problem",
     "perturb",
+    "random_dense_qp",
     "random_mpc_problem",
     "random_qp",
     "random_socp",
@@ -283,3 +295,232 @@ def random_mpc_problem(
     return ConvexProblem(
         P=P, q=q, A_eq=A_eq, b_eq=b_eq, G=G, l=l_y, u=u_y, lb=lb, ub=ub, cones=cones
     )
+
+
+# --------------------------------------------------------------------------------------
+# dense QPs
+# --------------------------------------------------------------------------------------
+def random_dense_qp(
+    n: int = 10,
+    m_A: int = 20,
+    seed: int = 0,
+    *,
+    cond: float = 10.0,
+    bounds: bool = True,
+    equalities: int = 0,
+) -> DenseQP:
+    """Random strictly convex feasible :class:`DenseQP` with active constraints.
+
+    A strictly feasible ``x0`` is drawn first; rows ``lo <= A x <= up`` and
+    bounds are placed around it (some one-sided, i.e. infinite), the first
+    ``equalities`` rows get ``lo = up = A x0``, and the linear cost pulls the
+    optimum onto the constraints.
+    """
+    rng = np.random.default_rng(seed)
+    x0 = rng.uniform(-1.0, 1.0, n)
+    H = _spd(rng, n, cond)
+    H = 0.5 * (H + H.T)
+    f = rng.standard_normal(n) * 10.0
+    A = rng.standard_normal((m_A, n))
+    Ax = A @ x0
+    lo = Ax - rng.uniform(0.1, 1.0, m_A)
+    up = Ax + rng.uniform(0.1, 1.0, m_A)
+    lo[2::3] = -np.inf
+    up[1::3] = np.inf  # never both infinite (PIQP prints a warning for such rows)
+    k = min(equalities, m_A)
+    lo[:k] = up[:k] = Ax[:k]
+    if bounds:
+        lb = x0 - rng.uniform(0.2, 1.0, n)
+        ub = x0 + rng.uniform(0.2, 1.0, n)
+        lb[::4] = -np.inf
+        ub[2::5] = np.inf
+    else:
+        lb = np.full(n, -np.inf)
+        ub = np.full(n, np.inf)
+    return DenseQP(H=H, f=f, A=A, lo=lo, up=up, lb=lb, ub=ub)
+
+
+def infeasible_dense_qp(n: int = 6, *, seed: int = 0) -> DenseQP:
+    """Dense QP whose rows ``x_0 + x_1 >= 1`` and ``x_0 + x_1 <= -1`` contradict."""
+    rng = np.random.default_rng(seed)
+    A = np.zeros((2, n))
+    A[:, :2] = 1.0
+    return DenseQP(
+        H=_spd(rng, n),
+        f=rng.standard_normal(n),
+        A=A,
+        lo=np.array([1.0, -np.inf]),
+        up=np.array([np.inf, -1.0]),
+        lb=np.full(n, -10.0),
+        ub=np.full(n, 10.0),
+    )
+
+
+# --------------------------------------------------------------------------------------
+# fault injection
+# --------------------------------------------------------------------------------------
+#: Faults :func:`faulty` can inject.
+FAULTS = ("nan", "garbage", "raise", "infeasible")
+#: Entries of the point a ``"garbage"`` fault reports optimal.
+GARBAGE = 1e6
+
+
+class _Trigger:
+    """Shared 0-based solve counter of one :func:`faulty` name and the calls that fault."""
+
+    def __init__(self, calls: frozenset[int] | None) -> None:
+        self.calls = calls
+        self.count = 0
+
+    def __call__(self) -> bool:
+        k = self.count
+        self.count += 1
+        return self.calls is None or k in self.calls
+
+
+def _fault_result(fault: str, n: int, call: int) -> RawResult:
+    if fault == "raise":
+        raise RuntimeError(f"injected fault 'raise' on solve call {call}")
+    if fault == "infeasible":
+        status, z = SolverStatus.INFEASIBLE, None
+    elif fault == "nan":
+        status, z = SolverStatus.OPTIMAL, np.full(n, np.nan)
+    else:
+        status, z = SolverStatus.OPTIMAL, np.full(n, GARBAGE)
+    return RawResult(
+        status=status,
+        native_status=f"injected fault {fault!r}",
+        z=z,
+        duals=None,
+        solve_time=0.0,
+        iterations=0,
+        notes=(f"injected fault {fault!r} on solve call {call}",),
+    )
+
+
+class _FaultyBackend(Backend):
+    """ConvexProblem backend wrapper that injects a fault on the triggered calls."""
+
+    backend: ClassVar[str] = "faulty"
+    supports_update: ClassVar[bool] = True
+    supports_warm_start: ClassVar[bool] = True
+
+    def __init__(self, inner: Backend, fault: str, trigger: _Trigger) -> None:
+        super().__init__(inner.name, inner.solver, inner.options)
+        self._inner, self._fault, self._trigger = inner, fault, trigger
+        self._n = 0
+
+    def handles_cones(self) -> bool:
+        return self._inner.handles_cones()
+
+    def setup(self, problem: ConvexProblem) -> None:
+        self._n = problem.n_variables
+        self._inner.setup(problem)
+
+    def update(self, problem: ConvexProblem) -> None:
+        if self._inner.supports_update:
+            self._inner.update(problem)
+        else:
+            self._inner.setup(problem)
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        call = self._trigger.count
+        if self._trigger():
+            return _fault_result(self._fault, self._n, call)
+        return self._inner.solve(warm_start)
+
+
+class _FaultyDense(DenseBackend):
+    """Dense backend wrapper that injects a fault on the triggered calls."""
+
+    backend: ClassVar[str] = "faulty"
+    supports_update: ClassVar[bool] = True
+    supports_warm_start: ClassVar[bool] = True
+
+    def __init__(self, inner: DenseBackend, fault: str, trigger: _Trigger) -> None:
+        super().__init__(inner.name, inner.solver, inner.options)
+        self._inner, self._fault, self._trigger = inner, fault, trigger
+        self._n = 0
+
+    def setup(self, qp: DenseQP) -> None:
+        self._n = qp.n_variables
+        self._inner.setup(qp)
+
+    def update(self, qp: DenseQP) -> None:
+        if self._inner.supports_update:
+            self._inner.update(qp)
+        else:
+            self._inner.setup(qp)
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        call = self._trigger.count
+        if self._trigger():
+            return _fault_result(self._fault, self._n, call)
+        return self._inner.solve(warm_start)
+
+
+def faulty(base_name: str, fault: str, calls: int | Iterable[int] | None = None) -> str:
+    """Register (``replace=True``) a fault-injecting wrapper of ``base_name``; return its name.
+
+    Parameters
+    ----------
+    base_name : str
+        Any installed solver (:func:`~ltv_lstm_mpc.solvers.available_solvers`).
+    fault : str
+        ``"nan"`` (an all-NaN point reported ``OPTIMAL``; sessions turn it into
+        ``FAILED``), ``"garbage"`` (every entry ``1e6``, reported ``OPTIMAL``),
+        ``"raise"`` (the backend raises ``RuntimeError("injected fault ...")``)
+        or ``"infeasible"`` (``INFEASIBLE``, no point).
+    calls : int or iterable of int, optional
+        0-based indices of the solve calls that fault, counted over **all**
+        sessions (:class:`~ltv_lstm_mpc.solvers.Session` and
+        :class:`~ltv_lstm_mpc.solvers.DenseSession`) made from the returned
+        name with one shared counter; ``None``: every call. Calling
+        :func:`faulty` again with the same arguments re-registers the name
+        with a fresh counter. The other calls go to the real backend.
+
+    Returns
+    -------
+    str
+        E.g. ``"faulty:nan@0,2:daqp"`` (``@all`` for ``calls=None``); its
+        :func:`~ltv_lstm_mpc.solvers.solver_info` copies the base's capabilities.
+
+    Raises
+    ------
+    InvalidValueError
+        Unknown ``fault`` or a negative call index.
+    SolverNotFound
+        Unknown ``base_name``.
+    """
+    from .registry import _add, _Entry, get_backend, get_dense_backend, solver_info
+
+    if fault not in FAULTS:
+        raise InvalidValueError(f"unknown fault {fault!r}; choose one of {list(FAULTS)}")
+    base = solver_info(base_name)
+    which: frozenset[int] | None
+    if calls is None:
+        which, tag = None, "all"
+    else:
+        which = frozenset([int(calls)] if isinstance(calls, int | np.integer) else map(int, calls))
+        if any(c < 0 for c in which):
+            raise InvalidValueError(f"calls must be >= 0, got {sorted(which)}")
+        tag = ",".join(str(c) for c in sorted(which)) or "none"
+    name = f"faulty:{fault}@{tag}:{base_name}"
+    trigger = _Trigger(which)
+    sparse = get_backend(base_name)
+    dense = get_dense_backend(base_name)
+
+    def factory(_name: str, tolerance: float, settings: Mapping[str, Any]) -> Backend:
+        return _FaultyBackend(sparse(base_name, tolerance, settings), fault, trigger)
+
+    def dense_factory(_name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
+        return _FaultyDense(dense(base_name, tolerance, settings), fault, trigger)
+
+    info = type(base)(
+        name=name,
+        family="faulty",
+        supports_cones=base.supports_cones,
+        native_dense=base.native_dense,
+        first_order=base.first_order,
+    )
+    return _add(name, _Entry(info, factory, dense_factory), replace=True)

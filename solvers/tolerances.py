@@ -20,6 +20,26 @@ scs        ``eps_abs``, ``eps_rel``
 =========  ==================================================================
 
 User settings passed next to ``tolerance`` override these entries.
+
+Feasibility tolerance
+---------------------
+:func:`feasibility_tolerance` is the absolute tolerance to which a caller
+should check the constraint satisfaction of a returned point (with a relative
+part: accept ``violation <= tol * (1 + |bound|)``). Solvers only meet their
+``tolerance`` in their own scaled/relative measures, so the check is looser:
+
+==========================================  ==================================
+solver                                      feasibility tolerance
+==========================================  ==================================
+interior point / active set (clarabel,      ``max(1e-7, 100 * tolerance)``
+ecos, piqp, daqp, quadprog, highs, ...)
+first order (osqp, scs, proxqp, also as     ``max(1e-5, 1000 * tolerance)``
+``cvxpy:OSQP``, ``qpsolvers:scs``, ...)
+==========================================  ==================================
+
+A registered solver is classified by its
+:attr:`~ltv_lstm_mpc.solvers.SolverInfo.first_order`, any other name by its
+last ``:``-separated part.
 """
 
 from __future__ import annotations
@@ -30,7 +50,7 @@ from typing import Any
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
 
-__all__ = ["TOLERANCE_OPTIONS", "known_settings", "solver_options"]
+__all__ = ["TOLERANCE_OPTIONS", "feasibility_tolerance", "known_settings", "solver_options"]
 
 #: Option names set to the single ``tolerance`` value, per solver (lower case).
 TOLERANCE_OPTIONS: Mapping[str, tuple[str, ...]] = {
@@ -83,6 +103,11 @@ def known_settings(solver: str) -> tuple[str, ...] | None:
             import daqp
 
             return tuple(daqp.Model().settings)
+        if key == "proxqp":
+            import proxsuite
+
+            settings = proxsuite.proxqp.dense.QP(1, 0, 0, False).settings
+            return tuple(k for k in dir(settings) if not k.startswith("_"))
         if key == "clarabel":
             import clarabel
 
@@ -112,3 +137,31 @@ def solver_options(solver: str, tolerance: float, settings: Mapping[str, Any]) -
     options.update(_FIXED_OPTIONS.get(solver.lower(), {}))
     options.update(settings)
     return options
+
+
+def feasibility_tolerance(solver: str, tolerance: float) -> float:
+    """Absolute tolerance for checking a point returned by ``solver`` run at ``tolerance``.
+
+    ``max(1e-7, 100 * tolerance)`` for interior-point and active-set solvers,
+    ``max(1e-5, 1e3 * tolerance)`` for first-order ones (osqp, scs, proxqp,
+    through any interface); see the module docstring. Callers accept a
+    violation up to ``feasibility_tolerance(...) * (1 + |bound|)``.
+
+    Raises
+    ------
+    InvalidValueError
+        If ``tolerance`` is not a positive finite number.
+    """
+    tol = float(tolerance)
+    if not (tol > 0.0 and tol < float("inf")):
+        raise InvalidValueError(f"tolerance must be a positive finite float, got {tolerance!r}")
+    from .registry import FIRST_ORDER, _registry
+
+    entry = _registry().get(solver)
+    if entry is not None:
+        first_order = entry.info.first_order
+    else:
+        first_order = str(solver).rsplit(":", 1)[-1].lower() in FIRST_ORDER
+    if first_order:
+        return max(1e-5, 1e3 * tol)
+    return max(1e-7, 100.0 * tol)

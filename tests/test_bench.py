@@ -22,7 +22,7 @@ def _main(argv: list[str]) -> int:
 
 
 def test_bench_smoke_writes_sane_csv(tmp_path) -> None:
-    backends = ["fast:daqp", "fast-mpc:daqp", "rti:daqp", "nmpc:ipopt"]
+    backends = ["daqp", "daqp@sparse", "cvxpy:CLARABEL", "ipopt"]
     out = tmp_path / "bench"
     code = _main(
         ["bench", "--smoke", "--steps", "15", "--quiet", "--out", str(out), "--backends", *backends]
@@ -32,7 +32,7 @@ def test_bench_smoke_writes_sane_csv(tmp_path) -> None:
         reader = csv.DictReader(handle)
         assert tuple(reader.fieldnames or ()) == bench.CSV_COLUMNS
         rows = {row["backend"]: row for row in reader}
-    expected = set(backends) if HAS_CASADI else set(backends) - {"nmpc:ipopt"}
+    expected = set(backends) if HAS_CASADI else set(backends) - {"ipopt"}
     assert set(rows) == expected
     for row in rows.values():
         assert row["error"] == ""
@@ -48,27 +48,31 @@ def test_bench_smoke_writes_sane_csv(tmp_path) -> None:
         assert int(row["plant_violation_steps"]) == 0
         assert int(row["infeasible_steps"]) <= int(row["fallback_steps"]) + 15
     assert min(float(r["ratio_to_fastest"]) for r in rows.values()) == 1.0
-    assert "terminal_box" in rows["fast:daqp"]["reformulation"]
-    assert np.isfinite(float(rows["fast:daqp"]["prepare_median_us"]))
+    assert "terminal_box" in rows["daqp"]["reformulation"]
+    assert rows["daqp"]["family"] == "condensed" and rows["daqp@sparse"]["family"] == "sparse"
+    assert rows["cvxpy:CLARABEL"]["reformulation"] == ""  # exact cones
+    for row in rows.values():
+        assert np.isfinite(float(row["prepare_median_us"]))
+        assert np.isfinite(float(row["feedback_median_us"]))
     if HAS_CASADI:
-        assert float(rows["nmpc:ipopt"]["ratio_to_nmpc"]) == 1.0
-        for name in ("fast:daqp", "fast-mpc:daqp", "rti:daqp"):
+        assert rows["ipopt"]["family"] == "nonlinear"
+        assert float(rows["ipopt"]["ratio_to_nmpc"]) == 1.0
+        for name in ("daqp", "daqp@sparse", "cvxpy:CLARABEL"):
             assert float(rows[name]["u0_diff_max"]) < 1e-2  # mL/s
             assert abs(float(rows[name]["cost_diff_pct"])) < 1.0
-            assert float(rows[name]["ratio_to_nmpc"]) < 1.0
+            if name.startswith("daqp"):
+                assert float(rows[name]["ratio_to_nmpc"]) < 1.0
     assert (out / "bench.md").read_text().count("\n|") >= len(rows) + 1
     assert (out / "bench_N5.png").stat().st_size > 0
 
 
-def test_unknown_backend_is_reported_not_raised(tmp_path) -> None:
+def test_unknown_backend_is_a_clear_error(tmp_path) -> None:
     model = bench.LSTMModel.load(bench_model_path())
     scenario = bench.standin_scenario(model, steps=5)
-    rows = bench.run_bench(
-        model, scenarios=[scenario], horizons=[5], backends=["fast:daqp"], steps=5
-    )
-    assert len(rows) == 1 and rows[0]["steps"] == 5
-    with pytest.raises(bench.InvalidValueError):
-        bench._make_controller("bogus:x", model, scenario, 5, None)  # type: ignore[arg-type]
+    rows = bench.run_bench(model, scenarios=[scenario], horizons=[5], backends=["daqp"], steps=5)
+    assert len(rows) == 1 and rows[0]["steps"] == 5 and rows[0]["family"] == "condensed"
+    with pytest.raises(bench.InvalidValueError, match="daqp"):  # lists the valid names
+        bench.run_bench(model, scenarios=[scenario], horizons=[5], backends=["fast:x"], steps=5)
 
 
 def bench_model_path():

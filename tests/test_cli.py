@@ -58,3 +58,14 @@ def test_console_script_runs() -> None:
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     assert json.loads(result.stdout)["is_delta_iss"] is True
+
+
+def test_simulate_with_daqp_runs_the_condensed_path(capsys) -> None:
+    argv = ["simulate", "--plant", "lstm", "--setpoints", "7.0", "7.3", "--segment", "20"]
+    code = main([*argv, "--solver", "daqp", "--no-progress"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "transcription condensed" in out
+    code = main([*argv, "--solver", "daqp", "--transcription", "sparse", "--no-progress"])
+    assert code == 0
+    assert "transcription sparse" in capsys.readouterr().out

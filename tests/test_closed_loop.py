@@ -8,7 +8,7 @@ import pytest
 from ltv_lstm_mpc import CertificationSettings, certify, load_model
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.simulation import simulate
-from ltv_lstm_mpc.mpc.rti import MPCConfig
+from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.plants import LSTMPlant
 
 MODEL = "example_delta_iss_n3.npz"

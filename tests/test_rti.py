@@ -7,7 +7,8 @@ import pytest
 from ltv_lstm_mpc.solvers import available_solvers
 
 from ltv_lstm_mpc import ReferenceCalculator, load_model
-from ltv_lstm_mpc.mpc.rti import MPCConfig, RobustMPC
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.rti import RobustMPC
 
 MODEL = "example_delta_iss_n3.npz"
 

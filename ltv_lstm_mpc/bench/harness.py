@@ -15,17 +15,12 @@ disturbances, and one CSV row records
 
 Backends
 --------
-``nmpc:ipopt``
-    :class:`~ltv_lstm_mpc.mpc.nmpc.ExactNMPC` (needs the ``nmpc`` extra).
-``fast:<solver>``
-    :class:`~ltv_lstm_mpc.mpc.fast.FastOffsetFreeController` (fused step) with a native
-    dense solver (:func:`~ltv_lstm_mpc.mpc.fast.fast_solvers`).
-``fast-mpc:<solver>``
-    :class:`~ltv_lstm_mpc.mpc.fast.FastRobustMPC` inside the regular
-    :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController`.
-``rti:<solver>``
-    :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` with every
-    :func:`ltv_lstm_mpc.solvers.available_solvers` entry.
+A backend is a solver name of the one registry
+(:func:`ltv_lstm_mpc.solvers.available_solvers`), optionally with ``@<transcription>``
+(``"daqp@sparse"``, ``"cvxpy:OSQP@condensed"``), or ``"ipopt"`` (the exact NMPC,
+:class:`~ltv_lstm_mpc.mpc.nmpc.ExactNMPC`, needs the ``nmpc`` extra). Every run is
+``OffsetFreeController(model, MPCConfig(solver=..., transcription=...))`` driven by
+:func:`~ltv_lstm_mpc.loop.simulation.simulate`: the one controller, the one loop.
 
 Saved subproblems (``save_subproblems``) are the RTI subproblems of one closed loop as
 ``.npz`` (:meth:`ConvexProblem.save`), both with cones and in the conservative QP form,
@@ -53,8 +48,10 @@ from numpy.typing import NDArray
 from ltv_lstm_mpc.certificates.certify import Certification, certify
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.simulation import simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.rti import MPCConfig, RobustMPC
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.rti import RobustMPC, resolve_transcription
 
 __all__ = [
     "CSV_COLUMNS",
@@ -182,44 +179,27 @@ def available_backends() -> list[str]:
     """Every backend this installation can run (see the module docstring)."""
     import importlib.util
 
-    from ltv_lstm_mpc.mpc.fast import fast_solvers
     from ltv_lstm_mpc.solvers import available_solvers
 
-    names = []
-    if importlib.util.find_spec("casadi") is not None:
-        names.append("nmpc:ipopt")
-    names += [f"fast:{s}" for s in fast_solvers()]
-    names += [f"fast-mpc:{s}" for s in fast_solvers()[:1]]
-    names += [f"rti:{s}" for s in available_solvers()]
-    return names
+    names = ["ipopt"] if importlib.util.find_spec("casadi") is not None else []
+    return names + available_solvers()
+
+
+def backend_config(backend: str, config: MPCConfig) -> MPCConfig:
+    """``config`` with the solver and transcription of ``backend`` (``solver[@transcription]``)."""
+    solver, _, transcription = backend.partition("@")
+    return replace(config, solver=solver, transcription=transcription or "auto")  # type: ignore[arg-type]
 
 
 # -------------------------------------------------------------------------- one run
 def _make_controller(
     backend: str, model: LSTMModel, scenario: BenchScenario, N: int, cert: Certification
 ) -> OffsetFreeController:
-    """The controller of one backend; solver iterations come from ``MPCSolution``."""
-    family, _, solver = backend.partition(":")
-    config = replace(scenario.config, N=N)
-    rate = scenario.setpoint_rate_limit
-    if family == "nmpc":
-        from ltv_lstm_mpc.mpc.nmpc import ExactNMPC
-
-        nmpc = ExactNMPC(model, config, certification=cert)
-        return OffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=nmpc)
-    if family in ("fast", "fast-mpc"):
-        from ltv_lstm_mpc.mpc.fast import FastOffsetFreeController, FastRobustMPC
-
-        fast = FastRobustMPC(model, config, solver=solver, certification=cert)
-        if family == "fast":
-            return FastOffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=fast)
-        return OffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=fast)
-    if family == "rti":
-        mpc = RobustMPC(model, replace(config, solver=solver), certification=cert)
-        return OffsetFreeController(model, config, setpoint_rate_limit=rate, mpc=mpc)
-    raise InvalidValueError(
-        f"unknown backend {backend!r}: use 'nmpc:ipopt', 'fast:<solver>', "
-        "'fast-mpc:<solver>' or 'rti:<solver>'"
+    """The one controller, configured for ``backend``."""
+    config = backend_config(backend, replace(scenario.config, N=N))
+    mpc = RobustMPC(model, config, certification=cert)
+    return OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, mpc=mpc
     )
 
 
@@ -236,25 +216,16 @@ def _run(
     start = time.perf_counter()
     controller = _make_controller(backend, model, scenario, N, cert)
     plant = scenario.make_plant(model)
-    controller.reset()
-    y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
-    ys, us, iters, prep, feed = [], [], [], [], []
-    fast = getattr(controller, "fast_mpc", None) or getattr(controller.mpc, "prepare", None)
-    mpc = controller.mpc
-    for k in range(steps):
-        u_phi = controller.step(y_phi, scenario.setpoints[k])
-        iters.append(controller.records[-1].mpc.solver_iterations)
-        if fast is not None:
-            prep.append(getattr(mpc, "prepare_time", math.nan))
-            feed.append(getattr(mpc, "feedback_time", math.nan))
-        ys.append(y_phi)
-        us.append(u_phi)
-        d = scenario.disturbances[k]
-        y_phi = np.atleast_1d(
-            np.asarray(plant.step(u_phi, None if np.isnan(d) else d), dtype=np.float64)
-        )
-        if time.perf_counter() - start > time_cap:
-            break
+    disturbances = [None if np.isnan(d) else float(d) for d in scenario.disturbances[:steps]]
+    result = simulate(
+        plant,
+        controller,
+        np.asarray(scenario.setpoints[:steps], dtype=np.float64),
+        lambda k: disturbances[k],  # type: ignore[arg-type, return-value]
+        steps,
+        progress=False,
+        max_seconds=time_cap,
+    )
     records = controller.records
     Q, R = replace(scenario.config, N=N).weights(model)
     dx = np.array([r.x_hat - r.x_bar for r in records])
@@ -262,12 +233,13 @@ def _run(
     stage = np.einsum("ki,ij,kj->k", dx, Q, dx) + np.einsum("ki,ij,kj->k", du, R, du)
     return {
         "records": records,
-        "y_phi": np.array(ys),
-        "u_phi": np.array(us)[:, 0],
+        "y_phi": result.y_phi,
+        "u_phi": result.u_phi[:, 0],
         "stage_cost": stage,
-        "iterations": np.array(iters, dtype=float),
-        "prepare": np.array(prep, dtype=float),
-        "feedback": np.array(feed, dtype=float),
+        "iterations": np.array([r.mpc.solver_iterations for r in records], dtype=float),
+        "prepare": result.time_prepare,
+        "feedback": result.time_feedback,
+        "transcription": result.transcription,
         "wall": time.perf_counter() - start,
     }
 
@@ -315,12 +287,14 @@ def _summary(run: dict[str, Any]) -> dict[str, Any]:
 
 # --------------------------------------------------------------------------- the bench
 def _steps_for(backend: str, N: int, scenario: BenchScenario, steps: int, slow: int) -> int:
-    """Steps to run: N >= 20 through cvxpy/qpsolvers/sparse DAQP is capped at ``slow``
-    (``subsampled`` = 1 in the CSV)."""
+    """Steps to run: N >= 20 through cvxpy, qpsolvers or the sparse transcription is capped
+    at ``slow`` (``subsampled`` = 1 in the CSV)."""
     n = min(steps, scenario.steps)
-    family, _, solver = backend.partition(":")
-    if N >= 20 and family == "rti" and solver.split(":")[0] in ("cvxpy", "qpsolvers", "daqp"):
-        n = min(n, slow)
+    if N >= 20 and backend != "ipopt":
+        config = backend_config(backend, replace(scenario.config, N=N))
+        slow_family = backend.split(":")[0] in ("cvxpy", "qpsolvers")
+        if slow_family or resolve_transcription(config) == "sparse":
+            n = min(n, slow)
     return n
 
 
@@ -355,7 +329,17 @@ def run_bench(
     if backends is None:
         chosen = everything
     else:
-        chosen = [b for b in everything if any(fnmatch.fnmatch(b, pat) for pat in backends)]
+        chosen = []
+        for pat in backends:
+            base = pat.partition("@")[0]
+            matched = [b for b in everything if fnmatch.fnmatch(b, base)]
+            if not matched:
+                raise InvalidValueError(
+                    f"backend {pat!r} matches no installed backend; choose from "
+                    f"{', '.join(everything)} (optionally with @condensed / @sparse)"
+                )
+            suffix = pat[len(base) :]
+            chosen += [b + suffix for b in matched if b + suffix not in chosen]
     rows: list[dict[str, Any]] = []
     for scenario in scenarios:
         for N in horizons:
@@ -365,7 +349,7 @@ def run_bench(
             group: list[dict[str, Any]] = []
             for backend in chosen:
                 n_steps = _steps_for(backend, N, scenario, steps, slow_steps)
-                family, _, solver = backend.partition(":")
+                solver, _, family = backend.partition("@")
                 row: dict[str, Any] = {c: math.nan for c in CSV_COLUMNS}
                 row.update(
                     scenario=scenario.name,
@@ -380,6 +364,7 @@ def run_bench(
                 try:
                     run = _run(backend, model, scenario, N, cert, n_steps, time_cap)
                     row.update(_summary(run))
+                    row["family"] = run["transcription"]
                     runs[backend] = run
                 except Exception as error:  # a backend failure is a result, not a crash
                     row.update(error=f"{type(error).__name__}: {error}"[:200], steps=0)
@@ -398,8 +383,8 @@ def _compare(group: list[dict[str, Any]], runs: dict[str, dict[str, Any]]) -> No
     """Ratios and differences to the exact NMPC and to the fastest backend (in place)."""
     medians = [r["step_median_us"] for r in group if np.isfinite(r["step_median_us"])]
     fastest = min(medians) if medians else math.nan
-    ref = runs.get("nmpc:ipopt")
-    ref_row = next((r for r in group if r["backend"] == "nmpc:ipopt"), None)
+    ref = runs.get("ipopt")
+    ref_row = next((r for r in group if r["backend"] == "ipopt"), None)
     for row in group:
         row["ratio_to_fastest"] = row["step_median_us"] / fastest
         run = runs.get(row["backend"])
@@ -536,8 +521,9 @@ def save_subproblems(
     config = replace(scenario.config, N=N)
     cert = certify(model, config.certification_settings(model))
     cones = cone_solvers()
+    solver = cones[0] if cones else "daqp"
     mpc = RobustMPC(
-        model, replace(config, solver=cones[0] if cones else "daqp"), certification=cert
+        model, replace(config, solver=solver, transcription="sparse"), certification=cert
     )
     ctrl = OffsetFreeController(
         model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, mpc=mpc
@@ -550,7 +536,7 @@ def save_subproblems(
         d = scenario.disturbances[k]
         y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, None if np.isnan(d) else d)))
     records = ctrl.records
-    sub = mpc._subproblems["nominal"]
+    sub = mpc._problem._subproblems["nominal"]  # type: ignore[attr-defined]
     ti = mpc.tightening
     picks = np.unique(np.linspace(1, len(records) - 1, count).astype(int))
     names = list(solvers) if solvers is not None else available_solvers()
@@ -692,7 +678,7 @@ def _parser_args(parser: argparse.ArgumentParser) -> None:
 
 
 DEFAULT_SCENARIOS = ("1_*", "4_*", "standin*")
-SMOKE_BACKENDS = ("nmpc:ipopt", "fast:daqp", "fast-mpc:daqp", "rti:daqp", "rti:cvxpy:CLARABEL")
+SMOKE_BACKENDS = ("ipopt", "daqp", "daqp@sparse", "cvxpy:CLARABEL")
 
 
 def main_bench(args: argparse.Namespace) -> int:

@@ -252,7 +252,17 @@ def _add_simulate(subparsers: Any) -> None:
         help="disturbance per segment (q2 in mL/s for ph, output pH offset for lstm)",
     )
     parser.add_argument("--segment", type=int, default=400, help="samples per segment (400)")
-    parser.add_argument("--solver", default="cvxpy:CLARABEL", help="solver backend")
+    parser.add_argument(
+        "--solver",
+        default="cvxpy:CLARABEL",
+        help="solver backend (any name of `ltv_lstm_mpc.solvers.available_solvers()`, or ipopt)",
+    )
+    parser.add_argument(
+        "--transcription",
+        choices=["auto", "condensed", "sparse", "nonlinear"],
+        default="auto",
+        help="FHOCP transcription (auto: condensed for QP solvers, sparse for cone solvers)",
+    )
     parser.add_argument("--N", type=int, default=5, help="horizon (5)")
     parser.add_argument("--L-d", type=float, default=0.1, help="observer gain L_d (0.1)")
     parser.add_argument("--rate-limit", type=float, default=0.01, help="normalized y0 rate (0.01)")
@@ -268,7 +278,7 @@ def _add_simulate(subparsers: Any) -> None:
 def _run_simulate(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ltv_lstm_mpc.mpc.rti import MPCConfig
+    from ltv_lstm_mpc.mpc.config import MPCConfig
     from ltv_lstm_mpc.paper.reproduce import format_table, write_scenario_outputs
     from ltv_lstm_mpc.paper.scenarios import Scenario, run_scenario
 
@@ -293,6 +303,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
             N=args.N,
             L_d=args.L_d,
             solver=args.solver,
+            transcription=args.transcription,
             infeasibility_policy=args.policy,
             sqp_iterations=args.sqp_iterations,
         ),
@@ -302,6 +313,13 @@ def _run_simulate(args: argparse.Namespace) -> int:
     result = run_scenario(scenario, model, progress=not args.no_progress)
     summary = write_scenario_outputs(result, args.out) if args.out is not None else result.summary()
     print(format_table([summary]))
+    sim = result.simulation
+    print(
+        f"transcription {sim.transcription}; median step "
+        f"{1e6 * float(np.median(sim.time_total)):.0f} us (prepare "
+        f"{1e6 * float(np.median(sim.time_prepare)):.0f} us, feedback "
+        f"{1e6 * float(np.median(sim.time_feedback)):.0f} us)"
+    )
     return 0
 
 

@@ -2,7 +2,10 @@ r"""The offset-free control loop of the paper's Fig. 1, one ``step`` per sample.
 
 normalization -> :class:`~ltv_lstm_mpc.loop.observer.Observer` (eq. lstm_observer) ->
 :class:`~ltv_lstm_mpc.loop.reference.ReferenceCalculator` (eq. reference_calculation) ->
-:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (eq. optimization) -> de-normalization.
+:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (eq. optimization; ``prepare`` then ``feedback``,
+whatever the transcription) -> de-normalization. This is the only controller: the
+configuration chooses the solver and the transcription (condensed dense QP, sparse with
+exact cones, or the exact NMPC), with the same checks, fallbacks and records.
 
 Timing convention: at sample k the controller holds :math:`(\hat x_k, \hat d_k)` and
 :math:`\hat e_{o,k}`. ``step(y_phi_k, y0_phi_k)`` computes :math:`u_k` from them, then
@@ -14,6 +17,7 @@ with :math:`\hat d_0 = 0` (SPEC 10b).
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -24,7 +28,9 @@ from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.loop.observer import Observer
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator, ReferenceSolution
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.rti import MPCConfig, MPCSolution, MPCSolver, RobustMPC
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
+from ltv_lstm_mpc.mpc.rti import RobustMPC
 
 __all__ = ["ControllerStep", "OffsetFreeController"]
 
@@ -93,9 +99,10 @@ class OffsetFreeController:
         Largest change of the normalized set-point per step (Theorem 3's
         :math:`\Delta y^0_{max}`; see ``certification.rate_bound``). None: no limiter.
     mpc : RobustMPC-like, optional
-        The MPC to use (default ``RobustMPC(model, config)``). Anything with the same
-        ``solve(x_hat, x_bar, u_bar, y0, e_hat) -> MPCSolution``, ``reset()`` and
-        ``certification`` attributes fits (e.g. a fast-path or exact-NMPC solver).
+        The MPC to use (default ``RobustMPC(model, config)``, which follows
+        ``config.solver`` and ``config.transcription``). Anything with ``prepare`` /
+        ``feedback`` (or only ``solve(x_hat, x_bar, u_bar, y0, e_hat) -> MPCSolution``),
+        ``reset()`` and ``certification`` fits.
     """
 
     def __init__(
@@ -122,6 +129,12 @@ class OffsetFreeController:
         self.observer = Observer(model, self.certification.observer.gains, d_max=config.d_max)
         self.reference = ReferenceCalculator(model, u_max=config.u_max, strict=False)
         self.setpoint_rate_limit = setpoint_rate_limit
+        self._phases = hasattr(self.mpc, "prepare") and hasattr(self.mpc, "feedback")
+        norm = model.normalization
+        assert norm is not None  # checked above
+        self._y_min, self._y_scale = norm.y_phi_min, norm.y_scale
+        self._u_min, self._u_scale = norm.u_phi_min, norm.u_scale
+        self._W_y, self._b_y = model.W_y, model.b_y
         self.records: list[ControllerStep] = []
         self.reset()
 
@@ -165,12 +178,16 @@ class OffsetFreeController:
     # Parts of one step; a faster controller overrides these, not the loop in ``step``.
     def _normalize(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Normalized measurement and set-point, checked (SPEC 1)."""
-        model = self.model
-        y = np.atleast_1d(np.asarray(model.normalize_y(np.atleast_1d(y_phi)), dtype=np.float64))
-        y0_target = np.atleast_1d(model.normalize_y(np.atleast_1d(y0_phi)))
-        if y.shape != (model.p,) or y0_target.shape != (model.p,):
-            raise InvalidValueError(f"y_phi and y0_phi must have {model.p} entries")
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(y0_target))):
+        p = self.model.p
+        y_arr = np.asarray(y_phi, dtype=np.float64)
+        y0_arr = np.asarray(y0_phi, dtype=np.float64)
+        if y_arr.size != p or y0_arr.size != p:
+            raise InvalidValueError(
+                f"y_phi and y0_phi must have {p} entries, got {y_phi!r} and {y0_phi!r}"
+            )
+        y = (y_arr.reshape(p) - self._y_min) / self._y_scale - 1.0
+        y0_target = (y0_arr.reshape(p) - self._y_min) / self._y_scale - 1.0
+        if not math.isfinite(float(y.sum() + y0_target.sum())):
             raise InvalidValueError(f"y_phi and y0_phi must be finite, got {y_phi!r}, {y0_phi!r}")
         return y, y0_target
 
@@ -181,16 +198,26 @@ class OffsetFreeController:
     def _solve_mpc(
         self, x_hat: FloatArray, reference: ReferenceSolution, y0: FloatArray
     ) -> MPCSolution:
-        """The FHOCP eq. (optimization) at this step."""
-        return self.mpc.solve(x_hat, reference.x_bar, reference.u_bar, y0, self.e_hat)
+        """The FHOCP eq. (optimization): ``prepare`` (candidate, linearization, build) then
+        ``feedback`` (insert x_hat, solve, validate)."""
+        mpc = self.mpc
+        if self._phases:
+            mpc.prepare(reference.x_bar, reference.u_bar, y0, self.e_hat, x_pred=x_hat)
+            return mpc.feedback(x_hat)
+        return mpc.solve(x_hat, reference.x_bar, reference.u_bar, y0, self.e_hat)
 
     def _update_observer(self, y: FloatArray, u: FloatArray) -> None:
         """eq. (lstm_observer): (y_k, u_k) -> (x_hat_{k+1}, d_hat_{k+1})."""
-        self.observer.step(y, u)
+        observer = self.observer
+        innovation = self._W_y @ observer.x_hat[self.model.n :]
+        innovation += self._b_y
+        innovation += observer.d_hat
+        np.subtract(y, innovation, out=innovation)
+        observer.advance(innovation, u)
 
     def _denormalize_u(self, u: FloatArray) -> FloatArray:
         """Physical input from the normalized one."""
-        return np.asarray(self.model.denormalize_u(u), dtype=np.float64)
+        return np.asarray((u + 1.0) * self._u_scale + self._u_min, dtype=np.float64)
 
     def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
         """One sample: measured physical output and set-point in, physical input out."""
@@ -211,6 +238,8 @@ class OffsetFreeController:
         t2 = time.perf_counter()
         solution = self._solve_mpc(x_hat, reference, y0_mpc)
         u = solution.u[0].copy()
+        if not math.isfinite(float(u.sum())):  # pragma: no cover - the MPC validates its plans
+            raise LtvMpcError(f"the MPC returned a non-finite input {u} (status {solution.status})")
         t3 = time.perf_counter()
         self._update_observer(y, u)
         e_hat_used = self.e_hat

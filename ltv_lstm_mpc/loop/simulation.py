@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -49,6 +50,10 @@ class SimulationResult:
         Nonlinear violation of the tightened output rows by the applied plan (>= 0).
     time_observer, time_reference, time_mpc, time_total : (steps,)
         Per-step wall times, s.
+    time_prepare, time_feedback : (steps,)
+        The MPC's two RTI phases (``time_mpc`` is about their sum), s.
+    transcription : str
+        The MPC's transcription (``"condensed"``, ``"sparse"``, ``"nonlinear"``).
     """
 
     y_phi: FloatArray
@@ -68,6 +73,9 @@ class SimulationResult:
     time_reference: FloatArray
     time_mpc: FloatArray
     time_total: FloatArray
+    time_prepare: FloatArray
+    time_feedback: FloatArray
+    transcription: str = ""
 
 
 def _as_schedule(
@@ -94,6 +102,7 @@ def simulate(
     *,
     progress: bool = True,
     description: str = "closed loop",
+    max_seconds: float | None = None,
 ) -> SimulationResult:
     """Run plant and controller in closed loop.
 
@@ -113,6 +122,8 @@ def simulate(
         Number of samples (default: the length of ``setpoints``).
     progress : bool
         Show a tqdm progress bar.
+    max_seconds : float, optional
+        Stop after this wall time (the result then has fewer samples than ``steps``).
     """
     if steps is None:
         if callable(setpoints) or np.ndim(setpoints) == 0:
@@ -123,6 +134,7 @@ def simulate(
     controller.reset()
     y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
     ys, us, y0s, ds = [], [], [], []
+    start = time.perf_counter()
     for k in tqdm(range(steps), disable=not progress, desc=description, leave=False):
         u_phi = controller.step(y_phi, y0_schedule[k])
         ys.append(y_phi)
@@ -131,6 +143,8 @@ def simulate(
         d = d_schedule[k]
         ds.append(np.full(1, np.nan) if d is None else d)
         y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, d), dtype=np.float64))
+        if max_seconds is not None and time.perf_counter() - start > max_seconds:
+            break
     records = controller.records
     return SimulationResult(
         y_phi=np.array(ys),
@@ -150,4 +164,7 @@ def simulate(
         time_reference=np.array([r.time_reference for r in records]),
         time_mpc=np.array([r.time_mpc for r in records]),
         time_total=np.array([r.time_total for r in records]),
+        time_prepare=np.array([r.mpc.prepare_time for r in records]),
+        time_feedback=np.array([r.mpc.feedback_time for r in records]),
+        transcription=records[0].mpc.transcription if records else "",
     )

@@ -27,35 +27,34 @@ CasADi is an optional dependency: ``pip install -e ".[nmpc]"``.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from ltv_lstm_mpc.certificates.certify import Certification, certify
+from ltv_lstm_mpc.certificates.certify import Certification
+from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
 from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.rti import (
-    MPCConfig,
-    MPCSolution,
-    fhocp_inputs,
-    plan_residuals,
-    shifted_candidate,
-)
-from ltv_lstm_mpc.mpc.sparse import FHOCPSubproblem
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.rti import RobustMPC
+from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
+from ltv_lstm_mpc.solvers import SolverStatus
 
-__all__ = ["ExactNMPC"]
+__all__ = ["ExactNMPC", "NonlinearTranscription"]
 
 FloatArray = NDArray[np.float64]
 
-#: IPOPT return status -> MPCSolution status.
+#: IPOPT return status -> SolverStatus (unknown ones: FAILED).
 IPOPT_STATUS = {
-    "Solve_Succeeded": "optimal",
-    "Solved_To_Acceptable_Level": "optimal_inaccurate",
-    "Infeasible_Problem_Detected": "infeasible",
-    "Maximum_Iterations_Exceeded": "max_iter",
-    "Maximum_CpuTime_Exceeded": "max_iter",
-    "Maximum_WallTime_Exceeded": "max_iter",
+    "Solve_Succeeded": SolverStatus.OPTIMAL,
+    "Solved_To_Acceptable_Level": SolverStatus.OPTIMAL_INACCURATE,
+    "Infeasible_Problem_Detected": SolverStatus.INFEASIBLE,
+    "Maximum_Iterations_Exceeded": SolverStatus.MAX_ITER,
+    "Maximum_CpuTime_Exceeded": SolverStatus.MAX_ITER,
+    "Maximum_WallTime_Exceeded": SolverStatus.MAX_ITER,
 }
 
 
@@ -70,74 +69,53 @@ def _import_casadi() -> Any:
     return casadi
 
 
-class ExactNMPC:
-    r"""Exact NMPC of eq. (optimization) with CasADi + IPOPT (the accuracy reference).
+class NonlinearTranscription(TranscriptionBase):
+    r"""The exact nonlinear FHOCP (see the module docstring) as a transcription of the core.
 
-    Same interface as :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC`: ``solve(x_hat, x_bar, u_bar,
-    y0, e_hat, *, warm=None) -> MPCSolution``, ``reset()``, ``certification``,
-    ``tightening``; usable as ``OffsetFreeController(model, config, mpc=ExactNMPC(...))``.
-    The i = 0 output row and :math:`\alpha_k > 0` are checked first (SPEC 1); when they
-    fail, or IPOPT does not converge, ``config.infeasibility_policy`` is applied as in
-    RobustMPC (``"paper"``: re-solve without output and terminal constraints,
-    ``"soft"``: L1 slacks on them, ``"shift"``: the candidate).
+    The NLP of each kind (``"nominal"``, ``"paper"``, ``"soft"``) is built once with CasADi
+    and re-solved with new parameter values, started from the core's candidate rollout.
+    ``config.tolerance`` is IPOPT's ``tol`` (at most 1e-8) and ``config.solver_settings``
+    are IPOPT options (e.g. ``{"max_iter": 200}``).
 
     Parameters
     ----------
-    model : LSTMModel
-    config : MPCConfig, optional
-        ``solver``, ``tolerance``-mapping and SQP settings are not used; ``tolerance``
-        is IPOPT's ``tol``.
-    certification : Certification, optional
+    model, config, tightening, Q, R, kinds
+        As the other transcriptions.
     smoothing : float
         :math:`\varepsilon` of the smoothed norms :math:`\sqrt{s + \varepsilon}`.
-    ipopt_options : dict, optional
-        Extra IPOPT options (e.g. ``{"max_iter": 200}``).
-
-    Attributes
-    ----------
-    ipopt_iterations : int
-        IPOPT iterations of the last call (all NLPs solved in it).
     """
+
+    name = "nonlinear"
 
     def __init__(
         self,
         model: LSTMModel,
-        config: MPCConfig | None = None,
+        config: MPCConfig,
+        tightening: TighteningCertificate,
+        Q: FloatArray,
+        R: FloatArray,
+        kinds: tuple[str, ...] = ("nominal",),
         *,
-        certification: Certification | None = None,
         smoothing: float = 1e-8,
-        ipopt_options: dict[str, Any] | None = None,
     ) -> None:
         self._ca = _import_casadi()
-        model.require_square()
         if not smoothing > 0:
             raise InvalidValueError(f"smoothing must be positive, got {smoothing}")
-        self.model = model
-        self.config = config = config or MPCConfig()
-        self.certification = certification or certify(model, config.certification_settings(model))
-        self.tightening = ti = self.certification.tightening
+        self.model, self.config, self.tightening = model, config, tightening
         self.smoothing = float(smoothing)
-        Q, R = config.weights(model)
-        self._sub = FHOCPSubproblem(
-            n=model.n, m=model.m, p=model.p, N=config.N, Q=Q, R=R, P_f=np.asarray(ti.P_f),
-            W_y=model.W_y, b_y=model.b_y, u_max=config.u_max,
-        )  # fmt: skip
         options: dict[str, Any] = {
             "tol": min(config.tolerance, 1e-8),
             "print_level": 0,
             "sb": "yes",
             "max_iter": 500,
         }
-        options.update(ipopt_options or {})
+        options.update(config.solver_settings)
         self._ipopt = options
         self._Q, self._R = Q, R
-        self._nlp: dict[str, dict[str, Any]] = {"nominal": self._build("nominal")}
-        if config.infeasibility_policy in ("paper", "soft"):
-            self._nlp[config.infeasibility_policy] = self._build(config.infeasibility_policy)
-        self._previous_u: FloatArray | None = None
-        self.ipopt_iterations = 0
+        self._nlp: dict[str, dict[str, Any]] = {kind: self._build(kind) for kind in kinds}
+        self.tolerance = max(1e-6, 100.0 * float(options["tol"]))
+        self._data: dict[str, Any] = {}
 
-    # ------------------------------------------------------------------------------ NLP
     def _dynamics(self) -> Any:
         """CasADi function f(x, u) of eq. (lstm)."""
         ca, model = self._ca, self.model
@@ -238,117 +216,94 @@ class ExactNMPC:
             "lam_x": None,
         }
 
-    # ---------------------------------------------------------------------------- solve
-    def reset(self) -> None:
-        """Forget the previous plan (the next candidate is u_bar repeated)."""
-        self._previous_u = None
-        for nlp in self._nlp.values():
-            nlp["lam_g"] = nlp["lam_x"] = None
-
-    def candidate(self, u_bar: FloatArray) -> FloatArray:
-        """Proof candidate: previous plan shifted by one with u_bar appended (SPEC 4)."""
-        return shifted_candidate(self._previous_u, u_bar, self.config.N)
-
-    def _solve_nlp(
+    def build(
         self,
-        kind: str,
-        x_hat: FloatArray,
+        traj: Trajectory,
         x_bar: FloatArray,
         u_bar: FloatArray,
+        lower: FloatArray,
+        upper: FloatArray,
         alpha: float,
-        bounds: tuple[FloatArray, FloatArray],
-        u_start: FloatArray,
-    ) -> tuple[str, FloatArray | None, FloatArray | None, int, float]:
-        """Returns status, u (N, m), X (N+1, 2n), iterations, solver wall time."""
-        model, N = self.model, self.config.N
+    ) -> None:
+        """Keep the parameters and the start (the candidate rollout)."""
+        n2, m, N = 2 * self.model.n, self.model.m, self.config.N
+        self._data = dict(
+            x_bar=x_bar.copy(), u_bar=u_bar.copy(), alpha=float(alpha),
+            lower=lower, upper=upper, x_start=traj.S[:, :n2].copy(),
+            u_start=traj.S[:N, n2 : n2 + m].copy(),
+        )  # fmt: skip
+
+    def solve(self, kind: str, x_hat: FloatArray) -> StepResult:
+        """Solve the NLP ``kind`` from the candidate (its states shifted to start at x_hat)."""
+        model, N, d = self.model, self.config.N, self._data
         nlp = self._nlp[kind]
         n_x, n_u, n_s = nlp["sizes"]
-        x_start, _ = model.simulate(x_hat, u_start)
-        w0 = np.concatenate([x_start.ravel(), u_start.ravel(), np.zeros(n_s)])
-        lower, upper = bounds
+        x_start = d["x_start"] + (x_hat - d["x_start"][0])
+        w0 = np.concatenate([x_start.ravel(), d["u_start"].ravel(), np.zeros(n_s)])
         params = np.concatenate(
-            [x_hat, x_bar, u_bar, [alpha], lower[1:].ravel(), upper[1:].ravel()]
-        )
-        args: dict[str, Any] = dict(
+            [x_hat, d["x_bar"], d["u_bar"], [d["alpha"]], d["lower"][1:].ravel(),
+             d["upper"][1:].ravel()]
+        )  # fmt: skip
+        start = time.perf_counter()
+        result = nlp["solver"](
             x0=w0, p=params, lbx=nlp["lbw"], ubx=nlp["ubw"], lbg=nlp["lbg"], ubg=nlp["ubg"]
         )
-        start = time.perf_counter()
-        result = nlp["solver"](**args)
         elapsed = time.perf_counter() - start
         stats = nlp["solver"].stats()
-        status = IPOPT_STATUS.get(str(stats.get("return_status")), "failed")
+        native = str(stats.get("return_status"))
+        status = IPOPT_STATUS.get(native, SolverStatus.FAILED)
         iterations = int(stats.get("iter_count", 0))
-        if status not in ("optimal", "optimal_inaccurate"):
-            return status, None, None, iterations, elapsed
+        if not status.has_solution:
+            return StepResult(status, None, None, float("nan"), self.tolerance, elapsed, iterations,
+                              f"IPOPT: {native}")  # fmt: skip
         w = np.asarray(result["x"], dtype=np.float64).ravel()
+        g = np.asarray(result["g"], dtype=np.float64).ravel()
+        violation = float(np.max(np.maximum(nlp["lbg"] - g, g - nlp["ubg"]), initial=0.0))
         X = w[:n_x].reshape(N + 1, 2 * model.n)
         U = w[n_x : n_x + n_u].reshape(N, model.m)
-        return status, np.clip(U, -self.config.u_max, self.config.u_max), X, iterations, elapsed
+        return StepResult(status, U.copy(), X.copy(), violation, self.tolerance, elapsed,
+                          iterations, f"IPOPT: {native}")  # fmt: skip
 
-    def solve(
+
+class ExactNMPC(RobustMPC):
+    r"""Exact NMPC of eq. (optimization) with CasADi + IPOPT (the accuracy reference).
+
+    :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` with the nonlinear transcription
+    (``MPCConfig(solver="ipopt")``): the same front-end, prechecks, fallback chain,
+    validation, residuals and records as every other transcription. Usable as
+    ``OffsetFreeController(model, MPCConfig(solver="ipopt"))``.
+
+    Parameters
+    ----------
+    model : LSTMModel
+    config : MPCConfig, optional
+        ``solver`` is set to ``"ipopt"`` (``transcription`` to ``"nonlinear"``).
+    certification : Certification, optional
+    smoothing : float
+        :math:`\varepsilon` of the smoothed norms.
+    ipopt_options : dict, optional
+        Extra IPOPT options, merged over ``config.solver_settings``.
+    """
+
+    def __init__(
         self,
-        x_hat: ArrayLike,
-        x_bar: ArrayLike,
-        u_bar: ArrayLike,
-        y0: ArrayLike,
-        e_hat: float,
+        model: LSTMModel,
+        config: MPCConfig | None = None,
         *,
-        warm: ArrayLike | None = None,
-    ) -> MPCSolution:
-        r"""Solve the nonlinear FHOCP at :math:`(\hat x_k, \bar x_k, \bar u_k, y^0_k, \hat e_k)`.
-
-        Parameters are those of :meth:`~ltv_lstm_mpc.mpc.rti.RobustMPC.solve`; ``warm`` is
-        the initial input guess (default: the shifted previous plan).
-        """
-        start = time.perf_counter()
-        model, config, ti = self.model, self.config, self.tightening
-        n2, N = 2 * model.n, config.N
-        data = fhocp_inputs(model, ti, N, self._previous_u, x_hat, x_bar, u_bar, y0, e_hat, warm)
-        x_hat_a, x_bar_a, u_bar_a, cand = data.x_hat, data.x_bar, data.u_bar, data.candidate
-        lower, upper, alpha, status = data.lower, data.upper, data.alpha, data.status
-        solver_time = 0.0
-        iterations = 0
-        u_plan: FloatArray | None = None
-        X: FloatArray | None = None
-        if not status:
-            status, u_plan, X, iterations, solver_time = self._solve_nlp(
-                "nominal", x_hat_a, x_bar_a, u_bar_a, alpha, (lower, upper), cand
-            )
-        feasible = status in ("optimal", "optimal_inaccurate")
-        policy = "nominal"
-        if not feasible:
-            policy = config.infeasibility_policy
-            u_plan = X = None
-            if policy != "shift":
-                _, u_plan, X, its, elapsed = self._solve_nlp(
-                    policy, x_hat_a, x_bar_a, u_bar_a, alpha, (lower, upper), cand
-                )
-                iterations += its
-                solver_time += elapsed
-                if u_plan is None:
-                    policy = f"{policy}+shift"
-        if u_plan is None:
-            u_plan = cand.copy()
-            X = np.full((N + 1, n2), np.nan)
-        assert X is not None
-        x_plan, y_plan = model.simulate(x_hat_a, u_plan)
-        self._previous_u = u_plan.copy()
-        self.ipopt_iterations = iterations
-        residuals = plan_residuals(model, ti, x_plan, y_plan, X, x_bar_a, (lower, upper), alpha)
-        return MPCSolution(
-            u=u_plan,
-            x=x_plan,
-            x_linear=X,
-            status=status,
-            feasible=feasible,
-            policy=policy,
-            solve_time=time.perf_counter() - start,
-            solver_time=solver_time,
-            iterations=iterations,
-            sqp_step=float(np.max(np.abs(u_plan - cand))),
-            alpha=alpha,
-            cost=self._sub.cost(x_plan, u_plan, x_bar_a, u_bar_a),
-            residuals=residuals,
-            reformulation=None,
-            solver_iterations=iterations,
+        certification: Certification | None = None,
+        smoothing: float = 1e-8,
+        ipopt_options: dict[str, Any] | None = None,
+    ) -> None:
+        config = config or MPCConfig()
+        config = replace(
+            config,
+            solver="ipopt",
+            transcription="nonlinear",
+            solver_settings={**config.solver_settings, **(ipopt_options or {})},
         )
+        super().__init__(model, config, certification=certification, smoothing=smoothing)
+
+    @property
+    def ipopt_iterations(self) -> int:
+        """IPOPT iterations of the last call (all NLPs solved in it)."""
+        return self.qp_iterations

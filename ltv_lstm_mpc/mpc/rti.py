@@ -1,4 +1,4 @@
-r"""Robust MPC of eq. (optimization) solved by real-time iterations (SPEC section 4).
+r"""Robust MPC of eq. (optimization) solved by real-time iterations (SPEC section 4): the one core.
 
 At step k the LSTM is linearized along the candidate of the proof of Theorem 3
 (Part 2b): the previous optimal inputs shifted by one, with :math:`\bar u_k` appended
@@ -8,8 +8,8 @@ re-linearize at the new iterate until the input step is small. Every plan is
 re-simulated on the true LSTM and its nonlinear constraint residuals are recorded: a
 linearized solution is a proposal, not a certificate.
 
-Infeasibility (the i = 0 output row fails, :math:`\alpha_k \le 0`, or the solver
-reports anything but optimal) triggers the configured policy:
+Infeasibility (the i = 0 output row fails, :math:`\alpha_k \le 0`, or the solve
+fails) triggers the configured policy (then, if that fails too, ``"<policy>+shift"``):
 
 ``"paper"``
     re-solve without the output and terminal constraints (paper, Fig. 5);
@@ -22,385 +22,111 @@ reports anything but optimal) triggers the configured policy:
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
-from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ltv_lstm_mpc.certificates.certify import Certification, CertificationSettings, certify
-from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
-from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.certificates.certify import Certification, certify
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.sparse import FHOCPSubproblem
-from ltv_lstm_mpc.solvers import Session, SolverStatus
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.fhocp import (
+    MPCSolution,
+    MPCSolver,
+    PlanCost,
+    checked_vector,
+    plan_residuals,
+    precheck_status,
+)
+from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
+from ltv_lstm_mpc.solvers import SolverStatus
 
 __all__ = [
-    "FHOCPInputs",
+    "NLP_SOLVERS",
     "MPCConfig",
     "MPCSolution",
     "MPCSolver",
     "RobustMPC",
-    "checked_vector",
-    "fhocp_inputs",
-    "plan_residuals",
-    "precheck_status",
-    "shifted_candidate",
+    "resolve_transcription",
 ]
 
 FloatArray = NDArray[np.float64]
-InfeasibilityPolicy = Literal["paper", "soft", "shift"]
-_POLICIES = ("paper", "soft", "shift")
+
+#: Solver names of the nonlinear transcription (CasADi + IPOPT).
+NLP_SOLVERS = ("ipopt", "nmpc:ipopt")
 
 
-@dataclass(frozen=True)
-class MPCConfig:
-    r"""Tuning of the robust offset-free MPC; defaults are the paper's (Section V).
+def resolve_transcription(config: MPCConfig) -> str:
+    """The transcription ``config`` asks for, checked against its solver and fields.
 
-    Attributes
-    ----------
-    N : int
-        Prediction horizon (5).
-    Q : float or ndarray
-        Stage state weight, scalar q meaning :math:`q I_{2n}` (1).
-    R : float or ndarray
-        Stage input weight, scalar r meaning :math:`r I_m` (1).
-    u_max : float
-        :math:`u_{max}` (1, normalized).
-    y_min, y_max : float, optional
-        Output constraint (normalized); ``None``: the paper's [6, 9] pH through the
-        model's normalization, or [-1, 1] without one.
-    d_max, w_bar : float
-        :math:`d_{max}` (0.1) and :math:`\bar w` (0.01).
-    Q_s, Q_o : float
-        Lyapunov weights :math:`Q_s = q_s I_2`, :math:`Q_o = q_o I_3` (1000).
-    L_d : float
-        :math:`L_d = l_d I_p` (0.01).
-    L_f, L_i, L_o : float
-        Fill values of the observer gains (0: the certified fallback of Remark 3).
-    design_gains : bool
-        Choose :math:`L_f, L_i, L_o` by SPEC 2.11 instead.
-    solver : str
-        Backend name, e.g. ``"cvxpy:CLARABEL"`` (cones, exact), ``"osqp"``, ``"daqp"``,
-        ``"qpsolvers:piqp"`` (QP-only: the terminal cones get the conservative
-        :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation`, recorded per step).
-    tolerance : float
-        Solver tolerance (mapped per solver).
-    sqp_iterations : int
-        Linearizations per step (1 = plain RTI).
-    sqp_tolerance : float
-        Stop the SQP iterations when :math:`\|u^{j+1} - u^j\|_\infty` falls below it.
-    infeasibility_policy : {"paper", "soft", "shift"}
-        What to apply when the FHOCP is infeasible (see the module docstring).
-    soft_penalty : float
-        Exact-penalty weight of the ``"soft"`` policy.
-    e_hat0 : float, optional
-        Initial observer-error bound :math:`\hat e_{o,0}` (SPEC 2.10b: default
-        :math:`\bar e_\infty`).
-    epsilon : float
-        :math:`P_f` margin (SPEC 2.6).
+    ``"auto"``: ``"nonlinear"`` for IPOPT, ``"sparse"`` for cone solvers and cvxpy's QP
+    solvers, ``"condensed"`` for every other QP solver.
+
+    Raises
+    ------
+    SolverNotFound
+        ``config.solver`` is not installed.
+    InvalidValueError
+        A field the chosen transcription cannot honour (the message names it).
     """
+    from ltv_lstm_mpc.solvers import solver_info
 
-    N: int = 5
-    Q: float | FloatArray = 1.0
-    R: float | FloatArray = 1.0
-    u_max: float = 1.0
-    y_min: float | None = None
-    y_max: float | None = None
-    d_max: float = 0.1
-    w_bar: float = 0.01
-    Q_s: float = 1000.0
-    Q_o: float = 1000.0
-    L_d: float = 0.01
-    L_f: float = 0.0
-    L_i: float = 0.0
-    L_o: float = 0.0
-    design_gains: bool = False
-    solver: str = "cvxpy:CLARABEL"
-    tolerance: float = 1e-8
-    sqp_iterations: int = 1
-    sqp_tolerance: float = 1e-8
-    infeasibility_policy: InfeasibilityPolicy = "paper"
-    soft_penalty: float = 1e3
-    e_hat0: float | None = None
-    epsilon: float = 0.01
-    solver_settings: dict[str, object] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if self.infeasibility_policy not in _POLICIES:
+    chosen = config.transcription
+    if config.solver in NLP_SOLVERS:
+        if chosen not in ("auto", "nonlinear"):
             raise InvalidValueError(
-                f"infeasibility_policy must be one of {_POLICIES}, "
-                f"got {self.infeasibility_policy!r}"
+                f"MPCConfig.transcription={chosen!r} does not fit solver={config.solver!r}: "
+                "IPOPT solves the nonlinear transcription; use transcription='nonlinear' "
+                "(or 'auto'), or a QP/cone solver"
             )
-        if int(self.sqp_iterations) != self.sqp_iterations or self.sqp_iterations < 1:
-            raise InvalidValueError(f"sqp_iterations must be >= 1, got {self.sqp_iterations}")
-        if not self.soft_penalty > 0:
-            raise InvalidValueError(f"soft_penalty must be positive, got {self.soft_penalty}")
-
-    def weights(self, model: LSTMModel) -> tuple[FloatArray, FloatArray]:
-        """Q (2n, 2n) and R (m, m) as matrices, validated."""
-        n2, m = 2 * model.n, model.m
-        Q = np.asarray(self.Q, dtype=np.float64)
-        R = np.asarray(self.R, dtype=np.float64)
-        Q = Q * np.eye(n2) if Q.ndim == 0 else Q
-        R = R * np.eye(m) if R.ndim == 0 else R
-        for name, W, size in (("Q", Q, n2), ("R", R, m)):
-            if W.shape != (size, size):
-                raise DimensionError(f"{name} has shape {W.shape}, expected ({size}, {size})")
-            if not np.allclose(W, W.T) or np.min(np.linalg.eigvalsh(W)) <= 0:
-                raise InvalidValueError(f"{name} must be symmetric positive definite")
-        return Q, R
-
-    def certification_settings(self, model: LSTMModel) -> CertificationSettings:
-        """The certificate inputs implied by this configuration."""
-        Q, _ = self.weights(model)
-        return CertificationSettings(
-            u_max=self.u_max,
-            Q_s=self.Q_s,
-            Q_o=self.Q_o,
-            l_d=self.L_d,
-            L_f=self.L_f,
-            L_i=self.L_i,
-            L_o=self.L_o,
-            design_gains=self.design_gains,
-            d_max=self.d_max,
-            w_bar=self.w_bar,
-            Q=float(np.max(np.linalg.eigvalsh(Q))),
-            N=self.N,
-            y_min=self.y_min,
-            y_max=self.y_max,
-            epsilon=self.epsilon,
+        chosen = "nonlinear"
+    elif chosen == "nonlinear":
+        raise InvalidValueError(
+            f"MPCConfig.transcription='nonlinear' needs solver='ipopt', got "
+            f"solver={config.solver!r}"
         )
-
-
-@dataclass(frozen=True)
-class MPCSolution:
-    """Result of one :meth:`RobustMPC.solve` call (normalized units throughout).
-
-    Attributes
-    ----------
-    u : ndarray, shape (N, m)
-        Planned inputs; ``u[0]`` is applied (eq. mpc).
-    x : ndarray, shape (N + 1, 2n)
-        The plan re-simulated on the true LSTM from :math:`\\hat x_k`.
-    x_linear : ndarray, shape (N + 1, 2n)
-        States predicted by the (last) linearized subproblem.
-    status : str
-        ``"optimal"``, or why the nominal FHOCP failed: ``"infeasible_initial"`` (the
-        i = 0 output row fails), ``"alpha_nonpositive"`` (Assumption 5 violated), or the
-        solver status (``"infeasible"``, ``"max_iter"``, ...).
-    feasible : bool
-        Whether the nominal FHOCP (all constraints) was solved.
-    policy : str
-        ``"nominal"``, or the fallback applied: ``"paper"``, ``"soft"``, ``"shift"``.
-    solve_time : float
-        Wall time of the whole call (linearization, build, solver, re-simulation), s.
-    solver_time : float
-        Time spent inside the solver calls (setup + solve), s.
-    iterations : int
-        Linearizations (SQP iterations) performed.
-    sqp_step : float
-        Last :math:`\\|u^{j+1} - u^j\\|_\\infty`.
-    alpha : float
-        :math:`\\alpha_k` used.
-    cost : float
-        Cost eq. (optimization_cost) of the re-simulated plan.
-    residuals : dict
-        Nonlinear checks of the applied plan: ``output_violation`` (largest violation
-        of the tightened output rows i = 0..N-1, >= 0), ``terminal_residual``
-        (:math:`\\|[\\|c_N-\\bar c\\|, \\|h_N-\\bar h\\|]\\|_{P_f} - \\alpha_k`, <= 0 inside),
-        ``linearization_gap`` (:math:`\\max |x - x_{linear}|`).
-    reformulation : str or None
-        The conservative cone reformulation applied by a QP-only backend.
-    solver_iterations : int
-        Solver iterations spent in this call (all SQP iterations and fallbacks).
-    """
-
-    u: FloatArray
-    x: FloatArray
-    x_linear: FloatArray
-    status: str
-    feasible: bool
-    policy: str
-    solve_time: float
-    solver_time: float
-    iterations: int
-    sqp_step: float
-    alpha: float
-    cost: float
-    residuals: dict[str, float]
-    reformulation: str | None
-    solver_iterations: int = 0
-
-
-def checked_vector(name: str, value: ArrayLike, size: int) -> FloatArray:
-    """``value`` as a finite float64 vector of shape (size,); clear errors otherwise."""
-    array = np.atleast_1d(np.asarray(value, dtype=np.float64))
-    if array.shape != (size,):
-        raise DimensionError(f"{name} has shape {array.shape}, expected ({size},)")
-    if not np.all(np.isfinite(array)):
-        raise InvalidValueError(f"{name} contains NaN or inf: {array}")
-    return array
-
-
-def shifted_candidate(previous_u: FloatArray | None, u_bar: FloatArray, N: int) -> FloatArray:
-    """Candidate of Theorem 3's proof (Part 2b): the previous plan shifted by one with
-    :math:`\\bar u_k` appended; :math:`\\bar u_k` repeated when there is no previous plan."""
-    if previous_u is None:
-        return np.tile(u_bar, (N, 1))
-    return np.vstack([previous_u[1:], u_bar[None, :]])
-
-
-def precheck_status(
-    y_first: Iterable[float], lower_row: Iterable[float], upper_row: Iterable[float], alpha: float
-) -> str:
-    """Checks no solver can fix, made before any solver call.
-
-    ``"infeasible_initial"``: the i = 0 tightened output row, which involves only
-    :math:`\\hat h_k` (SPEC 1), fails; ``"alpha_nonpositive"``: :math:`\\alpha_k \\le 0`
-    (Assumption 5 violated, empty terminal set); ``""``: both pass.
-    """
-    tol = 1e-12
-    for y, low, high in zip(y_first, lower_row, upper_row, strict=True):
-        if not low - tol <= y <= high + tol:
-            return "infeasible_initial"
-    return "alpha_nonpositive" if alpha <= 0 else ""
-
-
-@dataclass(frozen=True)
-class FHOCPInputs:
-    """Validated data of one FHOCP, eq. (optimization) (see :func:`fhocp_inputs`)."""
-
-    x_hat: FloatArray
-    x_bar: FloatArray
-    u_bar: FloatArray
-    y0: FloatArray
-    e_hat: float
-    candidate: FloatArray
-    lower: FloatArray
-    upper: FloatArray
-    alpha: float
-    status: str
-
-
-def fhocp_inputs(
-    model: LSTMModel,
-    tightening: TighteningCertificate,
-    N: int,
-    previous_u: FloatArray | None,
-    x_hat: ArrayLike,
-    x_bar: ArrayLike,
-    u_bar: ArrayLike,
-    y0: ArrayLike,
-    e_hat: float,
-    warm: ArrayLike | None,
-) -> FHOCPInputs:
-    r"""Check the arguments of an MPC ``solve`` and compute what every solver needs.
-
-    The linearization/initial-guess sequence (``warm``, default :func:`shifted_candidate`),
-    the tightened output bounds (eq. optimization_constraint_yub/ylb), :math:`\alpha_k`
-    (eq. def_alpha) and the :func:`precheck_status`.
-    """
-    n2, m = 2 * model.n, model.m
-    x_hat_arr = checked_vector("x_hat", x_hat, n2)
-    x_bar_arr = checked_vector("x_bar", x_bar, n2)
-    u_bar_arr = checked_vector("u_bar", u_bar, m)
-    y0_arr = checked_vector("y0", y0, model.p)
-    e_hat = float(e_hat)
-    if not np.isfinite(e_hat) or e_hat < 0:
-        raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
-    if warm is None:
-        candidate = shifted_candidate(previous_u, u_bar_arr, N)
     else:
-        candidate = np.asarray(warm, dtype=np.float64)
-        if candidate.shape != (N, m):
-            raise DimensionError(f"warm has shape {candidate.shape}, expected ({N}, {m})")
-    lower, upper = tightening.output_bounds(e_hat)
-    alpha = tightening.alpha(y0_arr, e_hat)
-    return FHOCPInputs(
-        x_hat=x_hat_arr,
-        x_bar=x_bar_arr,
-        u_bar=u_bar_arr,
-        y0=y0_arr,
-        e_hat=e_hat,
-        candidate=candidate,
-        lower=lower,
-        upper=upper,
-        alpha=alpha,
-        status=precheck_status(model.output(x_hat_arr), lower[0], upper[0], alpha),
-    )
-
-
-def plan_residuals(
-    model: LSTMModel,
-    tightening: TighteningCertificate,
-    x_plan: FloatArray,
-    y_plan: FloatArray,
-    x_linear: FloatArray,
-    x_bar: FloatArray,
-    bounds: tuple[FloatArray, FloatArray],
-    alpha: float,
-) -> dict[str, float]:
-    r"""Nonlinear checks of a plan re-simulated on the true LSTM (``MPCSolution.residuals``).
-
-    ``output_violation``: largest violation (>= 0) of the tightened output rows
-    i = 0..N-1, eq. (optimization_constraint_yub)/(ylb); ``terminal_residual``:
-    :math:`\|[\|c_N-\bar c\|, \|h_N-\bar h\|]\|_{P_f} - \alpha_k` (<= 0 inside
-    :math:`\mathcal{X}_f(k)`); ``linearization_gap``: :math:`\max|x - x_{linear}|` (NaN when
-    no linearized prediction exists, e.g. the shift policy).
-    """
-    N, n = x_plan.shape[0] - 1, model.n
-    lower, upper = bounds
-    t = np.array(
-        [np.linalg.norm(x_plan[N, :n] - x_bar[:n]), np.linalg.norm(x_plan[N, n:] - x_bar[n:])]
-    )
-    return {
-        "output_violation": float(max(0.0, np.max(lower - y_plan[:N]), np.max(y_plan[:N] - upper))),
-        "terminal_residual": float(np.sqrt(t @ tightening.P_f @ t) - alpha),
-        "linearization_gap": float(np.max(np.abs(x_plan - x_linear)))
-        if np.all(np.isfinite(x_linear))
-        else float("nan"),
-    }
-
-
-class MPCSolver(Protocol):
-    """What :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController` needs from an MPC.
-
-    Implemented by :class:`RobustMPC`, ``fast.FastRobustMPC`` and ``nmpc.ExactNMPC``.
-    """
-
-    certification: Certification
-    tightening: TighteningCertificate
-
-    def solve(
-        self,
-        x_hat: ArrayLike,
-        x_bar: ArrayLike,
-        u_bar: ArrayLike,
-        y0: ArrayLike,
-        e_hat: float,
-        *,
-        warm: ArrayLike | None = None,
-    ) -> MPCSolution:
-        """Solve the FHOCP of eq. (optimization) at the given estimates and set-points."""
-        ...
-
-    def reset(self) -> None:
-        """Forget the previous plan."""
-        ...
+        info = solver_info(config.solver)  # SolverNotFound names the installed ones
+        if chosen == "auto":
+            sparse = info.supports_cones or config.solver.startswith("cvxpy:")
+            chosen = "sparse" if sparse else "condensed"
+    if chosen == "nonlinear" and config.sqp_iterations != 1:
+        raise InvalidValueError(
+            f"MPCConfig.sqp_iterations={config.sqp_iterations} has no meaning for the "
+            "nonlinear transcription (IPOPT solves the NLP to convergence); use 1"
+        )
+    return chosen
 
 
 class RobustMPC:
-    r"""The robust MPC of eq. (optimization), solved RTI-style (SPEC 4).
+    r"""The robust MPC of eq. (optimization), one RTI core for every transcription.
 
     Parameters
     ----------
     model : LSTMModel
+        Needs m = p (Assumption 1).
     config : MPCConfig, optional
+        Every field is honoured; ``solver`` and ``transcription`` choose the
+        transcription (:func:`resolve_transcription`).
     certification : Certification, optional
-        Precomputed certificates (default: :func:`~ltv_lstm_mpc.certificates.certify.certify` with
-        ``config.certification_settings(model)``).
+        Precomputed certificates (default: :func:`~ltv_lstm_mpc.certificates.certify.certify`
+        with ``config.certification_settings(model)``).
+    reuse_tol : float
+        When the linearization start is within this distance (inf-norm) of the previous
+        plan's predicted :math:`x_{1|k-1}`, the previous re-simulation is shifted instead
+        of simulated again (the prediction *is* that trajectory).
+    **transcription_options
+        Extra options of the transcription (the nonlinear one takes ``smoothing``).
+
+    Attributes
+    ----------
+    transcription : str
+        ``"condensed"``, ``"sparse"`` or ``"nonlinear"``.
+    reformulation : str or None
+        The conservative cone reformulation of a QP-only backend, or None (exact cones).
+    prepare_time, feedback_time, solver_time : float
+        Wall times of the last :meth:`prepare`, :meth:`feedback` and solver calls, s.
     """
 
     def __init__(
@@ -409,116 +135,300 @@ class RobustMPC:
         config: MPCConfig | None = None,
         *,
         certification: Certification | None = None,
+        reuse_tol: float = 1e-9,
+        **transcription_options: Any,
     ) -> None:
         model.require_square()
         self.model = model
         self.config = config = config or MPCConfig()
+        self.transcription = kind = resolve_transcription(config)
         self.certification = certification or certify(model, config.certification_settings(model))
-        self.tightening = self.certification.tightening
+        self.tightening = ti = self.certification.tightening
         Q, R = config.weights(model)
-        common = dict(
-            n=model.n,
-            m=model.m,
-            p=model.p,
-            N=config.N,
-            Q=Q,
-            R=R,
-            P_f=np.asarray(self.tightening.P_f),
-            W_y=model.W_y,
-            b_y=model.b_y,
-            u_max=config.u_max,
-        )
-        self._subproblems: dict[str, FHOCPSubproblem] = {
-            "nominal": FHOCPSubproblem(**common),
-        }
-        if config.infeasibility_policy == "paper":
-            self._subproblems["paper"] = FHOCPSubproblem(
-                **common,
-                output_constraints=False,
-                terminal_set=False,
-            )
-        elif config.infeasibility_policy == "soft":
-            self._subproblems["soft"] = FHOCPSubproblem(
-                **common,
-                soft_penalty=config.soft_penalty,
-            )
-        self._sessions: dict[str, Session] = {
-            name: Session(
-                config.solver,
-                tolerance=config.tolerance,
-                reformulation=sub.reformulation,
-                **config.solver_settings,
-            )
-            for name, sub in self._subproblems.items()
-        }
-        self._previous_u: FloatArray | None = None
-        self._solver_iterations = 0
+        self.N = N = config.N
+        kinds: tuple[str, ...] = ("nominal",)
+        if config.infeasibility_policy != "shift":
+            kinds = ("nominal", config.infeasibility_policy)
+        self._problem: TranscriptionBase
+        if kind == "condensed":
+            from ltv_lstm_mpc.mpc.condensed import CondensedTranscription
 
+            self._problem = CondensedTranscription(model, config, ti, Q, R, kinds)
+        elif kind == "sparse":
+            from ltv_lstm_mpc.mpc.sparse import SparseTranscription
+
+            self._problem = SparseTranscription(model, config, ti, Q, R, kinds)
+        else:
+            from ltv_lstm_mpc.mpc.nmpc import NonlinearTranscription
+
+            self._problem = NonlinearTranscription(
+                model, config, ti, Q, R, kinds, **transcription_options
+            )
+        if transcription_options and kind != "nonlinear":
+            raise InvalidValueError(
+                f"unknown option(s) {sorted(transcription_options)} for the {kind} transcription"
+            )
+        self.reformulation = self._problem.reformulation
+        self.solver = config.solver
+        self.reuse_tol = float(reuse_tol)
+        self._cost = PlanCost(Q, R, np.asarray(ti.P_f), model.n)
+        kernel = model.kernel
+        self._kernel = kernel
+        self._traj = kernel.trajectory(N)
+        self._plan = kernel.trajectory(N)
+        self._plan_valid = False
+        self._cand = np.empty((N, model.m))
+        self._W_y_T = np.ascontiguousarray(model.W_y.T)
+        self._bounds_key: tuple[float, bytes] | None = None
+        self._bounds_e: float | None = None
+        self._previous_u: FloatArray | None = None
+        self._prepared = False
+        self.prepare_time = self.feedback_time = self.solver_time = 0.0
+        self.qp_iterations = 0
+
+    # ---------------------------------------------------------------------------- state
     def reset(self) -> None:
         """Forget the previous plan (the next candidate is u_bar repeated)."""
         self._previous_u = None
+        self._plan_valid = False
+        self._prepared = False
+        self._problem.reset()
 
     def candidate(self, u_bar: FloatArray) -> FloatArray:
         """Proof candidate: previous plan shifted by one with u_bar appended (SPEC 4)."""
-        return shifted_candidate(self._previous_u, u_bar, self.config.N)
+        if self._previous_u is None:
+            return np.tile(u_bar, (self.N, 1))
+        return np.vstack([self._previous_u[1:], u_bar[None, :]])
 
-    def _solve_subproblem(
+    def _bounds(self, y0: FloatArray, e_hat: float) -> None:
+        """Tightened bounds and alpha_k from :class:`TighteningCertificate`, when they change."""
+        ti = self.tightening
+        if e_hat != self._bounds_e:
+            self._lower, self._upper = ti.output_bounds(e_hat)
+            self._row0 = (self._lower[0].tolist(), self._upper[0].tolist())
+            self._bounds_e = e_hat
+            self._bounds_key = None
+        key = (e_hat, y0.tobytes())
+        if key != self._bounds_key:
+            self._alpha = ti.alpha(y0, e_hat)
+            self._bounds_key = key
+
+    # -------------------------------------------------------------------------- prepare
+    def prepare(
         self,
-        name: str,
-        x_hat: FloatArray,
-        x_bar: FloatArray,
-        u_bar: FloatArray,
-        u_start: FloatArray,
-        bounds: tuple[FloatArray, FloatArray],
-        alpha: float,
-    ) -> tuple[SolverStatus, FloatArray, FloatArray, int, float, float, str | None]:
-        """SQP loop on one subproblem: returns status, u, x_linear, iterations, step, time."""
-        model, config = self.model, self.config
-        sub, session = self._subproblems[name], self._sessions[name]
-        u_lin = u_start
-        status = SolverStatus.FAILED
-        x_linear = np.empty((config.N + 1, 2 * model.n))
-        step = np.inf
-        solver_time = 0.0
-        reformulation = None
-        iterations = 0
-        for _ in range(config.sqp_iterations):
-            iterations += 1
-            x_traj, _ = model.simulate(x_hat, u_lin)
-            f_lin, A, B = model.step_and_jacobians(x_traj[:-1], u_lin)
-            problem = sub.build(
-                x_hat=x_hat,
-                x_bar=x_bar,
-                u_bar=u_bar,
-                x_lin=x_traj[:-1],
-                u_lin=u_lin,
-                f_lin=f_lin,
-                A=A,
-                B=B,
-                y_lower=bounds[0],
-                y_upper=bounds[1],
-                alpha=alpha,
-            )
-            if session.structure_key is None:
-                session.setup(problem)
-            else:
-                session.update(problem)
-            solution = session.solve()
-            solver_time += solution.setup_time + solution.solve_time + solution.overhead_time
-            self._solver_iterations += int(solution.iterations or 0)
-            if not solution.ok or solution.z is None:
-                if iterations == 1:  # otherwise keep the last successful SQP iterate
-                    status, reformulation = solution.status, solution.reformulation
-                break
-            status, reformulation = solution.status, solution.reformulation
-            x_linear, u_new, _ = sub.layout.split(np.asarray(solution.z))
-            u_new = np.clip(u_new, -config.u_max, config.u_max)  # solver tolerance
-            step = float(np.max(np.abs(u_new - u_lin)))
-            u_lin = u_new
-            if step < config.sqp_tolerance:
-                break
-        return status, u_lin, x_linear, iterations, step, solver_time, reformulation
+        x_bar: ArrayLike,
+        u_bar: ArrayLike,
+        y0: ArrayLike,
+        e_hat: float,
+        *,
+        x_pred: ArrayLike | None = None,
+        warm: ArrayLike | None = None,
+    ) -> None:
+        r"""Linearize and build before the estimate arrives (acados ``prepare``).
 
+        Parameters
+        ----------
+        x_bar, u_bar : (2n,), (m,)
+            Reference-calculator set-points :math:`\bar x_k, \bar u_k`.
+        y0 : (p,)
+            Normalized set-point (enters :math:`\alpha_k`, eq. def_alpha).
+        e_hat : float
+            Observer-error bound :math:`\hat e_{o,k}` (tightening, eq. optimization).
+        x_pred : (2n,), optional
+            Predicted :math:`\hat x_k` to linearize from; default the previous plan's
+            :math:`x_{1|k-1}` (required at the first call).
+        warm : (N, m), optional
+            Inputs to linearize along (default: the proof candidate).
+        """
+        start = time.perf_counter()
+        model, N = self.model, self.N
+        n2, m = 2 * model.n, model.m
+        self._x_bar = x_bar_a = np.asarray(x_bar, dtype=np.float64)
+        self._u_bar = u_bar_a = np.asarray(u_bar, dtype=np.float64).reshape(m)
+        self._bounds(np.asarray(y0, dtype=np.float64).reshape(model.p), float(e_hat))
+        cand = self._cand
+        if warm is not None:
+            cand[:] = np.asarray(warm, dtype=np.float64).reshape(N, m)
+        elif self._previous_u is None:
+            cand[:] = u_bar_a
+        else:
+            cand[:-1] = self._previous_u[1:]
+            cand[-1] = u_bar_a
+        traj, plan, kernel = self._traj, self._plan, self._kernel
+        S = traj.S
+        reuse = False
+        if x_pred is None:
+            if not self._plan_valid:
+                raise InvalidValueError("the first prepare() needs x_pred (no previous plan)")
+            reuse = warm is None
+            x0 = plan.S[1, :n2]
+        else:
+            x0 = np.asarray(x_pred, dtype=np.float64)
+            if warm is None and self._plan_valid:
+                reuse = float(np.abs(x0 - plan.S[1, :n2]).max()) <= self.reuse_tol
+        if reuse:
+            # The shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one.
+            S[:N] = plan.S[1:]
+            traj.T[: N - 1] = plan.T[1:]
+            traj.TC[: N - 1] = plan.TC[1:]
+            S[N - 1, n2 : n2 + m] = cand[N - 1]
+            kernel.rollout(traj, N - 1, N)
+        else:
+            S[0, :n2] = x0
+            S[:N, n2 : n2 + m] = cand
+            kernel.rollout(traj, 0, N)
+        kernel.jacobians(traj)
+        self._problem.build(traj, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha)
+        self._prepared = True
+        self.prepare_time = time.perf_counter() - start
+
+    # ------------------------------------------------------------------------- feedback
+    def _checked_solve(self, kind: str, x_hat: FloatArray) -> tuple[StepResult, str, str]:
+        """Solve ``kind`` and validate the point: (result, status name, reason)."""
+        try:
+            result = self._problem.solve(kind, x_hat)
+        except Exception as error:
+            reason = f"{self.solver} raised {type(error).__name__}: {error}"
+            empty = StepResult(SolverStatus.FAILED, None, None, float("nan"), 0.0, 0.0, 0)
+            return empty, "solver_error", reason
+        status = result.status
+        if not status.has_solution or result.u is None:
+            return result, status.name.lower(), result.info
+        u, x_linear = result.u, result.x_linear
+        if not np.all(np.isfinite(u)) or x_linear is None or not np.all(np.isfinite(x_linear)):
+            result.u = None
+            return result, "failed", f"{self.solver} returned a non-finite point ({result.info})"
+        u_max, tol = self.config.u_max, result.tolerance
+        outside = float(np.abs(u).max()) - u_max
+        if outside > tol * (1.0 + u_max):
+            result.u = None
+            reason = (
+                f"{self.solver} returned inputs outside U by {outside:.3e} (tolerance {tol:.1e})"
+            )
+            return result, "failed", reason
+        if not result.violation <= tol:
+            result.u = None
+            reason = (
+                f"{self.solver} returned a point violating its {self.transcription} problem by "
+                f"{result.violation:.3e} (relative; tolerance {tol:.1e})"
+            )
+            return result, "failed", reason
+        np.clip(u, -u_max, u_max, out=u)  # solver tolerance
+        name = "optimal_inaccurate" if status is SolverStatus.OPTIMAL_INACCURATE else "optimal"
+        return result, name, ""
+
+    def feedback(self, x_hat: ArrayLike) -> MPCSolution:
+        r"""Insert :math:`\hat x_k`, solve, validate, re-simulate (acados ``feedback``).
+
+        Returns
+        -------
+        MPCSolution
+            ``solve_time`` is prepare + feedback time; ``solver_time`` the solver calls.
+        """
+        start = time.perf_counter()
+        if not self._prepared:
+            raise LtvMpcError("feedback() needs a prepare() first")
+        self._prepared = False
+        model, config, N = self.model, self.config, self.N
+        n, m = model.n, model.m
+        n2 = 2 * n
+        x_hat_a = np.asarray(x_hat, dtype=np.float64)
+        alpha = self._alpha
+        y_first = (self._W_y_T.T @ x_hat_a[n:] + model.b_y).tolist()
+        status = precheck_status(y_first, *self._row0, alpha)
+        reason = status
+        solver_time = 0.0
+        iterations = 0
+        sqp = 0
+        step = 0.0
+        u_plan: FloatArray | None = None
+        x_linear: FloatArray | None = None
+        if not status:
+            u_lin = self._cand
+            for it in range(config.sqp_iterations):
+                if it:  # re-linearize from x_hat along the last iterate (SQP)
+                    self._relinearize(x_hat_a, u_lin)
+                result, name, why = self._checked_solve("nominal", x_hat_a)
+                solver_time += result.solver_time
+                iterations += result.iterations
+                if result.u is None:
+                    if it == 0:  # otherwise keep the last successful SQP iterate
+                        status, reason = name, why
+                    break
+                sqp += 1
+                status = name
+                step = float(np.abs(result.u - u_lin).max())
+                u_plan, x_linear, u_lin = result.u, result.x_linear, result.u
+                if step < config.sqp_tolerance:
+                    break
+        feasible = status in ("optimal", "optimal_inaccurate")
+        policy = "nominal"
+        if not feasible:
+            u_plan = x_linear = None
+            policy = config.infeasibility_policy
+            if policy != "shift":  # on the candidate's linearization (nominal failed at once)
+                result, _, _ = self._checked_solve(policy, x_hat_a)
+                solver_time += result.solver_time
+                iterations += result.iterations
+                if result.u is None:
+                    policy = f"{policy}+shift"
+                else:
+                    u_plan, x_linear = result.u, result.x_linear
+                    step = float(np.abs(u_plan - self._cand).max())
+                    sqp = max(sqp, 1)
+        if u_plan is None:
+            u_plan = self._cand.copy()
+            step = 0.0
+        # ---- re-simulate the plan on the true LSTM (nonlinear residuals)
+        P = self._plan.S
+        P[0, :n2] = x_hat_a
+        P[:N, n2 : n2 + m] = u_plan
+        self._kernel.rollout(self._plan, 0, N)
+        self._plan_valid = True
+        u_out = np.array(u_plan)
+        self._previous_u = u_out
+        x_plan = P[:, :n2].copy()
+        y_plan = x_plan[:N, n:] @ self._W_y_T
+        y_plan += model.b_y
+        residuals = plan_residuals(
+            self._cost, x_plan, y_plan, x_linear, self._x_bar, (self._lower, self._upper), alpha
+        )
+        self.solver_time = solver_time
+        self.qp_iterations = iterations
+        self.feedback_time = time.perf_counter() - start
+        return MPCSolution(
+            u=u_out,
+            x=x_plan,
+            x_linear=np.full((N + 1, n2), np.nan) if x_linear is None else x_linear,
+            status=status,
+            feasible=feasible,
+            policy=policy,
+            solve_time=self.prepare_time + self.feedback_time,
+            solver_time=solver_time,
+            iterations=sqp,
+            sqp_step=step,
+            alpha=alpha,
+            cost=self._cost(x_plan, u_out, self._x_bar, self._u_bar),
+            residuals=residuals,
+            reformulation=self.reformulation,
+            solver_iterations=iterations,
+            transcription=self.transcription,
+            prepare_time=self.prepare_time,
+            feedback_time=self.feedback_time,
+            reason=reason if not feasible else "",
+        )
+
+    def _relinearize(self, x_hat: FloatArray, u_lin: FloatArray) -> None:
+        """Roll out and linearize from ``x_hat`` along ``u_lin`` and rebuild (SQP step)."""
+        traj = self._traj
+        n2, m = 2 * self.model.n, self.model.m
+        traj.S[0, :n2] = x_hat
+        traj.S[: self.N, n2 : n2 + m] = u_lin
+        self._kernel.rollout(traj, 0, self.N)
+        self._kernel.jacobians(traj)
+        self._problem.build(traj, self._x_bar, self._u_bar, self._lower, self._upper, self._alpha)
+
+    # ---------------------------------------------------------------------------- solve
     def solve(
         self,
         x_hat: ArrayLike,
@@ -530,6 +440,9 @@ class RobustMPC:
         warm: ArrayLike | None = None,
     ) -> MPCSolution:
         r"""Solve the FHOCP at :math:`(\hat x_k, \bar x_k, \bar u_k, y^0_k, \hat e_{o,k})`.
+
+        Checks the arguments, then :meth:`prepare` from :math:`\hat x_k` and
+        :meth:`feedback`.
 
         Parameters
         ----------
@@ -545,76 +458,23 @@ class RobustMPC:
             Input sequence to linearize along; default the shifted previous plan with
             :math:`\bar u_k` appended (the proof's candidate).
         """
-        start = time.perf_counter()
-        model, config, ti = self.model, self.config, self.tightening
-        n2, N = 2 * model.n, config.N
-        self._solver_iterations = 0
-        data = fhocp_inputs(model, ti, N, self._previous_u, x_hat, x_bar, u_bar, y0, e_hat, warm)
-        x_hat_arr, x_bar_arr, u_bar_arr = data.x_hat, data.x_bar, data.u_bar
-        candidate, lower, upper, alpha = data.candidate, data.lower, data.upper, data.alpha
-        status_name = data.status
-        solver_time = 0.0
-        result = None
-        if not status_name:
-            result = self._solve_subproblem(
-                "nominal", x_hat_arr, x_bar_arr, u_bar_arr, candidate, (lower, upper), alpha
-            )
-            solver_time += result[5]
-            status_name = "optimal" if result[0].has_solution else result[0].name.lower()
-            if result[0] is SolverStatus.OPTIMAL_INACCURATE:
-                status_name = "optimal_inaccurate"
-        feasible = status_name in ("optimal", "optimal_inaccurate")
-        policy = "nominal"
-        if not feasible:
-            policy = config.infeasibility_policy
-            if policy == "shift":
-                result = (
-                    SolverStatus.FAILED,
-                    candidate,
-                    np.full((N + 1, n2), np.nan),
-                    0,
-                    0.0,
-                    0.0,
-                    None,
-                )
-            else:
-                result = self._solve_subproblem(
-                    policy, x_hat_arr, x_bar_arr, u_bar_arr, candidate, (lower, upper), alpha
-                )
-                solver_time += result[5]
-                if not result[0].has_solution:  # last resort: the candidate itself
-                    policy = f"{policy}+shift"
-                    result = (
-                        result[0],
-                        candidate,
-                        np.full((N + 1, n2), np.nan),
-                        result[3],
-                        0.0,
-                        0.0,
-                        None,
-                    )
-        assert result is not None
-        _, u_plan, x_linear, iterations, step, _, reformulation = result
-        x_plan, y_plan = model.simulate(x_hat_arr, u_plan)
-        self._previous_u = u_plan.copy()
-        sub = self._subproblems["nominal"]
-        residuals = plan_residuals(
-            model, ti, x_plan, y_plan, x_linear, x_bar_arr, (lower, upper), alpha
+        model = self.model
+        n2, m, p = 2 * model.n, model.m, model.p
+        x_hat_a = checked_vector("x_hat", x_hat, n2)
+        e_hat = float(e_hat)
+        if not np.isfinite(e_hat) or e_hat < 0:
+            raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
+        if warm is not None:
+            if np.shape(warm) != (self.N, m):
+                raise DimensionError(f"warm has shape {np.shape(warm)}, expected ({self.N}, {m})")
+            if not np.all(np.isfinite(np.asarray(warm, dtype=np.float64))):
+                raise InvalidValueError("warm contains NaN or inf")
+        self.prepare(
+            checked_vector("x_bar", x_bar, n2),
+            checked_vector("u_bar", u_bar, m),
+            checked_vector("y0", y0, p),
+            e_hat,
+            x_pred=x_hat_a,
+            warm=warm,
         )
-        return MPCSolution(
-            u=u_plan,
-            x=x_plan,
-            x_linear=x_linear,
-            status=status_name,
-            feasible=feasible,
-            policy=policy,
-            solve_time=time.perf_counter() - start,
-            solver_time=solver_time,
-            iterations=iterations,
-            sqp_step=step,
-            alpha=alpha,
-            cost=sub.cost(x_plan, u_plan, x_bar_arr, u_bar_arr),
-            residuals=residuals,
-            reformulation=reformulation,
-            solver_iterations=self._solver_iterations,
-        )
+        return self.feedback(x_hat_a)

@@ -29,15 +29,34 @@ values in place.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
-from ltv_lstm_mpc.solvers import ConvexProblem, SecondOrderCone, frozen_csc
+from ltv_lstm_mpc.lstm.kernel import Trajectory
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
+from ltv_lstm_mpc.solvers import (
+    ConvexProblem,
+    SecondOrderCone,
+    Session,
+    feasibility_tolerance,
+    frozen_csc,
+    solver_info,
+)
 
-__all__ = ["FHOCPSubproblem", "SubproblemLayout", "TerminalBoxReformulation"]
+__all__ = [
+    "FHOCPSubproblem",
+    "SparseTranscription",
+    "SubproblemLayout",
+    "TerminalBoxReformulation",
+    "terminal_box_data",
+]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -372,6 +391,27 @@ class FHOCPSubproblem:
         return stage + float(t @ self.P_f @ t)
 
 
+def terminal_box_data(P_f: FloatArray) -> tuple[float, float, FloatArray]:
+    r"""The numbers of :class:`TerminalBoxReformulation` (SPEC 4), for both transcriptions.
+
+    Returns
+    -------
+    weight_c, weight_h : float
+        :math:`P_{11}+P_{12}` and :math:`P_{22}+P_{12}`: the terminal cost bound
+        :math:`t^\top P_f t \le w_c\|c_N-\bar c\|^2 + w_h\|h_N-\bar h\|^2`.
+    unit_tau : ndarray, shape (2,)
+        :math:`\tau` for :math:`\alpha_k = 1`: with :math:`\tau^\top P_f \tau = 1` and
+        :math:`P_{11}\tau_c^2 = P_{22}\tau_h^2` (the largest-volume box); the box of level
+        :math:`\alpha_k` has half-widths :math:`\alpha_k \tau / \sqrt n`.
+    """
+    P_f = np.asarray(P_f, dtype=np.float64)
+    weight_c = float(P_f[0, 0] + P_f[0, 1])
+    weight_h = float(P_f[1, 1] + P_f[0, 1])
+    direction = np.array([1.0, np.sqrt(P_f[0, 0] / P_f[1, 1])])
+    unit_tau = direction / np.sqrt(direction @ P_f @ direction)
+    return weight_c, weight_h, unit_tau
+
+
 class TerminalBoxReformulation:
     r"""Conservative QP replacement of the terminal cones (SPEC 4), for QP-only backends.
 
@@ -391,12 +431,8 @@ class TerminalBoxReformulation:
 
     def __init__(self, subproblem: FHOCPSubproblem) -> None:
         self.subproblem = subproblem
-        P_f = subproblem.P_f
-        self.weight_c = float(P_f[0, 0] + P_f[0, 1])
-        self.weight_h = float(P_f[1, 1] + P_f[0, 1])
-        direction = np.array([1.0, np.sqrt(P_f[0, 0] / P_f[1, 1])])
         #: tau for alpha_k = 1: (||c_N - c_bar||, ||h_N - h_bar||) bounds on the P_f-ellipse
-        self.unit_tau = direction / np.sqrt(direction @ P_f @ direction)
+        self.weight_c, self.weight_h, self.unit_tau = terminal_box_data(subproblem.P_f)
 
     def apply(self, problem: ConvexProblem) -> ConvexProblem:
         """Return the cone-free problem (see the class docstring)."""
@@ -445,4 +481,132 @@ class TerminalBoxReformulation:
             lb=lb,
             ub=ub,
             cones=(),
+        )
+
+
+class SparseTranscription(TranscriptionBase):
+    """States and inputs as variables, exact cones (:class:`FHOCPSubproblem`), one Session each.
+
+    Cone solvers (cvxpy:CLARABEL, ECOS, SCS) solve the exact second-order cones; QP-only
+    backends get :class:`TerminalBoxReformulation`, named in every result.
+
+    Parameters
+    ----------
+    model, config, tightening, Q, R, kinds
+        As :class:`~ltv_lstm_mpc.mpc.condensed.CondensedTranscription`.
+    """
+
+    name = "sparse"
+
+    def __init__(
+        self,
+        model: LSTMModel,
+        config: MPCConfig,
+        tightening: TighteningCertificate,
+        Q: FloatArray,
+        R: FloatArray,
+        kinds: tuple[str, ...] = ("nominal",),
+    ) -> None:
+        common: dict[str, Any] = dict(
+            n=model.n, m=model.m, p=model.p, N=config.N, Q=Q, R=R,
+            P_f=np.asarray(tightening.P_f), W_y=model.W_y, b_y=model.b_y, u_max=config.u_max,
+        )  # fmt: skip
+        self._subproblems: dict[str, FHOCPSubproblem] = {}
+        for kind in kinds:
+            if kind == "nominal":
+                self._subproblems[kind] = FHOCPSubproblem(**common)
+            elif kind == "paper":
+                self._subproblems[kind] = FHOCPSubproblem(
+                    **common, output_constraints=False, terminal_set=False
+                )
+            else:
+                self._subproblems[kind] = FHOCPSubproblem(
+                    **common, soft_penalty=config.soft_penalty
+                )
+        self._sessions: dict[str, Session] = {
+            kind: Session(
+                config.solver,
+                tolerance=config.tolerance,
+                reformulation=sub.reformulation,
+                **config.solver_settings,
+            )
+            for kind, sub in self._subproblems.items()
+        }
+        info = solver_info(config.solver)
+        self.reformulation = None if info.supports_cones else TerminalBoxReformulation.name
+        self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
+        self._data: dict[str, Any] = {}
+        self.N, self.n2, self.m = config.N, 2 * model.n, model.m
+
+    def reset(self) -> None:
+        """Nothing to forget: every solve is a cold start."""
+
+    def _violation(self, problem: ConvexProblem, z: FloatArray) -> float:
+        """Constraint violation at z: cones included when solved exactly; with the QP
+        reformulation (t pinned to 0) the linear constraints only."""
+        if self.reformulation is None:
+            return problem.max_violation(z)
+        viol = 0.0
+        if problem.A_eq is not None and problem.b_eq is not None:
+            viol = float(np.max(np.abs(problem.A_eq @ z - problem.b_eq), initial=0.0))
+        if problem.G is not None and problem.l is not None and problem.u is not None:
+            Gz = problem.G @ z
+            viol = max(viol, float(np.max(np.maximum(problem.l - Gz, Gz - problem.u), initial=0.0)))
+        if problem.lb is not None and problem.ub is not None:
+            lay = self._subproblems["nominal"].layout if "nominal" in self._subproblems else None
+            stop = lay.t_start if lay is not None else z.shape[0]
+            lo, hi = problem.lb[:stop], problem.ub[:stop]
+            viol = max(viol, float(np.max(np.maximum(lo - z[:stop], z[:stop] - hi), initial=0.0)))
+        return viol
+
+    def build(
+        self,
+        traj: Trajectory,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        lower: FloatArray,
+        upper: FloatArray,
+        alpha: float,
+    ) -> None:
+        """Keep the linearization (the sparse problem needs x_hat in its equalities)."""
+        N, n2, m = self.N, self.n2, self.m
+        self._data = dict(
+            x_bar=x_bar, u_bar=u_bar, x_lin=traj.S[:N, :n2].copy(),
+            u_lin=traj.S[:N, n2 : n2 + m].copy(), f_lin=traj.S[1 : N + 1, :n2].copy(),
+            A=traj.A.copy(), B=traj.B.copy(), y_lower=lower, y_upper=upper, alpha=alpha,
+        )  # fmt: skip
+
+    def solve(self, kind: str, x_hat: FloatArray) -> StepResult:
+        r"""Build the subproblem ``kind`` at :math:`\hat x_k` and solve it."""
+        sub, session = self._subproblems[kind], self._sessions[kind]
+        problem = sub.build(x_hat=x_hat, **self._data)
+        if session.structure_key is None:
+            session.setup(problem)
+        else:
+            session.update(problem)
+        solution = session.solve()
+        elapsed = solution.setup_time + solution.solve_time + solution.overhead_time
+        if solution.z is None or not solution.status.has_solution:
+            return StepResult(
+                status=solution.status, u=None, x_linear=None, violation=float("nan"),
+                tolerance=self.tolerance, solver_time=elapsed,
+                iterations=int(solution.iterations or 0), info=solution.info,
+            )  # fmt: skip
+        z = np.asarray(solution.z)
+        x_linear, u, _ = sub.layout.split(z)
+        scale = 1.0 + max(
+            float(np.max(np.abs(problem.b_eq), initial=0.0)) if problem.b_eq is not None else 0.0,
+            float(np.max(np.abs(problem.u), initial=0.0)) if problem.u is not None else 0.0,
+            self._data["alpha"] if np.isfinite(self._data["alpha"]) else 0.0,
+            1.0,
+        )
+        return StepResult(
+            status=solution.status,
+            u=np.array(u),
+            x_linear=np.array(x_linear),
+            violation=self._violation(problem, z) / scale,
+            tolerance=self.tolerance,
+            solver_time=elapsed,
+            iterations=int(solution.iterations or 0),
+            info=solution.info,
         )

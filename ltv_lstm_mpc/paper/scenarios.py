@@ -32,7 +32,8 @@ from ltv_lstm_mpc.certificates.certify import certify
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.rti import MPCConfig, MPCSolver
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.fhocp import MPCSolver
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
 from ltv_lstm_mpc.plants.protocol import Plant

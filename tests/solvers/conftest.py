@@ -42,6 +42,7 @@ TOLERANCES: dict[str, Tol] = {
     "osqp": Tol(z=1e-4, objective=1e-5, kkt=1e-4),
     "cvxpy:PROXQP": Tol(z=1e-4, objective=1e-5, kkt=1e-4),
     "qpsolvers:proxqp": Tol(z=1e-4, objective=1e-5, kkt=1e-4),
+    "proxqp": Tol(z=1e-4, objective=1e-5, kkt=1e-4),
 }
 #: qpsolvers gives no native status for these: an infeasible problem is FAILED, not INFEASIBLE.
 NO_NATIVE_STATUS = frozenset({"qpsolvers:daqp", "qpsolvers:highs", "qpsolvers:quadprog"})

@@ -24,7 +24,10 @@ def test_available_solvers_lists_the_families() -> None:
     names = available_solvers()
     assert names == SOLVERS
     assert len(set(names)) == len(names)
-    assert all(n.split(":")[0] in {"cvxpy", "qpsolvers", "osqp", "piqp", "daqp"} for n in names)
+    assert all(
+        n.split(":")[0] in {"cvxpy", "qpsolvers", "osqp", "piqp", "daqp", "quadprog", "proxqp"}
+        for n in names
+    )
     assert "cvxpy:CLARABEL" in names  # the default and the tests' reference
     assert set(cone_solvers()) <= {"cvxpy:CLARABEL", "cvxpy:ECOS", "cvxpy:SCS"}
 

@@ -1,0 +1,293 @@
+r"""Condensed transcription: the FHOCP as a dense QP in the input deviations (real-time path).
+
+Around the linearization :math:`(\tilde x_i, \tilde u_i)` of the core, the deviations
+obey :math:`\delta x_{i+1} = A_i \delta x_i + B_i \delta u_i`, so (condensing, the
+prediction matrices built by the recursion :math:`M_{i+1} = A_i M_i + B_i e_i` into
+preallocated arrays)
+
+.. math::
+
+    \delta x_i = \Phi_i\, \delta x_0 + \Gamma_i\, \delta u, \qquad
+    \min_{\delta u} \tfrac12 \delta u^\top H \delta u + (g_0 + F \delta x_0)^\top \delta u
+
+with the tightened output rows of eq. (optimization_constraint_yub)/(ylb) (i = 1..N-1)
+and the terminal set as rows in :math:`\delta u`, the input box as simple bounds, and
+:math:`\delta x_0 = \hat x_k - \tilde x_0` inserted at feedback time (one matrix-vector
+product per data vector). QP-only by construction, so the terminal cones get the
+conservative replacement of SPEC 4, the math of
+:class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` (box inside
+:math:`\mathcal X_f(k)`, cost bound
+:math:`(P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`); its name is
+recorded in every :class:`~ltv_lstm_mpc.mpc.fhocp.MPCSolution`.
+
+The ``"soft"`` problem adds exact-penalty (L1) slacks :math:`s \ge 0` on the output rows
+(:math:`\underline y - s \le y \le \overline y + s`) and :math:`s_T \ge 0` on the terminal
+level (the box of level :math:`\max(\alpha_k, 0) + s_T`): :math:`\delta u = 0` with large
+slacks is feasible, so the soft QP is feasible by construction.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
+from ltv_lstm_mpc.lstm.kernel import Trajectory
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.sparse import TerminalBoxReformulation, terminal_box_data
+from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
+from ltv_lstm_mpc.solvers import DenseQP, DenseSession, feasibility_tolerance
+
+__all__ = ["CondensedTranscription"]
+
+FloatArray = NDArray[np.float64]
+
+
+class CondensedTranscription(TranscriptionBase):
+    """Dense condensed QP of one linearization (see the module docstring).
+
+    Parameters
+    ----------
+    model : LSTMModel
+    config : MPCConfig
+        ``solver`` (any registered solver: native dense sessions where the solver has
+        one), ``tolerance``, ``solver_settings``, ``soft_penalty``, ``u_max``, ``N``.
+    tightening : TighteningCertificate
+        Gives :math:`P_f`.
+    Q, R : ndarray
+        Stage weights.
+    kinds : tuple of str
+        Problems to prepare sessions for (``"nominal"`` and the policy's).
+    """
+
+    name = "condensed"
+
+    def __init__(
+        self,
+        model: LSTMModel,
+        config: MPCConfig,
+        tightening: TighteningCertificate,
+        Q: FloatArray,
+        R: FloatArray,
+        kinds: tuple[str, ...] = ("nominal",),
+    ) -> None:
+        n, m, p, N = model.n, model.m, model.p, config.N
+        n2 = 2 * n
+        self.model, self.config = model, config
+        self.n, self.m, self.p, self.N = n, m, p, N
+        self.reformulation = TerminalBoxReformulation.name
+        weight_c, weight_h, unit_tau = terminal_box_data(np.asarray(tightening.P_f))
+        # ---- weights: ||L' (x_i - x_bar)||^2 per stage i = 1..N (stage N: terminal bound)
+        term = np.concatenate([np.full(n, weight_c), np.full(n, weight_h)])
+        self._diag_Q = bool(np.allclose(Q, np.diag(np.diag(Q))))
+        if self._diag_Q:
+            sw = np.tile(np.sqrt(np.diag(Q)), (N, 1))
+            sw[N - 1] = np.sqrt(term)
+            self._sw = sw[:, :, None]
+        else:
+            Lt = np.linalg.cholesky(Q).T
+            self._Lt = np.tile(Lt, (N, 1, 1))
+            self._Lt[N - 1] = np.diag(np.sqrt(term))
+        self._Rblk = np.kron(np.eye(N), R)
+        nu = N * m
+        cols = n2 + nu
+        self._n_out = n_out = (N - 1) * p
+        self._mA = n_out + n2
+        # ---- preallocated work arrays
+        self._M = np.zeros((N + 1, n2, cols))
+        self._M[0, :, :n2] = np.eye(n2)
+        self._Maug = np.empty((N, n2, cols + 1))
+        self._Maug_flat = self._Maug.reshape(N * n2, cols + 1)
+        self._A_all = np.empty((self._mA, cols))
+        self._lo0 = np.empty(self._mA)
+        self._up0 = np.empty(self._mA)
+        self._A_out_view = self._A_all[:n_out].reshape(N - 1, p, cols)
+        self._lo0_view = self._lo0[:n_out].reshape(N - 1, p)
+        self._up0_view = self._up0[:n_out].reshape(N - 1, p)
+        self._W_y_T = np.ascontiguousarray(model.W_y.T)
+        self._unit_half = np.repeat(np.asarray(unit_tau) / np.sqrt(n), n)
+        self._du_ref = np.empty((N, m))
+        self._lb = np.empty(nu)
+        self._ub = np.empty(nu)
+        self._dx0 = np.empty(n2)
+        self._dxu = np.empty(cols)
+        self._traj: Trajectory | None = None
+        self._alpha = 0.0
+        self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
+        settings: dict[str, Any] = dict(config.solver_settings)
+        self._sessions = {
+            kind: DenseSession(config.solver, tolerance=config.tolerance, **settings)
+            for kind in kinds
+        }
+        empty = np.zeros(0)
+        self._qp = {
+            kind: DenseQP(
+                H=np.eye(nu),
+                f=np.zeros(nu),
+                A=np.zeros((0, nu)),
+                lo=empty,
+                up=empty,
+                lb=self._lb,
+                ub=self._ub,
+            )
+            for kind in kinds
+        }
+
+    def reset(self) -> None:
+        """Drop the solver workspaces' warm starts."""
+        for session in self._sessions.values():
+            session.reset()
+
+    # ---------------------------------------------------------------------- prepare
+    def build(
+        self,
+        traj: Trajectory,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        lower: FloatArray,
+        upper: FloatArray,
+        alpha: float,
+    ) -> None:
+        """Condense the linearization in ``traj`` into H, F, g0 and the rows (no solve)."""
+        n, N, m = self.n, self.N, self.m
+        n2 = 2 * n
+        S, J, M = traj.S, traj.J, self._M
+        self._traj = traj
+        self._alpha = alpha
+        matmul = np.matmul
+        for i in range(N):
+            matmul(J[i, :, :n2], M[i], out=M[i + 1])
+            M[i + 1, :, n2 + i * m : n2 + (i + 1) * m] = J[i, :, n2:]
+        Maug = self._Maug
+        if self._diag_Q:
+            np.multiply(self._sw, M[1:], out=Maug[:, :, :-1])
+            np.subtract(S[1:, :n2], x_bar, out=Maug[:, :, -1])
+            Maug[:, :, -1] *= self._sw[:, :, 0]
+        else:
+            matmul(self._Lt, M[1:], out=Maug[:, :, :-1])
+            matmul(self._Lt, (S[1:, :n2] - x_bar)[:, :, None], out=Maug[:, :, -1:])
+        flat = self._Maug_flat
+        gram = flat.T @ flat
+        self._H = gram[n2:-1, n2:-1] + self._Rblk
+        self._F = gram[n2:-1, :n2].copy()
+        cand = S[:N, n2 : n2 + m]
+        du_ref = self._du_ref
+        np.subtract(cand, u_bar, out=du_ref)
+        self._g0 = gram[n2:-1, -1] + self._Rblk @ du_ref.reshape(-1)
+        # ---- rows: tightened outputs i = 1..N-1, then the terminal box on x_N
+        A_all, lo0, up0 = self._A_all, self._lo0, self._up0
+        n_out = self._n_out
+        if N > 1:
+            matmul(self.model.W_y, M[1:N, n:n2], out=self._A_out_view)
+            y_lin = S[1:N, n:n2] @ self._W_y_T
+            y_lin += self.model.b_y
+            np.subtract(lower[1:], y_lin, out=self._lo0_view)
+            np.subtract(upper[1:], y_lin, out=self._up0_view)
+        A_all[n_out:] = M[N]
+        half = self._unit_half * max(alpha, 0.0)
+        centre = x_bar - S[N, :n2]
+        np.subtract(centre, half, out=lo0[n_out:])
+        np.add(centre, half, out=up0[n_out:])
+        self._A = A_all[:, n2:].copy()
+        self._E = A_all[:, :n2].copy()
+        flat_cand = cand.reshape(-1)
+        u_max = self.config.u_max
+        np.subtract(-u_max, flat_cand, out=self._lb)
+        np.subtract(u_max, flat_cand, out=self._ub)
+        self._scale = 1.0 + max(u_max, float(np.abs(lo0).max()), float(np.abs(up0).max()))
+
+    # --------------------------------------------------------------------- feedback
+    def _data(self, kind: str, f: FloatArray, lo: FloatArray, up: FloatArray) -> DenseQP:
+        """The QP of ``kind`` in its preallocated DenseQP (values only change)."""
+        qp = self._qp[kind]
+        if kind == "nominal":
+            qp.H, qp.f, qp.A, qp.lo, qp.up = self._H, f, self._A, lo, up
+            return qp
+        if kind == "paper":  # drop output and terminal rows (paper, Fig. 5)
+            qp.H, qp.f, qp.A, qp.lo, qp.up = self._H, f, self._A[:0], lo[:0], up[:0]
+            return qp
+        # "soft": slacks s (one per output row) and s_T (terminal level)
+        H, A = self._H, self._A
+        nu, ns = H.shape[0], self._n_out
+        nz = nu + ns + 1
+        reg = 1e-9 * float(np.max(np.diag(H)))  # slacks enter linearly: tiny regularization
+        Hs = np.zeros((nz, nz))
+        Hs[:nu, :nu] = H
+        Hs[nu:, nu:] = reg * np.eye(ns + 1)
+        penalty = 0.5 * self.config.soft_penalty  # the QP objective is half the cost
+        fs = np.concatenate([f, np.full(ns + 1, penalty)])
+        n2 = 2 * self.n
+        A_out, A_T = A[:ns], A[ns:]
+        eye = np.eye(ns)
+        unit = self._unit_half[:, None]
+        zeros_T = np.zeros((n2, ns))
+        zeros_out = np.zeros((ns, 1))
+        inf_out, inf_T = np.full(ns, np.inf), np.full(n2, np.inf)
+        # A du + s >= lo, A du - s <= up, A_T du + unit s_T >= lo_T, A_T du - unit s_T <= up_T
+        As = np.vstack(
+            [
+                np.hstack([A_out, eye, zeros_out]),
+                np.hstack([A_out, -eye, zeros_out]),
+                np.hstack([A_T, zeros_T, unit]),
+                np.hstack([A_T, zeros_T, -unit]),
+            ]
+        )
+        qp.H, qp.f, qp.A = Hs, fs, np.ascontiguousarray(As)
+        qp.lo = np.concatenate([lo[:ns], -inf_out, lo[ns:], -inf_T])
+        qp.up = np.concatenate([inf_out, up[:ns], inf_T, up[ns:]])
+        qp.lb = np.concatenate([self._lb, np.zeros(ns + 1)])
+        qp.ub = np.concatenate([self._ub, np.full(ns + 1, np.inf)])
+        return qp
+
+    def solve(self, kind: str, x_hat: FloatArray) -> StepResult:
+        r"""Insert :math:`\delta x_0 = \hat x_k - \tilde x_0` and solve the QP ``kind``."""
+        traj = self._traj
+        if traj is None:  # pragma: no cover - the core always builds first
+            raise RuntimeError("CondensedTranscription.solve() before build()")
+        n2, N, m = 2 * self.n, self.N, self.m
+        S = traj.S
+        dx0 = self._dx0
+        np.subtract(x_hat, S[0, :n2], out=dx0)
+        f = self._F @ dx0
+        f += self._g0
+        shift = self._E @ dx0
+        lo = self._lo0 - shift
+        up = self._up0 - shift
+        qp = self._data(kind, f, lo, up)
+        start = time.perf_counter()
+        solution = self._sessions[kind].solve(qp)
+        elapsed = time.perf_counter() - start
+        z = solution.z
+        if z is None or not solution.status.has_solution:
+            return StepResult(
+                status=solution.status,
+                u=None,
+                x_linear=None,
+                violation=float("nan"),
+                tolerance=self.tolerance,
+                solver_time=elapsed,
+                iterations=int(solution.iterations or 0),
+                info=solution.info,
+            )
+        nu = N * m
+        du = np.asarray(z[:nu])
+        violation = qp.max_violation(np.asarray(z)) / self._scale
+        dxu = self._dxu
+        dxu[:n2] = dx0
+        dxu[n2:] = du
+        x_linear = self._M @ dxu
+        x_linear += S[:, :n2]
+        return StepResult(
+            status=solution.status,
+            u=S[:N, n2 : n2 + m] + du.reshape(N, m),
+            x_linear=x_linear,
+            violation=violation,
+            tolerance=self.tolerance,
+            solver_time=elapsed,
+            iterations=int(solution.iterations or 0),
+            info=solution.info,
+        )

@@ -1,0 +1,153 @@
+r"""Tuning of the robust offset-free MPC, :class:`MPCConfig` (defaults: the paper's Section V).
+
+Every field is honoured by every transcription, or rejected with an error naming the field
+(:meth:`MPCConfig.check_transcription`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ltv_lstm_mpc.certificates.certify import CertificationSettings
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.lstm.model import LSTMModel
+
+__all__ = ["TRANSCRIPTIONS", "InfeasibilityPolicy", "MPCConfig", "Transcription"]
+
+FloatArray = NDArray[np.float64]
+InfeasibilityPolicy = Literal["paper", "soft", "shift"]
+Transcription = Literal["auto", "condensed", "sparse", "nonlinear"]
+_POLICIES = ("paper", "soft", "shift")
+#: The transcriptions of the FHOCP (see :attr:`MPCConfig.transcription`).
+TRANSCRIPTIONS: tuple[str, ...] = ("auto", "condensed", "sparse", "nonlinear")
+
+
+@dataclass(frozen=True)
+class MPCConfig:
+    r"""Tuning of the robust offset-free MPC; defaults are the paper's (Section V).
+
+    Attributes
+    ----------
+    N : int
+        Prediction horizon (5).
+    Q : float or ndarray
+        Stage state weight, scalar q meaning :math:`q I_{2n}` (1).
+    R : float or ndarray
+        Stage input weight, scalar r meaning :math:`r I_m` (1).
+    u_max : float
+        :math:`u_{max}` (1, normalized).
+    y_min, y_max : float, optional
+        Output constraint (normalized); ``None``: the paper's [6, 9] pH through the
+        model's normalization, or [-1, 1] without one.
+    d_max, w_bar : float
+        :math:`d_{max}` (0.1) and :math:`\bar w` (0.01).
+    Q_s, Q_o : float
+        Lyapunov weights :math:`Q_s = q_s I_2`, :math:`Q_o = q_o I_3` (1000).
+    L_d : float
+        :math:`L_d = l_d I_p` (0.01).
+    L_f, L_i, L_o : float
+        Fill values of the observer gains (0: the certified fallback of Remark 3).
+    design_gains : bool
+        Choose :math:`L_f, L_i, L_o` by SPEC 2.11 instead.
+    solver : str
+        Backend name, e.g. ``"cvxpy:CLARABEL"`` (cones, exact), ``"osqp"``, ``"daqp"``,
+        ``"qpsolvers:piqp"`` (QP-only: the terminal cones get the conservative
+        :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation`, recorded per step).
+    tolerance : float
+        Solver tolerance (mapped per solver).
+    sqp_iterations : int
+        Linearizations per step (1 = plain RTI).
+    sqp_tolerance : float
+        Stop the SQP iterations when :math:`\|u^{j+1} - u^j\|_\infty` falls below it.
+    infeasibility_policy : {"paper", "soft", "shift"}
+        What to apply when the FHOCP is infeasible (see the module docstring).
+    soft_penalty : float
+        Exact-penalty weight of the ``"soft"`` policy.
+    e_hat0 : float, optional
+        Initial observer-error bound :math:`\hat e_{o,0}` (SPEC 2.10b: default
+        :math:`\bar e_\infty`).
+    epsilon : float
+        :math:`P_f` margin (SPEC 2.6).
+    """
+
+    N: int = 5
+    Q: float | FloatArray = 1.0
+    R: float | FloatArray = 1.0
+    u_max: float = 1.0
+    y_min: float | None = None
+    y_max: float | None = None
+    d_max: float = 0.1
+    w_bar: float = 0.01
+    Q_s: float = 1000.0
+    Q_o: float = 1000.0
+    L_d: float = 0.01
+    L_f: float = 0.0
+    L_i: float = 0.0
+    L_o: float = 0.0
+    design_gains: bool = False
+    solver: str = "cvxpy:CLARABEL"
+    transcription: Transcription = "auto"
+    tolerance: float = 1e-8
+    sqp_iterations: int = 1
+    sqp_tolerance: float = 1e-8
+    infeasibility_policy: InfeasibilityPolicy = "paper"
+    soft_penalty: float = 1e3
+    e_hat0: float | None = None
+    epsilon: float = 0.01
+    solver_settings: dict[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.infeasibility_policy not in _POLICIES:
+            raise InvalidValueError(
+                f"infeasibility_policy must be one of {_POLICIES}, "
+                f"got {self.infeasibility_policy!r}"
+            )
+        if int(self.sqp_iterations) != self.sqp_iterations or self.sqp_iterations < 1:
+            raise InvalidValueError(f"sqp_iterations must be >= 1, got {self.sqp_iterations}")
+        if self.transcription not in TRANSCRIPTIONS:
+            raise InvalidValueError(
+                f"transcription must be one of {TRANSCRIPTIONS}, got {self.transcription!r}"
+            )
+        if not isinstance(self.solver, str) or not self.solver:
+            raise InvalidValueError(f"solver must be a solver name, got {self.solver!r}")
+        if not self.soft_penalty > 0:
+            raise InvalidValueError(f"soft_penalty must be positive, got {self.soft_penalty}")
+
+    def weights(self, model: LSTMModel) -> tuple[FloatArray, FloatArray]:
+        """Q (2n, 2n) and R (m, m) as matrices, validated."""
+        n2, m = 2 * model.n, model.m
+        Q = np.asarray(self.Q, dtype=np.float64)
+        R = np.asarray(self.R, dtype=np.float64)
+        Q = Q * np.eye(n2) if Q.ndim == 0 else Q
+        R = R * np.eye(m) if R.ndim == 0 else R
+        for name, W, size in (("Q", Q, n2), ("R", R, m)):
+            if W.shape != (size, size):
+                raise DimensionError(f"{name} has shape {W.shape}, expected ({size}, {size})")
+            if not np.allclose(W, W.T) or np.min(np.linalg.eigvalsh(W)) <= 0:
+                raise InvalidValueError(f"{name} must be symmetric positive definite")
+        return Q, R
+
+    def certification_settings(self, model: LSTMModel) -> CertificationSettings:
+        """The certificate inputs implied by this configuration."""
+        Q, _ = self.weights(model)
+        return CertificationSettings(
+            u_max=self.u_max,
+            Q_s=self.Q_s,
+            Q_o=self.Q_o,
+            l_d=self.L_d,
+            L_f=self.L_f,
+            L_i=self.L_i,
+            L_o=self.L_o,
+            design_gains=self.design_gains,
+            d_max=self.d_max,
+            w_bar=self.w_bar,
+            Q=float(np.max(np.linalg.eigvalsh(Q))),
+            N=self.N,
+            y_min=self.y_min,
+            y_max=self.y_max,
+            epsilon=self.epsilon,
+        )

@@ -1,0 +1,329 @@
+r"""The FHOCP front-end shared by every transcription (SPEC section 4).
+
+One definition of: the arguments' checks (:func:`checked_vector`, :func:`fhocp_inputs`),
+the proof candidate (:func:`shifted_candidate`, Theorem 3 Part 2b), the checks no solver
+can fix (:func:`precheck_status`), the cost eq. (optimization_cost) (:class:`PlanCost`),
+the nonlinear residuals of a plan (:func:`plan_residuals`) and the result
+(:class:`MPCSolution`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ltv_lstm_mpc.certificates.certify import Certification
+from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.lstm.model import LSTMModel
+
+__all__ = [
+    "FHOCPInputs",
+    "MPCSolution",
+    "MPCSolver",
+    "PlanCost",
+    "checked_vector",
+    "fhocp_inputs",
+    "plan_residuals",
+    "precheck_status",
+    "shifted_candidate",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class MPCSolution:
+    """Result of one :meth:`RobustMPC.solve` call (normalized units throughout).
+
+    Attributes
+    ----------
+    u : ndarray, shape (N, m)
+        Planned inputs; ``u[0]`` is applied (eq. mpc).
+    x : ndarray, shape (N + 1, 2n)
+        The plan re-simulated on the true LSTM from :math:`\\hat x_k`.
+    x_linear : ndarray, shape (N + 1, 2n)
+        States predicted by the (last) linearized subproblem.
+    status : str
+        ``"optimal"`` (or ``"optimal_inaccurate"``), or why the nominal FHOCP failed:
+        ``"infeasible_initial"`` (the i = 0 output row fails), ``"alpha_nonpositive"``
+        (Assumption 5 violated), the solver status (``"infeasible"``, ``"max_iter"``,
+        ...), ``"failed"`` (the solver's point was rejected: non-finite, or violating the
+        input bounds or its own constraints; see ``reason``) or ``"solver_error"`` (the
+        backend raised; see ``reason``).
+    feasible : bool
+        Whether the nominal FHOCP (all constraints) was solved.
+    policy : str
+        ``"nominal"``, or the fallback applied: ``"paper"``, ``"soft"``, ``"shift"``.
+    solve_time : float
+        Wall time of the whole call (linearization, build, solver, re-simulation), s.
+    solver_time : float
+        Time spent inside the solver calls (setup + solve), s.
+    iterations : int
+        Linearizations (SQP iterations) performed.
+    sqp_step : float
+        Last :math:`\\|u^{j+1} - u^j\\|_\\infty`.
+    alpha : float
+        :math:`\\alpha_k` used.
+    cost : float
+        Cost eq. (optimization_cost) of the re-simulated plan.
+    residuals : dict
+        Nonlinear checks of the applied plan: ``output_violation`` (largest violation
+        of the tightened output rows i = 0..N-1, >= 0), ``terminal_residual``
+        (:math:`\\|[\\|c_N-\\bar c\\|, \\|h_N-\\bar h\\|]\\|_{P_f} - \\alpha_k`, <= 0 inside),
+        ``linearization_gap`` (:math:`\\max |x - x_{linear}|`).
+    reformulation : str or None
+        The conservative cone reformulation applied by a QP-only backend.
+    solver_iterations : int
+        Solver iterations spent in this call (all SQP iterations and fallbacks).
+    transcription : str
+        ``"condensed"``, ``"sparse"`` or ``"nonlinear"``.
+    prepare_time, feedback_time : float
+        Wall times of the two RTI phases, s (``solve_time`` is their sum): ``prepare``
+        (candidate rollout, linearization, build) before the estimate arrives,
+        ``feedback`` (insert :math:`\\hat x_k`, solve, validate, re-simulate).
+    reason : str
+        Why the nominal solve failed in words (the solver's message, the exception it
+        raised, or the validation that rejected its point); empty when it succeeded.
+    """
+
+    u: FloatArray
+    x: FloatArray
+    x_linear: FloatArray
+    status: str
+    feasible: bool
+    policy: str
+    solve_time: float
+    solver_time: float
+    iterations: int
+    sqp_step: float
+    alpha: float
+    cost: float
+    residuals: dict[str, float]
+    reformulation: str | None
+    solver_iterations: int = 0
+    transcription: str = ""
+    prepare_time: float = 0.0
+    feedback_time: float = 0.0
+    reason: str = ""
+
+
+def checked_vector(name: str, value: ArrayLike, size: int) -> FloatArray:
+    """``value`` as a finite float64 vector of shape (size,); clear errors otherwise."""
+    array = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    if array.shape != (size,):
+        raise DimensionError(f"{name} has shape {array.shape}, expected ({size},)")
+    if not np.all(np.isfinite(array)):
+        raise InvalidValueError(f"{name} contains NaN or inf: {array}")
+    return array
+
+
+def shifted_candidate(previous_u: FloatArray | None, u_bar: FloatArray, N: int) -> FloatArray:
+    """Candidate of Theorem 3's proof (Part 2b): the previous plan shifted by one with
+    :math:`\\bar u_k` appended; :math:`\\bar u_k` repeated when there is no previous plan."""
+    if previous_u is None:
+        return np.tile(u_bar, (N, 1))
+    return np.vstack([previous_u[1:], u_bar[None, :]])
+
+
+def precheck_status(
+    y_first: Iterable[float], lower_row: Iterable[float], upper_row: Iterable[float], alpha: float
+) -> str:
+    """Checks no solver can fix, made before any solver call.
+
+    ``"infeasible_initial"``: the i = 0 tightened output row, which involves only
+    :math:`\\hat h_k` (SPEC 1), fails; ``"alpha_nonpositive"``: :math:`\\alpha_k \\le 0`
+    (Assumption 5 violated, empty terminal set); ``""``: both pass.
+    """
+    tol = 1e-12
+    for y, low, high in zip(y_first, lower_row, upper_row, strict=True):
+        if not low - tol <= y <= high + tol:
+            return "infeasible_initial"
+    return "alpha_nonpositive" if alpha <= 0 else ""
+
+
+@dataclass(frozen=True)
+class FHOCPInputs:
+    """Validated data of one FHOCP, eq. (optimization) (see :func:`fhocp_inputs`)."""
+
+    x_hat: FloatArray
+    x_bar: FloatArray
+    u_bar: FloatArray
+    y0: FloatArray
+    e_hat: float
+    candidate: FloatArray
+    lower: FloatArray
+    upper: FloatArray
+    alpha: float
+    status: str
+
+
+def fhocp_inputs(
+    model: LSTMModel,
+    tightening: TighteningCertificate,
+    N: int,
+    previous_u: FloatArray | None,
+    x_hat: ArrayLike,
+    x_bar: ArrayLike,
+    u_bar: ArrayLike,
+    y0: ArrayLike,
+    e_hat: float,
+    warm: ArrayLike | None,
+) -> FHOCPInputs:
+    r"""Check the arguments of an MPC ``solve`` and compute what every solver needs.
+
+    The linearization/initial-guess sequence (``warm``, default :func:`shifted_candidate`),
+    the tightened output bounds (eq. optimization_constraint_yub/ylb), :math:`\alpha_k`
+    (eq. def_alpha) and the :func:`precheck_status`.
+    """
+    n2, m = 2 * model.n, model.m
+    x_hat_arr = checked_vector("x_hat", x_hat, n2)
+    x_bar_arr = checked_vector("x_bar", x_bar, n2)
+    u_bar_arr = checked_vector("u_bar", u_bar, m)
+    y0_arr = checked_vector("y0", y0, model.p)
+    e_hat = float(e_hat)
+    if not np.isfinite(e_hat) or e_hat < 0:
+        raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
+    if warm is None:
+        candidate = shifted_candidate(previous_u, u_bar_arr, N)
+    else:
+        candidate = np.asarray(warm, dtype=np.float64)
+        if candidate.shape != (N, m):
+            raise DimensionError(f"warm has shape {candidate.shape}, expected ({N}, {m})")
+    lower, upper = tightening.output_bounds(e_hat)
+    alpha = tightening.alpha(y0_arr, e_hat)
+    return FHOCPInputs(
+        x_hat=x_hat_arr,
+        x_bar=x_bar_arr,
+        u_bar=u_bar_arr,
+        y0=y0_arr,
+        e_hat=e_hat,
+        candidate=candidate,
+        lower=lower,
+        upper=upper,
+        alpha=alpha,
+        status=precheck_status(model.output(x_hat_arr), lower[0], upper[0], alpha),
+    )
+
+
+def plan_residuals(
+    cost: PlanCost,
+    x_plan: FloatArray,
+    y_plan: FloatArray,
+    x_linear: FloatArray | None,
+    x_bar: FloatArray,
+    bounds: tuple[FloatArray, FloatArray],
+    alpha: float,
+) -> dict[str, float]:
+    r"""Nonlinear checks of a plan re-simulated on the true LSTM (``MPCSolution.residuals``).
+
+    ``output_violation``: largest violation (>= 0) of the tightened output rows
+    i = 0..N-1, eq. (optimization_constraint_yub)/(ylb); ``terminal_residual``:
+    :math:`\|[\|c_N-\bar c\|, \|h_N-\bar h\|]\|_{P_f} - \alpha_k` (<= 0 inside
+    :math:`\mathcal{X}_f(k)`); ``linearization_gap``: :math:`\max|x - x_{linear}|` (NaN when
+    no linearized prediction exists, e.g. the shift policy).
+    """
+    N = x_plan.shape[0] - 1
+    lower, upper = bounds
+    y = y_plan[:N]
+    violation = max(0.0, float((lower - y).max()), float((y - upper).max()))
+    gap = float("nan")
+    if x_linear is not None:
+        gap = float(np.abs(x_plan - x_linear).max())
+    return {
+        "output_violation": violation,
+        "terminal_residual": cost.terminal(x_plan[N], x_bar) - alpha,
+        "linearization_gap": gap,
+    }
+
+
+class MPCSolver(Protocol):
+    """What :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController` needs from an MPC.
+
+    Implemented by :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (every transcription,
+    :class:`~ltv_lstm_mpc.mpc.nmpc.ExactNMPC` included).
+    """
+
+    certification: Certification
+    tightening: TighteningCertificate
+
+    def solve(
+        self,
+        x_hat: ArrayLike,
+        x_bar: ArrayLike,
+        u_bar: ArrayLike,
+        y0: ArrayLike,
+        e_hat: float,
+        *,
+        warm: ArrayLike | None = None,
+    ) -> MPCSolution:
+        """Solve the FHOCP of eq. (optimization) at the given estimates and set-points."""
+        ...
+
+    def prepare(
+        self,
+        x_bar: ArrayLike,
+        u_bar: ArrayLike,
+        y0: ArrayLike,
+        e_hat: float,
+        *,
+        x_pred: ArrayLike | None = None,
+        warm: ArrayLike | None = None,
+    ) -> None:
+        """RTI preparation phase: linearize and build before the estimate arrives."""
+        ...
+
+    def feedback(self, x_hat: ArrayLike) -> MPCSolution:
+        """RTI feedback phase: insert the estimate, solve, validate, re-simulate."""
+        ...
+
+    def reset(self) -> None:
+        """Forget the previous plan."""
+        ...
+
+
+class PlanCost:
+    r"""Cost eq. (optimization_cost) of a plan, with the exact terminal term.
+
+    .. math::
+
+        J = \sum_{i=0}^{N-1} \|x_i - \bar x\|_Q^2 + \|u_i - \bar u\|_R^2
+        + \|[\|c_N - \bar c\|, \|h_N - \bar h\|]\|_{P_f}^2
+    """
+
+    def __init__(self, Q: FloatArray, R: FloatArray, P_f: FloatArray, n: int) -> None:
+        self.Q, self.R, self.P_f, self.n = Q, R, np.asarray(P_f, dtype=np.float64), n
+        q0, r0 = float(Q[0, 0]), float(R[0, 0])
+        self._q = q0 if np.array_equal(Q, q0 * np.eye(Q.shape[0])) else None
+        self._r = r0 if np.array_equal(R, r0 * np.eye(R.shape[0])) else None
+        P = self.P_f
+        self._p = (float(P[0, 0]), float(P[0, 1] + P[1, 0]), float(P[1, 1]))
+
+    def __call__(self, x: FloatArray, u: FloatArray, x_bar: FloatArray, u_bar: FloatArray) -> float:
+        """J of states ``x`` (N + 1, 2n) and inputs ``u`` (N, m)."""
+        N = u.shape[0]
+        dx = x[:N] - x_bar
+        du = u - u_bar
+        if self._q is not None:
+            stage = self._q * float(np.vdot(dx, dx))
+        else:
+            stage = float(np.einsum("ki,ij,kj->", dx, self.Q, dx))
+        if self._r is not None:
+            stage += self._r * float(np.vdot(du, du))
+        else:
+            stage += float(np.einsum("ki,ij,kj->", du, self.R, du))
+        return stage + self.terminal(x[N], x_bar) ** 2
+
+    def terminal(self, x_N: FloatArray, x_bar: FloatArray) -> float:
+        r""":math:`\|[\|c_N - \bar c\|, \|h_N - \bar h\|]\|_{P_f}` (eq. terminal_constraint)."""
+        n = self.n
+        dc = x_N[:n] - x_bar[:n]
+        dh = x_N[n:] - x_bar[n:]
+        tc2, th2 = float(np.vdot(dc, dc)), float(np.vdot(dh, dh))
+        p11, p12, p22 = self._p
+        return math.sqrt(max(p11 * tc2 + p12 * math.sqrt(tc2 * th2) + p22 * th2, 0.0))

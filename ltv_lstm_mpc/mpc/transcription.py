@@ -1,0 +1,113 @@
+r"""How the FHOCP of eq. (optimization) becomes a solver problem: the transcription interface.
+
+The RTI core (:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC`) owns everything that is the same
+for every transcription: the candidate, its rollout and linearization on the one LSTM
+kernel, the tightened bounds and :math:`\alpha_k`, the prechecks, the fallback chain, the
+validation of every solution, the re-simulation, the cost and the residuals. A
+transcription only turns one linearization into solver data and solves it:
+
+``"condensed"`` (:class:`~ltv_lstm_mpc.mpc.condensed.CondensedTranscription`)
+    dense QP in the input deviations, prediction matrices built by the recursion into
+    preallocated arrays, solved by a :class:`~ltv_lstm_mpc.solvers.DenseSession` (the
+    real-time path). QP-only: the terminal cones get the conservative
+    :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` math.
+``"sparse"`` (:class:`~ltv_lstm_mpc.mpc.sparse.SparseTranscription`)
+    states and inputs as variables with the exact second-order cones
+    (:class:`~ltv_lstm_mpc.mpc.sparse.FHOCPSubproblem`), solved by a
+    :class:`~ltv_lstm_mpc.solvers.Session` (cvxpy for cone solvers; QP-only backends get
+    the named reformulation).
+``"nonlinear"`` (:class:`~ltv_lstm_mpc.mpc.nmpc.NonlinearTranscription`)
+    the exact NLP through CasADi + IPOPT (the accuracy reference).
+
+Every transcription solves three kinds of problem: ``"nominal"`` (all constraints),
+``"paper"`` (no output and terminal constraints, the paper's Fig. 5 fallback) and
+``"soft"`` (exact-penalty slacks on the output rows and the terminal level).
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ltv_lstm_mpc.lstm.kernel import Trajectory
+from ltv_lstm_mpc.solvers import SolverStatus
+
+__all__ = ["KINDS", "StepResult", "TranscriptionBase"]
+
+FloatArray = NDArray[np.float64]
+
+#: The problems every transcription solves.
+KINDS = ("nominal", "paper", "soft")
+
+
+@dataclass
+class StepResult:
+    """One solve of a transcription, before the core validates it.
+
+    Attributes
+    ----------
+    status : SolverStatus
+        The backend's status, mapped through its table.
+    u : ndarray (N, m) or None
+        Absolute planned inputs (not clipped).
+    x_linear : ndarray (N + 1, 2n) or None
+        States predicted by the linearized (or nonlinear) problem.
+    violation : float
+        Largest violation of the solver problem's own constraints at the returned point
+        (absolute, scaled by ``1 + |bound|``), computed by the transcription.
+    tolerance : float
+        Violation accepted for this solver
+        (:func:`~ltv_lstm_mpc.solvers.feasibility_tolerance`).
+    solver_time : float
+        Time inside the solver call(s), s.
+    iterations : int
+        Solver iterations.
+    info : str
+        The solver's message.
+    """
+
+    status: SolverStatus
+    u: FloatArray | None
+    x_linear: FloatArray | None
+    violation: float
+    tolerance: float
+    solver_time: float
+    iterations: int
+    info: str = ""
+
+
+class TranscriptionBase(abc.ABC):
+    """One linearization (or the NLP) of the FHOCP in a solver's form; see the module doc."""
+
+    #: ``"condensed"``, ``"sparse"`` or ``"nonlinear"``.
+    name: ClassVar[str]
+    #: Name of the conservative cone reformulation applied, or None (exact cones).
+    reformulation: str | None = None
+
+    @abc.abstractmethod
+    def build(
+        self,
+        traj: Trajectory,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        lower: FloatArray,
+        upper: FloatArray,
+        alpha: float,
+    ) -> None:
+        r"""Preparation phase: solver data for the linearization stored in ``traj``.
+
+        ``traj.S`` holds the candidate rollout :math:`(\tilde x_i, \tilde u_i)`, i = 0..N,
+        and ``traj.J`` the Jacobians :math:`[A_i\; B_i]`; ``lower``/``upper`` (N, p) are the
+        tightened output bounds and ``alpha`` is :math:`\alpha_k`.
+        """
+
+    @abc.abstractmethod
+    def solve(self, kind: str, x_hat: FloatArray) -> StepResult:
+        r"""Feedback phase: insert :math:`\hat x_k` and solve the problem ``kind``."""
+
+    def reset(self) -> None:  # noqa: B027 - optional hook
+        """Forget warm starts (a new closed loop begins)."""

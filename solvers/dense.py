@@ -1,0 +1,444 @@
+r"""Dense (condensed) QPs: the :class:`DenseQP` data class, dense backends, :class:`DenseSession`.
+
+A condensed MPC subproblem is small and dense,
+
+.. math::
+
+    \min_x \tfrac12 x^\top H x + f^\top x \quad\text{s.t.}\quad
+    lo \le A x \le up, \quad lb \le x \le ub,
+
+and is solved once per control step, so the per-call Python overhead matters as
+much as the solver. :class:`DenseSession` keeps one dense workspace
+(:class:`DenseBackend`) and per call only writes the new values into it
+(``update``) and solves. It validates the data (:meth:`DenseQP.check`) only when
+it sets a workspace up (first call, or a new :meth:`DenseQP.structure_key`),
+never on the update path.
+
+Every registered solver accepts a :class:`DenseQP`: the ones with a dedicated
+dense backend (:attr:`~ltv_lstm_mpc.solvers.SolverInfo.native_dense`: ``daqp``,
+``quadprog``, ``proxqp``, ``piqp``, ``piqp:dense``, ``osqp``, ``qpsolvers:*``)
+use it, the others go through :meth:`DenseQP.to_convex_problem` and their
+:class:`~ltv_lstm_mpc.solvers.ConvexProblem` backend (correct, not fast).
+
+Multipliers (``Solution.duals``) of a dense solve follow the layer's KKT sign
+convention ``H x + f + A' y_ineq + y_bounds = 0``: ``"ineq"`` has shape
+``(m_A,)`` (``> 0`` where ``A x = up`` is active, ``< 0`` where ``A x = lo``
+is), ``"bounds"`` has shape ``(n,)``.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import numpy.typing as npt
+import scipy.sparse as sp
+
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, SolverError
+
+from ._base import FloatArray, RawResult, WarmStart
+from .problem import ConvexProblem, Solution, SolverStatus, _check_bounds
+
+__all__ = ["DenseBackend", "DenseBackendFactory", "DenseQP", "DenseSession"]
+
+_FORMAT = "dense_qp"
+_FORMAT_VERSION = 1
+#: Relative tolerance of the symmetry check on ``H`` (as for ``ConvexProblem.P``).
+_SYMMETRY_RTOL = 1e-9
+_FIELDS = ("H", "f", "A", "lo", "up", "lb", "ub")
+
+
+def _full_csc(M: FloatArray) -> sp.csc_matrix:
+    """CSC matrix holding every entry of ``M`` (zeros explicit: a value-independent pattern)."""
+    r, c = M.shape
+    return sp.csc_matrix(
+        (
+            np.asarray(M, dtype=np.float64).ravel(order="F"),
+            np.tile(np.arange(r, dtype=np.int64), c),
+            np.arange(c + 1, dtype=np.int64) * r,
+        ),
+        shape=(r, c),
+    )
+
+
+@dataclass(eq=False)
+class DenseQP:
+    r"""Dense QP :math:`\min_x \tfrac12 x'Hx + f'x` s.t. :math:`lo \le Ax \le up, lb \le x \le ub`.
+
+    Mutable on purpose: a controller preallocates the arrays and overwrites them
+    in place every step (keep them ``float64``; the constructor converts, a
+    later reassignment of a field does not). Values are checked by
+    :meth:`check`, which :class:`DenseSession` calls at setup only.
+
+    Parameters
+    ----------
+    H : (n, n) array
+        Symmetric positive (semi)definite Hessian (active-set solvers such as
+        quadprog need it positive definite).
+    f : (n,) array
+    A : (m_A, n) array
+        Constraint rows; ``m_A`` may be 0 (shape ``(0, n)``).
+    lo, up : (m_A,) arrays
+        Row bounds, ``-inf`` / ``+inf`` allowed; ``lo == up`` is an equality.
+    lb, ub : (n,) arrays
+        Variable bounds, ``-inf`` / ``+inf`` allowed.
+    """
+
+    H: FloatArray
+    f: FloatArray
+    A: FloatArray
+    lo: FloatArray
+    up: FloatArray
+    lb: FloatArray
+    ub: FloatArray
+
+    def __post_init__(self) -> None:
+        for name in _FIELDS:
+            setattr(self, name, np.asarray(getattr(self, name), dtype=np.float64))
+
+    # ----------------------------------------------------------------------------------
+    @property
+    def n_variables(self) -> int:
+        """Number of variables ``n``."""
+        return int(self.f.shape[0])
+
+    @property
+    def n_rows(self) -> int:
+        """Number of rows ``m_A`` of ``A``."""
+        return int(self.A.shape[0])
+
+    def structure_key(self) -> tuple[int, int]:
+        """``(n, m_A)``: two QPs with the same key differ only in values."""
+        return (self.f.shape[0], self.A.shape[0])
+
+    def check(self) -> None:
+        """Validate shapes and values.
+
+        Raises
+        ------
+        DimensionError
+            If an array has the wrong shape (the message names it).
+        InvalidValueError
+            If ``H``, ``f`` or ``A`` has non-finite entries, ``H`` is not
+            symmetric, a bound is NaN, ``lo``/``lb`` has ``+inf``, ``up``/``ub``
+            has ``-inf``, or ``lo > up`` / ``lb > ub`` somewhere.
+        """
+        f = np.asarray(self.f)
+        if f.ndim != 1 or f.shape[0] == 0:
+            raise DimensionError(f"f must have shape (n,) with n >= 1, got {f.shape}")
+        n = f.shape[0]
+        H = np.asarray(self.H)
+        if H.shape != (n, n):
+            raise DimensionError(f"H must have shape ({n}, {n}), got {H.shape}")
+        A = np.asarray(self.A)
+        if A.ndim != 2 or A.shape[1] != n:
+            raise DimensionError(f"A must have shape (m_A, {n}), got {A.shape}")
+        m = A.shape[0]
+        for name, length in (("lo", m), ("up", m), ("lb", n), ("ub", n)):
+            shape = np.shape(getattr(self, name))
+            if shape != (length,):
+                raise DimensionError(f"{name} must have shape ({length},), got {shape}")
+        for name in _FIELDS:
+            if np.asarray(getattr(self, name)).dtype != np.float64:
+                raise InvalidValueError(f"{name} must be a float64 array")
+        for name in ("H", "f", "A"):
+            arr = np.asarray(getattr(self, name))
+            if not np.all(np.isfinite(arr)):
+                bad = np.argwhere(~np.isfinite(arr))[:5].tolist()
+                raise InvalidValueError(f"{name} has non-finite entries (NaN or inf) at {bad}")
+        asym = float(np.max(np.abs(H - H.T)))
+        if asym > _SYMMETRY_RTOL * max(1.0, float(np.max(np.abs(H)))):
+            raise InvalidValueError(f"H must be symmetric; max |H - H^T| = {asym:.3g}")
+        for name in ("lo", "up", "lb", "ub"):
+            arr = np.asarray(getattr(self, name))
+            if np.any(np.isnan(arr)):
+                raise InvalidValueError(
+                    f"{name} has NaN entries at indices {np.flatnonzero(np.isnan(arr))[:10]}"
+                )
+        _check_bounds("lo", self.lo, "up", self.up)
+        _check_bounds("lb", self.lb, "ub", self.ub)
+
+    # ----------------------------------------------------------------------------------
+    def objective(self, x: npt.ArrayLike) -> float:
+        """Evaluate :math:`\\tfrac12 x^\\top H x + f^\\top x`."""
+        xx = np.asarray(x, dtype=np.float64)
+        if xx.shape != self.f.shape:
+            raise DimensionError(f"x must have shape {self.f.shape}, got {xx.shape}")
+        return float(0.5 * xx @ (self.H @ xx) + self.f @ xx)
+
+    def max_violation(self, x: npt.ArrayLike) -> float:
+        """Largest violation of the rows and bounds at ``x`` (0 when feasible, ``inf``
+        for a non-finite ``x``)."""
+        xx = np.asarray(x, dtype=np.float64)
+        if xx.shape != self.f.shape:
+            raise DimensionError(f"x must have shape {self.f.shape}, got {xx.shape}")
+        if not np.all(np.isfinite(xx)):
+            return float("inf")
+        viol = float(np.max(np.maximum(self.lb - xx, xx - self.ub), initial=0.0))
+        if self.A.shape[0]:
+            Ax = self.A @ xx
+            viol = max(viol, float(np.max(np.maximum(self.lo - Ax, Ax - self.up), initial=0.0)))
+        return max(viol, 0.0)
+
+    def to_convex_problem(self) -> ConvexProblem:
+        """The same QP as a :class:`ConvexProblem` (rows in ``G``, ``l = lo``, ``u = up``).
+
+        ``H`` is symmetrized (same objective) and ``H`` and ``A`` keep every
+        entry in their pattern, so the structure key depends on ``(n, m_A)`` and
+        on which bounds are infinite, not on the values.
+        """
+        H = np.asarray(self.H, dtype=np.float64)
+        P = _full_csc(0.5 * (H + H.T))
+        m = self.A.shape[0]
+        kwargs: dict[str, Any] = {"lb": self.lb, "ub": self.ub}
+        if m:
+            kwargs.update(G=_full_csc(self.A), l=self.lo, u=self.up)
+        return ConvexProblem(P=P, q=self.f, **kwargs)
+
+    def copy(self) -> DenseQP:
+        """Deep copy (new arrays)."""
+        return DenseQP(*(np.array(getattr(self, name)) for name in _FIELDS))
+
+    # ----------------------------------------------------------------------------------
+    def save(self, path: str | PathLike[str]) -> Path:
+        """Write the QP to an uncompressed ``.npz`` file (for replay); returns the path."""
+        p = Path(path)
+        if p.suffix != ".npz":
+            p = p.with_name(p.name + ".npz")
+        arrays = {name: np.asarray(getattr(self, name)) for name in _FIELDS}
+        np.savez(
+            p,
+            format=np.asarray(_FORMAT),
+            format_version=np.asarray(_FORMAT_VERSION, dtype=np.int64),
+            **arrays,  # type: ignore[arg-type]
+        )
+        return p
+
+    @classmethod
+    def load(cls, path: str | PathLike[str]) -> DenseQP:
+        """Read a QP written by :meth:`save` (and :meth:`check` it)."""
+        with np.load(Path(path), allow_pickle=False) as data:
+            store = {k: data[k] for k in data.files}
+        fmt = str(store.get("format", ""))
+        version = int(store.get("format_version", -1))
+        if fmt != _FORMAT or version != _FORMAT_VERSION:
+            raise InvalidValueError(
+                f"{path}: not a DenseQP file of format_version {_FORMAT_VERSION} "
+                f"(format={fmt!r}, format_version={version})"
+            )
+        missing = [name for name in _FIELDS if name not in store]
+        if missing:
+            raise InvalidValueError(f"{path}: missing arrays {missing}")
+        qp = cls(*(store[name] for name in _FIELDS))
+        qp.check()
+        return qp
+
+
+# --------------------------------------------------------------------------------------
+# backend interface
+# --------------------------------------------------------------------------------------
+class DenseBackend(abc.ABC):
+    """One dense solver workspace for one :meth:`DenseQP.structure_key`.
+
+    Subclasses set the class attributes and implement :meth:`setup`,
+    :meth:`solve` and, where the solver can, :meth:`update`. ``solve`` returns a
+    :class:`~ltv_lstm_mpc.solvers._base.RawResult` whose ``z`` is a fresh array
+    (the session copies it anyway) and whose duals follow the module's sign
+    convention (``"ineq"``, ``"bounds"``). Native exceptions propagate.
+    """
+
+    #: Backend family name (``Solution.backend``).
+    backend: ClassVar[str]
+    #: Whether :meth:`update` writes new values into the workspace in place.
+    supports_update: ClassVar[bool] = False
+    #: Whether a warm start is used (otherwise it is ignored with a note).
+    supports_warm_start: ClassVar[bool] = False
+
+    def __init__(self, name: str, solver: str, options: Mapping[str, Any]) -> None:
+        """Store the registry name, the native solver name and the merged options."""
+        self.name = name
+        self.solver = solver
+        self.options = dict(options)
+
+    @abc.abstractmethod
+    def setup(self, qp: DenseQP) -> None:
+        """Build the workspace for ``qp`` (its ``(n, m_A)`` is fixed from now on)."""
+
+    def update(self, qp: DenseQP) -> None:
+        """Write the values of ``qp`` (same structure key) into the workspace."""
+        raise NotImplementedError(f"{self.name} cannot update in place")
+
+    @abc.abstractmethod
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        """Solve the current data (``warm_start=None``: a cold start)."""
+
+
+#: ``dense_factory(name, tolerance, settings) -> DenseBackend`` as stored in the registry.
+DenseBackendFactory = Callable[[str, float, Mapping[str, Any]], DenseBackend]
+
+
+# --------------------------------------------------------------------------------------
+# session
+# --------------------------------------------------------------------------------------
+class DenseSession:
+    """Persistent dense solver workspace: one :meth:`solve` per control step.
+
+    The first call, or a call whose :meth:`DenseQP.structure_key` differs from
+    the previous one, checks the QP (:meth:`DenseQP.check`) and sets a workspace
+    up; every other call writes the new values in place (backends that cannot
+    update set up afresh, noted in ``Solution.info``) and solves. Nothing is
+    validated on that path, so keep the arrays finite and the shapes fixed.
+
+    Parameters
+    ----------
+    solver : str
+        Registry name (:func:`~ltv_lstm_mpc.solvers.available_solvers`).
+    tolerance : float
+        Mapped to the solver's own options
+        (:data:`~ltv_lstm_mpc.solvers.tolerances.TOLERANCE_OPTIONS`).
+    **settings
+        Native settings; they override the tolerance mapping. Unknown names are
+        rejected where the solver's settings can be listed.
+
+    Examples
+    --------
+    >>> session = DenseSession("daqp", tolerance=1e-8)   # doctest: +SKIP
+    >>> sol = session.solve(qp)                          # doctest: +SKIP
+    >>> qp.f[:] = new_f; sol = session.solve(qp, warm_start=sol)  # doctest: +SKIP
+    """
+
+    def __init__(self, solver: str, *, tolerance: float = 1e-8, **settings: Any) -> None:
+        from .registry import get_dense_backend
+
+        self._factory = get_dense_backend(solver)
+        self.solver = solver
+        self.tolerance = float(tolerance)
+        self.settings: Mapping[str, Any] = dict(settings)
+        # Built now: validates tolerance and settings early.
+        self._backend: DenseBackend = self._factory(solver, self.tolerance, self.settings)
+        self._fresh = True
+        self._key: tuple[int, int] | None = None
+        self._qp: DenseQP | None = None
+        self._in_place = self._backend.supports_update
+        self._backend_name = self._backend.backend
+        #: ``"setup"``, ``"in_place"`` or ``"fresh_setup"``: what the last call did.
+        self.last_update: str | None = None
+        #: Number of workspaces built so far.
+        self.n_setups = 0
+
+    @property
+    def backend(self) -> str:
+        """Backend family of the workspace (``"daqp"``, ``"osqp"``, ``"cvxpy"``, ...)."""
+        return self._backend_name
+
+    @property
+    def structure_key(self) -> tuple[int, int] | None:
+        """``(n, m_A)`` of the workspace (``None`` before the first solve)."""
+        return self._key
+
+    def reset(self) -> None:
+        """Drop the workspace and any warm-start state: the next solve sets up afresh."""
+        self._key = None
+        self._qp = None
+        self.last_update = None
+
+    def setup(self, qp: DenseQP) -> None:
+        """Check ``qp`` and build a workspace for it (any structure)."""
+        if not isinstance(qp, DenseQP):
+            raise InvalidValueError(f"qp must be a DenseQP, got {type(qp).__name__}")
+        qp.check()
+        if not self._fresh:
+            self._backend = self._factory(self.solver, self.tolerance, self.settings)
+        self._fresh = False
+        self._backend.setup(qp)
+        self.n_setups += 1
+        self.last_update = "setup"
+        self._key = qp.structure_key()
+        self._qp = qp
+
+    def update(self, qp: DenseQP) -> None:
+        """Write the values of ``qp`` (same structure key as the workspace; not checked)."""
+        if self._key is None:
+            raise SolverError("DenseSession.update() called before setup()")
+        if self._in_place:
+            self._backend.update(qp)
+            self.last_update = "in_place"
+        else:
+            self._backend = self._factory(self.solver, self.tolerance, self.settings)
+            self._backend.setup(qp)
+            self.n_setups += 1
+            self.last_update = "fresh_setup"
+        self._qp = qp
+
+    def solve(self, qp: DenseQP, warm_start: WarmStart | None = None) -> Solution:
+        """Set up or update with ``qp``, then solve.
+
+        Parameters
+        ----------
+        qp : DenseQP
+        warm_start : (n,) array or Solution, optional
+            Primal point (and, from a :class:`Solution`, multipliers or, for
+            some solvers, the workspace's previous iterate) to start from;
+            ``None`` is a cold start. Backends without warm start ignore it and
+            say so in ``info``.
+        """
+        start = time.perf_counter()
+        if (qp.f.shape[0], qp.A.shape[0]) != self._key:
+            self.setup(qp)
+        else:
+            self.update(qp)
+        mid = time.perf_counter()
+        raw = self._backend.solve(warm_start)
+        end = time.perf_counter()
+        return self._to_solution(qp, raw, mid - start, end - mid)
+
+    def _to_solution(self, qp: DenseQP, raw: RawResult, setup: float, wall: float) -> Solution:
+        z: FloatArray | None = None
+        objective = float("nan")
+        status = raw.status
+        notes = raw.notes
+        raw_z = raw.z
+        duals = raw.duals
+        if raw_z is not None:
+            ok = raw_z.shape == qp.f.shape
+            if ok:
+                # H and f are finite, so a non-finite z gives a non-finite objective (inf * 0
+                # is NaN): the exact check runs only then.
+                objective = 0.5 * float(raw_z @ (qp.H @ raw_z)) + float(qp.f @ raw_z)
+                ok = math.isfinite(objective) or bool(np.isfinite(raw_z).all())
+            if ok:
+                z = raw_z.copy()
+                z.setflags(write=False)
+            else:
+                status = SolverStatus.FAILED
+                notes = (*notes, "solver returned a malformed or non-finite z")
+                duals = None
+                objective = float("nan")
+        last = self.last_update
+        if last == "fresh_setup":
+            notes = ("fresh setup (backend cannot update in place)", *notes)
+        info = f"native status: {raw.native_status}"
+        if notes:
+            info = "; ".join((info, *notes))
+        solve_time = raw.solve_time
+        return Solution(
+            status=status,
+            z=z,
+            objective=objective,
+            duals=duals,
+            setup_time=setup + raw.extra_setup_time,
+            solve_time=solve_time,
+            overhead_time=max(0.0, wall - solve_time - raw.extra_setup_time),
+            iterations=raw.iterations,
+            backend=self._backend_name,
+            solver=self.solver,
+            reformulation=None,
+            info=info,
+        )
