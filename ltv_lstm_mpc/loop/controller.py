@@ -127,7 +127,9 @@ class OffsetFreeController:
         self.mpc: MPCSolver = mpc if mpc is not None else RobustMPC(model, config)
         self.certification = self.mpc.certification
         self.observer = Observer(model, self.certification.observer.gains, d_max=config.d_max)
-        self.reference = ReferenceCalculator(model, u_max=config.u_max, strict=False)
+        # tol 1e-10 (not 1e-12): the warm chord path then ends in one residual check at steady
+        # state; the equilibrium error it leaves is far below the offsets measured.
+        self.reference = ReferenceCalculator(model, u_max=config.u_max, strict=False, tol=1e-10)
         self.setpoint_rate_limit = setpoint_rate_limit
         self._phases = hasattr(self.mpc, "prepare") and hasattr(self.mpc, "feedback")
         norm = model.normalization
