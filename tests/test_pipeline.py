@@ -266,8 +266,6 @@ def test_field_table_covers_every_config_field() -> None:
 @pytest.mark.parametrize("name", sorted(FIELD_VALUES))
 def test_every_config_field_is_honoured(model, kind, name) -> None:
     solver = "daqp" if kind == "condensed" else "cvxpy:CLARABEL"
-    if name == "design_gains":
-        pytest.skip("observer gain design is exercised in test_certificates")
     values = {name: FIELD_VALUES[name]}
     if name in ("y_min", "y_max"):  # given together
         values = {"y_min": FIELD_VALUES["y_min"], "y_max": FIELD_VALUES["y_max"]}

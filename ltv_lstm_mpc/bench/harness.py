@@ -1,4 +1,4 @@
-r"""Solver comparison benchmark (issue 6): every backend on the same closed loops, side by side.
+r"""Solver comparison benchmark: every backend on the same closed loops, side by side.
 
 For each scenario (the paper's, :func:`ltv_lstm_mpc.paper.scenarios.paper_scenarios`), horizon N
 and backend, the closed loop of Fig. 1 is run with the same plant, set-points and
@@ -752,7 +752,7 @@ def register(subparsers: Any) -> None:
     """Add the ``bench`` and ``replay`` subcommands to the ``ltv-lstm-mpc`` parser."""
     bench = subparsers.add_parser(
         "bench",
-        help="compare every solver backend on the paper's closed loops (issue 6)",
+        help="compare every solver backend on the paper's closed loops",
         description=__doc__.split("\n\n")[0] if __doc__ else None,
     )
     _parser_args(bench)

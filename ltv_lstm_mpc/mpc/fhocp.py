@@ -1,6 +1,6 @@
 r"""The FHOCP front-end shared by every transcription (SPEC section 4).
 
-One definition of: the arguments' checks (:func:`checked_vector`, :func:`fhocp_inputs`),
+One definition of: the arguments' checks (:func:`checked_vector`),
 the proof candidate (:func:`shifted_candidate`, Theorem 3 Part 2b), the checks no solver
 can fix (:func:`precheck_status`), the cost eq. (optimization_cost) (:class:`PlanCost`),
 the nonlinear residuals of a plan (:func:`plan_residuals`) and the result
@@ -20,15 +20,12 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.certificates.certify import Certification
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
-from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = [
-    "FHOCPInputs",
     "MPCSolution",
     "MPCSolver",
     "PlanCost",
     "checked_vector",
-    "fhocp_inputs",
     "plan_residuals",
     "precheck_status",
     "shifted_candidate",
@@ -145,70 +142,6 @@ def precheck_status(
         if not low - tol <= y <= high + tol:
             return "infeasible_initial"
     return "alpha_nonpositive" if alpha <= 0 else ""
-
-
-@dataclass(frozen=True)
-class FHOCPInputs:
-    """Validated data of one FHOCP, eq. (optimization) (see :func:`fhocp_inputs`)."""
-
-    x_hat: FloatArray
-    x_bar: FloatArray
-    u_bar: FloatArray
-    y0: FloatArray
-    e_hat: float
-    candidate: FloatArray
-    lower: FloatArray
-    upper: FloatArray
-    alpha: float
-    status: str
-
-
-def fhocp_inputs(
-    model: LSTMModel,
-    tightening: TighteningCertificate,
-    N: int,
-    previous_u: FloatArray | None,
-    x_hat: ArrayLike,
-    x_bar: ArrayLike,
-    u_bar: ArrayLike,
-    y0: ArrayLike,
-    e_hat: float,
-    warm: ArrayLike | None,
-) -> FHOCPInputs:
-    r"""Check the arguments of an MPC ``solve`` and compute what every solver needs.
-
-    The linearization/initial-guess sequence (``warm``, default :func:`shifted_candidate`),
-    the tightened output bounds (eq. optimization_constraint_yub/ylb), :math:`\alpha_k`
-    (eq. def_alpha) and the :func:`precheck_status`.
-    """
-    n2, m = 2 * model.n, model.m
-    x_hat_arr = checked_vector("x_hat", x_hat, n2)
-    x_bar_arr = checked_vector("x_bar", x_bar, n2)
-    u_bar_arr = checked_vector("u_bar", u_bar, m)
-    y0_arr = checked_vector("y0", y0, model.p)
-    e_hat = float(e_hat)
-    if not np.isfinite(e_hat) or e_hat < 0:
-        raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
-    if warm is None:
-        candidate = shifted_candidate(previous_u, u_bar_arr, N)
-    else:
-        candidate = np.asarray(warm, dtype=np.float64)
-        if candidate.shape != (N, m):
-            raise DimensionError(f"warm has shape {candidate.shape}, expected ({N}, {m})")
-    lower, upper = tightening.output_bounds(e_hat)
-    alpha = tightening.alpha(y0_arr, e_hat)
-    return FHOCPInputs(
-        x_hat=x_hat_arr,
-        x_bar=x_bar_arr,
-        u_bar=u_bar_arr,
-        y0=y0_arr,
-        e_hat=e_hat,
-        candidate=candidate,
-        lower=lower,
-        upper=upper,
-        alpha=alpha,
-        status=precheck_status(model.output(x_hat_arr), lower[0], upper[0], alpha),
-    )
 
 
 def plan_residuals(

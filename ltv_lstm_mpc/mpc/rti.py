@@ -38,6 +38,7 @@ from ltv_lstm_mpc.mpc.fhocp import (
     checked_vector,
     plan_residuals,
     precheck_status,
+    shifted_candidate,
 )
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus
@@ -196,9 +197,7 @@ class RobustMPC:
 
     def candidate(self, u_bar: FloatArray) -> FloatArray:
         """Proof candidate: previous plan shifted by one with u_bar appended (SPEC 4)."""
-        if self._previous_u is None:
-            return np.tile(u_bar, (self.N, 1))
-        return np.vstack([self._previous_u[1:], u_bar[None, :]])
+        return shifted_candidate(self._previous_u, u_bar, self.N)
 
     def _bounds(self, y0: FloatArray, e_hat: float) -> None:
         """Tightened bounds and alpha_k from :class:`TighteningCertificate`, when they change."""
