@@ -1,118 +1,163 @@
-"""Controller step time of the one pipeline, optionally side by side with an older checkout.
+"""Controller step time of the one pipeline, optionally side by side with an older version.
 
 Runs scenario 1 (bench's short variant) with ``OffsetFreeController(model,
-MPCConfig(solver=..., transcription=...))`` for each backend and horizon and prints the
-median / p95 of the full step, of ``prepare`` and of ``feedback`` (microseconds). With
-``--baseline DIR`` (a folder holding an older ``ltv_lstm_mpc`` package with its solver layer
-installed as ``ltv_lstm_mpc/solvers``), the same loops run in that version too, alternating
-the two in separate processes round by round, and the ratio new / old is printed: one run,
-side by side (these machines drift, so only such ratios mean anything).
+MPCConfig(solver=...))`` for each backend and horizon and prints the median / p95 of the
+full ``step`` and the medians of ``prepare`` and ``feedback`` (microseconds).
 
-    python experiments/pipeline_speed.py --rounds 3
-    python experiments/pipeline_speed.py --baseline /tmp/basepkg --rounds 3
+With ``--baseline REV`` (a git revision of this repository, e.g. the commit before a
+refactor), that version is exported into a temporary folder, renamed to the package
+``ltv_lstm_mpc_baseline`` and run *in the same process*, step by step interleaved with the
+current one (order alternating ABBA, each controller with its own plant): the machine's
+drift then hits both alike, and the printed ratio new / old of the medians is a side-by-side
+figure. For the versions that still had it, the baseline runs the former
+``FastOffsetFreeController`` for the QP backends.
+
+    python experiments/pipeline_speed.py --steps 300
+    python experiments/pipeline_speed.py --baseline a853d65 --steps 300 --rounds 3
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+import importlib
 import os
+import re
+import shutil
 import subprocess
 import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from types import ModuleType
+from typing import Any
 
-import numpy as np
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")  # before numpy: small products, one thread
+
+import numpy as np  # noqa: E402
 
 CASES = [("daqp", 5), ("daqp", 20), ("daqp", 50), ("cvxpy:CLARABEL", 5)]
-
-_CHILD = r"""
-import json, sys, time
-from dataclasses import replace
-import numpy as np
-import ltv_lstm_mpc as L
-from ltv_lstm_mpc import load_model, OffsetFreeController
-solver, N, steps, old = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
-model = load_model("ph_lstm_n5.npz")
-if old:
-    from ltv_lstm_mpc.bench import bench_scenarios
-else:
-    from ltv_lstm_mpc.bench.harness import bench_scenarios
-sc = bench_scenarios(model)[0]
-config = replace(sc.config, N=N, solver=solver)
-rate = sc.setpoint_rate_limit
-if old and solver != "cvxpy:CLARABEL":
-    from ltv_lstm_mpc.fast import FastOffsetFreeController
-    ctrl = FastOffsetFreeController(model, config, solver=solver, setpoint_rate_limit=rate)
-else:
-    ctrl = OffsetFreeController(model, config, setpoint_rate_limit=rate)
-plant = sc.make_plant(model)
-y = plant.output()
-total, prep, feed = [], [], []
-for k in range(steps):
-    t0 = time.perf_counter()
-    u = ctrl.step(y, sc.setpoints[k])
-    total.append(time.perf_counter() - t0)
-    r = ctrl.records[-1].mpc
-    prep.append(getattr(r, "prepare_time", float("nan")))
-    feed.append(getattr(r, "feedback_time", float("nan")))
-    d = sc.disturbances[k]
-    y = plant.step(u, None if np.isnan(d) else d)
-skip = 10  # first steps: cold caches, first reference solve
-print(json.dumps({"total": total[skip:], "prepare": prep[skip:], "feedback": feed[skip:],
-                  "u": [float(r.u_phi[0]) for r in ctrl.records]}))
-"""
+BASELINE = "ltv_lstm_mpc_baseline"
+ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(solver: str, N: int, steps: int, path: str | None) -> dict[str, list[float]]:
-    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    if path is not None:
-        env["PYTHONPATH"] = path
-    old = "1" if path is not None else "0"
-    out = subprocess.run(
-        [sys.executable, "-c", _CHILD, solver, str(N), str(steps), old],
+def export_baseline(revision: str, folder: Path) -> ModuleType:
+    """``git archive`` ``revision`` into ``folder`` as the package ``ltv_lstm_mpc_baseline``."""
+    archive = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", revision, "ltv_lstm_mpc", "solvers"],
         capture_output=True,
-        text=True,
-        env=env,
         check=True,
-        cwd="/tmp",
-    )
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    ).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    package = folder / BASELINE
+    (folder / "ltv_lstm_mpc").rename(package)
+    if (folder / "solvers").is_dir() and not (package / "solvers").exists():
+        shutil.move(str(folder / "solvers"), str(package / "solvers"))
+    pattern = re.compile(r"\bltv_lstm_mpc(?=[. \n])")
+    for path in package.rglob("*.py"):
+        text = path.read_text()
+        path.write_text(pattern.sub(BASELINE, text))
+    sys.path.insert(0, str(folder))
+    return importlib.import_module(BASELINE)
+
+
+def _controller(lib: ModuleType, solver: str, N: int) -> tuple[Any, Any, Any]:
+    """(controller, plant, scenario) of scenario 1 in the library ``lib``."""
+    name = lib.__name__
+    model = lib.load_model("ph_lstm_n5.npz")
+    try:
+        harness = importlib.import_module(f"{name}.bench.harness")
+    except ImportError:  # the layout before the one pipeline
+        harness = importlib.import_module(f"{name}.bench")
+    scenario = harness.bench_scenarios(model)[0]
+    config = replace(scenario.config, N=N, solver=solver)
+    rate = scenario.setpoint_rate_limit
+    fast = None
+    try:
+        fast = importlib.import_module(f"{name}.fast")
+    except ImportError:
+        pass
+    if fast is not None and not solver.startswith("cvxpy"):
+        ctrl = fast.FastOffsetFreeController(model, config, solver=solver, setpoint_rate_limit=rate)
+    else:
+        ctrl = lib.OffsetFreeController(model, config, setpoint_rate_limit=rate)
+    return ctrl, scenario.make_plant(model), scenario
+
+
+def compare(libs: list[ModuleType], solver: str, N: int, steps: int) -> list[dict[str, Any]]:
+    """Run the loops of ``libs`` interleaved; per library: step times and first inputs."""
+    runs = [_controller(lib, solver, N) for lib in libs]
+    outputs = [plant.output() for _, plant, _ in runs]
+    times: list[list[float]] = [[] for _ in runs]
+    inputs: list[list[float]] = [[] for _ in runs]
+    for k in range(steps):
+        order = range(len(runs)) if k % 2 == 0 else reversed(range(len(runs)))
+        for j in order:
+            ctrl, plant, scenario = runs[j]
+            t0 = time.perf_counter()
+            u = ctrl.step(outputs[j], scenario.setpoints[k])
+            times[j].append(time.perf_counter() - t0)
+            inputs[j].append(float(u[0]))
+            d = scenario.disturbances[k]
+            outputs[j] = plant.step(u, None if np.isnan(d) else d)
+    skip = 10  # first steps: cold caches, first reference solve
+    result = []
+    for j, (ctrl, _, _) in enumerate(runs):
+        mpc = [r.mpc for r in ctrl.records[skip:]]
+        result.append(
+            {
+                "total": np.array(times[j][skip:]),
+                "prepare": np.array([getattr(s, "prepare_time", np.nan) for s in mpc]),
+                "feedback": np.array([getattr(s, "feedback_time", np.nan) for s in mpc]),
+                "u": np.array(inputs[j]),
+            }
+        )
+    return result
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--baseline", default=None, help="folder with an older ltv_lstm_mpc")
-    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--baseline", default=None, help="git revision to compare with")
+    parser.add_argument("--rounds", type=int, default=1, help="repetitions of every case")
     parser.add_argument("--steps", type=int, default=300)
     args = parser.parse_args()
-    print(
-        f"{'backend':>16} {'N':>3} | {'step med':>8} {'p95':>7} {'prep':>6} {'feed':>6}"
-        + (" | old med  new/old  max|du_phi|" if args.baseline else "")
-    )
-    for solver, N in CASES:
-        steps = args.steps if solver == "daqp" else min(args.steps, 120)
-        new: list[float] = []
-        old: list[float] = []
-        prep: list[float] = []
-        feed: list[float] = []
-        du = 0.0
-        for _ in range(args.rounds):
-            a = _run(solver, N, steps, None)
-            new += a["total"]
-            prep += a["prepare"]
-            feed += a["feedback"]
-            if args.baseline:
-                b = _run(solver, N, steps, args.baseline)
-                old += b["total"]
-                du = max(du, float(np.max(np.abs(np.subtract(a["u"], b["u"])))))
-        us = 1e6
-        line = (
-            f"{solver:>16} {N:>3} | {us * np.median(new):8.0f} {us * np.percentile(new, 95):7.0f} "
-            f"{us * np.median(prep):6.0f} {us * np.median(feed):6.0f}"
-        )
+    import ltv_lstm_mpc
+
+    libs: list[ModuleType] = [ltv_lstm_mpc]
+    with tempfile.TemporaryDirectory() as tmp:
         if args.baseline:
-            ratio = np.median(new) / np.median(old)
-            line += f" | {us * np.median(old):7.0f}  {ratio:7.2f}  {du:.1e}"
-        print(line, flush=True)
+            libs.append(export_baseline(args.baseline, Path(tmp)))
+        print(
+            f"{'backend':>16} {'N':>3} | {'step med':>8} {'p95':>7} {'prep':>6} {'feed':>6}"
+            + (" | old med  new/old  max|du_phi|" if args.baseline else "")
+        )
+        for solver, N in CASES:
+            steps = args.steps if solver == "daqp" else min(args.steps, 120)
+            parts: list[list[dict[str, Any]]] = [[] for _ in libs]
+            for _ in range(args.rounds):
+                for j, res in enumerate(compare(libs, solver, N, steps)):
+                    parts[j].append(res)
+
+            def pooled(j: int, key: str) -> np.ndarray:
+                return np.concatenate([r[key] for r in parts[j]])  # noqa: B023
+
+            us = 1e6
+            new = pooled(0, "total")
+            line = (
+                f"{solver:>16} {N:>3} | {us * np.median(new):8.0f} "
+                f"{us * np.percentile(new, 95):7.0f} {us * np.median(pooled(0, 'prepare')):6.0f} "
+                f"{us * np.median(pooled(0, 'feedback')):6.0f}"
+            )
+            if args.baseline:
+                old = pooled(1, "total")
+                du = max(
+                    float(np.max(np.abs(a["u"] - b["u"])))
+                    for a, b in zip(parts[0], parts[1], strict=True)
+                )
+                ratio = np.median(new) / np.median(old)
+                line += f" | {us * np.median(old):7.0f}  {ratio:7.2f}  {du:.1e}"
+            print(line, flush=True)
 
 
 if __name__ == "__main__":

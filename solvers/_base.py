@@ -33,6 +33,9 @@ class RawResult:
     iterations: int | None
     extra_setup_time: float = 0.0
     notes: tuple[str, ...] = ()
+    #: The solver's own objective value at ``z`` (dense sessions use it instead of
+    #: re-evaluating it); ``None`` where the solver reports none.
+    objective: float | None = None
 
 
 def map_status(table: Mapping[Any, SolverStatus], code: Any) -> tuple[SolverStatus, str | None]:

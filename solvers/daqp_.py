@@ -270,7 +270,7 @@ class DaqpDense(DenseBackend):
     def solve(self, warm_start: WarmStart | None) -> RawResult:
         """One ``daqp.solve`` call from the cold or warm working set."""
         sense = self._cold if warm_start is None else self._warm_sense(warm_start)
-        x, _fval, exitflag, info = self._daqp_solve(
+        x, fval, exitflag, info = self._daqp_solve(
             self._H, self._f, self._A, self._bu, self._bl, sense, **self.options
         )
         flag = int(exitflag)
@@ -294,7 +294,22 @@ class DaqpDense(DenseBackend):
             iterations=int(info["iterations"]),
             extra_setup_time=float(info["setup_time"]),
             notes=notes,
+            objective=float(fval) if z is not None else None,
         )
+
+    def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
+        """One cold ``daqp.solve`` call; the status mapped as in :meth:`solve`."""
+        x, _fval, exitflag, info = self._daqp_solve(
+            self._H, self._f, self._A, self._bu, self._bl, self._cold, **self.options
+        )
+        flag = int(exitflag)
+        status = STATUS_MAP.get(flag)
+        native = f"exitflag {flag}"
+        if status is None:
+            status, note = map_status(STATUS_MAP, flag)
+            native = f"{native}; {note}"
+        z = x if status.has_solution else None
+        return status, z, int(info["iterations"]), native
 
 
 def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:

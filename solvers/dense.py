@@ -179,13 +179,15 @@ class DenseQP:
         xx = np.asarray(x, dtype=np.float64)
         if xx.shape != self.f.shape:
             raise DimensionError(f"x must have shape {self.f.shape}, got {xx.shape}")
-        if not np.all(np.isfinite(xx)):
+        if not math.isfinite(float(xx.sum())) and not np.all(np.isfinite(xx)):
             return float("inf")
-        viol = float(np.max(np.maximum(self.lb - xx, xx - self.ub), initial=0.0))
+        viol = 0.0
+        if xx.shape[0]:
+            viol = max(viol, float((self.lb - xx).max()), float((xx - self.ub).max()))
         if self.A.shape[0]:
             Ax = self.A @ xx
-            viol = max(viol, float(np.max(np.maximum(self.lo - Ax, Ax - self.up), initial=0.0)))
-        return max(viol, 0.0)
+            viol = max(viol, float((self.lo - Ax).max()), float((Ax - self.up).max()))
+        return viol
 
     def to_convex_problem(self) -> ConvexProblem:
         """The same QP as a :class:`ConvexProblem` (rows in ``G``, ``l = lo``, ``u = up``).
@@ -278,6 +280,17 @@ class DenseBackend(abc.ABC):
     @abc.abstractmethod
     def solve(self, warm_start: WarmStart | None) -> RawResult:
         """Solve the current data (``warm_start=None``: a cold start)."""
+
+    def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
+        """Cold solve of the current data: ``(status, z, iterations, native status)``.
+
+        The hot-loop variant of :meth:`solve` (no duals, no result object); the
+        default calls :meth:`solve`. A backend may override it with a leaner call
+        that maps the status the same way.
+        """
+        raw = self.solve(None)
+        info = raw.native_status if not raw.notes else "; ".join((raw.native_status, *raw.notes))
+        return raw.status, raw.z, int(raw.iterations or 0), info
 
 
 #: ``dense_factory(name, tolerance, settings) -> DenseBackend`` as stored in the registry.
@@ -399,6 +412,33 @@ class DenseSession:
         end = time.perf_counter()
         return self._to_solution(qp, raw, mid - start, end - mid)
 
+    def solve_point(self, qp: DenseQP) -> tuple[SolverStatus, FloatArray | None, int, str]:
+        """The hot-loop call: cold solve, ``(status, z, iterations, info)``.
+
+        The same setup / in-place update and the same check of the point as
+        :meth:`solve` (a malformed or non-finite ``z`` turns the status into
+        ``FAILED`` and ``z`` into ``None``), without building a :class:`Solution`
+        (no duals, objective or timings). ``z`` is the backend's fresh array.
+        """
+        if (qp.f.shape[0], qp.A.shape[0]) != self._key:
+            self.setup(qp)
+        else:
+            self.update(qp)
+        status, z, iterations, info = self._backend.solve_point()
+        if z is not None:
+            if z.shape != qp.f.shape or not (
+                math.isfinite(float(z.sum())) or bool(np.isfinite(z).all())
+            ):
+                return (
+                    SolverStatus.FAILED,
+                    None,
+                    iterations,
+                    f"{info}; solver returned a malformed or non-finite z",
+                )
+        elif status.has_solution:
+            return SolverStatus.FAILED, None, iterations, f"{info}; solver returned no point"
+        return status, z, iterations, info
+
     def _to_solution(self, qp: DenseQP, raw: RawResult, setup: float, wall: float) -> Solution:
         z: FloatArray | None = None
         objective = float("nan")
@@ -409,11 +449,13 @@ class DenseSession:
         if raw_z is not None:
             ok = raw_z.shape == qp.f.shape
             if ok:
-                # H and f are finite, so a non-finite z gives a non-finite objective (inf * 0
-                # is NaN): the exact check runs only then.
-                objective = 0.5 * float(raw_z @ (qp.H @ raw_z)) + float(qp.f @ raw_z)
-                ok = math.isfinite(objective) or bool(np.isfinite(raw_z).all())
+                # A non-finite entry makes the sum non-finite; the exact check runs only then.
+                ok = math.isfinite(float(raw_z.sum())) or bool(np.isfinite(raw_z).all())
             if ok:
+                if raw.objective is not None and math.isfinite(raw.objective):
+                    objective = raw.objective
+                else:
+                    objective = 0.5 * float(raw_z @ (qp.H @ raw_z)) + float(qp.f @ raw_z)
                 z = raw_z.copy()
                 z.setflags(write=False)
             else:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -167,13 +168,39 @@ class TighteningCertificate:
 
         A non-positive value means Assumption 5 is violated: the FHOCP has no solution.
         """
-        y0_arr = np.atleast_1d(np.asarray(y0, dtype=np.float64))
-        if y0_arr.shape != self.y_min.shape:
-            raise DimensionError(f"y0 has shape {y0_arr.shape}, expected {self.y_min.shape}")
-        margin = 2.0 * self.d_max + self.a[self.N] * self.e_tilde(e_hat) + self.b[self.N]
-        alpha_max = (self.y_max - y0_arr - margin) / self.kappa
-        alpha_min = (y0_arr - self.y_min - margin) / self.kappa
-        return float(min(np.min(alpha_max), np.min(alpha_min)))
+        y_max, y_min, kappa, a_N, b_N = self._alpha_terms
+        if isinstance(y0, np.ndarray) and y0.shape == self.y_min.shape:
+            y0_list = y0.tolist()
+        else:
+            y0_arr = np.atleast_1d(np.asarray(y0, dtype=np.float64))
+            if y0_arr.shape != self.y_min.shape:
+                raise DimensionError(f"y0 has shape {y0_arr.shape}, expected {self.y_min.shape}")
+            y0_list = y0_arr.tolist()
+        e_tilde = self.e_tilde(e_hat)
+        two_d = 2.0 * self.d_max
+        # Scalar loop over the p outputs (hot path: no temporary arrays).
+        return min(
+            min((hi - y - margin) / k, (y - lo - margin) / k)
+            for y, hi, lo, k, margin in zip(
+                y0_list,
+                y_max,
+                y_min,
+                kappa,
+                [two_d + a * e_tilde + b for a, b in zip(a_N, b_N, strict=True)],
+                strict=True,
+            )
+        )
+
+    @cached_property
+    def _alpha_terms(self) -> tuple[list[float], ...]:
+        """y_max, y_min, kappa, a_N, b_N as lists (for :meth:`alpha`)."""
+        return (
+            self.y_max.tolist(),
+            self.y_min.tolist(),
+            np.asarray(self.kappa, dtype=np.float64).tolist(),
+            np.asarray(self.a[self.N], dtype=np.float64).tolist(),
+            np.asarray(self.b[self.N], dtype=np.float64).tolist(),
+        )
 
     def alpha_min(self, y0_low: ArrayLike, y0_high: ArrayLike, e_hat: float) -> float:
         r"""Smallest :math:`\alpha_k` over the set-point box [y0_low, y0_high].

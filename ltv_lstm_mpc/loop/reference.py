@@ -14,6 +14,7 @@ analytic Jacobian of eq. (jacobian), warm-started from the previous solution.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,6 +116,7 @@ class ReferenceCalculator:
         self._jacobian = np.zeros((n2 + m, n2 + m))
         self._jacobian[n2:, model.n : n2] = model.W_y
         self._last: tuple[FloatArray, FloatArray] | None = None
+        self._last_z = np.zeros(0)  # the same, concatenated (warm path)
         # Warm path (chord Newton on the model's kernel), see :meth:`_chord`.
         self._traj = model.kernel.trajectory(1)
         self._z_view = self._traj.S[0, : n2 + m]
@@ -183,7 +185,7 @@ class ReferenceCalculator:
         """
         assert self._last is not None
         n2 = 2 * self.model.n
-        z = np.concatenate(self._last)
+        z = self._last_z
         if self._Jinv is not None and self._last_target is not None:
             z = z + self._Jinv[:, n2:] @ (target - self._last_target)
         norm = self._chord_residual(z, target)
@@ -274,18 +276,24 @@ class ReferenceCalculator:
         p = model.p
         y0_arr = np.atleast_1d(np.asarray(y0, dtype=np.float64))
         d_arr = np.atleast_1d(np.asarray(d_hat, dtype=np.float64))
-        for name, value in (("y0", y0_arr), ("d_hat", d_arr)):
-            if value.shape != (p,):
-                raise DimensionError(f"{name} has shape {value.shape}, expected ({p},)")
-            if not np.all(np.isfinite(value)):
-                raise InvalidValueError(f"{name} contains NaN or inf: {value}")
+        if (
+            y0_arr.shape != (p,)
+            or d_arr.shape != (p,)
+            or not math.isfinite(float(y0_arr.sum() + d_arr.sum()))
+        ):  # one cheap test on the hot path; the exact ones name the culprit
+            for name, value in (("y0", y0_arr), ("d_hat", d_arr)):
+                if value.shape != (p,):
+                    raise DimensionError(f"{name} has shape {value.shape}, expected ({p},)")
+                if not np.all(np.isfinite(value)):
+                    raise InvalidValueError(f"{name} contains NaN or inf: {value}")
         target = y0_arr - d_arr  # g(x_bar) must equal y0 - d_hat
         n2 = 2 * model.n
         if warm is None and self._last is not None:
             z, norm, iterations, ok = self._chord(target)
             u_bar = z[n2:]
-            if ok and bool(np.max(np.abs(u_bar)) <= self.u_max * (1 + 1e-12)):
+            if ok and float(np.abs(u_bar).max()) <= self.u_max * (1 + 1e-12):
                 self._last = (z[:n2].copy(), u_bar.copy())
+                self._last_z = z
                 self._last_target = target
                 return ReferenceSolution(
                     x_bar=self._last[0],
@@ -338,6 +346,7 @@ class ReferenceCalculator:
         )
         if converged and u_admissible:
             self._last = (x_bar, u_bar)
+            self._last_z = np.concatenate(self._last)
             self._last_target = target
         if self.strict and not solution.ok:
             low, high = self.reachable_output_range

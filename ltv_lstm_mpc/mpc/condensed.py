@@ -103,16 +103,21 @@ class CondensedTranscription(TranscriptionBase):
         self._Maug = np.empty((N, n2, cols + 1))
         self._Maug_flat = self._Maug.reshape(N * n2, cols + 1)
         self._A_all = np.empty((self._mA, cols))
-        self._lo0 = np.empty(self._mA)
-        self._up0 = np.empty(self._mA)
+        self._rows0 = np.empty((2, self._mA))  # row bounds before inserting dx0
+        self._lo0, self._up0 = self._rows0
+        # [lb; lo] and [ub; up] of the nominal QP in one vector each (one violation test)
+        self._low = np.empty(nu + self._mA)
+        self._high = np.empty(nu + self._mA)
+        self._point = np.empty(nu + self._mA)  # [du; A du]
+        self._gap = np.empty(nu + self._mA)
+        self._lb, self._lo = self._low[:nu], self._low[nu:]
+        self._ub, self._up = self._high[:nu], self._high[nu:]
         self._A_out_view = self._A_all[:n_out].reshape(N - 1, p, cols)
         self._lo0_view = self._lo0[:n_out].reshape(N - 1, p)
         self._up0_view = self._up0[:n_out].reshape(N - 1, p)
         self._W_y_T = np.ascontiguousarray(model.W_y.T)
         self._unit_half = np.repeat(np.asarray(unit_tau) / np.sqrt(n), n)
         self._du_ref = np.empty((N, m))
-        self._lb = np.empty(nu)
-        self._ub = np.empty(nu)
         self._dx0 = np.empty(n2)
         self._dxu = np.empty(cols)
         self._traj: Trajectory | None = None
@@ -198,7 +203,7 @@ class CondensedTranscription(TranscriptionBase):
         u_max = self.config.u_max
         np.subtract(-u_max, flat_cand, out=self._lb)
         np.subtract(u_max, flat_cand, out=self._ub)
-        self._scale = 1.0 + max(u_max, float(np.abs(lo0).max()), float(np.abs(up0).max()))
+        self._scale = 1.0 + max(u_max, float(np.abs(self._rows0).max()))
 
     # --------------------------------------------------------------------- feedback
     def _data(self, kind: str, f: FloatArray, lo: FloatArray, up: FloatArray) -> DenseQP:
@@ -243,6 +248,19 @@ class CondensedTranscription(TranscriptionBase):
         qp.ub = np.concatenate([self._ub, np.full(ns + 1, np.inf)])
         return qp
 
+    def _violation(self, kind: str, qp: DenseQP, z: FloatArray) -> float:
+        """Largest violation of the QP's rows and bounds at ``z`` (absolute)."""
+        if kind == "soft":
+            return qp.max_violation(z)
+        nu = z.shape[0]
+        rows = nu + qp.A.shape[0]  # "paper": no rows
+        point, gap = self._point[:rows], self._gap[:rows]
+        point[:nu] = z
+        if rows > nu:
+            np.dot(qp.A, z, out=point[nu:])
+        violation = float(np.subtract(self._low[:rows], point, out=gap).max())
+        return max(violation, float(np.subtract(point, self._high[:rows], out=gap).max()), 0.0)
+
     def solve(self, kind: str, x_hat: FloatArray) -> StepResult:
         r"""Insert :math:`\delta x_0 = \hat x_k - \tilde x_0` and solve the QP ``kind``."""
         traj = self._traj
@@ -255,39 +273,37 @@ class CondensedTranscription(TranscriptionBase):
         f = self._F @ dx0
         f += self._g0
         shift = self._E @ dx0
-        lo = self._lo0 - shift
-        up = self._up0 - shift
+        lo = np.subtract(self._lo0, shift, out=self._lo)
+        up = np.subtract(self._up0, shift, out=self._up)
         qp = self._data(kind, f, lo, up)
         start = time.perf_counter()
-        solution = self._sessions[kind].solve(qp)
+        status, z, iterations, info = self._sessions[kind].solve_point(qp)
         elapsed = time.perf_counter() - start
-        z = solution.z
-        if z is None or not solution.status.has_solution:
+        if z is None or not status.has_solution:
             return StepResult(
-                status=solution.status,
+                status=status,
                 u=None,
                 x_linear=None,
                 violation=float("nan"),
                 tolerance=self.tolerance,
                 solver_time=elapsed,
-                iterations=int(solution.iterations or 0),
-                info=solution.info,
+                iterations=iterations,
+                info=info,
             )
         nu = N * m
-        du = np.asarray(z[:nu])
-        violation = qp.max_violation(np.asarray(z)) / self._scale
+        violation = self._violation(kind, qp, z) / self._scale
         dxu = self._dxu
         dxu[:n2] = dx0
-        dxu[n2:] = du
+        dxu[n2:] = z[:nu]
         x_linear = self._M @ dxu
         x_linear += S[:, :n2]
         return StepResult(
-            status=solution.status,
-            u=S[:N, n2 : n2 + m] + du.reshape(N, m),
+            status=status,
+            u=S[:N, n2 : n2 + m] + dxu[n2:].reshape(N, m),
             x_linear=x_linear,
             violation=violation,
             tolerance=self.tolerance,
             solver_time=elapsed,
-            iterations=int(solution.iterations or 0),
-            info=solution.info,
+            iterations=iterations,
+            info=info,
         )

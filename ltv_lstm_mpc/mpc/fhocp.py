@@ -145,11 +145,10 @@ def precheck_status(
 
 
 def plan_residuals(
-    cost: PlanCost,
+    terminal_norm: float,
     x_plan: FloatArray,
     y_plan: FloatArray,
     x_linear: FloatArray | None,
-    x_bar: FloatArray,
     bounds: tuple[FloatArray, FloatArray],
     alpha: float,
 ) -> dict[str, float]:
@@ -158,8 +157,9 @@ def plan_residuals(
     ``output_violation``: largest violation (>= 0) of the tightened output rows
     i = 0..N-1, eq. (optimization_constraint_yub)/(ylb); ``terminal_residual``:
     :math:`\|[\|c_N-\bar c\|, \|h_N-\bar h\|]\|_{P_f} - \alpha_k` (<= 0 inside
-    :math:`\mathcal{X}_f(k)`); ``linearization_gap``: :math:`\max|x - x_{linear}|` (NaN when
-    no linearized prediction exists, e.g. the shift policy).
+    :math:`\mathcal{X}_f(k)`; ``terminal_norm`` from :meth:`PlanCost.evaluate`);
+    ``linearization_gap``: :math:`\max|x - x_{linear}|` (NaN when no linearized
+    prediction exists, e.g. the shift policy).
     """
     N = x_plan.shape[0] - 1
     lower, upper = bounds
@@ -170,7 +170,7 @@ def plan_residuals(
         gap = float(np.abs(x_plan - x_linear).max())
     return {
         "output_violation": violation,
-        "terminal_residual": cost.terminal(x_plan[N], x_bar) - alpha,
+        "terminal_residual": terminal_norm - alpha,
         "linearization_gap": gap,
     }
 
@@ -239,6 +239,16 @@ class PlanCost:
 
     def __call__(self, x: FloatArray, u: FloatArray, x_bar: FloatArray, u_bar: FloatArray) -> float:
         """J of states ``x`` (N + 1, 2n) and inputs ``u`` (N, m)."""
+        return self.evaluate(x, u, x_bar, u_bar)[0]
+
+    def evaluate(
+        self, x: FloatArray, u: FloatArray, x_bar: FloatArray, u_bar: FloatArray
+    ) -> tuple[float, float]:
+        """(J, terminal norm) of states ``x`` (N + 1, 2n) and inputs ``u`` (N, m).
+
+        The terminal norm is :meth:`terminal` at ``x[N]``; J adds its square to the
+        stage costs.
+        """
         N = u.shape[0]
         dx = x[:N] - x_bar
         du = u - u_bar
@@ -250,13 +260,14 @@ class PlanCost:
             stage += self._r * float(np.vdot(du, du))
         else:
             stage += float(np.einsum("ki,ij,kj->", du, self.R, du))
-        return stage + self.terminal(x[N], x_bar) ** 2
+        terminal = self.terminal(x[N], x_bar)
+        return stage + terminal**2, terminal
 
     def terminal(self, x_N: FloatArray, x_bar: FloatArray) -> float:
         r""":math:`\|[\|c_N - \bar c\|, \|h_N - \bar h\|]\|_{P_f}` (eq. terminal_constraint)."""
         n = self.n
-        dc = x_N[:n] - x_bar[:n]
-        dh = x_N[n:] - x_bar[n:]
+        d = x_N - x_bar
+        dc, dh = d[:n], d[n:]
         tc2, th2 = float(np.vdot(dc, dc)), float(np.vdot(dh, dh))
         p11, p12, p22 = self._p
         return math.sqrt(max(p11 * tc2 + p12 * math.sqrt(tc2 * th2) + p22 * th2, 0.0))

@@ -21,6 +21,7 @@ fails) triggers the configured policy (then, if that fails too, ``"<policy>+shif
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -294,9 +295,12 @@ class RobustMPC:
         if not status.has_solution or result.u is None:
             return result, status.name.lower(), result.info
         u, x_linear = result.u, result.x_linear
-        if not np.all(np.isfinite(u)) or x_linear is None or not np.all(np.isfinite(x_linear)):
+        # One sum for the hot path: a NaN/inf entry makes it non-finite (so does an
+        # overflowing sum of huge entries, rejected as well).
+        if x_linear is None or not math.isfinite(float(u.sum()) + float(x_linear.sum())):
             result.u = None
-            return result, "failed", f"{self.solver} returned a non-finite point ({result.info})"
+            reason = f"{self.solver} returned a non-finite (or overflowing) point ({result.info})"
+            return result, "failed", reason
         u_max, tol = self.config.u_max, result.tolerance
         outside = float(np.abs(u).max()) - u_max
         if outside > tol * (1.0 + u_max):
@@ -312,7 +316,8 @@ class RobustMPC:
                 f"{result.violation:.3e} (relative; tolerance {tol:.1e})"
             )
             return result, "failed", reason
-        np.clip(u, -u_max, u_max, out=u)  # solver tolerance
+        if outside > 0.0:  # within the solver's tolerance: clip onto U
+            np.clip(u, -u_max, u_max, out=u)
         name = "optimal_inaccurate" if status is SolverStatus.OPTIMAL_INACCURATE else "optimal"
         return result, name, ""
 
@@ -389,8 +394,9 @@ class RobustMPC:
         x_plan = P[:, :n2].copy()
         y_plan = x_plan[:N, n:] @ self._W_y_T
         y_plan += model.b_y
+        cost, terminal_norm = self._cost.evaluate(x_plan, u_out, self._x_bar, self._u_bar)
         residuals = plan_residuals(
-            self._cost, x_plan, y_plan, x_linear, self._x_bar, (self._lower, self._upper), alpha
+            terminal_norm, x_plan, y_plan, x_linear, (self._lower, self._upper), alpha
         )
         self.solver_time = solver_time
         self.qp_iterations = iterations
@@ -407,7 +413,7 @@ class RobustMPC:
             iterations=sqp,
             sqp_step=step,
             alpha=alpha,
-            cost=self._cost(x_plan, u_out, self._x_bar, self._u_bar),
+            cost=cost,
             residuals=residuals,
             reformulation=self.reformulation,
             solver_iterations=iterations,
