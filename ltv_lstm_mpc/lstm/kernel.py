@@ -24,16 +24,22 @@ observer. The Jacobians reuse the stored activations: with
 :math:`\partial h^+ = o(1-\tanh^2 c^+)\,\partial c^+ + D_o [0\; U_o\; W_o]`.
 
 All work happens in preallocated :class:`Trajectory` buffers (no allocation per step):
-the real-time building block, kept in numpy as the readable reference.
+the real-time building block. The numpy code below is the readable reference; by default
+the kernel runs the same loops compiled with numba (:mod:`ltv_lstm_mpc.lstm.compiled`,
+tested against this reference to 1e-12). ``LSTMKernel(model, compiled=False)`` or the
+environment variable ``LTV_LSTM_MPC_KERNEL=numpy`` select the reference.
 """
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import expit
+
+from ltv_lstm_mpc.lstm import compiled as _compiled
 
 if TYPE_CHECKING:  # pragma: no cover
     from ltv_lstm_mpc.lstm.model import LSTMModel
@@ -123,13 +129,21 @@ class LSTMKernel:
     ----------
     model : LSTMModel
         Only its stacked gate weights are read.
+    compiled : bool, optional
+        Run the numba-compiled loops (default: yes where numba is installed, unless the
+        environment variable ``LTV_LSTM_MPC_KERNEL`` is ``numpy``) or the numpy reference.
     """
 
-    def __init__(self, model: LSTMModel) -> None:
+    def __init__(self, model: LSTMModel, *, compiled: bool | None = None) -> None:
         self.n, self.m, self.p = model.n, model.m, model.p
-        self.WU_raw = np.hstack([model._U_gates, model._W_gates])  # (4n, n + m)
+        self.WU_raw = np.ascontiguousarray(np.hstack([model._U_gates, model._W_gates]))
         self.WU = np.ascontiguousarray(np.hstack([self.WU_raw, model._b_gates[:, None]]))
         self._scratch: dict[int, Trajectory] = {}
+        if compiled is None:
+            compiled = os.environ.get("LTV_LSTM_MPC_KERNEL", "numba").lower() != "numpy"
+        #: Whether the numba-compiled loops run (``False``: the numpy reference).
+        self.compiled = bool(compiled) and _compiled.AVAILABLE
+        self._no_extra = np.zeros(0)
 
     def trajectory(self, N: int) -> Trajectory:
         """New preallocated buffers for a horizon of N steps."""
@@ -147,6 +161,11 @@ class LSTMKernel:
         ``extra`` is added to the gate pre-activations of every step (the observer's
         :math:`L (y - \hat y)` terms, eq. lstm_observer).
         """
+        if self.compiled:
+            _compiled.rollout(
+                self.WU, traj.S, traj.T, traj.TC, k0, k1, self._no_extra if extra is None else extra
+            )
+            return
         WU, tanh, mul, dot = self.WU, np.tanh, np.multiply, np.dot
         tmp = traj.tmp
         views = traj.views
@@ -199,6 +218,11 @@ class LSTMKernel:
         S = traj.S
         S[:K, :n2] = x
         S[:K, n2 : n2 + m] = u
+        if self.compiled:
+            _compiled.pairs(self.WU, S, traj.T, traj.TC, out, K)
+            if jacobians:
+                self.jacobians(traj)
+            return traj
         WU, tanh, mul, dot = self.WU, np.tanh, np.multiply, np.dot
         tmp = traj.tmp
         for k in range(K):
@@ -218,6 +242,9 @@ class LSTMKernel:
 
     def jacobians(self, traj: Trajectory) -> None:
         r"""Batched :math:`[A_k\; B_k] = \partial f / \partial [c; h; u]` at the stored steps."""
+        if self.compiled:
+            _compiled.jacobians(self.WU_raw, traj.S, traj.T, traj.TC, traj.J)
+            return
         n = self.n
         n3 = 3 * n
         S, T, TC, J, Dv, dh_dc = traj.S, traj.T, traj.TC, traj.J, traj.Dv, traj.dh_dc

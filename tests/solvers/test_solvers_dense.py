@@ -439,3 +439,55 @@ def test_feasibility_tolerance_values() -> None:
         assert feasibility_tolerance(name, 1e-6) == pytest.approx(1e-3)
     with pytest.raises(InvalidValueError, match="tolerance"):
         feasibility_tolerance("osqp", 0.0)
+
+
+# --------------------------------------------------------------------------------------
+# solve_point: the hot-loop call
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.parametrize("solver", params())
+def test_solve_point_equals_solve(solver: str, name: str) -> None:
+    """Same status and point as ``solve`` (cold), on the setup and the in-place path."""
+    qp = dense(name).copy()
+    lean, full = DenseSession(solver), DenseSession(solver)
+    for step in range(2):
+        if step:
+            qp.f[:] = 1.1 * dense(name).f
+        status, z, iterations, info = lean.solve_point(qp)
+        sol = full.solve(qp)
+        assert status is sol.status, info
+        assert z is not None and sol.z is not None
+        np.testing.assert_allclose(z, sol.z, rtol=0, atol=1e-12)
+        assert iterations >= 0 and isinstance(info, str) and info
+        assert qp.max_violation(z) <= feasibility_tolerance(solver, 1e-8) * (1 + np.abs(z).max())
+    assert lean.last_update == ("in_place" if lean._in_place else "fresh_setup")
+
+
+@pytest.mark.parametrize("solver", params())
+def test_solve_point_infeasible(solver: str) -> None:
+    status, z, _, info = DenseSession(solver).solve_point(infeasible_dense_qp(seed=1))
+    assert z is None
+    expected = SolverStatus.FAILED if solver in NO_NATIVE_STATUS else SolverStatus.INFEASIBLE
+    assert status is expected, info
+
+
+@pytest.mark.parametrize("fault", ["nan", "garbage", "raise", "infeasible"])
+def test_solve_point_sees_faults(fault: str, cleanup: list[str]) -> None:
+    name = faulty(FAULT_BASE, fault, calls=[1])
+    cleanup.append(name)
+    qp = dense("small").copy()
+    session = DenseSession(name)
+    assert session.solve_point(qp)[0] is SolverStatus.OPTIMAL
+    if fault == "raise":
+        with pytest.raises(RuntimeError, match="injected fault"):
+            session.solve_point(qp)
+        return
+    status, z, _, info = session.solve_point(qp)
+    assert "injected fault" in info
+    if fault == "nan":
+        assert status is SolverStatus.FAILED and z is None
+        assert "non-finite" in info
+    elif fault == "garbage":
+        assert status is SolverStatus.OPTIMAL and z is not None and np.all(z == GARBAGE)
+    else:
+        assert status is SolverStatus.INFEASIBLE and z is None

@@ -1,0 +1,101 @@
+"""The compiled kernel (numba) against the numpy reference of eq. (lstm) / eq. (jacobian)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from lstm_factories import random_lstm
+
+from ltv_lstm_mpc.lstm import compiled
+from ltv_lstm_mpc.lstm.kernel import LSTMKernel
+
+pytestmark = pytest.mark.skipif(not compiled.AVAILABLE, reason="numba is not installed")
+
+SHAPES = [(1, 1, 1), (3, 1, 1), (5, 1, 1), (4, 2, 2), (8, 3, 3), (20, 2, 2)]
+
+
+def _pair(n: int, m: int, p: int, seed: int) -> tuple[LSTMKernel, LSTMKernel]:
+    model = random_lstm(np.random.default_rng(seed), n, m, p, scale=1.5)
+    return LSTMKernel(model, compiled=True), LSTMKernel(model, compiled=False)
+
+
+def _load(kernel: LSTMKernel, N: int, x0: np.ndarray, u: np.ndarray):  # type: ignore[no-untyped-def]
+    traj = kernel.trajectory(N)
+    n2, m = 2 * kernel.n, kernel.m
+    traj.S[0, :n2] = x0
+    traj.S[:N, n2 : n2 + m] = u
+    return traj
+
+
+@pytest.mark.parametrize(("n", "m", "p"), SHAPES)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rollout_and_jacobians_match_reference(n: int, m: int, p: int, seed: int) -> None:
+    fast, ref = _pair(n, m, p, seed)
+    assert fast.compiled and not ref.compiled
+    rng = np.random.default_rng(100 + seed)
+    N = 9
+    x0 = rng.uniform(-0.9, 0.9, 2 * n)
+    u = rng.uniform(-1.0, 1.0, (N, m))
+    a, b = _load(fast, N, x0, u), _load(ref, N, x0, u)
+    fast.rollout(a, 0, N)
+    ref.rollout(b, 0, N)
+    np.testing.assert_allclose(a.S, b.S, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a.T, b.T, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a.TC, b.TC, rtol=0, atol=1e-12)
+    fast.jacobians(a)
+    ref.jacobians(b)
+    np.testing.assert_allclose(a.J, b.J, rtol=0, atol=1e-12)
+    # On the same activations the Jacobians are the same products in the same order.
+    b.S[:], b.T[:], b.TC[:] = a.S, a.T, a.TC
+    ref.jacobians(b)
+    assert np.array_equal(a.J, b.J)
+
+
+@pytest.mark.parametrize(("n", "m", "p"), SHAPES[:4])
+def test_partial_rollout_with_gate_injection(n: int, m: int, p: int) -> None:
+    """Steps k0..k1 only, with the observer's extra gate term (eq. lstm_observer)."""
+    fast, ref = _pair(n, m, p, 7)
+    rng = np.random.default_rng(3)
+    N = 6
+    x0 = rng.uniform(-0.5, 0.5, 2 * n)
+    u = rng.uniform(-1.0, 1.0, (N, m))
+    extra = rng.normal(size=4 * n)
+    a, b = _load(fast, N, x0, u), _load(ref, N, x0, u)
+    a.S[2:, : 2 * n] = b.S[2:, : 2 * n] = 0.25  # rows before k0 = 2 must stay, after k1 too
+    fast.rollout(a, 2, 4, extra)
+    ref.rollout(b, 2, 4, extra)
+    np.testing.assert_allclose(a.S, b.S, rtol=0, atol=1e-12)
+    assert np.all(a.S[5:, : 2 * n] == 0.25)
+    # the injection changes the result
+    c = _load(fast, N, x0, u)
+    c.S[2:, : 2 * n] = 0.25
+    fast.rollout(c, 2, 4)
+    assert np.abs(c.S[3] - a.S[3]).max() > 1e-6
+
+
+@pytest.mark.parametrize(("n", "m", "p"), SHAPES)
+def test_pairs_and_step_match_reference(n: int, m: int, p: int) -> None:
+    fast, ref = _pair(n, m, p, 11)
+    rng = np.random.default_rng(5)
+    K = 13
+    x = rng.uniform(-1.0, 1.0, (K, 2 * n))
+    u = rng.uniform(-1.0, 1.0, (K, m))
+    a = fast.pairs(x, u, jacobians=True)
+    next_a, J_a = a.pair_next.copy(), a.J.copy()  # type: ignore[attr-defined]
+    b = ref.pairs(x, u, jacobians=True)
+    np.testing.assert_allclose(next_a, b.pair_next, rtol=0, atol=1e-12)  # type: ignore[attr-defined]
+    np.testing.assert_allclose(J_a, b.J, rtol=0, atol=1e-12)
+    for k in range(K):
+        np.testing.assert_allclose(fast.step(x[k], u[k]), next_a[k], rtol=0, atol=0)
+        np.testing.assert_allclose(ref.step(x[k], u[k]), b.pair_next[k], rtol=0, atol=0)  # type: ignore[attr-defined]
+
+
+def test_environment_variable_selects_the_reference(monkeypatch: pytest.MonkeyPatch) -> None:
+    model = random_lstm(np.random.default_rng(0), 3)
+    monkeypatch.setenv("LTV_LSTM_MPC_KERNEL", "numpy")
+    assert not LSTMKernel(model).compiled
+    monkeypatch.setenv("LTV_LSTM_MPC_KERNEL", "numba")
+    assert LSTMKernel(model).compiled
+    monkeypatch.delenv("LTV_LSTM_MPC_KERNEL")
+    assert LSTMKernel(model).compiled
+    assert model.kernel.compiled
