@@ -341,14 +341,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Modules whose ``register(subparsers)`` adds subcommands (train, bench, replay).
+OPTIONAL_COMMAND_MODULES = ("ltv_lstm_mpc.training.cli", "ltv_lstm_mpc.bench.harness")
+
+
 def _register_optional_commands(subparsers: Any) -> None:
     """Subcommands that live in their own modules (training, experiments)."""
     import importlib
     import importlib.util
 
-    for name in ("training_cli", "bench"):
-        if importlib.util.find_spec(f"{__package__}.{name}") is not None:
-            importlib.import_module(f"{__package__}.{name}").register(subparsers)
+    for name in OPTIONAL_COMMAND_MODULES:
+        if importlib.util.find_spec(name) is not None:
+            importlib.import_module(name).register(subparsers)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
