@@ -319,3 +319,21 @@ def test_closed_loop_same_inputs_condensed_and_sparse_qp(model) -> None:
         runs[kind] = np.array(us)
         assert all(r.mpc.feasible for r in controller.records)
     np.testing.assert_allclose(runs["condensed"], runs["sparse"], atol=1e-7)
+
+
+@pytest.mark.parametrize("solver", [s for s in ("daqp", "quadprog") if s in available_solvers()])
+def test_soft_policy_on_the_states_of_scenario_3(model, solver) -> None:
+    """Scenario 3 (short): every infeasible instant is solved by the soft QP (no +shift)."""
+    from dataclasses import replace
+
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios, run_scenario
+
+    scenario = next(s for s in paper_scenarios(model, short=True) if s.name.startswith("3"))
+    config = replace(scenario.config, solver=solver, infeasibility_policy="soft")
+    result = run_scenario(replace(scenario, config=config), model)
+    records = result.controller.records
+    infeasible = [r.mpc for r in records if not r.mpc.feasible]
+    assert len(infeasible) >= 50  # the scenario has real infeasible instants
+    assert {s.policy for s in infeasible} == {"soft"}
+    assert all(np.all(np.isfinite(r.u)) for r in records)
+    assert result.summary()["max_output_violation"] == 0.0

@@ -23,7 +23,12 @@ recorded in every :class:`~ltv_lstm_mpc.mpc.fhocp.MPCSolution`.
 The ``"soft"`` problem adds exact-penalty (L1) slacks :math:`s \ge 0` on the output rows
 (:math:`\underline y - s \le y \le \overline y + s`) and :math:`s_T \ge 0` on the terminal
 level (the box of level :math:`\max(\alpha_k, 0) + s_T`): :math:`\delta u = 0` with large
-slacks is feasible, so the soft QP is feasible by construction.
+slacks is feasible, so the soft QP is feasible by construction. The slacks also get a
+small quadratic weight (:attr:`CondensedTranscription.slack_regularization`), without
+which the Hessian is too ill-conditioned for active-set solvers. First-order backends
+(OSQP, PROXQP) can still reach their iteration limits on it (the policy then records
+``"soft+shift"``): on the states of scenario 3, OSQP did on 63 of 233 infeasible instants;
+DAQP and quadprog solved every one.
 """
 
 from __future__ import annotations
@@ -65,6 +70,12 @@ class CondensedTranscription(TranscriptionBase):
     """
 
     name = "condensed"
+    #: Quadratic slack weight of the soft QP, relative to max diag H (see :meth:`_data`).
+    #: It only acts where slacks are nonzero (the L1 term keeps the penalty exact) and
+    #: keeps H well enough conditioned for active-set solvers: at 1e-9 DAQP cycled
+    #: (exit flag -2) on 14 of the 226 infeasible instants of scenario 3 (short), at 1e-6
+    #: on none.
+    slack_regularization = 1e-6
 
     def __init__(
         self,
@@ -219,7 +230,7 @@ class CondensedTranscription(TranscriptionBase):
         H, A = self._H, self._A
         nu, ns = H.shape[0], self._n_out
         nz = nu + ns + 1
-        reg = 1e-9 * float(np.max(np.diag(H)))  # slacks enter linearly: tiny regularization
+        reg = self.slack_regularization * float(np.max(np.diag(H)))
         Hs = np.zeros((nz, nz))
         Hs[:nu, :nu] = H
         Hs[nu:, nu:] = reg * np.eye(ns + 1)
