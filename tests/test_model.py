@@ -201,3 +201,57 @@ def test_from_state_dict_rejects_multilayer() -> None:
     }
     with pytest.raises(ModelFormatError, match="single-layer"):
         LSTMModel.from_torch_state_dict(fake)
+
+
+# ------------------------------------------------------------------ bad model files
+def _bad_files(tmp_path):  # type: ignore[no-untyped-def]
+    from ltv_lstm_mpc.lstm.shipped import shipped_path
+
+    source = shipped_path("ph_lstm_n5.npz")
+    data = source.read_bytes()
+    files = {}
+    files["truncated"] = tmp_path / "truncated.npz"
+    files["truncated"].write_bytes(data[: len(data) // 2])
+    files["npy"] = tmp_path / "single.npy"
+    np.save(files["npy"], np.zeros(3))
+    files["npy_named_npz"] = tmp_path / "single_npy.npz"
+    files["npy_named_npz"].write_bytes(files["npy"].read_bytes())
+    files["text"] = tmp_path / "text.npz"
+    files["text"].write_text("not a model\n")
+    files["folder"] = tmp_path / "folder.npz"
+    files["folder"].mkdir()
+    with np.load(source) as stored:
+        arrays = dict(stored)
+    files["strings"] = tmp_path / "strings.npz"
+    np.savez(files["strings"], **{**arrays, "W_f": arrays["W_f"].astype(str)})
+    files["complex"] = tmp_path / "complex.npz"
+    np.savez(files["complex"], **{**arrays, "U_o": arrays["U_o"] + 1e-3j})
+    return files
+
+
+EXPECTED_MODEL_FILE_MESSAGES = {
+    "truncated": "damaged or truncated .npz",
+    "npy": "single-array .npy file",
+    "npy_named_npz": "single-array .npy file",
+    "text": "not an .npz archive",
+    "folder": "is a folder",
+    "strings": "W_f must hold real numbers, got string values",
+    "complex": "U_o must hold real numbers, got complex values",
+}
+
+
+@pytest.mark.parametrize("kind", list(EXPECTED_MODEL_FILE_MESSAGES))
+def test_every_bad_model_file_is_a_model_format_error(tmp_path, kind: str) -> None:
+    path = _bad_files(tmp_path)[kind]
+    with pytest.raises(ModelFormatError) as info:
+        LSTMModel.load(path)
+    message = str(info.value)
+    assert str(path) in message
+    assert EXPECTED_MODEL_FILE_MESSAGES[kind] in message
+
+
+def test_non_real_weights_are_rejected_by_name() -> None:
+    arrays = random_lstm(np.random.default_rng(0), 3).weights()
+    for name, bad in (("b_c", arrays["b_c"] + 1j), ("W_y", arrays["W_y"].astype(str))):
+        with pytest.raises(InvalidValueError, match=f"{name} must hold real numbers"):
+            LSTMModel(**{**arrays, name: bad})

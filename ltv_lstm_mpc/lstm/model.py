@@ -56,9 +56,20 @@ class ModelFormatError(LtvMpcError, ValueError):
     """A model file or state dict lacks an array or holds an unexpected one."""
 
 
+def _real_array(name: str, value: ArrayLike) -> NDArray[Any]:
+    """``value`` as an array of real numbers (bool, int, float), else InvalidValueError."""
+    raw = np.asarray(value)
+    if raw.dtype.kind not in "biuf":  # complex, strings, objects: no silent conversion
+        kind = {"c": "complex", "U": "string", "S": "bytes", "O": "object"}.get(raw.dtype.kind)
+        raise InvalidValueError(
+            f"{name} must hold real numbers, got {kind or raw.dtype} values (dtype {raw.dtype})"
+        )
+    return raw
+
+
 def _as_finite_array(name: str, value: ArrayLike, shape: tuple[int, ...]) -> FloatArray:
     """Convert ``value`` to a float64 array of exactly ``shape``, rejecting NaN/inf."""
-    array = np.array(value, dtype=np.float64, copy=True)
+    array = np.array(_real_array(name, value), dtype=np.float64, copy=True)
     if array.shape != shape:
         raise DimensionError(
             f"{name} has shape {array.shape}, expected {shape} "
@@ -68,6 +79,38 @@ def _as_finite_array(name: str, value: ArrayLike, shape: tuple[int, ...]) -> Flo
         raise InvalidValueError(f"{name} contains NaN or inf values; all weights must be finite")
     array.setflags(write=False)
     return array
+
+
+def _read_npz(path: Path) -> dict[str, Any]:
+    """The arrays of an ``.npz`` file, or :class:`ModelFormatError` naming what is wrong."""
+    import zipfile
+
+    try:
+        loaded = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as error:
+        with open(path, "rb") as handle:
+            head = handle.read(6)
+        if head.startswith(b"PK"):
+            what = f"a damaged or truncated .npz archive ({type(error).__name__}: {error})"
+        elif head.startswith(b"\x93NUMPY"):
+            what = "a single-array .npy file, not an .npz archive of named arrays"
+        else:
+            what = "not an .npz archive (neither a zip file nor numpy data)"
+        raise ModelFormatError(
+            f"{path}: {what}; a model file is an .npz written by LSTMModel.save"
+        ) from None
+    if not isinstance(loaded, np.lib.npyio.NpzFile):
+        raise ModelFormatError(
+            f"{path}: a single-array .npy file, not an .npz archive of named arrays; "
+            "a model file is an .npz written by LSTMModel.save"
+        )
+    try:
+        with loaded as data:
+            return {name: np.array(data[name]) for name in data.files}
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as error:
+        raise ModelFormatError(
+            f"{path}: a damaged or truncated .npz archive ({type(error).__name__}: {error})"
+        ) from None
 
 
 def _sigmoid(z: FloatArray) -> FloatArray:
@@ -97,7 +140,8 @@ class Normalization:
 
     def __post_init__(self) -> None:
         for name in _NORMALIZATION_NAMES:
-            value = np.atleast_1d(np.array(getattr(self, name), dtype=np.float64))
+            real = _real_array(name, getattr(self, name))
+            value = np.atleast_1d(np.array(real, dtype=np.float64))
             if value.ndim != 1:
                 raise DimensionError(f"{name} must be a 1-D array, got shape {value.shape}")
             if not np.all(np.isfinite(value)):
@@ -197,9 +241,9 @@ class LSTMModel:
         b_y: ArrayLike,
         normalization: Normalization | None = None,
     ) -> None:
-        U_f_arr = np.asarray(U_f, dtype=np.float64)
-        W_f_arr = np.asarray(W_f, dtype=np.float64)
-        W_y_arr = np.asarray(W_y, dtype=np.float64)
+        U_f_arr = np.asarray(_real_array("U_f", U_f), dtype=np.float64)
+        W_f_arr = np.asarray(_real_array("W_f", W_f), dtype=np.float64)
+        W_y_arr = np.asarray(_real_array("W_y", W_y), dtype=np.float64)
         if U_f_arr.ndim != 2 or U_f_arr.shape[0] != U_f_arr.shape[1]:
             raise DimensionError(f"U_f must be a square (n, n) matrix, got shape {U_f_arr.shape}")
         n = U_f_arr.shape[0]
@@ -504,12 +548,13 @@ class LSTMModel:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"model file {path} does not exist")
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {name: np.array(data[name]) for name in data.files}
+        if path.is_dir():
+            raise ModelFormatError(f"{path} is a folder, not a model file (.npz)")
+        arrays = _read_npz(path)
         try:
             return cls.from_arrays(arrays)
         except (ModelFormatError, DimensionError, InvalidValueError) as error:
-            raise type(error)(f"{path}: {error}") from None
+            raise ModelFormatError(f"{path}: {error}") from None
 
     def to_arrays(self) -> dict[str, FloatArray]:
         """All arrays of the file format (weights and, if present, normalization)."""
