@@ -29,6 +29,7 @@ from ltv_lstm_mpc.certificates.tightening import (
 )
 from ltv_lstm_mpc.exceptions import (
     DimensionError,
+    EmptySetpointIntervalError,
     InvalidValueError,
     LtvMpcError,
     NotDeltaISSError,
@@ -62,6 +63,7 @@ __all__ = [
     "ControllerStep",
     "DeltaISSCertificate",
     "DimensionError",
+    "EmptySetpointIntervalError",
     "ExactNMPC",
     "IncrementalLyapunovCertificate",
     "InvalidValueError",

@@ -62,6 +62,10 @@ class UnreachableSetpointError(LtvMpcError, ValueError):
     """The reference calculator (eq. reference_calculation) found no admissible equilibrium."""
 
 
+class EmptySetpointIntervalError(LtvMpcError, ValueError):
+    """The admissible set-point interval of Assumption 5 is empty: no set-point is allowed."""
+
+
 class SolverNotFound(LtvMpcError, ImportError):
     """A requested solver backend is not installed; the message lists the installed ones."""
 

@@ -281,3 +281,21 @@ def test_non_monotone_lyapunov_weights_are_rejected() -> None:
     with pytest.raises(InvalidValueError, match=r"(?s)P_o = .* has negative entries"):
         Q_o = 1000.0 * np.array([[1.0, 0.0, -0.9], [0.0, 1.0, 0.0], [-0.9, 0.0, 1.0]])
         observer_certificate(model, cert, ObserverGains.disturbance_only(model, 0.1), Q_o=Q_o)
+
+
+@pytest.mark.parametrize("shift", [40.0, 20.0])
+def test_saturated_forget_gate_is_not_delta_iss_never_an_arithmetic_error(shift: float) -> None:
+    """b_f = 40 makes sigma_f exactly 1.0 in floating point: no bound on the cell state."""
+    from ltv_lstm_mpc import certify, load_model
+
+    base = load_model("ph_lstm_n5.npz")
+    weights = base.weights()
+    weights["b_f"] = weights["b_f"] + shift
+    model = LSTMModel(**weights, normalization=base.normalization)
+    certificate = delta_iss_certificate(model)
+    assert certificate.rho_A_delta >= 1.0 and not certificate.is_delta_iss
+    with pytest.raises(NotDeltaISSError, match=r"rho\(A_delta\) = ") as info:
+        certify(model)
+    if shift == 40.0:
+        assert certificate.sigma_f == 1.0 and math.isinf(certificate.rho_A_delta)
+        assert "forget gate saturates (sigma_f = 1.0)" in str(info.value)

@@ -143,3 +143,19 @@ def test_alpha_min_and_rate_bound_over_a_range() -> None:
     wide = ti.setpoint_rate_bound(ti.alpha_min([inner[0]], [inner[1]], ti.e_inf), ti.e_inf,
                                   K_bar=2.0, e_y_bar=0.03)  # fmt: skip
     assert wide.delta_y0_max <= narrow.delta_y0_max
+
+
+def test_empty_setpoint_interval_is_an_error_at_construction() -> None:
+    """Assumption 5 with no admissible set-point: a specific error naming the numbers."""
+    from ltv_lstm_mpc import EmptySetpointIntervalError, MPCConfig, OffsetFreeController, load_model
+
+    model = load_model("ph_lstm_n5.npz")
+    y_min, y_max = model.normalize_y([6.9])[0], model.normalize_y([7.1])[0]
+    config = MPCConfig(solver="daqp", y_min=float(y_min), y_max=float(y_max))
+    with pytest.raises(EmptySetpointIntervalError) as info:
+        OffsetFreeController(model, config)
+    message = str(info.value)
+    for text in ("[6.9, 7.1] in physical units", "2 d_max = 0.2", "a_N e_tilde + b_N", "d_max"):
+        assert text in message
+    # a wide enough constraint constructs
+    OffsetFreeController(model, MPCConfig(solver="daqp"))

@@ -20,6 +20,7 @@ use the induced inf-norm of the concatenated block row.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -189,8 +190,14 @@ class DeltaISSCertificate:
                 f"the LSTM model is not certified delta-ISS (Assumption 2): "
                 f"rho(A_delta) = {self.rho_A_delta:.6f} >= 1 (Remark 1 residuals "
                 f"r1 = {self.r1:.4g}, "
-                f"r2 = {self.r2:.4g}, both must be < 0). Retrain with the delta-ISS penalty "
-                "(ltv-lstm-mpc train) or reduce u_max.",
+                f"r2 = {self.r2:.4g}, both must be < 0)"
+                + (
+                    f"; the forget gate saturates (sigma_f = {self.sigma_f!r}), so the cell "
+                    "state has no bound"
+                    if not self.sigma_f < 1.0
+                    else ""
+                )
+                + ". Retrain with the delta-ISS penalty (ltv-lstm-mpc train) or reduce u_max.",
                 rho_A_delta=self.rho_A_delta,
                 r1=self.r1,
                 r2=self.r2,
@@ -238,7 +245,10 @@ def delta_iss_certificate(
     sigma_i = _sigmoid(_block_row_inf_norm(model.W_i * u_max, model.U_i, model.b_i[:, None]))
     sigma_o = _sigmoid(_block_row_inf_norm(model.W_o * u_max, model.U_o, model.b_o[:, None]))
     sigma_c = float(np.tanh(_block_row_inf_norm(model.W_c * u_max, model.U_c, model.b_c[:, None])))
-    c_bound = sigma_i * sigma_c / (1.0 - sigma_f)
+    # A saturated forget gate (sigma_f = 1 in floating point, e.g. b_f = 40) bounds no cell
+    # state: c_bound is infinite and so is rho(A_delta) (its (1,1) entry is already 1).
+    saturated = not sigma_f < 1.0
+    c_bound = math.inf if saturated else sigma_i * sigma_c / (1.0 - sigma_f)
     sigma_x = float(np.tanh(c_bound))
     norm_U_o = _spectral_norm(model.U_o)
     last_U = model.U_i if alpha_variant == "corrected" else model.U_c
@@ -280,7 +290,11 @@ def delta_iss_certificate(
         beta=beta,
         A_delta=A_delta,
         B_delta=B_delta,
-        rho_A_delta=float(np.max(np.abs(np.linalg.eigvals(A_delta)))),
+        rho_A_delta=(
+            float(np.max(np.abs(np.linalg.eigvals(A_delta))))
+            if np.all(np.isfinite(A_delta))
+            else math.inf
+        ),
         r1=r1,
         r2=r2,
         c_bound=c_bound,

@@ -12,6 +12,7 @@ All values are in normalized units (SPEC 1).
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -25,7 +26,12 @@ from ltv_lstm_mpc.certificates.stability import (
     matrix_inverse_sqrt,
     solve_lyapunov,
 )
-from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.exceptions import (
+    DimensionError,
+    EmptySetpointIntervalError,
+    InvalidValueError,
+    LtvMpcError,
+)
 from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = ["SetpointRateBound", "TighteningCertificate", "tightening_certificate"]
@@ -235,6 +241,37 @@ class TighteningCertificate:
         e_tilde = self.e_inf if e_hat is None else self.e_tilde(e_hat)
         margin = 2.0 * self.d_max + self.a[self.N] * e_tilde + self.b[self.N]
         return self.y_min + margin, self.y_max - margin
+
+    def require_setpoint_interval(
+        self, to_physical: Callable[[FloatArray], FloatArray] | None = None
+    ) -> None:
+        """Raise :class:`EmptySetpointIntervalError` when Assumption 5 admits no set-point.
+
+        The interval of :meth:`setpoint_interval` (at :math:`\bar e_\\infty`) is empty when
+        :math:`2 d_{max} + a_N \tilde e_{o} + b_N` is at least half the output range
+        :math:`y_{max} - y_{min}` on some output. ``to_physical`` (normalized -> physical
+        output) adds physical units to the message.
+        """
+        low, high = self.setpoint_interval()
+        empty = np.flatnonzero(~(low < high))
+        if not empty.size:
+            return
+        margin = self.a[self.N] * self.e_inf + self.b[self.N]
+        j = int(empty[0])
+        phys = ""
+        if to_physical is not None:
+            y_lo = to_physical(self.y_min)[j]
+            y_hi = to_physical(self.y_max)[j]
+            phys = f" ([{y_lo:.6g}, {y_hi:.6g}] in physical units)"
+        raise EmptySetpointIntervalError(
+            f"no admissible set-point (Assumption 5) on output {j}: the output constraint "
+            f"[y_min, y_max] = [{self.y_min[j]:.6g}, {self.y_max[j]:.6g}] (normalized){phys} "
+            f"shrinks on each side by 2 d_max = {2.0 * self.d_max:.6g} plus "
+            f"a_N e_tilde + b_N = {margin[j]:.6g} (e_tilde = e_inf = {self.e_inf:.6g}, N = "
+            f"{self.N}), leaving [{low[j]:.6g}, {high[j]:.6g}]. Widen the output constraint "
+            "(MPCConfig y_min/y_max, or the model's y_phi_constraint_min/max), reduce d_max, "
+            "shorten the horizon N, or pick observer gains with a smaller e_inf."
+        )
 
     def setpoint_rate_bound(
         self,

@@ -146,6 +146,7 @@ class RobustMPC:
         self.transcription = kind = resolve_transcription(config)
         self.certification = certification or certify(model, config.certification_settings(model))
         self.tightening = ti = self.certification.tightening
+        ti.require_setpoint_interval(model.denormalize_y if model.normalization else None)
         Q, R = config.weights(model)
         self.N = N = config.N
         kinds: tuple[str, ...] = ("nominal",)
