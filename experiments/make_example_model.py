@@ -47,7 +47,8 @@ def build(seed: int = 7) -> LSTMModel:
         y_phi_min=np.array([5.9]),
         y_phi_max=np.array([9.1]),
     )
-    return LSTMModel(**weights, normalization=normalization)
+    # the paper's output constraint Y_phi = [6, 9] pH travels with the model
+    return LSTMModel(**weights, normalization=normalization, y_phi_constraint=([6.0], [9.0]))
 
 
 def main() -> None:

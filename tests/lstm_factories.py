@@ -26,7 +26,8 @@ def random_lstm(
     weights["b_f"] = weights["b_f"] + forget_bias
     weights["W_y"] = rng.normal(size=(p, n))
     weights["b_y"] = rng.normal(scale=0.1, size=p)
-    return LSTMModel(**weights)
+    # no normalization: the output constraint [-1, 1] is in the model's own units
+    return LSTMModel(**weights, y_phi_constraint=(-np.ones(p), np.ones(p)))
 
 
 def random_delta_iss_lstm(

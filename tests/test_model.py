@@ -255,3 +255,61 @@ def test_non_real_weights_are_rejected_by_name() -> None:
     for name, bad in (("b_c", arrays["b_c"] + 1j), ("W_y", arrays["W_y"].astype(str))):
         with pytest.raises(InvalidValueError, match=f"{name} must hold real numbers"):
             LSTMModel(**{**arrays, name: bad})
+
+
+# ------------------------------------------------------------ output constraint in the file
+def test_output_constraint_travels_with_the_model(tmp_path) -> None:
+    from ltv_lstm_mpc import load_model
+
+    shipped = load_model("ph_lstm_n5.npz")
+    assert shipped.y_phi_constraint is not None
+    assert [float(v[0]) for v in shipped.y_phi_constraint] == [6.0, 9.0]
+    low, high = shipped.output_constraint()  # type: ignore[misc]
+    np.testing.assert_allclose(shipped.denormalize_y(low), [6.0])
+    np.testing.assert_allclose(shipped.denormalize_y(high), [9.0])
+    model = LSTMModel(
+        **shipped.weights(), normalization=shipped.normalization, y_phi_constraint=([20.0], [80.0])
+    )
+    path = model.save(tmp_path / "temperature.npz")
+    loaded = LSTMModel.load(path)
+    assert loaded.y_phi_constraint is not None
+    assert [float(v[0]) for v in loaded.y_phi_constraint] == [20.0, 80.0]
+    with pytest.raises(InvalidValueError, match="must be below"):
+        LSTMModel(**shipped.weights(), y_phi_constraint=([9.0], [6.0]))
+    with np.load(path) as stored:
+        arrays = dict(stored)
+    del arrays["y_phi_constraint_max"]
+    np.savez(tmp_path / "half.npz", **arrays)
+    with pytest.raises(ModelFormatError, match="output constraint is incomplete"):
+        LSTMModel.load(tmp_path / "half.npz")
+
+
+def test_a_model_without_output_constraint_needs_explicit_bounds() -> None:
+    from ltv_lstm_mpc import MPCConfig, OffsetFreeController, load_model
+
+    shipped = load_model("ph_lstm_n5.npz")
+    bare = LSTMModel(**shipped.weights(), normalization=shipped.normalization)
+    with pytest.raises(InvalidValueError, match="carries no output constraint") as info:
+        OffsetFreeController(bare, MPCConfig(solver="daqp"))
+    assert "y_min and y_max" in str(info.value)
+    # explicit bounds work, and equal the shipped model's stored ones
+    low, high = shipped.output_constraint()  # type: ignore[misc]
+    config = MPCConfig(solver="daqp", y_min=float(low[0]), y_max=float(high[0]))
+    a = OffsetFreeController(bare, config).certification.tightening
+    b = OffsetFreeController(shipped, MPCConfig(solver="daqp")).certification.tightening
+    np.testing.assert_allclose(a.y_min, b.y_min, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(a.y_max, b.y_max, rtol=0, atol=1e-15)
+
+
+def test_u_max_beyond_the_training_range_warns() -> None:
+    from ltv_lstm_mpc import MPCConfig, OffsetFreeController, load_model
+
+    model = load_model("ph_lstm_n5.npz")
+    with pytest.warns(RuntimeWarning, match=r"beyond the range the model was trained on") as record:
+        OffsetFreeController(model, MPCConfig(solver="daqp", u_max=1.5))
+    assert "u_max = 1.5" in str(record[0].message)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        OffsetFreeController(model, MPCConfig(solver="daqp", u_max=1.0))

@@ -41,7 +41,7 @@ __all__ = ["Certification", "CertificationSettings", "certify"]
 
 FloatArray = NDArray[np.float64]
 
-#: The paper's output constraint Y_phi = [6.0, 9.0] pH (Section V).
+#: The paper's output constraint Y_phi = [6.0, 9.0] pH (Section V), stored in the pH models.
 PAPER_Y_PHI_BOUNDS = (6.0, 9.0)
 
 
@@ -75,8 +75,9 @@ class CertificationSettings:
     N : int
         Horizon, 5.
     y_min, y_max : float
-        Output constraint in normalized units. ``None`` means: the paper's
-        [6.0, 9.0] pH through the model's normalization, or [-1, 1] without one.
+        Output constraint in normalized units. ``None`` means: the constraint the model
+        carries (``y_phi_constraint_min/max`` of its file, physical units, normalized
+        through its normalization); a model without one needs explicit values.
     epsilon : float
         :math:`P_f` margin (SPEC 2.6), 0.01.
     e_y_bar : float
@@ -125,10 +126,15 @@ class CertificationSettings:
             return np.full(p, float(self.y_min)), np.full(p, float(self.y_max))
         if self.y_min is not None or self.y_max is not None:
             raise InvalidValueError("give both y_min and y_max, or neither")
-        if model.normalization is None:
-            return -np.ones(p), np.ones(p)
-        low, high = PAPER_Y_PHI_BOUNDS
-        return model.normalize_y(np.full(p, low)), model.normalize_y(np.full(p, high))
+        stored = model.output_constraint()
+        if stored is None:
+            raise InvalidValueError(
+                "the model carries no output constraint (y_phi_constraint_min/max in its .npz) "
+                "and none was given: pass y_min and y_max (normalized units) to MPCConfig / "
+                "CertificationSettings (CLI: --y-min/--y-max), or store the constraint with "
+                "LSTMModel(..., y_phi_constraint=(low, high)) in physical units and save it"
+            )
+        return stored
 
     def gains(self, model: LSTMModel) -> ObserverGains:
         """Observer gains filled from the scalar settings."""

@@ -84,8 +84,8 @@ def _add_certify(subparsers: Any) -> None:
         type=float,
         default=None,
         help=(
-            "normalized output lower bound (default: the paper's "
-            f"{PAPER_Y_PHI_BOUNDS[0]} pH through the model's normalization, else -1)"
+            "normalized output lower bound (default: the model's stored output constraint, "
+            f"e.g. the paper's {PAPER_Y_PHI_BOUNDS[0]} pH in the shipped pH models)"
         ),
     )
     parser.add_argument(
@@ -93,8 +93,8 @@ def _add_certify(subparsers: Any) -> None:
         type=float,
         default=None,
         help=(
-            "normalized output upper bound (default: the paper's "
-            f"{PAPER_Y_PHI_BOUNDS[1]} pH through the model's normalization, else 1)"
+            "normalized output upper bound (default: the model's stored output constraint, "
+            f"e.g. the paper's {PAPER_Y_PHI_BOUNDS[1]} pH in the shipped pH models)"
         ),
     )
     parser.add_argument("--e-y-bar", type=float, default=0.03, help="e_y_bar of Lemma 5 (0.03)")

@@ -50,6 +50,7 @@ WEIGHT_NAMES: tuple[str, ...] = (
     "b_y",
 )
 _NORMALIZATION_NAMES = ("u_phi_min", "u_phi_max", "y_phi_min", "y_phi_max")
+_CONSTRAINT_NAMES = ("y_phi_constraint_min", "y_phi_constraint_max")
 
 
 class ModelFormatError(LtvMpcError, ValueError):
@@ -207,6 +208,10 @@ class LSTMModel:
         Output bias.
     normalization : Normalization, optional
         Physical <-> normalized maps (SPEC 1). Required by the ``*_phi`` helpers.
+    y_phi_constraint : (low, high), optional
+        Output constraint :math:`\mathcal Y_\phi` in physical units, each of shape (p,)
+        (the shipped pH models: [6, 9] pH). The MPC uses it when its config gives no
+        ``y_min/y_max``; stored in the file as ``y_phi_constraint_min/max``.
 
     Raises
     ------
@@ -240,6 +245,7 @@ class LSTMModel:
         W_y: ArrayLike,
         b_y: ArrayLike,
         normalization: Normalization | None = None,
+        y_phi_constraint: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> None:
         U_f_arr = np.asarray(_real_array("U_f", U_f), dtype=np.float64)
         W_f_arr = np.asarray(_real_array("W_f", W_f), dtype=np.float64)
@@ -292,6 +298,19 @@ class LSTMModel:
                     f"expected ({p},) for a model with p={p} outputs"
                 )
         self.normalization = normalization
+        #: Output constraint :math:`\mathcal Y_\phi` (physical units, (p,) each), or None.
+        self.y_phi_constraint: tuple[FloatArray, FloatArray] | None = None
+        if y_phi_constraint is not None:
+            low, high = (
+                _as_finite_array(name, np.atleast_1d(value), (p,))
+                for name, value in zip(_CONSTRAINT_NAMES, y_phi_constraint, strict=True)
+            )
+            if not np.all(low < high):
+                raise InvalidValueError(
+                    f"y_phi_constraint_min {low.tolist()} must be below "
+                    f"y_phi_constraint_max {high.tolist()} on every output"
+                )
+            self.y_phi_constraint = (low, high)
         # Stacked gate weights, order (f, i, o, c): one matmul per step instead of four.
         self._W_gates = np.vstack([self.W_f, self.W_i, self.W_o, self.W_c])
         self._U_gates = np.vstack([self.U_f, self.U_i, self.U_o, self.U_c])
@@ -519,12 +538,24 @@ class LSTMModel:
                 f"(optionally {list(_NORMALIZATION_NAMES)})"
             )
         present_norm = [name for name in _NORMALIZATION_NAMES if name in arrays]
-        unknown = sorted(set(arrays) - set(WEIGHT_NAMES) - set(_NORMALIZATION_NAMES))
+        optional = (*_NORMALIZATION_NAMES, *_CONSTRAINT_NAMES)
+        unknown = sorted(set(arrays) - set(WEIGHT_NAMES) - set(optional))
         if unknown:
             raise ModelFormatError(
                 f"unexpected array(s) {unknown}; allowed names are {list(WEIGHT_NAMES)} "
-                f"and {list(_NORMALIZATION_NAMES)}"
+                f"and {list(optional)}"
             )
+        present_constraint = [name for name in _CONSTRAINT_NAMES if name in arrays]
+        if len(present_constraint) == 1:
+            raise ModelFormatError(
+                f"output constraint is incomplete: only {present_constraint} (give both of "
+                f"{list(_CONSTRAINT_NAMES)} or none)"
+            )
+        constraint = (
+            (arrays[_CONSTRAINT_NAMES[0]], arrays[_CONSTRAINT_NAMES[1]])
+            if present_constraint
+            else None
+        )
         normalization = None
         if present_norm:
             if len(present_norm) != len(_NORMALIZATION_NAMES):
@@ -534,16 +565,23 @@ class LSTMModel:
                     f"{list(_NORMALIZATION_NAMES)} or none)"
                 )
             normalization = Normalization(*(arrays[name] for name in _NORMALIZATION_NAMES))
-        return cls(**{name: arrays[name] for name in WEIGHT_NAMES}, normalization=normalization)
+        return cls(
+            **{name: arrays[name] for name in WEIGHT_NAMES},
+            normalization=normalization,
+            y_phi_constraint=constraint,
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> LSTMModel:
-        """Load a model from an ``.npz`` file.
+        r"""Load a model from an ``.npz`` file.
 
         The file holds float arrays named exactly ``W_f, U_f, b_f, W_i, U_i, b_i, W_o,
         U_o, b_o, W_c, U_c, b_c, W_y, b_y`` (shapes W_* (n, m), U_* (n, n), b_* (n,),
         W_y (p, n), b_y (p,)) and optionally ``u_phi_min, u_phi_max`` (m,) and
-        ``y_phi_min, y_phi_max`` (p,).
+        ``y_phi_min, y_phi_max`` (p,) (the normalization), and
+        ``y_phi_constraint_min, y_phi_constraint_max`` (p,) (the output constraint
+        :math:`\mathcal Y_\phi` in physical units, used by the MPC when its config gives
+        no ``y_min/y_max``).
         """
         path = Path(path)
         if not path.exists():
@@ -562,7 +600,19 @@ class LSTMModel:
         if self.normalization is not None:
             for name in _NORMALIZATION_NAMES:
                 arrays[name] = np.array(getattr(self.normalization, name))
+        if self.y_phi_constraint is not None:
+            for name, value in zip(_CONSTRAINT_NAMES, self.y_phi_constraint, strict=True):
+                arrays[name] = np.array(value)
         return arrays
+
+    def output_constraint(self) -> tuple[FloatArray, FloatArray] | None:
+        """The stored output constraint in normalized units (SPEC 1), or None."""
+        if self.y_phi_constraint is None:
+            return None
+        low, high = self.y_phi_constraint
+        if self.normalization is None:  # the model works in physical units
+            return low.copy(), high.copy()
+        return self.normalize_y(low), self.normalize_y(high)
 
     def save(self, path: str | Path) -> Path:
         """Save to an ``.npz`` file in the documented format; returns the path written."""
@@ -579,6 +629,7 @@ class LSTMModel:
         state_dict: Mapping[str, Any],
         *,
         normalization: Normalization | None = None,
+        y_phi_constraint: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> LSTMModel:
         """Build a model from a single-layer ``torch.nn.LSTM`` + ``torch.nn.Linear`` state dict.
 
@@ -635,7 +686,7 @@ class LSTMModel:
             arrays[f"W_{gate}"] = w_ih[rows]
             arrays[f"U_{gate}"] = w_hh[rows]
             arrays[f"b_{gate}"] = bias[rows]
-        return cls(**arrays, normalization=normalization)
+        return cls(**arrays, normalization=normalization, y_phi_constraint=y_phi_constraint)
 
     def __repr__(self) -> str:
         norm = "with" if self.normalization is not None else "without"

@@ -41,8 +41,9 @@ class MPCConfig:
     u_max : float
         :math:`u_{max}` (1, normalized).
     y_min, y_max : float, optional
-        Output constraint (normalized); ``None``: the paper's [6, 9] pH through the
-        model's normalization, or [-1, 1] without one.
+        Output constraint (normalized); ``None``: the constraint the model carries
+        (``y_phi_constraint_min/max`` of its file; the shipped pH models state the
+        paper's [6, 9] pH); a model without one needs explicit values.
     d_max, w_bar : float
         :math:`d_{max}` (0.1) and :math:`\bar w` (0.01).
     Q_s, Q_o : float

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from typing import Any
 
 import numpy as np
@@ -147,6 +148,20 @@ class RobustMPC:
         self.certification = certification or certify(model, config.certification_settings(model))
         self.tightening = ti = self.certification.tightening
         ti.require_setpoint_interval(model.denormalize_y if model.normalization else None)
+        if model.normalization is not None and config.u_max > 1.0:
+            # The normalization maps the training data's input range onto [-1, 1].
+            low = model.denormalize_u(np.full(model.m, -config.u_max))
+            high = model.denormalize_u(np.full(model.m, config.u_max))
+            norm = model.normalization
+            warnings.warn(
+                f"u_max = {config.u_max} (normalized) lets the input reach "
+                f"[{low.tolist()}, {high.tolist()}] in physical units, beyond the range the "
+                f"model was trained on [{norm.u_phi_min.tolist()}, {norm.u_phi_max.tolist()}]: "
+                "its predictions there are extrapolations; keep u_max <= 1 or retrain on "
+                "a wider input range",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         Q, R = config.weights(model)
         self.N = N = config.N
         kinds: tuple[str, ...] = ("nominal",)

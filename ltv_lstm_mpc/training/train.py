@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ltv_lstm_mpc.certificates.certify import PAPER_Y_PHI_BOUNDS
 from ltv_lstm_mpc.certificates.stability import (
     delta_iss_certificate,
     incremental_lyapunov_certificate,
@@ -405,7 +406,10 @@ def _state_dict(lstm: Any, linear: Any) -> dict[str, Any]:
 
 def _export(state: dict[str, Any], normalization: Normalization) -> LSTMModel:
     arrays = {k: v.detach().cpu().double().numpy() for k, v in state.items()}
-    return LSTMModel.from_torch_state_dict(arrays, normalization=normalization)
+    # The pH benchmark's output constraint Y_phi = [6, 9] pH (Section V) travels with the model.
+    return LSTMModel.from_torch_state_dict(
+        arrays, normalization=normalization, y_phi_constraint=PAPER_Y_PHI_BOUNDS
+    )
 
 
 def _initial_state(lstm: Any, u0: float, batch: int, config: TrainingConfig) -> tuple[Any, Any]:
