@@ -31,6 +31,7 @@ from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
 from ltv_lstm_mpc.mpc.rti import RobustMPC
+from ltv_lstm_mpc.validation import real_vector
 
 __all__ = ["ControllerStep", "OffsetFreeController"]
 
@@ -181,16 +182,10 @@ class OffsetFreeController:
     def _normalize(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Normalized measurement and set-point, checked (SPEC 1)."""
         p = self.model.p
-        y_arr = np.asarray(y_phi, dtype=np.float64)
-        y0_arr = np.asarray(y0_phi, dtype=np.float64)
-        if y_arr.size != p or y0_arr.size != p:
-            raise InvalidValueError(
-                f"y_phi and y0_phi must have {p} entries, got {y_phi!r} and {y0_phi!r}"
-            )
-        y = (y_arr.reshape(p) - self._y_min) / self._y_scale - 1.0
-        y0_target = (y0_arr.reshape(p) - self._y_min) / self._y_scale - 1.0
-        if not math.isfinite(float(y.sum() + y0_target.sum())):
-            raise InvalidValueError(f"y_phi and y0_phi must be finite, got {y_phi!r}, {y0_phi!r}")
+        y_arr = real_vector("y_phi", y_phi, p)
+        y0_arr = real_vector("y0_phi", y0_phi, p)
+        y = (y_arr - self._y_min) / self._y_scale - 1.0
+        y0_target = (y0_arr - self._y_min) / self._y_scale - 1.0
         return y, y0_target
 
     def _solve_reference(self, y0: FloatArray, d_hat: FloatArray) -> ReferenceSolution:

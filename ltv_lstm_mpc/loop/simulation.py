@@ -10,9 +10,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm.auto import tqdm
 
-from ltv_lstm_mpc.exceptions import DimensionError
+from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.plants.protocol import Plant
+from ltv_lstm_mpc.validation import real_vector
 
 __all__ = ["SimulationResult", "simulate"]
 
@@ -79,18 +80,50 @@ class SimulationResult:
 
 
 def _as_schedule(
-    name: str, value: ArrayLike | Callable[[int], ArrayLike] | None, steps: int
+    name: str,
+    value: ArrayLike | Callable[[int], ArrayLike] | None,
+    steps: int,
+    width: int | None,
 ) -> list[FloatArray | None]:
+    """Per-step vectors of a schedule: None, a callable, a constant, or one row per step.
+
+    A scalar, or a vector of shape ``(width,)``, is a constant; an array of shape
+    ``(steps', width)`` (or ``(steps',)`` when ``width == 1``) with ``steps' >= steps`` is a
+    time series. ``width=None`` (a plant whose disturbance size is unknown) accepts a
+    scalar, a 1-D series or a 2-D series.
+    """
     if value is None:
         return [None] * steps
     if callable(value):
-        return [np.atleast_1d(np.asarray(value(k), dtype=np.float64)) for k in range(steps)]
-    array = np.asarray(value, dtype=np.float64)
-    if array.ndim == 0:
-        return [np.atleast_1d(array)] * steps
-    if array.shape[0] < steps:
-        raise DimensionError(f"{name} has {array.shape[0]} samples, need at least steps={steps}")
-    return [np.atleast_1d(array[k]) for k in range(steps)]
+        return [
+            real_vector(f"{name}({k})", value(k), width if width is not None else np.size(value(k)))
+            for k in range(steps)
+        ]
+    if isinstance(value, (bool, str, bytes)):
+        real_vector(name, value, 1)  # raises with the standard message
+    array = np.asarray(value)
+    if array.ndim == 0 or (width is not None and width > 1 and array.shape == (width,)):
+        constant = real_vector(name, array.reshape(-1), array.size)
+        if width is not None and constant.shape != (width,):
+            raise DimensionError(f"{name} has {constant.size} entries, expected {width}")
+        return [constant] * steps
+    if array.ndim == 1:
+        if width is not None and width != 1:
+            raise DimensionError(
+                f"{name} has shape {array.shape}: give one row of {width} entries per step, "
+                f"shape (steps, {width}), or one constant vector of shape ({width},)"
+            )
+        rows = array.reshape(-1, 1)
+    elif array.ndim == 2 and (width is None or array.shape[1] == width):
+        rows = array
+    else:
+        expected = f"(steps, {width})" if width is not None else "(steps, width)"
+        raise DimensionError(f"{name} has shape {array.shape}, expected {expected}")
+    if rows.shape[0] < steps:
+        raise DimensionError(f"{name} has {rows.shape[0]} samples, need at least steps={steps}")
+    checked = real_vector(name, rows[:steps].reshape(-1), steps * rows.shape[1])
+    series = checked.reshape(steps, rows.shape[1])
+    return [series[k] for k in range(steps)]
 
 
 def simulate(
@@ -125,12 +158,23 @@ def simulate(
     max_seconds : float, optional
         Stop after this wall time (the result then has fewer samples than ``steps``).
     """
+    p = controller.model.p
     if steps is None:
-        if callable(setpoints) or np.ndim(setpoints) == 0:
-            raise DimensionError("steps is required when setpoints is a scalar or a callable")
+        if callable(setpoints) or (
+            np.ndim(setpoints) == 0 or (p > 1 and np.shape(setpoints) == (p,))
+        ):
+            raise DimensionError(
+                "steps is required when setpoints is a constant (scalar or (p,) vector) or a "
+                "callable"
+            )
         steps = int(np.shape(setpoints)[0])
-    y0_schedule = _as_schedule("setpoints", setpoints, steps)
-    d_schedule = _as_schedule("disturbances", disturbances, steps)
+    if isinstance(steps, bool) or int(steps) != steps or steps <= 0:
+        raise InvalidValueError(f"steps must be a positive integer, got {steps!r}")
+    steps = int(steps)
+    y0_schedule = _as_schedule("setpoints", setpoints, steps, p)
+    d_schedule = _as_schedule(
+        "disturbances", disturbances, steps, getattr(plant, "disturbance_size", None)
+    )
     controller.reset()
     y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
     ys, us, y0s, ds = [], [], [], []

@@ -6,6 +6,7 @@ Every field is honoured by every transcription, or rejected with an error naming
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -117,6 +118,13 @@ class MPCConfig:
             raise InvalidValueError(f"solver must be a solver name, got {self.solver!r}")
         if not self.soft_penalty > 0:
             raise InvalidValueError(f"soft_penalty must be positive, got {self.soft_penalty}")
+        if self.e_hat0 is not None and (
+            isinstance(self.e_hat0, bool) or not (math.isfinite(self.e_hat0) and self.e_hat0 >= 0)
+        ):
+            raise InvalidValueError(
+                f"e_hat0 (the initial observer-error bound, eq. eo_evolution) must be a finite "
+                f"number >= 0, got {self.e_hat0!r}; None uses e_inf (SPEC 2.10b)"
+            )
 
     def weights(self, model: LSTMModel) -> tuple[FloatArray, FloatArray]:
         """Q (2n, 2n) and R (m, m) as matrices, validated."""

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.certificates.certify import Certification
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
-from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.validation import real_vector
 
 __all__ = [
     "MPCSolution",
@@ -111,13 +111,9 @@ class MPCSolution:
 
 
 def checked_vector(name: str, value: ArrayLike, size: int) -> FloatArray:
-    """``value`` as a finite float64 vector of shape (size,); clear errors otherwise."""
-    array = np.atleast_1d(np.asarray(value, dtype=np.float64))
-    if array.shape != (size,):
-        raise DimensionError(f"{name} has shape {array.shape}, expected ({size},)")
-    if not np.all(np.isfinite(array)):
-        raise InvalidValueError(f"{name} contains NaN or inf: {array}")
-    return array
+    """``value`` as a finite float64 vector of shape (size,); clear errors otherwise
+    (:func:`ltv_lstm_mpc.validation.real_vector`)."""
+    return real_vector(name, value, size)
 
 
 def shifted_candidate(previous_u: FloatArray | None, u_bar: FloatArray, N: int) -> FloatArray:

@@ -7,6 +7,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.validation import real_vector
 
 __all__ = ["LSTMPlant"]
 
@@ -50,6 +51,8 @@ class LSTMPlant:
         if model.normalization is None:
             raise InvalidValueError("LSTMPlant needs a model with a normalization")
         self.model = model
+        #: Entries of ``d_phi`` in :meth:`step` (the output disturbance, one per output).
+        self.disturbance_size = model.p
         self._x0_arg = None if x0 is None else np.asarray(x0, dtype=np.float64)
         self._u0_phi = u0_phi
         self._y0_phi = y0_phi
@@ -114,16 +117,11 @@ class LSTMPlant:
         """Apply the physical input for one step; ``d_phi`` is the output disturbance at the
         next instant in physical output units (``None``: unchanged). Returns the output."""
         model = self.model
-        u = model.normalize_u(np.atleast_1d(np.asarray(u_phi, dtype=np.float64)))
-        if u.shape != (model.m,):
-            raise DimensionError(f"u_phi has shape {np.shape(u_phi)}, expected ({model.m},)")
+        u = model.normalize_u(real_vector("u_phi", u_phi, model.m))
         if d_phi is not None:
             scale = 0.5 * (
                 model.denormalize_y(np.ones(model.p)) - model.denormalize_y(-np.ones(model.p))
             )
-            d = np.atleast_1d(np.asarray(d_phi, dtype=np.float64)) / scale
-            if d.shape != (model.p,):
-                raise DimensionError(f"d_phi has shape {np.shape(d_phi)}, expected ({model.p},)")
-            self.d = d
+            self.d = real_vector("d_phi", d_phi, model.p) / scale
         self.x = model.step(self.x, u)
         return self.output()

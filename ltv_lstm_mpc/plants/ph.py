@@ -61,6 +61,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.validation import real_vector
 
 __all__ = ["PHNeutralizationPlant", "PHParameters", "ph_from_state", "simulate_ph_batch"]
 
@@ -346,6 +347,8 @@ class PHNeutralizationPlant:
     #: Input saturation bounds of :math:`\mathcal{U}_\phi`, mL/s.
     u_phi_min: float = 12.5
     u_phi_max: float = 17.0
+    #: Entries of ``d_phi`` in :meth:`step` (the buffer flow q2).
+    disturbance_size: int = 1
 
     def __init__(
         self,
@@ -418,10 +421,12 @@ class PHNeutralizationPlant:
     def step(self, u_phi: ArrayLike, d_phi: ArrayLike | None = None) -> FloatArray:
         """Apply q3 = ``u_phi`` (mL/s, saturated) and q2 = ``d_phi`` (mL/s, default nominal)
         for one Ts and return the new pH, shape (1,)."""
-        u = float(np.asarray(u_phi, dtype=np.float64).reshape(-1)[0])
-        d = self.q2_nominal if d_phi is None else float(np.asarray(d_phi).reshape(-1)[0])
-        if not (np.isfinite(u) and np.isfinite(d)):
-            raise InvalidValueError(f"u_phi and d_phi must be finite, got {u}, {d}")
+        u = float(real_vector("u_phi (q3, mL/s)", u_phi, 1)[0])
+        d = (
+            self.q2_nominal
+            if d_phi is None
+            else float(real_vector("d_phi (q2, mL/s)", d_phi, 1)[0])
+        )
         if d < 0:
             raise InvalidValueError(f"the buffer flow q2 = d_phi must be nonnegative, got {d}")
         u = float(self.saturate(u))

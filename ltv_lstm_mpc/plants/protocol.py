@@ -29,6 +29,9 @@ class Plant(Protocol):
     step(u_phi, d_phi=None)
         Apply the physical input ``u_phi`` (and the plant's disturbance ``d_phi``; ``None``
         means nominal) for one sampling period and return the new physical output, shape (p,).
+
+    A plant may also state ``disturbance_size`` (the entries of ``d_phi``); ``simulate``
+    then checks its disturbance schedule against it.
     """
 
     def reset(self) -> float | FloatArray: ...
