@@ -70,10 +70,51 @@ def test_stale_reference_is_recorded_and_consistent(model) -> None:
         return replace(original(y0, d_hat, **kwargs), converged=False)
 
     controller.reference.solve = failing  # type: ignore[method-assign]
-    controller.step([7.05], [7.5])
+    with pytest.warns(RuntimeWarning, match=r"set-point \[7.5\] \(physical units\) at step 1"):
+        controller.step([7.05], [7.5])
     stale = controller.records[-1]
     assert stale.stale_reference and not stale.reference_ok
+    assert stale.setpoint_status == "unreachable_stale"
     np.testing.assert_array_equal(stale.x_bar, good.x_bar)
     consistent_y0 = model.output(good.x_bar) + stale.d_hat
     expected_alpha = controller.certification.tightening.alpha(consistent_y0, stale.e_hat)
     assert stale.mpc.alpha == pytest.approx(expected_alpha, rel=1e-12)
+
+
+def test_setpoint_status_outside_the_admissible_interval(model) -> None:
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp"))
+    controller.step([7.0], [7.2])
+    assert controller.records[-1].setpoint_status == "ok"
+    high_phi = model.denormalize_y(controller.certification.tightening.setpoint_interval()[1])
+    target = float(high_phi[0]) + 0.05
+    with pytest.warns(RuntimeWarning, match="outside the admissible interval") as record:
+        controller.step([7.0], [target])
+        controller.step([7.0], [target])  # warned once per run
+    assert len([w for w in record if "set-point" in str(w.message)]) == 1
+    assert f"[{target}]" in str(record[0].message)
+    assert [r.setpoint_status for r in controller.records] == [
+        "ok",
+        "outside_admissible",
+        "outside_admissible",
+    ]
+
+
+def test_d_hat_saturation_on_a_q2_step_is_recorded_and_warned() -> None:
+    """pH plant and the shipped pH model, q2 from 0.55 to 0.8 mL/s: the plant-model
+    mismatch exceeds d_max."""
+    from ltv_lstm_mpc import simulate
+    from ltv_lstm_mpc.plants import PHNeutralizationPlant
+
+    model = load_model("ph_lstm_n5.npz")
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp", L_d=0.1))
+    plant = PHNeutralizationPlant()
+    plant.reset()
+    q2 = np.r_[np.full(50, 0.55), np.full(350, 0.8)]
+    with pytest.warns(RuntimeWarning, match=r"d_hat reached its bound d_max = 0.1") as record:
+        result = simulate(plant, controller, 7.0, q2, steps=400, progress=False)
+    assert sum("d_hat reached" in str(w.message) for w in record) == 1
+    saturated = result.d_hat_saturated[:, 0]
+    assert not saturated[:50].any()
+    assert saturated.sum() >= 50
+    np.testing.assert_allclose(np.abs(result.d_hat[saturated, 0]), 0.1, rtol=1e-12)
+    assert result.summary_counts()["d_hat_saturated_steps"] == int(saturated.sum())

@@ -96,6 +96,8 @@ CSV_COLUMNS = (
     "plant_violation_steps",
     "infeasible_steps",
     "fallback_steps",
+    "d_hat_saturated_steps",
+    "setpoint_not_ok_steps",
     "status_counts",
     "iterations_median",
     "iterations_max",
@@ -277,6 +279,10 @@ def _summary(run: dict[str, Any]) -> dict[str, Any]:
         ),
         "infeasible_steps": int(sum(not r.mpc.feasible for r in records)),
         "fallback_steps": int(sum(r.mpc.policy != "nominal" for r in records)),
+        "d_hat_saturated_steps": int(
+            sum(r.d_hat_saturated is not None and bool(r.d_hat_saturated.any()) for r in records)
+        ),
+        "setpoint_not_ok_steps": int(sum(r.setpoint_status != "ok" for r in records)),
         "status_counts": ";".join(f"{k}:{v}" for k, v in sorted(statuses.items())),
         "iterations_median": med(run["iterations"]),
         "iterations_max": float(np.max(run["iterations"])),
@@ -422,6 +428,8 @@ _MD_COLUMNS = (
     ("plant_violation_steps", "plant viol."),
     ("infeasible_steps", "infeas."),
     ("fallback_steps", "fallback"),
+    ("d_hat_saturated_steps", "d̂ sat."),
+    ("setpoint_not_ok_steps", "bad y0"),
     ("iterations_median", "iter."),
     ("status_counts", "status"),
 )

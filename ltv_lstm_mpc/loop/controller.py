@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +65,15 @@ class ControllerStep:
         The robust MPC result (status, policy, residuals, ...).
     time_observer, time_reference, time_mpc : float
         Wall time of each part, s.
+    setpoint_status : str
+        ``"ok"``; ``"outside_admissible"`` (the set-point lies outside the admissible
+        interval of Assumption 5 at this :math:`\\hat e_{o,k}`: no terminal set);
+        ``"unreachable_stale"`` (no equilibrium with :math:`\bar u \\in \\mathcal U` for it:
+        the previous target is kept, see ``stale_reference``); ``"unreachable"`` (the same
+        at the first step: the inadmissible equilibrium found is used).
+    d_hat_saturated : ndarray of bool (p,)
+        :math:`|\\hat d_k| = d_{max}` per output: the plant-model mismatch has reached the
+        disturbance bound the guarantees assume.
     """
 
     y: FloatArray
@@ -81,6 +91,8 @@ class ControllerStep:
     time_reference: float
     time_mpc: float
     stale_reference: bool = False
+    setpoint_status: str = "ok"
+    d_hat_saturated: NDArray[np.bool_] | None = None
 
     @property
     def time_total(self) -> float:
@@ -151,6 +163,8 @@ class OffsetFreeController:
         self.mpc.reset()
         self.reference.reset()
         self.records = []
+        self._warned_saturation = self._warned_setpoint = False
+        self._interval: tuple[float, FloatArray, FloatArray] = (math.nan, np.zeros(0), np.zeros(0))
 
     def _limit(self, y0_target: FloatArray) -> FloatArray:
         if self._y0 is None or self.setpoint_rate_limit is None:
@@ -167,16 +181,69 @@ class OffsetFreeController:
         the reused equilibrium encodes, keeping eq. (reference_calculation_output) true for
         the terminal set (Theorem 3, Part 2a).
         """
-        if reference.converged:
+        if reference.ok:
             self._last_reference = reference
             return reference, y0, False
         if self._last_reference is None:
+            if reference.converged:  # first step: nothing better to keep
+                return reference, y0, False
             raise LtvMpcError(
-                f"the reference calculator found no equilibrium for y0 = {y0.tolist()}, "
-                f"d_hat = {d_hat.tolist()} at the first step (residual {reference.residual:.2e})"
+                f"the reference calculator found no equilibrium for the set-point "
+                f"{self._physical_y(y0)} (physical; {y0.tolist()} normalized), d_hat = "
+                f"{d_hat.tolist()} at the first step (residual {reference.residual:.2e})"
             )
         last = self._last_reference
         return last, np.asarray(self.model.output(last.x_bar) + d_hat, dtype=np.float64), True
+
+    def _physical_y(self, y: FloatArray) -> list[float]:
+        return [float(v) for v in (y + 1.0) * self._y_scale + self._y_min]
+
+    def _diagnose(
+        self, y0: FloatArray, d_hat: FloatArray, reference: ReferenceSolution, stale: bool
+    ) -> tuple[str, NDArray[np.bool_]]:
+        """Set-point status and saturated outputs of this step; warns once per run."""
+        ti = self.certification.tightening
+        saturated = np.abs(d_hat) >= self.config.d_max * (1.0 - 1e-12)
+        k = len(self.records)
+        if saturated.any() and not self._warned_saturation:
+            self._warned_saturation = True
+            j = int(np.flatnonzero(saturated)[0])
+            scale = float(self._y_scale[j])
+            warnings.warn(
+                f"d_hat reached its bound d_max = {self.config.d_max} (normalized; "
+                f"{self.config.d_max * scale:.4g} in physical output units) on output {j} at "
+                f"step {k}: the plant-model mismatch exceeds the disturbance bound the "
+                "guarantees assume (|d| <= d_max), and offsets may remain. Raise d_max "
+                "(MPCConfig d_max; estimate_d_max(model, data) measures the mismatch), which "
+                "shrinks the admissible set-point interval, or use a model that fits this "
+                "operating point better",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        if stale or not reference.u_admissible:
+            status = "unreachable_stale" if stale else "unreachable"
+        else:
+            if self._interval[0] != self.e_hat:
+                self._interval = (self.e_hat, *ti.setpoint_interval(self.e_hat))
+            _, low, high = self._interval
+            status = "ok" if bool(np.all((low < y0) & (y0 < high))) else "outside_admissible"
+        if status != "ok" and not self._warned_setpoint:
+            self._warned_setpoint = True
+            low, high = ti.setpoint_interval(self.e_hat)
+            where = (
+                f"outside the admissible interval [{self._physical_y(low)}, "
+                f"{self._physical_y(high)}] of Assumption 5 (no terminal set: the MPC is "
+                "infeasible and its policy applies)"
+                if status == "outside_admissible"
+                else "not reachable: no equilibrium with the input inside its bounds"
+                + (" (the previous target is kept)" if stale else "")
+            )
+            warnings.warn(
+                f"set-point {self._physical_y(y0)} (physical units) at step {k} is {where}",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        return status, saturated
 
     # Parts of one step; a faster controller overrides these, not the loop in ``step``.
     def _normalize(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -232,6 +299,7 @@ class OffsetFreeController:
         x_hat, d_hat = self.observer.x_hat, self.observer.d_hat
         t1 = time.perf_counter()
         reference, y0_mpc, stale = self._reference(self._solve_reference(y0, d_hat), y0, d_hat)
+        setpoint_status, saturated = self._diagnose(y0, d_hat, reference, stale)
         t2 = time.perf_counter()
         solution = self._solve_mpc(x_hat, reference, y0_mpc)
         u = solution.u[0].copy()
@@ -260,6 +328,8 @@ class OffsetFreeController:
                 time_reference=t2 - t1,
                 time_mpc=t3 - t2,
                 stale_reference=stale,
+                setpoint_status=setpoint_status,
+                d_hat_saturated=saturated,
             )
         )
         return u_phi

@@ -22,7 +22,7 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class SimulationResult:
-    """Arrays of one closed-loop run (index k = sample k; physical units where ``_phi``).
+    r"""Arrays of one closed-loop run (index k = sample k; physical units where ``_phi``).
 
     Attributes
     ----------
@@ -55,6 +55,11 @@ class SimulationResult:
         The MPC's two RTI phases (``time_mpc`` is about their sum), s.
     transcription : str
         The MPC's transcription (``"condensed"``, ``"sparse"``, ``"nonlinear"``).
+    setpoint_status : (steps,) str
+        ``"ok"``, ``"outside_admissible"``, ``"unreachable_stale"`` or ``"unreachable"``
+        (see :class:`~ltv_lstm_mpc.loop.controller.ControllerStep`).
+    d_hat_saturated : (steps, p) bool
+        :math:`|\hat d_k| = d_{max}` per output.
     """
 
     y_phi: FloatArray
@@ -77,6 +82,19 @@ class SimulationResult:
     time_prepare: FloatArray
     time_feedback: FloatArray
     transcription: str = ""
+    setpoint_status: NDArray[np.str_] | None = None
+    d_hat_saturated: NDArray[np.bool_] | None = None
+
+    def summary_counts(self) -> dict[str, int]:
+        """Steps per set-point status, d_hat-saturated steps, infeasible steps."""
+        counts: dict[str, int] = {}
+        if self.setpoint_status is not None:
+            for name in ("ok", "outside_admissible", "unreachable_stale", "unreachable"):
+                counts[f"setpoint_{name}_steps"] = int(np.sum(self.setpoint_status == name))
+        if self.d_hat_saturated is not None:
+            counts["d_hat_saturated_steps"] = int(np.sum(self.d_hat_saturated.any(axis=1)))
+        counts["infeasible_steps"] = int(np.sum(~self.feasible))
+        return counts
 
 
 def _as_schedule(
@@ -211,4 +229,14 @@ def simulate(
         time_prepare=np.array([r.mpc.prepare_time for r in records]),
         time_feedback=np.array([r.mpc.feedback_time for r in records]),
         transcription=records[0].mpc.transcription if records else "",
+        setpoint_status=np.array([r.setpoint_status for r in records]),
+        d_hat_saturated=np.array(
+            [
+                np.zeros(controller.model.p, dtype=bool)
+                if r.d_hat_saturated is None
+                else r.d_hat_saturated
+                for r in records
+            ],
+            dtype=bool,
+        ).reshape(len(records), controller.model.p),
     )

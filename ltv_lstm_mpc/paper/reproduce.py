@@ -156,19 +156,24 @@ def format_table(summaries: Sequence[dict[str, Any]]) -> str:
     r"""Plain-text summary table, one row per scenario.
 
     ``segment offsets`` is :math:`|y_\phi - y^0_\phi|` (pH) at the end of each constant
-    segment; ``final offset`` is their maximum.
+    segment; ``final offset`` is their maximum. ``d_hat sat`` counts the steps with
+    :math:`|\hat d| = d_{max}`, ``bad y0`` those whose set-point was not ``ok``
+    (outside the admissible interval or unreachable).
     """
     header = (
         f"{'scenario':<16} {'steps':>5} {'final offset':>12} {'max viol':>8} {'infeas':>6} "
-        f"{'fallback':>8} {'median ms':>9} {'max ms':>7}  segment offsets (pH)"
+        f"{'fallback':>8} {'d_hat sat':>9} {'bad y0':>6} {'median ms':>9} {'max ms':>7}  "
+        "segment offsets (pH)"
     )
     lines = [header, "-" * len(header)]
     for s in summaries:
         offset = "-" if s["final_offset"] is None else f"{s['final_offset']:.1e}"
         segments = " ".join(f"{o:.1e}" for o in s["segment_offsets"])
+        bad_y0 = s["steps"] - s.get("setpoint_ok_steps", s["steps"])
         lines.append(
             f"{s['name']:<16} {s['steps']:>5} {offset:>12} {s['max_output_violation']:>8.2g} "
             f"{s['infeasible_steps']:>6} {s['fallback_steps']:>8} "
+            f"{s.get('d_hat_saturated_steps', 0):>9} {bad_y0:>6} "
             f"{1e3 * s['median_step_time_s']:>9.2f} {1e3 * s['max_step_time_s']:>7.1f}  {segments}"
         )
     return "\n".join(lines)

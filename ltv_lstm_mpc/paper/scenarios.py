@@ -166,6 +166,7 @@ class ScenarioResult:
             "max_predicted_violation": float(np.max(sim.output_violation)),
             "infeasible_steps": int(np.sum(~sim.feasible)),
             "fallback_steps": int(np.sum(sim.policy != "nominal")),
+            **{k: v for k, v in sim.summary_counts().items() if k != "infeasible_steps"},
             "final_offset": max(offsets) if offsets else None,
             "segment_offsets": offsets,
             "median_step_time_s": float(np.median(sim.time_total)),
