@@ -12,6 +12,7 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 from ltv_lstm_mpc.certificates.certify import Certification, CertificationSettings, certify
+from ltv_lstm_mpc.certificates.disturbance import DMaxEstimate, estimate_d_max
 from ltv_lstm_mpc.certificates.stability import (
     DeltaISSCertificate,
     IncrementalLyapunovCertificate,
@@ -61,6 +62,7 @@ __all__ = [
     "Certification",
     "CertificationSettings",
     "ControllerStep",
+    "DMaxEstimate",
     "DeltaISSCertificate",
     "DimensionError",
     "EmptySetpointIntervalError",
@@ -97,6 +99,7 @@ __all__ = [
     "delta_iss_certificate",
     "design_observer_gains",
     "estimate_K_bar",
+    "estimate_d_max",
     "incremental_lyapunov_certificate",
     "load_model",
     "observer_certificate",

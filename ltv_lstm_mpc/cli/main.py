@@ -76,6 +76,16 @@ def _add_certify(subparsers: Any) -> None:
         help="choose L_f, L_i, L_o minimizing rho(A_d) (SPEC 2.11) instead of the fill values",
     )
     parser.add_argument("--d-max", type=float, default=0.1, help="d_max (default 0.1)")
+    parser.add_argument(
+        "--d-max-from",
+        type=Path,
+        default=None,
+        metavar="DATA.npz",
+        help=(
+            "estimate d_max from identification data (ltv-lstm-mpc generate-data): the largest "
+            "open-loop output mismatch of the model plus 10 %%; overrides --d-max"
+        ),
+    )
     parser.add_argument("--w-bar", type=float, default=0.01, help="w_bar (default 0.01)")
     parser.add_argument("--Q", type=float, default=1.0, help="stage weight Q = q I_2n (default 1)")
     parser.add_argument("--N", type=int, default=5, help="prediction horizon (default 5)")
@@ -151,6 +161,20 @@ def _format_table(certification: Certification) -> str:
 def _run_certify(args: argparse.Namespace) -> int:
     path = _resolve_model_path(args.model)
     model = LSTMModel.load(path)
+    if args.d_max_from is not None:
+        from ltv_lstm_mpc.certificates.disturbance import estimate_d_max
+
+        estimate = estimate_d_max(model, args.d_max_from)
+        args.d_max = estimate.d_max
+        split, sequence, sample = estimate.worst
+        print(
+            f"d_max = {estimate.d_max:.6g} estimated from {args.d_max_from}: largest open-loop "
+            f"mismatch {estimate.mismatch:.6g} (normalized; {estimate.mismatch_phi:.4g} in "
+            f"physical units, {split} sequence {sequence} sample {sample}) + "
+            f"{100 * estimate.margin:.0f} %; a larger d_max shrinks the admissible set-point "
+            "interval by 2 d_max",
+            file=sys.stderr,
+        )
     settings = CertificationSettings(
         u_max=args.u_max,
         Q_s=args.Q_s,
