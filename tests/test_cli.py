@@ -48,8 +48,10 @@ def test_certify_table_and_help(capsys) -> None:
 def test_certify_errors_are_clean(capsys, tmp_path) -> None:
     assert main(["certify", str(tmp_path / "missing.npz")]) == 1
     assert "no shipped file" in capsys.readouterr().err
-    assert main(["certify", "--L-d", "3.0"]) == 1
-    assert "l_d must lie in (0, 2)" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:  # now a usage error, found by the parser
+        main(["certify", "--L-d", "3.0"])
+    assert stop.value.code == 2
+    assert "'3.0' must lie in (0, 2)" in capsys.readouterr().err
 
 
 def test_console_script_runs() -> None:
@@ -90,3 +92,64 @@ def test_bench_smoke_through_the_entry_point(tmp_path) -> None:
     )
     assert result.returncode == 0, result.stderr[-2000:]
     assert any(tmp_path.iterdir())
+
+
+# ------------------------------------------------------------------- bad invocations
+def _run_main(argv: list[str], capsys) -> tuple[int, str]:  # type: ignore[no-untyped-def]
+    try:
+        code = main(argv)
+    except SystemExit as stop:  # argparse usage errors
+        code = int(stop.code or 0)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return code, err
+
+
+USAGE_ERRORS = [
+    (["simulate", "--segment", "0"], "argument --segment: '0' must be an integer >= 1"),
+    (["simulate", "--segment", "-3"], "--segment"),
+    (["simulate", "--rate-limit", "-1"], "--rate-limit"),
+    (["simulate", "--N", "0"], "--N"),
+    (["simulate", "--L-d", "2.5"], "must lie in (0, 2)"),
+    (["simulate", "--max-offset", "nan"], "--max-offset"),
+    (["certify", "--u-max", "-1"], "--u-max"),
+    (["certify", "--d-max", "inf"], "--d-max"),
+    (["bench", "--backends", "nope", "--smoke"], "matches no installed backend"),
+    (["bench", "--steps", "0", "--smoke"], "--steps"),
+]
+
+
+@pytest.mark.parametrize(("argv", "text"), USAGE_ERRORS)
+def test_usage_errors_exit_2_without_traceback(argv, text, capsys) -> None:
+    code, err = _run_main(argv, capsys)
+    assert code == 2
+    assert text in err
+
+
+def test_out_pointing_at_a_file_is_refused_before_any_work(tmp_path, capsys) -> None:
+    target = tmp_path / "results.txt"
+    target.write_text("keep me")
+    for argv in (["simulate", "--out", str(target)], ["reproduce", "--out", str(target)]):
+        code, err = _run_main(argv, capsys)
+        assert code == 2 and "exists and is not a folder" in err
+    assert target.read_text() == "keep me"
+
+
+def test_bad_model_files_are_one_line_errors(tmp_path, capsys) -> None:
+    bad = tmp_path / "truncated.npz"
+    bad.write_bytes(b"PK\x03\x04 truncated")
+    folder = tmp_path / "folder.npz"
+    folder.mkdir()
+    for path, text in ((bad, "damaged or truncated"), (folder, "is a folder")):
+        code, err = _run_main(["certify", str(path)], capsys)
+        assert code == 1
+        assert err.count("\n") == 1 and text in err and str(path) in err
+
+
+def test_max_offset_sets_the_exit_status(capsys) -> None:
+    argv = ["simulate", "--solver", "daqp", "--setpoints", "7.2", "--segment", "60",
+            "--no-progress"]  # fmt: skip
+    code, _ = _run_main([*argv, "--max-offset", "1e-9"], capsys)
+    assert code == 3
+    out_code, _ = _run_main([*argv, "--max-offset", "5"], capsys)
+    assert out_code == 0

@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.certify import Certification, certify
+from ltv_lstm_mpc.cli.arguments import UsageError, output_folder, positive_float, positive_int
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.simulation import simulate
@@ -331,21 +332,7 @@ def run_bench(
     time_cap : float
         Wall-time cap per run, s (the run stops early; ``steps`` says how far it got).
     """
-    everything = available_backends()
-    if backends is None:
-        chosen = everything
-    else:
-        chosen = []
-        for pat in backends:
-            base = pat.partition("@")[0]
-            matched = [b for b in everything if fnmatch.fnmatch(b, base)]
-            if not matched:
-                raise InvalidValueError(
-                    f"backend {pat!r} matches no installed backend; choose from "
-                    f"{', '.join(everything)} (optionally with @condensed / @sparse)"
-                )
-            suffix = pat[len(base) :]
-            chosen += [b + suffix for b in matched if b + suffix not in chosen]
+    chosen = resolve_backends(backends)
     rows: list[dict[str, Any]] = []
     for scenario in scenarios:
         for N in horizons:
@@ -662,20 +649,26 @@ def _parser_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--model", default="ph_lstm_n5.npz", help="model .npz or shipped name (ph_lstm_n5.npz)"
     )
-    parser.add_argument("--out", default="bench_results", help="output folder (bench_results)")
-    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    parser.add_argument(
+        "--out", type=output_folder, default="bench_results", help="output folder (bench_results)"
+    )
+    parser.add_argument("--N", type=positive_int, nargs="+", default=[5, 20, 50], help="horizons")
     parser.add_argument(
         "--backends", nargs="+", default=None, help="backend names or patterns (default: all)"
     )
     parser.add_argument("--scenarios", nargs="+", default=None, help="scenario names (patterns)")
-    parser.add_argument("--steps", type=int, default=None, help="samples per run (default 200)")
     parser.add_argument(
-        "--slow-steps", type=int, default=60, help="cap for N>=20 via cvxpy/qpsolvers (60)"
+        "--steps", type=positive_int, default=None, help="samples per run (default 200)"
+    )
+    parser.add_argument(
+        "--slow-steps", type=positive_int, default=60, help="cap for N>=20 via cvxpy/qpsolvers (60)"
     )
     parser.add_argument(
         "--all-scenarios", action="store_true", help="N > 5 on every scenario (default: first)"
     )
-    parser.add_argument("--time-cap", type=float, default=60.0, help="wall cap per run, s (60)")
+    parser.add_argument(
+        "--time-cap", type=positive_float, default=60.0, help="wall cap per run, s (60)"
+    )
     parser.add_argument(
         "--smoke", action="store_true", help="seconds: 1 scenario, 30 steps, few backends, N=5"
     )
@@ -689,10 +682,43 @@ DEFAULT_SCENARIOS = ("1_*", "4_*", "standin*")
 SMOKE_BACKENDS = ("ipopt", "daqp", "daqp@sparse", "cvxpy:CLARABEL")
 
 
+def resolve_backends(backends: Sequence[str] | None) -> list[str]:
+    """Backend names from names or fnmatch patterns (``None``: every available backend).
+
+    Raises
+    ------
+    InvalidValueError
+        A pattern that matches no installed backend (the message lists them).
+    """
+    everything = available_backends()
+    if backends is None:
+        return everything
+    chosen: list[str] = []
+    for pat in backends:
+        base, _, suffix = pat.partition("@")
+        if suffix and suffix not in ("condensed", "sparse"):
+            raise InvalidValueError(
+                f"backend {pat!r}: the suffix after @ must be condensed or sparse"
+            )
+        matched = [b for b in everything if fnmatch.fnmatch(b, base)]
+        if not matched:
+            raise InvalidValueError(
+                f"backend {pat!r} matches no installed backend; choose from "
+                f"{', '.join(everything)} (optionally with @condensed / @sparse)"
+            )
+        tail = f"@{suffix}" if suffix else ""
+        chosen += [b + tail for b in matched if b + tail not in chosen]
+    return chosen
+
+
 def main_bench(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc bench``."""
     from ltv_lstm_mpc.cli.main import _resolve_model_path
 
+    try:  # usage errors first, before any work
+        resolve_backends(args.backends)
+    except InvalidValueError as error:
+        raise UsageError(str(error)) from None
     model = LSTMModel.load(_resolve_model_path(args.model))
     scenarios = bench_scenarios(model, short=True)
     patterns = args.scenarios or list(DEFAULT_SCENARIOS)
@@ -702,7 +728,7 @@ def main_bench(args: argparse.Namespace) -> int:
         s for s in scenarios if any(fnmatch.fnmatch(s.name, p) or p in s.name for p in patterns)
     ]
     if not scenarios:
-        raise InvalidValueError(f"no scenario matches {patterns}; scenarios: {names}")
+        raise UsageError(f"no scenario matches {patterns}; scenarios: {names}")
     horizons, backends, steps = args.N, args.backends, args.steps or 200
     notes = []
     if args.smoke:

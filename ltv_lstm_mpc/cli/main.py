@@ -25,6 +25,15 @@ from ltv_lstm_mpc.certificates.certify import (
     CertificationSettings,
     certify,
 )
+from ltv_lstm_mpc.cli.arguments import (
+    UsageError,
+    fraction_open,
+    nonnegative_float,
+    output_folder,
+    positive_float,
+    positive_int,
+    real,
+)
 from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.lstm.shipped import shipped_path
@@ -63,19 +72,27 @@ def _add_certify(subparsers: Any) -> None:
         ),
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--u-max", type=float, default=1.0, help="input bound u_max (default 1)")
-    parser.add_argument("--Q-s", type=float, default=1000.0, help="Q_s = q I_2 (default 1000)")
-    parser.add_argument("--Q-o", type=float, default=1000.0, help="Q_o = q I_3 (default 1000)")
-    parser.add_argument("--L-d", type=float, default=0.01, help="L_d = l_d I_p (default 0.01)")
-    parser.add_argument("--L-f", type=float, default=0.0, help="fill value of L_f (default 0)")
-    parser.add_argument("--L-i", type=float, default=0.0, help="fill value of L_i (default 0)")
-    parser.add_argument("--L-o", type=float, default=0.0, help="fill value of L_o (default 0)")
+    parser.add_argument(
+        "--u-max", type=positive_float, default=1.0, help="input bound u_max (default 1)"
+    )
+    parser.add_argument(
+        "--Q-s", type=positive_float, default=1000.0, help="Q_s = q I_2 (default 1000)"
+    )
+    parser.add_argument(
+        "--Q-o", type=positive_float, default=1000.0, help="Q_o = q I_3 (default 1000)"
+    )
+    parser.add_argument(
+        "--L-d", type=fraction_open(0.0, 2.0), default=0.01, help="L_d = l_d I_p (default 0.01)"
+    )
+    parser.add_argument("--L-f", type=real, default=0.0, help="fill value of L_f (default 0)")
+    parser.add_argument("--L-i", type=real, default=0.0, help="fill value of L_i (default 0)")
+    parser.add_argument("--L-o", type=real, default=0.0, help="fill value of L_o (default 0)")
     parser.add_argument(
         "--design-gains",
         action="store_true",
         help="choose L_f, L_i, L_o minimizing rho(A_d) (SPEC 2.11) instead of the fill values",
     )
-    parser.add_argument("--d-max", type=float, default=0.1, help="d_max (default 0.1)")
+    parser.add_argument("--d-max", type=positive_float, default=0.1, help="d_max (default 0.1)")
     parser.add_argument(
         "--d-max-from",
         type=Path,
@@ -86,9 +103,13 @@ def _add_certify(subparsers: Any) -> None:
             "open-loop output mismatch of the model plus 10 %%; overrides --d-max"
         ),
     )
-    parser.add_argument("--w-bar", type=float, default=0.01, help="w_bar (default 0.01)")
-    parser.add_argument("--Q", type=float, default=1.0, help="stage weight Q = q I_2n (default 1)")
-    parser.add_argument("--N", type=int, default=5, help="prediction horizon (default 5)")
+    parser.add_argument(
+        "--w-bar", type=nonnegative_float, default=0.01, help="w_bar (default 0.01)"
+    )
+    parser.add_argument(
+        "--Q", type=positive_float, default=1.0, help="stage weight Q = q I_2n (default 1)"
+    )
+    parser.add_argument("--N", type=positive_int, default=5, help="prediction horizon (default 5)")
     parser.add_argument(
         "--y-min",
         type=float,
@@ -107,7 +128,9 @@ def _add_certify(subparsers: Any) -> None:
             f"e.g. the paper's {PAPER_Y_PHI_BOUNDS[1]} pH in the shipped pH models)"
         ),
     )
-    parser.add_argument("--e-y-bar", type=float, default=0.03, help="e_y_bar of Lemma 5 (0.03)")
+    parser.add_argument(
+        "--e-y-bar", type=positive_float, default=0.03, help="e_y_bar of Lemma 5 (0.03)"
+    )
     parser.add_argument(
         "--y0-range",
         type=float,
@@ -214,7 +237,9 @@ def _add_reproduce(subparsers: Any) -> None:
             "a PNG, CSV and JSON per scenario and DIR/summary.json."
         ),
     )
-    parser.add_argument("--out", type=Path, default=None, help="output folder (PNG/CSV/JSON)")
+    parser.add_argument(
+        "--out", type=output_folder, default=None, help="output folder (PNG/CSV/JSON)"
+    )
     parser.add_argument(
         "--model", default=PH_MODEL, help=f"model file or shipped name (default {PH_MODEL})"
     )
@@ -225,6 +250,12 @@ def _add_reproduce(subparsers: Any) -> None:
     parser.add_argument("--short", action="store_true", help="quarter-length schedules (smoke)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--max-offset",
+        type=positive_float,
+        default=None,
+        help="exit with status 3 when a scenario's final offset exceeds this (pH)",
+    )
     parser.set_defaults(func=_run_reproduce)
 
 
@@ -250,6 +281,18 @@ def _run_reproduce(args: argparse.Namespace) -> int:
         f"\nwall time {report['wall_time_s']:.1f} s"
         + (f"; results in {args.out}" if args.out else "")
     )
+    return _offset_status([s["final_offset"] for s in report["scenarios"]], args.max_offset)
+
+
+def _offset_status(offsets: Sequence[float | None], max_offset: float | None) -> int:
+    """0, or 3 (with a message) when a final offset exceeds ``--max-offset``."""
+    worst = max((o for o in offsets if o is not None), default=0.0)
+    if max_offset is not None and worst > max_offset:
+        print(
+            f"final offset {worst:.3g} exceeds --max-offset {max_offset:g}: exit status 3",
+            file=sys.stderr,
+        )
+        return 3
     return 0
 
 
@@ -275,7 +318,9 @@ def _add_simulate(subparsers: Any) -> None:
         default=None,
         help="disturbance per segment (q2 in mL/s for ph, output pH offset for lstm)",
     )
-    parser.add_argument("--segment", type=int, default=400, help="samples per segment (400)")
+    parser.add_argument(
+        "--segment", type=positive_int, default=400, help="samples per segment (400)"
+    )
     parser.add_argument(
         "--solver",
         default="cvxpy:CLARABEL",
@@ -287,15 +332,32 @@ def _add_simulate(subparsers: Any) -> None:
         default="auto",
         help="FHOCP transcription (auto: condensed for QP solvers, sparse for cone solvers)",
     )
-    parser.add_argument("--N", type=int, default=5, help="horizon (5)")
-    parser.add_argument("--L-d", type=float, default=0.1, help="observer gain L_d (0.1)")
-    parser.add_argument("--rate-limit", type=float, default=0.01, help="normalized y0 rate (0.01)")
+    parser.add_argument("--N", type=positive_int, default=5, help="horizon (5)")
+    parser.add_argument(
+        "--L-d", type=fraction_open(0.0, 2.0), default=0.1, help="observer gain L_d (0.1)"
+    )
+    parser.add_argument(
+        "--rate-limit",
+        type=nonnegative_float,
+        default=0.01,
+        help="largest normalized set-point change per step (0.01; 0 = no limiter)",
+    )
     parser.add_argument(
         "--policy", choices=["paper", "soft", "shift"], default="paper", help="infeasibility policy"
     )
-    parser.add_argument("--sqp-iterations", type=int, default=1, help="SQP iterations (1 = RTI)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (PNG/CSV/JSON)")
+    parser.add_argument(
+        "--sqp-iterations", type=positive_int, default=1, help="SQP iterations (1 = RTI)"
+    )
+    parser.add_argument(
+        "--out", type=output_folder, default=None, help="output folder (PNG/CSV/JSON)"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--max-offset",
+        type=positive_float,
+        default=None,
+        help="exit with status 3 when the final offset exceeds this (physical units)",
+    )
     parser.set_defaults(func=_run_simulate)
 
 
@@ -344,7 +406,17 @@ def _run_simulate(args: argparse.Namespace) -> int:
         f"{1e6 * float(np.median(sim.time_prepare)):.0f} us, feedback "
         f"{1e6 * float(np.median(sim.time_feedback)):.0f} us)"
     )
-    return 0
+    counts = sim.summary_counts()
+    print(
+        "set-points: "
+        + ", ".join(
+            f"{name} {counts[f'setpoint_{name}_steps']}"
+            for name in ("ok", "outside_admissible", "unreachable_stale", "unreachable")
+        )
+        + f" steps; d_hat saturated {counts['d_hat_saturated_steps']} steps; infeasible "
+        f"{counts['infeasible_steps']} steps"
+    )
+    return _offset_status([summary["final_offset"]], args.max_offset)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -388,9 +460,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args))
-    except (LtvMpcError, FileNotFoundError, ValueError) as error:
+    except UsageError as error:
+        print(f"ltv-lstm-mpc {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except (LtvMpcError, OSError, ValueError) as error:
         print(f"ltv-lstm-mpc {args.command}: error: {error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(f"ltv-lstm-mpc {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ltv_lstm_mpc.cli.arguments import nonnegative_float, positive_float, positive_int
 from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.training.datasets import IdentificationDataset, generate_dataset
 
@@ -27,10 +28,16 @@ def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
         seed_flag, dest="data_seed", type=int, default=0, help="master seed of the data (default 0)"
     )
     parser.add_argument(
-        "--sequences", type=int, default=15, help="number of sequences (default 15, the paper's)"
+        "--sequences",
+        type=positive_int,
+        default=15,
+        help="number of sequences (default 15, the paper's)",
     )
     parser.add_argument(
-        "--steps", type=int, default=1500, help="samples per sequence, Ts = 10 s (default 1500)"
+        "--steps",
+        type=positive_int,
+        default=1500,
+        help="samples per sequence, Ts = 10 s (default 1500)",
     )
     parser.add_argument(
         "--split",
@@ -195,19 +202,28 @@ def register(subparsers: Any) -> None:
         default=None,
         help="training seed (initialization, shuffling; default 0)",
     )
-    tr.add_argument("--neurons", type=int, default=None, help="LSTM neurons n (default 5)")
-    tr.add_argument("--epochs", type=int, default=None, help="planned epochs (default 1000)")
+    tr.add_argument("--neurons", type=positive_int, default=None, help="LSTM neurons n (default 5)")
+    tr.add_argument(
+        "--epochs", type=positive_int, default=None, help="planned epochs (default 1000)"
+    )
     tr.add_argument(
         "--max-extra-epochs",
         type=int,
         default=None,
         help="extra epochs allowed until delta-ISS holds (default 1000)",
     )
-    tr.add_argument("--lambda1", type=float, default=None, help="delta-ISS penalty (default 0.03)")
     tr.add_argument(
-        "--lambda2", type=float, default=None, help="delta-ISS margin reward (default 0.02)"
+        "--lambda1", type=nonnegative_float, default=None, help="delta-ISS penalty (default 0.03)"
     )
-    tr.add_argument("--lr", type=float, default=None, help="Adam learning rate (default 1e-3)")
+    tr.add_argument(
+        "--lambda2",
+        type=nonnegative_float,
+        default=None,
+        help="delta-ISS margin reward (default 0.02)",
+    )
+    tr.add_argument(
+        "--lr", type=positive_float, default=None, help="Adam learning rate (default 1e-3)"
+    )
     tr.add_argument(
         "--truncation",
         type=int,
