@@ -86,11 +86,17 @@ class ReferenceCalculator:
     grid_points : int
         Inputs per channel of the equilibrium grid used for cold starts and for the
         reachable-output range in error messages.
+    restarts : int
+        For MIMO models, how many grid equilibria (closest in output) the damped Newton
+        also starts from when the previous solution does not lead to an admissible one.
 
     Notes
     -----
     A cold start picks the grid equilibrium whose output is closest to
-    :math:`y^0 - \hat d`; later calls start from the previous solution.
+    :math:`y^0 - \hat d`; later calls start from the previous solution. When that start
+    does not reach an admissible equilibrium (:math:`\bar u \in \mathcal U`), the other
+    starts are tried and the admissible solution closest to the previous one is returned;
+    strict mode raises only when none of them is admissible.
     """
 
     def __init__(
@@ -102,6 +108,7 @@ class ReferenceCalculator:
         max_iter: int = 50,
         strict: bool = True,
         grid_points: int = 21,
+        restarts: int = 4,
     ) -> None:
         model.require_square()
         if not u_max > 0:
@@ -111,6 +118,11 @@ class ReferenceCalculator:
         self.tol = float(tol)
         self.max_iter = int(max_iter)
         self.strict = strict
+        #: Grid start points tried by the damped Newton for MIMO models (1 for SISO).
+        self.restarts = max(1, int(restarts))
+        #: A warm-path step larger than this (inf-norm of [x_bar; u_bar], normalized) on a
+        #: MIMO model is checked against the restarts (another branch of a fold?).
+        self.jump = 0.05
         n2, m = 2 * model.n, model.m
         self._eye = np.eye(n2)
         self._jacobian = np.zeros((n2 + m, n2 + m))
@@ -288,10 +300,16 @@ class ReferenceCalculator:
                     raise InvalidValueError(f"{name} contains NaN or inf: {value}")
         target = y0_arr - d_arr  # g(x_bar) must equal y0 - d_hat
         n2 = 2 * model.n
+        chord: tuple[FloatArray, float] | None = None
         if warm is None and self._last is not None:
             z, norm, iterations, ok = self._chord(target)
             u_bar = z[n2:]
-            if ok and float(np.abs(u_bar).max()) <= self.u_max * (1 + 1e-12):
+            admissible = ok and float(np.abs(u_bar).max()) <= self.u_max * (1 + 1e-12)
+            if admissible and model.m > 1 and float(np.abs(z - self._last_z).max()) > self.jump:
+                # A MIMO equilibrium map can fold: a large jump may be another branch. Keep
+                # it as a candidate and let the restarts find the closest admissible one.
+                chord, admissible = (z, norm), False
+            if admissible:
                 self._last = (z[:n2].copy(), u_bar.copy())
                 self._last_z = z
                 self._last_target = target
@@ -311,22 +329,30 @@ class ReferenceCalculator:
             starts.append(np.concatenate([np.asarray(warm[0], float), np.asarray(warm[1], float)]))
         elif self._last is not None:
             starts.append(np.concatenate(self._last))
+        previous = starts[0] if starts else None
+        # Grid equilibria closest in output to the target (several for MIMO models, where
+        # the equilibrium map can fold and distinct starts reach distinct equilibria).
         distance = np.max(np.abs(self._grid_y - target), axis=1)
-        closest = int(np.argmin(distance))
-        starts.append(np.concatenate([self._grid_x[closest], self._grid_u[closest]]))
+        n_grid = 1 if model.m == 1 else min(self.restarts, distance.shape[0])
+        for index in np.argsort(distance, kind="stable")[:n_grid]:
+            starts.append(np.concatenate([self._grid_x[index], self._grid_u[index]]))
+        if chord is not None:
+            starts.insert(0, chord[0])  # converges at once (a Newton step from a solution)
         total_iterations = 0
         best: tuple[FloatArray, float, bool, FloatArray, FloatArray] | None = None
-        best_rank: tuple[bool, bool, float] = (False, False, -np.inf)
-        for z0 in starts:
+        best_rank: tuple[bool, float, bool, float] = (False, -np.inf, False, -np.inf)
+        for number, z0 in enumerate(starts):
             z, norm, iterations, converged, A, B = self._newton(z0.copy(), target)
             total_iterations += iterations
             admissible = converged and bool(np.max(np.abs(z[n2:])) <= self.u_max * (1 + 1e-12))
-            # Prefer an admissible solution, then a converged one, then the smallest residual.
-            rank = (admissible, converged, -norm)
+            # Prefer an admissible solution, then the one closest to the previous solution
+            # (continuity of the target), then a converged one, then the smallest residual.
+            closeness = -float(np.max(np.abs(z - previous))) if previous is not None else 0.0
+            rank = (admissible, closeness if admissible else -np.inf, converged, -norm)
             if best is None or rank > best_rank:
                 best, best_rank = (z, norm, converged, A, B), rank
-            if admissible:
-                break
+            if admissible and chord is None and (number == 0 or previous is None):
+                break  # from the previous solution itself (or no previous one): take it
         assert best is not None
         z, norm, converged, A, B = best
         x_bar, u_bar = z[:n2].copy(), z[n2:].copy()
