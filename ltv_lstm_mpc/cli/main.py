@@ -309,14 +309,22 @@ def _add_simulate(subparsers: Any) -> None:
     parser.add_argument("--model", default=PH_MODEL, help=f"model (default {PH_MODEL})")
     parser.add_argument("--plant", choices=["ph", "lstm"], default="ph", help="plant (default ph)")
     parser.add_argument(
-        "--setpoints", type=float, nargs="+", default=[7.5, 6.8, 8.0], help="set-points (pH)"
+        "--setpoints",
+        nargs="+",
+        default=None,
+        help=(
+            "set-point per segment, physical units (default 7.5 6.8 8.0 pH); for a model with "
+            "p > 1 outputs one comma-separated value per output, e.g. 0.2,0.1 0.3,0.0"
+        ),
     )
     parser.add_argument(
         "--disturbances",
-        type=float,
         nargs="+",
         default=None,
-        help="disturbance per segment (q2 in mL/s for ph, output pH offset for lstm)",
+        help=(
+            "disturbance per segment (q2 in mL/s for ph, output offset for lstm; "
+            "comma-separated per output for p > 1)"
+        ),
     )
     parser.add_argument(
         "--segment", type=positive_int, default=400, help="samples per segment (400)"
@@ -369,11 +377,63 @@ def _run_simulate(args: argparse.Namespace) -> int:
     from ltv_lstm_mpc.paper.scenarios import Scenario, run_scenario
 
     model = LSTMModel.load(_resolve_model_path(args.model))
-    segments = len(args.setpoints)
+    config = MPCConfig(
+        N=args.N,
+        L_d=args.L_d,
+        solver=args.solver,
+        transcription=args.transcription,
+        infeasibility_policy=args.policy,
+        sqp_iterations=args.sqp_iterations,
+    )
+    rate_limit = args.rate_limit if args.rate_limit > 0 else None
+    if model.p > 1:
+        from ltv_lstm_mpc.cli.simulate_mimo import run_mimo
+
+        if args.plant == "ph":
+            raise UsageError(
+                f"the pH plant has one input and one output; this model has m = {model.m}, "
+                f"p = {model.p}: use --plant lstm"
+            )
+        if args.setpoints is None:
+            raise UsageError(
+                f"give --setpoints, one comma-separated value per output (p = {model.p})"
+            )
+        mimo, sim = run_mimo(
+            model,
+            config,
+            args.setpoints,
+            args.disturbances,
+            args.segment,
+            rate_limit,
+            args.out,
+            not args.no_progress,
+        )
+        offsets = mimo["segment_offsets"]
+        print(f"{'segment':>7}  " + "  ".join(f"offset y_{j:<6}" for j in range(model.p)))
+        for number, row in enumerate(offsets):
+            print(f"{number:>7}  " + "  ".join(f"{v:<14.3e}" for v in row))
+        counts = sim.summary_counts()
+        print(
+            f"constraint violations {mimo.get('constraint_violation_steps', '-')} steps; "
+            f"set-points ok {counts['setpoint_ok_steps']} / {mimo['steps']}; d_hat saturated "
+            f"{counts['d_hat_saturated_steps']}; infeasible {counts['infeasible_steps']}; median "
+            f"step {1e6 * mimo['median_step_time_s']:.0f} us ({sim.transcription})"
+        )
+        return _offset_status([mimo["final_offset"]], args.max_offset)
+    tokens = args.setpoints or ["7.5", "6.8", "8.0"]
+    try:
+        setpoints = [float(t) for t in tokens]
+        given = None if args.disturbances is None else [float(t) for t in args.disturbances]
+    except ValueError:
+        raise UsageError(
+            f"--setpoints/--disturbances: one number per segment for this single-output model, "
+            f"got {tokens} / {args.disturbances}"
+        ) from None
+    segments = len(setpoints)
     nominal = 0.55 if args.plant == "ph" else 0.0
-    disturbances = args.disturbances or [nominal] * segments
+    disturbances = given or [nominal] * segments
     if len(disturbances) != segments:
-        raise LtvMpcError(
+        raise UsageError(
             f"give one disturbance per set-point: {segments} set-points, {len(disturbances)} "
             "disturbances"
         )
@@ -383,17 +443,10 @@ def _run_simulate(args: argparse.Namespace) -> int:
         name="simulate",
         title=f"{args.plant} plant, {args.solver}, N = {args.N}, L_d = {args.L_d}",
         plant=args.plant,
-        setpoints=np.repeat(np.asarray(args.setpoints, dtype=float), args.segment),
+        setpoints=np.repeat(np.asarray(setpoints, dtype=float), args.segment),
         disturbances=np.repeat(np.asarray(disturbances, dtype=float), args.segment),
-        config=MPCConfig(
-            N=args.N,
-            L_d=args.L_d,
-            solver=args.solver,
-            transcription=args.transcription,
-            infeasibility_policy=args.policy,
-            sqp_iterations=args.sqp_iterations,
-        ),
-        setpoint_rate_limit=args.rate_limit if args.rate_limit > 0 else None,
+        config=config,
+        setpoint_rate_limit=rate_limit,
         segments=[(int(a), int(b)) for a, b in itertools.pairwise(edges)],
     )
     result = run_scenario(scenario, model, progress=not args.no_progress)
