@@ -118,3 +118,26 @@ def test_d_hat_saturation_on_a_q2_step_is_recorded_and_warned() -> None:
     assert saturated.sum() >= 50
     np.testing.assert_allclose(np.abs(result.d_hat[saturated, 0]), 0.1, rtol=1e-12)
     assert result.summary_counts()["d_hat_saturated_steps"] == int(saturated.sum())
+
+
+def test_plant_violation_of_the_true_output_is_recorded() -> None:
+    """A harsh q2 schedule can push the true pH outside [6, 9] while the plan on the model
+    looks fine: the simulation records the true plant's violation."""
+    from ltv_lstm_mpc import simulate
+    from ltv_lstm_mpc.plants import PHNeutralizationPlant
+
+    model = load_model("ph_lstm_n5.npz")
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp", L_d=0.1))
+    plant = PHNeutralizationPlant()
+    plant.reset()
+    q2 = np.r_[np.full(20, 0.55), np.full(100, 0.0)]  # the buffer flow stops
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        result = simulate(plant, controller, 6.4, q2, steps=120, progress=False)
+    expected = np.maximum(np.maximum(6.0 - result.y_phi[:, 0], result.y_phi[:, 0] - 9.0), 0.0)
+    np.testing.assert_allclose(result.plant_violation, expected, rtol=0, atol=1e-15)
+    counts = result.summary_counts()
+    assert counts["plant_violation_steps"] == int(np.sum(expected > 1e-9)) >= 50
+    assert counts["d_hat_saturated_steps"] > 0  # and the cause is flagged

@@ -467,7 +467,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
             for name in ("ok", "outside_admissible", "unreachable_stale", "unreachable")
         )
         + f" steps; d_hat saturated {counts['d_hat_saturated_steps']} steps; infeasible "
-        f"{counts['infeasible_steps']} steps"
+        f"{counts['infeasible_steps']} steps; plant outside the output constraint "
+        f"{counts.get('plant_violation_steps', '-')} steps"
     )
     return _offset_status([summary["final_offset"]], args.max_offset)
 

@@ -60,6 +60,10 @@ class SimulationResult:
         (see :class:`~ltv_lstm_mpc.loop.controller.ControllerStep`).
     d_hat_saturated : (steps, p) bool
         :math:`|\hat d_k| = d_{max}` per output.
+    plant_violation : (steps,)
+        Violation (>= 0, physical units) of the model's stored output constraint
+        (``y_phi_constraint``) by the measured plant output; NaN when the model has none.
+        Unlike ``output_violation`` (the plan on the model) this is the true plant.
     """
 
     y_phi: FloatArray
@@ -84,6 +88,7 @@ class SimulationResult:
     transcription: str = ""
     setpoint_status: NDArray[np.str_] | None = None
     d_hat_saturated: NDArray[np.bool_] | None = None
+    plant_violation: FloatArray | None = None
 
     def summary_counts(self) -> dict[str, int]:
         """Steps per set-point status, d_hat-saturated steps, infeasible steps."""
@@ -94,6 +99,8 @@ class SimulationResult:
         if self.d_hat_saturated is not None:
             counts["d_hat_saturated_steps"] = int(np.sum(self.d_hat_saturated.any(axis=1)))
         counts["infeasible_steps"] = int(np.sum(~self.feasible))
+        if self.plant_violation is not None and not np.all(np.isnan(self.plant_violation)):
+            counts["plant_violation_steps"] = int(np.sum(self.plant_violation > 1e-9))
         return counts
 
 
@@ -208,6 +215,13 @@ def simulate(
         if max_seconds is not None and time.perf_counter() - start > max_seconds:
             break
     records = controller.records
+    y_array = np.array(ys)
+    constraint = controller.model.y_phi_constraint
+    if constraint is None or not len(ys):
+        plant_violation = np.full(len(ys), np.nan)
+    else:
+        low, high = constraint
+        plant_violation = np.maximum(np.maximum(low - y_array, y_array - high).max(axis=1), 0.0)
     return SimulationResult(
         y_phi=np.array(ys),
         u_phi=np.array(us),
@@ -239,4 +253,5 @@ def simulate(
             ],
             dtype=bool,
         ).reshape(len(records), controller.model.p),
+        plant_violation=plant_violation,
     )
