@@ -54,7 +54,7 @@ def export_baseline(revision: str, folder: Path) -> ModuleType:
     (folder / "ltv_lstm_mpc").rename(package)
     if (folder / "solvers").is_dir() and not (package / "solvers").exists():
         shutil.move(str(folder / "solvers"), str(package / "solvers"))
-    pattern = re.compile(r"\bltv_lstm_mpc(?=[. \n])")
+    pattern = re.compile(r"""\bltv_lstm_mpc(?=[. \n"'])""")  # imports and resource names
     for path in package.rglob("*.py"):
         text = path.read_text()
         path.write_text(pattern.sub(BASELINE, text))

@@ -99,3 +99,38 @@ def test_environment_variable_selects_the_reference(monkeypatch: pytest.MonkeyPa
     monkeypatch.delenv("LTV_LSTM_MPC_KERNEL")
     assert LSTMKernel(model).compiled
     assert model.kernel.compiled
+
+
+@pytest.mark.parametrize(
+    ("n", "m", "N", "diagonal_Q"),
+    [(5, 1, 5, True), (4, 2, 7, True), (3, 2, 4, False), (6, 3, 12, True)],
+)
+def test_compiled_condensing_matches_the_numpy_build(
+    n: int, m: int, N: int, diagonal_Q: bool
+) -> None:
+    """CondensedTranscription.build: numba version vs numpy reference, every QP array."""
+    from lstm_factories import random_delta_iss_lstm
+
+    from ltv_lstm_mpc import MPCConfig, RobustMPC
+
+    model = random_delta_iss_lstm(np.random.default_rng(n + 10 * m), n, m, m)
+    Q = 1.0 if diagonal_Q else np.eye(2 * n) + 0.3 * np.ones((2 * n, 2 * n)) / (2 * n)
+    config = MPCConfig(solver="daqp", N=N, Q=Q)
+    fast = RobustMPC(model, config)
+    reference = RobustMPC(model, config, certification=fast.certification)
+    assert fast._problem.compiled
+    reference._problem.compiled = False
+    rng = np.random.default_rng(1)
+    u_bar = rng.uniform(-0.3, 0.3, m)
+    x_bar = model.equilibrium(u_bar)
+    y0 = model.output(x_bar)
+    x_hat = x_bar + rng.normal(scale=0.05, size=2 * n)
+    warm = rng.uniform(-0.5, 0.5, (N, m))
+    for mpc in (fast, reference):
+        mpc.prepare(x_bar, u_bar, y0, 0.3, x_pred=x_hat, warm=warm)
+    a, b = fast._problem, reference._problem
+    for name in ("_H", "_F", "_g0", "_A", "_E", "_lo0", "_up0", "_lb", "_ub", "_scale"):
+        np.testing.assert_allclose(
+            getattr(a, name), getattr(b, name), rtol=0, atol=1e-12, err_msg=name
+        )
+    np.testing.assert_allclose(fast.feedback(x_hat).u, reference.feedback(x_hat).u, atol=1e-10)

@@ -34,7 +34,7 @@ except ImportError:  # pragma: no cover
         return wrap
 
 
-__all__ = ["AVAILABLE", "jacobians", "pairs", "rollout"]
+__all__ = ["AVAILABLE", "condense", "jacobians", "pairs", "rollout"]
 
 
 @njit(cache=True, fastmath=False)
@@ -111,3 +111,133 @@ def jacobians(WU_raw: Any, S: Any, T: Any, TC: Any, J: Any) -> None:
                 jc = (d_f * WU_raw[a, b] + d_i * WU_raw[n + a, b]) + d_g * WU_raw[3 * n + a, b]
                 J[k, a, n + b] = jc
                 J[k, n + a, n + b] = dh * jc + d_o * WU_raw[2 * n + a, b]
+
+
+@njit(cache=True)
+def condense(
+    J: Any,
+    S: Any,
+    M: Any,
+    Maug: Any,
+    Lt: Any,
+    x_bar: Any,
+    u_bar: Any,
+    R: Any,
+    W_y: Any,
+    b_y: Any,
+    lower: Any,
+    upper: Any,
+    unit_half: Any,
+    alpha: float,
+    u_max: float,
+    H: Any,
+    F: Any,
+    g0: Any,
+    A: Any,
+    E: Any,
+    lo0: Any,
+    up0: Any,
+    lb: Any,
+    ub: Any,
+) -> float:
+    r"""The condensed QP of one linearization (``CondensedTranscription.build``), in place.
+
+    Prediction matrices by the recursion :math:`M_{i+1} = A_i M_i + B_i e_i` (only the
+    causal columns), the weighted stack ``Maug`` (stage weights ``Lt[i]``, last column the
+    weighted deviation from :math:`\bar x`), its Gram matrix (one BLAS product) giving
+    ``H``, ``F``, ``g0``, then the tightened output rows i = 1..N-1 and the terminal box
+    rows, and the input bounds around the candidate. Returns the violation scale
+    :math:`1 + \max(u_{max}, |lo_0|, |up_0|)`.
+    """
+    N = J.shape[0]
+    n2 = J.shape[1]
+    m = J.shape[2] - n2
+    n = n2 // 2
+    p = W_y.shape[0]
+    nu = N * m
+    cols = n2 + nu
+    # Loops ordered so that the innermost runs along contiguous columns.
+    for i in range(N):
+        live = n2 + i * m  # columns of M[i] that can be nonzero
+        for r in range(n2):
+            target = M[i + 1, r]
+            for c in range(cols):
+                target[c] = 0.0
+            for q in range(n2):
+                a = J[i, r, q]
+                source = M[i, q]
+                for c in range(live):
+                    target[c] += a * source[c]
+            for j in range(m):
+                target[live + j] = J[i, r, n2 + j]
+    for i in range(N):
+        live = n2 + (i + 1) * m
+        for r in range(n2):
+            target = Maug[i, r]
+            for c in range(cols + 1):
+                target[c] = 0.0
+            acc = 0.0
+            for q in range(n2):
+                a = Lt[i, r, q]
+                if a == 0.0:
+                    continue
+                source = M[i + 1, q]
+                for c in range(live):
+                    target[c] += a * source[c]
+                acc += a * (S[i + 1, q] - x_bar[q])
+            target[cols] = acc
+    flat = Maug.reshape(N * n2, cols + 1)
+    gram = flat.T @ flat
+    for a in range(nu):
+        for b in range(nu):
+            H[a, b] = gram[n2 + a, n2 + b]
+        for b in range(n2):
+            F[a, b] = gram[n2 + a, b]
+        g0[a] = gram[n2 + a, cols]
+    for i in range(N):
+        for a in range(m):
+            acc = 0.0
+            for b in range(m):
+                H[i * m + a, i * m + b] += R[a, b]
+                acc += R[a, b] * (S[i, n2 + b] - u_bar[b])
+            g0[i * m + a] += acc
+    n_out = (N - 1) * p
+    for i in range(1, N):
+        for j in range(p):
+            row = (i - 1) * p + j
+            y_lin = b_y[j]
+            for q in range(n):
+                y_lin += W_y[j, q] * S[i, n + q]
+            lo0[row] = lower[i, j] - y_lin
+            up0[row] = upper[i, j] - y_lin
+            for c in range(cols):
+                acc = 0.0
+                for q in range(n):
+                    acc += W_y[j, q] * M[i, n + q, c]
+                if c < n2:
+                    E[row, c] = acc
+                else:
+                    A[row, c - n2] = acc
+    level = alpha if alpha > 0.0 else 0.0
+    for r in range(n2):
+        row = n_out + r
+        for c in range(n2):
+            E[row, c] = M[N, r, c]
+        for c in range(nu):
+            A[row, c] = M[N, r, n2 + c]
+        half = unit_half[r] * level
+        centre = x_bar[r] - S[N, r]
+        lo0[row] = centre - half
+        up0[row] = centre + half
+    for i in range(N):
+        for a in range(m):
+            value = S[i, n2 + a]
+            lb[i * m + a] = -u_max - value
+            ub[i * m + a] = u_max - value
+    scale = u_max
+    for row in range(n_out + n2):
+        if abs(lo0[row]) > scale:
+            scale = abs(lo0[row])
+        if abs(up0[row]) > scale:
+            scale = abs(up0[row])
+    return 1.0 + scale

@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
+from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
@@ -133,6 +134,22 @@ class CondensedTranscription(TranscriptionBase):
         self._dxu = np.empty(cols)
         self._traj: Trajectory | None = None
         self._alpha = 0.0
+        # Compiled condensing (numba, lstm/compiled.py) when the model's kernel is compiled:
+        # the same QP written in place; the numpy code of build() is its reference.
+        self.compiled = model.kernel.compiled
+        if self.compiled:
+            Lt_all = (
+                np.stack([np.diag(row) for row in self._sw[:, :, 0]]) if self._diag_Q else self._Lt
+            )
+            self._Lt_all = np.ascontiguousarray(Lt_all)
+            self._R = np.ascontiguousarray(R, dtype=np.float64)
+            self._H = np.zeros((nu, nu))
+            self._F = np.zeros((nu, n2))
+            self._g0 = np.zeros(nu)
+            self._A = np.zeros((self._mA, nu))
+            self._E = np.zeros((self._mA, n2))
+            self._b_y = np.ascontiguousarray(model.b_y)
+            self._W_y = np.ascontiguousarray(model.W_y)
         self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
         settings: dict[str, Any] = dict(config.solver_settings)
         self._sessions = {
@@ -174,6 +191,14 @@ class CondensedTranscription(TranscriptionBase):
         S, J, M = traj.S, traj.J, self._M
         self._traj = traj
         self._alpha = alpha
+        if self.compiled:
+            self._scale = _compiled.condense(
+                J, S, M, self._Maug, self._Lt_all, x_bar, u_bar, self._R, self._W_y,
+                self._b_y, lower, upper, self._unit_half, float(alpha), float(self.config.u_max),
+                self._H, self._F, self._g0, self._A, self._E, self._lo0, self._up0,
+                self._lb, self._ub,
+            )  # fmt: skip
+            return
         matmul = np.matmul
         for i in range(N):
             matmul(J[i, :, :n2], M[i], out=M[i + 1])
