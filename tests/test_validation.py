@@ -135,3 +135,24 @@ def test_simulate_reads_a_constant_mimo_setpoint_vector_as_a_constant() -> None:
 def test_negative_e_hat0_is_rejected_at_construction(bad) -> None:
     with pytest.raises(InvalidValueError, match=r"e_hat0 .* must be a finite number >= 0"):
         MPCConfig(e_hat0=bad)
+
+
+def test_simulate_runs_on_one_blas_thread(controller, monkeypatch) -> None:
+    from threadpoolctl import threadpool_info
+
+    from ltv_lstm_mpc.loop import simulation
+
+    seen: list[list[int]] = []
+    original = controller.step
+
+    def step(*args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append(
+            [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+        )
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(controller, "step", step)
+    plant = PHNeutralizationPlant()
+    plant.reset()
+    simulation.simulate(plant, controller, 7.0, steps=3, progress=False)
+    assert seen and all(threads == [1] * len(threads) for threads in seen)

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +16,7 @@ from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.validation import real_vector
 
-__all__ = ["SimulationResult", "simulate"]
+__all__ = ["SimulationResult", "simulate", "single_threaded_blas"]
 
 FloatArray = NDArray[np.float64]
 
@@ -104,6 +105,23 @@ class SimulationResult:
         return counts
 
 
+@contextlib.contextmanager
+def single_threaded_blas(threads: int | None = 1) -> Iterator[None]:
+    """Limit the BLAS to ``threads`` threads inside the block (threadpoolctl).
+
+    The controller step hands only small matrices to the BLAS; a multi-threaded BLAS then
+    adds scheduling latency and makes the step's tail depend on the load of the other
+    cores. Wrap a control loop in it (``simulate`` does). ``None``: no change.
+    """
+    if threads is None:
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=int(threads), user_api="blas"):
+        yield
+
+
 def _as_schedule(
     name: str,
     value: ArrayLike | Callable[[int], ArrayLike] | None,
@@ -161,6 +179,7 @@ def simulate(
     progress: bool = True,
     description: str = "closed loop",
     max_seconds: float | None = None,
+    blas_threads: int | None = 1,
 ) -> SimulationResult:
     """Run plant and controller in closed loop.
 
@@ -182,6 +201,9 @@ def simulate(
         Show a tqdm progress bar.
     max_seconds : float, optional
         Stop after this wall time (the result then has fewer samples than ``steps``).
+    blas_threads : int or None
+        BLAS threads during the loop (default 1, see :func:`single_threaded_blas`;
+        None leaves the BLAS as it is).
     """
     p = controller.model.p
     if steps is None:
@@ -204,16 +226,19 @@ def simulate(
     y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
     ys, us, y0s, ds = [], [], [], []
     start = time.perf_counter()
-    for k in tqdm(range(steps), disable=not progress, desc=description, leave=False):
-        u_phi = controller.step(y_phi, y0_schedule[k])
-        ys.append(y_phi)
-        us.append(u_phi)
-        y0s.append(y0_schedule[k])
-        d = d_schedule[k]
-        ds.append(np.full(1, np.nan) if d is None else d)
-        y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, d), dtype=np.float64))
-        if max_seconds is not None and time.perf_counter() - start > max_seconds:
-            break
+    # The step's small matrix products on one BLAS thread: a threaded BLAS makes their
+    # tail latency depend on whatever else runs on the machine.
+    with single_threaded_blas(blas_threads):
+        for k in tqdm(range(steps), disable=not progress, desc=description, leave=False):
+            u_phi = controller.step(y_phi, y0_schedule[k])
+            ys.append(y_phi)
+            us.append(u_phi)
+            y0s.append(y0_schedule[k])
+            d = d_schedule[k]
+            ds.append(np.full(1, np.nan) if d is None else d)
+            y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, d), dtype=np.float64))
+            if max_seconds is not None and time.perf_counter() - start > max_seconds:
+                break
     records = controller.records
     y_array = np.array(ys)
     constraint = controller.model.y_phi_constraint
