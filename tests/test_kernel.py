@@ -134,3 +134,33 @@ def test_compiled_condensing_matches_the_numpy_build(
             getattr(a, name), getattr(b, name), rtol=0, atol=1e-12, err_msg=name
         )
     np.testing.assert_allclose(fast.feedback(x_hat).u, reference.feedback(x_hat).u, atol=1e-10)
+
+
+@pytest.mark.parametrize("policy", ["paper", "soft"])
+def test_compiled_feedback_matches_the_numpy_feedback(policy: str) -> None:
+    """insert_state / expand_point (numba) against the numpy feedback, every kind of QP."""
+    from lstm_factories import random_delta_iss_lstm
+
+    from ltv_lstm_mpc import MPCConfig, RobustMPC
+
+    model = random_delta_iss_lstm(np.random.default_rng(4), 4, 2, 2)
+    config = MPCConfig(solver="daqp", N=6, infeasibility_policy=policy)
+    fast = RobustMPC(model, config)
+    reference = RobustMPC(model, config, certification=fast.certification)
+    reference._problem.compiled = False
+    rng = np.random.default_rng(2)
+    u_bar = rng.uniform(-0.3, 0.3, 2)
+    x_bar = model.equilibrium(u_bar)
+    for _ in range(4):
+        x_hat = x_bar + rng.normal(scale=0.05, size=8)
+        for mpc in (fast, reference):
+            mpc.prepare(x_bar, u_bar, model.output(x_bar), 0.3, x_pred=x_hat)
+        for kind in ("nominal", policy):
+            a, b = fast._problem.solve(kind, x_hat), reference._problem.solve(kind, x_hat)
+            assert a.status is b.status
+            if b.u is None:
+                assert a.u is None
+                continue
+            np.testing.assert_allclose(a.u, b.u, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(a.x_linear, b.x_linear, rtol=0, atol=1e-12)
+            assert a.violation == pytest.approx(b.violation, abs=1e-14)

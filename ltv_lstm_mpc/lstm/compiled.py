@@ -34,7 +34,7 @@ except ImportError:  # pragma: no cover
         return wrap
 
 
-__all__ = ["AVAILABLE", "condense", "jacobians", "pairs", "rollout"]
+__all__ = ["AVAILABLE", "condense", "expand_point", "insert_state", "jacobians", "pairs", "rollout"]
 
 
 @njit(cache=True, fastmath=False)
@@ -241,3 +241,78 @@ def condense(
         if abs(up0[row]) > scale:
             scale = abs(up0[row])
     return 1.0 + scale
+
+
+@njit(cache=True)
+def insert_state(
+    x_hat: Any,
+    S: Any,
+    F: Any,
+    g0: Any,
+    E: Any,
+    lo0: Any,
+    up0: Any,
+    dx0: Any,
+    f: Any,
+    lo: Any,
+    up: Any,
+) -> None:
+    r"""Feedback data of the condensed QP.
+
+    :math:`\delta x_0 = \hat x - \tilde x_0`, :math:`f = g_0 + F \delta x_0`, rows
+    :math:`lo_0 - E \delta x_0` and :math:`up_0 - E \delta x_0`.
+    """
+    n2 = dx0.shape[0]
+    for q in range(n2):
+        dx0[q] = x_hat[q] - S[0, q]
+    for a in range(f.shape[0]):
+        acc = g0[a]
+        for q in range(n2):
+            acc += F[a, q] * dx0[q]
+        f[a] = acc
+    for row in range(lo.shape[0]):
+        acc = 0.0
+        for q in range(n2):
+            acc += E[row, q] * dx0[q]
+        lo[row] = lo0[row] - acc
+        up[row] = up0[row] - acc
+
+
+@njit(cache=True)
+def expand_point(
+    z: Any, A: Any, low: Any, high: Any, rows: int, M: Any, S: Any, dx0: Any, x_linear: Any, u: Any
+) -> float:
+    r"""From the QP point ``z`` (its first ``N m`` entries :math:`\delta u`): the largest
+    violation of the bounds ``low <= [z; A z] <= high`` (first ``rows`` entries), the
+    linearized states :math:`\tilde x + M [\delta x_0; \delta u]` and the inputs
+    :math:`\tilde u + \delta u`."""
+    nu = A.shape[1]
+    violation = 0.0
+    for a in range(nu):
+        value = z[a]
+        if low[a] - value > violation:
+            violation = low[a] - value
+        if value - high[a] > violation:
+            violation = value - high[a]
+    for row in range(rows - nu):
+        acc = 0.0
+        for a in range(nu):
+            acc += A[row, a] * z[a]
+        if low[nu + row] - acc > violation:
+            violation = low[nu + row] - acc
+        if acc - high[nu + row] > violation:
+            violation = acc - high[nu + row]
+    N1, n2 = x_linear.shape
+    m = u.shape[1]
+    for i in range(N1):
+        for r in range(n2):
+            acc = S[i, r]
+            for q in range(n2):
+                acc += M[i, r, q] * dx0[q]
+            for a in range(nu):
+                acc += M[i, r, n2 + a] * z[a]
+            x_linear[i, r] = acc
+    for i in range(u.shape[0]):
+        for j in range(m):
+            u[i, j] = S[i, n2 + j] + z[i * m + j]
+    return violation

@@ -150,6 +150,7 @@ class CondensedTranscription(TranscriptionBase):
             self._E = np.zeros((self._mA, n2))
             self._b_y = np.ascontiguousarray(model.b_y)
             self._W_y = np.ascontiguousarray(model.W_y)
+            self._f = np.zeros(nu)
         self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
         settings: dict[str, Any] = dict(config.solver_settings)
         self._sessions = {
@@ -305,12 +306,19 @@ class CondensedTranscription(TranscriptionBase):
         n2, N, m = 2 * self.n, self.N, self.m
         S = traj.S
         dx0 = self._dx0
-        np.subtract(x_hat, S[0, :n2], out=dx0)
-        f = self._F @ dx0
-        f += self._g0
-        shift = self._E @ dx0
-        lo = np.subtract(self._lo0, shift, out=self._lo)
-        up = np.subtract(self._up0, shift, out=self._up)
+        compiled = self.compiled and kind != "soft"
+        if compiled:
+            f, lo, up = self._f, self._lo, self._up
+            _compiled.insert_state(
+                x_hat, S, self._F, self._g0, self._E, self._lo0, self._up0, dx0, f, lo, up
+            )
+        else:
+            np.subtract(x_hat, S[0, :n2], out=dx0)
+            f = self._F @ dx0
+            f += self._g0
+            shift = self._E @ dx0
+            lo = np.subtract(self._lo0, shift, out=self._lo)
+            up = np.subtract(self._up0, shift, out=self._up)
         qp = self._data(kind, f, lo, up)
         start = time.perf_counter()
         status, z, iterations, info = self._sessions[kind].solve_point(qp)
@@ -327,6 +335,23 @@ class CondensedTranscription(TranscriptionBase):
                 info=info,
             )
         nu = N * m
+        if compiled:
+            x_linear = np.empty((N + 1, n2))
+            u = np.empty((N, m))
+            rows = nu + qp.A.shape[0]
+            violation = _compiled.expand_point(
+                z, self._A, self._low, self._high, rows, self._M, S, dx0, x_linear, u
+            )
+            return StepResult(
+                status=status,
+                u=u,
+                x_linear=x_linear,
+                violation=max(violation, 0.0) / self._scale,
+                tolerance=self.tolerance,
+                solver_time=elapsed,
+                iterations=iterations,
+                info=info,
+            )
         violation = self._violation(kind, qp, z) / self._scale
         dxu = self._dxu
         dxu[:n2] = dx0
