@@ -164,3 +164,28 @@ def test_compiled_feedback_matches_the_numpy_feedback(policy: str) -> None:
             np.testing.assert_allclose(a.u, b.u, rtol=0, atol=1e-12)
             np.testing.assert_allclose(a.x_linear, b.x_linear, rtol=0, atol=1e-12)
             assert a.violation == pytest.approx(b.violation, abs=1e-14)
+
+
+@pytest.mark.parametrize(("n", "m"), [(5, 1), (4, 2)])
+def test_compiled_chord_newton_matches_the_numpy_warm_path(n: int, m: int) -> None:
+    """ReferenceCalculator's warm path: one numba call vs the numpy reference, on a moving
+    target, with the same iterations and factorizations."""
+    from lstm_factories import random_delta_iss_lstm
+
+    from ltv_lstm_mpc.loop.reference import ReferenceCalculator
+
+    model = random_delta_iss_lstm(np.random.default_rng(n), n, m, m)
+    fast = ReferenceCalculator(model, strict=False, tol=1e-10)
+    reference = ReferenceCalculator(model, strict=False, tol=1e-10)
+    assert fast._compiled
+    reference._compiled = False
+    base = model.output(model.equilibrium(np.full(m, 0.1)))
+    for k in range(40):
+        target = base + 0.01 * np.sin(0.3 * k) * np.linspace(1.0, 0.5, m)
+        d_hat = np.zeros(m)
+        a, b = fast.solve(target, d_hat), reference.solve(target, d_hat)
+        assert a.ok == b.ok and a.iterations == b.iterations
+        np.testing.assert_allclose(a.x_bar, b.x_bar, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.u_bar, b.u_bar, rtol=0, atol=1e-12)
+    assert fast.counts == reference.counts
+    assert fast.counts["factorizations"] > 0

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, UnreachableSetpointError
+from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = ["KBarEstimate", "ReferenceCalculator", "ReferenceSolution", "estimate_K_bar"]
@@ -137,6 +138,11 @@ class ReferenceCalculator:
         self._diag = np.arange(n2)
         self._Jinv: FloatArray | None = None
         self._last_target: FloatArray | None = None
+        self._compiled = model.kernel.compiled  # the warm path in one numba call
+        self._chord_state = np.zeros(4, dtype=np.int64)
+        self._Jinv_buffer = np.zeros((n2 + m, n2 + m))
+        self._W_y = np.ascontiguousarray(model.W_y)
+        self._b_y = np.ascontiguousarray(model.b_y)
         #: Chord-Jacobian factorizations / fallbacks from the warm path to damped Newton.
         self.counts = {"factorizations": 0, "fallbacks": 0}
         per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points
@@ -185,6 +191,21 @@ class ReferenceCalculator:
         self._Jinv = np.linalg.inv(jac)
         self.counts["factorizations"] += 1
 
+    def _chord_compiled(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
+        """:meth:`_chord` in one numba call (``lstm/compiled.chord_newton``), same algorithm."""
+        kernel, traj, state = self.model.kernel, self._traj, self._chord_state
+        state[0] = 1 if self._Jinv is not None else 0
+        step = target - self._last_target if self._last_target is not None else target * 0.0
+        z = np.empty_like(self._last_z)
+        norm = _compiled.chord_newton(
+            kernel.WU, kernel.WU_raw, self._W_y, self._b_y, traj.S, traj.T, traj.TC, traj.J,
+            self._last_z, target, step, self._Jinv_buffer, state, self.tol, self.max_iter,
+            self._chord_F, self._chord_jacobian, z,
+        )  # fmt: skip
+        self._Jinv = self._Jinv_buffer if state[0] == 1 else None
+        self.counts["factorizations"] += int(state[2])
+        return z, float(norm), int(state[1]), bool(state[3])
+
     def _chord(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
         r"""Warm-started chord Newton from the previous solution: (z, residual, iterations, ok).
 
@@ -197,6 +218,8 @@ class ReferenceCalculator:
         """
         assert self._last is not None
         n2 = 2 * self.model.n
+        if self._compiled:
+            return self._chord_compiled(target)
         z = self._last_z
         if self._Jinv is not None and self._last_target is not None:
             z = z + self._Jinv[:, n2:] @ (target - self._last_target)
