@@ -189,3 +189,34 @@ def test_compiled_chord_newton_matches_the_numpy_warm_path(n: int, m: int) -> No
         np.testing.assert_allclose(a.u_bar, b.u_bar, rtol=0, atol=1e-12)
     assert fast.counts == reference.counts
     assert fast.counts["factorizations"] > 0
+
+
+@pytest.mark.parametrize("diagonal_Q", [True, False])
+def test_compiled_plan_checks_match_the_numpy_ones(diagonal_Q: bool) -> None:
+    """Re-simulation, cost and residuals (plan_metrics) vs the numpy core: a whole MPC on a
+    compiled kernel against the same MPC on the numpy kernel."""
+    from lstm_factories import random_delta_iss_lstm
+
+    from ltv_lstm_mpc import LSTMModel, MPCConfig, RobustMPC
+
+    base = random_delta_iss_lstm(np.random.default_rng(8), 4, 2, 2)
+    twin = LSTMModel(**base.weights(), y_phi_constraint=base.y_phi_constraint)
+    twin.kernel = LSTMKernel(twin, compiled=False)
+    Q = 1.0 if diagonal_Q else np.eye(8) + 0.2 * np.ones((8, 8)) / 8
+    config = MPCConfig(solver="daqp", N=6, Q=Q, R=0.5)
+    fast = RobustMPC(base, config)
+    reference = RobustMPC(twin, config, certification=fast.certification)
+    assert fast._kernel.compiled and not reference._kernel.compiled
+    rng = np.random.default_rng(3)
+    u_bar = rng.uniform(-0.3, 0.3, 2)
+    x_bar = base.equilibrium(u_bar)
+    for _ in range(5):
+        x_hat = x_bar + rng.normal(scale=0.05, size=8)
+        a = fast.solve(x_hat, x_bar, u_bar, base.output(x_bar), 0.3)
+        b = reference.solve(x_hat, x_bar, u_bar, base.output(x_bar), 0.3)
+        assert a.status == b.status and a.policy == b.policy
+        np.testing.assert_allclose(a.u, b.u, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-10)
+        assert a.cost == pytest.approx(b.cost, rel=1e-10, abs=1e-12)
+        for key, value in b.residuals.items():
+            assert a.residuals[key] == pytest.approx(value, rel=1e-9, abs=1e-11, nan_ok=True), key

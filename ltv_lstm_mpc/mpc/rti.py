@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.certificates.certify import Certification, certify
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.fhocp import (
@@ -190,6 +191,14 @@ class RobustMPC:
         self.solver = config.solver
         self.reuse_tol = float(reuse_tol)
         self._cost = PlanCost(Q, R, np.asarray(ti.P_f), model.n)
+        # buffers of the compiled plan checks (lstm/compiled.plan_metrics)
+        self._Q = np.ascontiguousarray(Q, dtype=np.float64)
+        self._R = np.ascontiguousarray(R, dtype=np.float64)
+        self._P_terms = np.array(self._cost._p)
+        self._metrics = np.zeros(4)
+        self._no_rows = np.zeros((0, 2 * model.n))
+        self._W_y = np.ascontiguousarray(model.W_y)
+        self._b_y = np.ascontiguousarray(model.b_y)
         kernel = model.kernel
         self._kernel = kernel
         self._traj = kernel.trajectory(N)
@@ -403,17 +412,33 @@ class RobustMPC:
         P = self._plan.S
         P[0, :n2] = x_hat_a
         P[:N, n2 : n2 + m] = u_plan
-        self._kernel.rollout(self._plan, 0, N)
         self._plan_valid = True
         u_out = np.array(u_plan)
         self._previous_u = u_out
-        x_plan = P[:, :n2].copy()
-        y_plan = x_plan[:N, n:] @ self._W_y_T
-        y_plan += model.b_y
-        cost, terminal_norm = self._cost.evaluate(x_plan, u_out, self._x_bar, self._u_bar)
-        residuals = plan_residuals(
-            terminal_norm, x_plan, y_plan, x_linear, (self._lower, self._upper), alpha
-        )
+        if self._kernel.compiled:  # re-simulation, cost and residuals in one numba call
+            x_plan = np.empty((N + 1, n2))
+            metrics = self._metrics
+            plan = self._plan
+            _compiled.plan_metrics(
+                self._kernel.WU, P, plan.T, plan.TC, self._W_y, self._b_y, self._x_bar,
+                self._u_bar, self._Q, self._R, self._P_terms, self._lower, self._upper,
+                self._no_rows if x_linear is None else x_linear, x_plan, metrics,
+            )  # fmt: skip
+            cost = float(metrics[0])
+            residuals = {
+                "output_violation": float(metrics[2]),
+                "terminal_residual": float(metrics[1]) - alpha,
+                "linearization_gap": float(metrics[3]),
+            }
+        else:
+            self._kernel.rollout(self._plan, 0, N)
+            x_plan = P[:, :n2].copy()
+            y_plan = x_plan[:N, n:] @ self._W_y_T
+            y_plan += model.b_y
+            cost, terminal_norm = self._cost.evaluate(x_plan, u_out, self._x_bar, self._u_bar)
+            residuals = plan_residuals(
+                terminal_norm, x_plan, y_plan, x_linear, (self._lower, self._upper), alpha
+            )
         self.solver_time = solver_time
         self.qp_iterations = iterations
         self.feedback_time = time.perf_counter() - start
