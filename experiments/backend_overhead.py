@@ -1,0 +1,93 @@
+"""Python call overhead of each dense QP backend on the controller's own condensed QPs.
+
+The QPs are those of scenario 1's closed loop (``OffsetFreeController`` with DAQP, the
+condensed transcription) at N = 5 and N = 20, captured at a few states. For every
+backend with a dense session the script times, on the same QP, side by side:
+
+- ``solve_point``: the hot-loop call of ``DenseSession`` (what the controller uses);
+- ``solve``: the full call that builds a ``Solution`` (duals, objective, timings);
+- the solver's own reported solve time (``Solution.solve_time``) where it reports one
+  (for DAQP, which reports none here, the bare ``daqp.solve`` call),
+
+and prints the medians (microseconds) and the Python overhead ``solve_point - reported``.
+
+    python experiments/backend_overhead.py
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import replace
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+import numpy as np  # noqa: E402
+from ltv_lstm_mpc.solvers import DenseQP, DenseSession, available_solvers, solver_info  # noqa: E402
+
+from ltv_lstm_mpc import OffsetFreeController, load_model  # noqa: E402
+from ltv_lstm_mpc.bench.harness import bench_scenarios  # noqa: E402
+
+
+def captured_qps(N: int, count: int = 5) -> list[DenseQP]:
+    """Nominal condensed QPs of scenario 1 at ``count`` states of its closed loop."""
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[0]
+    controller = OffsetFreeController(
+        model, replace(scenario.config, N=N, solver="daqp"), setpoint_rate_limit=0.01
+    )
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    qps = []
+    for k in range(40):
+        u = controller.step(y, scenario.setpoints[k])
+        if k % (40 // count) == 0:
+            qps.append(controller.mpc._problem._qp["nominal"].copy())  # type: ignore[attr-defined]
+        y = plant.step(u)
+    return qps
+
+
+def _raw_daqp(qp: DenseQP):  # type: ignore[no-untyped-def]
+    """The bare ``daqp.solve`` call on ``qp`` (bounds stacked as DAQP wants them)."""
+    import daqp
+
+    H, f, A = np.ascontiguousarray(qp.H), qp.f, np.ascontiguousarray(qp.A)
+    upper = np.concatenate([qp.ub, qp.up])
+    lower = np.concatenate([qp.lb, qp.lo])
+    sense = np.zeros(upper.shape[0], dtype=np.intc)
+    return lambda: daqp.solve(H, f, A, upper, lower, sense, primal_tol=1e-8, dual_tol=1e-8)
+
+
+def median_us(function, repeats: int) -> float:  # type: ignore[no-untyped-def]
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return 1e6 * float(np.median(times))
+
+
+def main() -> None:
+    names = [s for s in available_solvers() if solver_info(s).native_dense]
+    header = f"{'solve_point':>11} {'solve':>8} {'reported':>9} {'overhead':>9}"
+    print(f"{'backend':>20} {'N':>3} | {header}")
+    for N in (5, 20):
+        qps = captured_qps(N)
+        for name in names:
+            session = DenseSession(name)
+            point, full, reported = [], [], []
+            for qp in qps:
+                session.solve_point(qp)  # set up the workspace
+                point.append(median_us(lambda qp=qp, s=session: s.solve_point(qp), 200))
+                full.append(median_us(lambda qp=qp, s=session: s.solve(qp), 200))
+                reported.append(1e6 * session.solve(qp).solve_time)
+            if name == "daqp":  # DAQP reports no solve time here: time its raw C call instead
+                reported = [median_us(_raw_daqp(qp), 200) for qp in qps]
+            p, f, r = (float(np.median(v)) for v in (point, full, reported))
+            overhead = f"{p - r:9.1f}" if r > 0 else f"{'-':>9}"
+            print(f"{name:>20} {N:>3} | {p:11.1f} {f:8.1f} {r:9.1f} {overhead}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
