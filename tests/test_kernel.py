@@ -129,10 +129,21 @@ def test_compiled_condensing_matches_the_numpy_build(
     for mpc in (fast, reference):
         mpc.prepare(x_bar, u_bar, y0, 0.3, x_pred=x_hat, warm=warm)
     a, b = fast._problem, reference._problem
-    for name in ("_H", "_F", "_g0", "_A", "_E", "_lo0", "_up0", "_lb", "_ub", "_scale"):
+    for name in ("_H", "_g0", "_A", "_lo0", "_up0", "_lb", "_ub", "_scale"):
         np.testing.assert_allclose(
             getattr(a, name), getattr(b, name), rtol=0, atol=1e-12, err_msg=name
         )
+    # the delta x_0 part, propagated at feedback time, equals the numpy build's F and E
+    x_fb = x_hat + rng.normal(scale=0.01, size=2 * n)
+    step_a, step_b = a.solve("nominal", x_fb), b.solve("nominal", x_fb)
+    dx0 = x_fb - b._traj.S[0, : 2 * n]
+    np.testing.assert_allclose(a._f, b._F @ dx0 + b._g0, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a._lo, b._lo0 - b._E @ dx0, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a._up, b._up0 - b._E @ dx0, rtol=0, atol=1e-12)
+    assert step_a.status is step_b.status
+    if step_b.u is not None:
+        np.testing.assert_allclose(step_a.u, step_b.u, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(step_a.x_linear, step_b.x_linear, rtol=0, atol=1e-10)
     np.testing.assert_allclose(fast.feedback(x_hat).u, reference.feedback(x_hat).u, atol=1e-10)
 
 

@@ -141,23 +141,23 @@ def condense(
     alpha: float,
     u_max: float,
     H: Any,
-    F: Any,
     g0: Any,
     A: Any,
-    E: Any,
     lo0: Any,
     up0: Any,
     lb: Any,
     ub: Any,
 ) -> float:
-    r"""The condensed QP of one linearization (``CondensedTranscription.build``), in place.
+    r"""The input part of the condensed QP (``CondensedTranscription.build``), in place.
 
-    Prediction matrices by the recursion :math:`M_{i+1} = A_i M_i + B_i e_i` (only the
-    causal columns), the weighted stack ``Maug`` (stage weights ``Lt[i]``, last column the
-    weighted deviation from :math:`\bar x`), its Gram matrix (one BLAS product) giving
-    ``H``, ``F``, ``g0``, then the tightened output rows i = 1..N-1 and the terminal box
-    rows, and the input bounds around the candidate. Returns the violation scale
-    :math:`1 + \max(u_{max}, |lo_0|, |up_0|)`.
+    Input-to-state matrices by the recursion :math:`\Gamma_{i+1} = A_i \Gamma_i + B_i e_i`
+    (only the causal columns; ``M[i][:, 2n:]``), the weighted stack ``Maug`` (stage weights
+    ``Lt[i]``, last column the weighted deviation from :math:`\bar x`), its Gram matrix
+    (one BLAS product) giving ``H`` and ``g0``, the tightened output rows i = 1..N-1 and the
+    terminal box rows in :math:`\delta u`, and the input bounds around the candidate. The
+    part in :math:`\delta x_0` (``F`` and ``E`` of the numpy build, :math:`O(N n^3)`) is not
+    formed: :func:`insert_state` propagates :math:`\delta x_0` at feedback time
+    (:math:`O(N n^2)`). Returns the violation scale :math:`1 + \max(u_{max}, |lo_0|, |up_0|)`.
     """
     N = J.shape[0]
     n2 = J.shape[1]
@@ -166,44 +166,57 @@ def condense(
     p = W_y.shape[0]
     nu = N * m
     cols = n2 + nu
-    # Loops ordered so that the innermost runs along contiguous columns.
+    # Gamma_{i+1} = A_i Gamma_i on the causal columns: one BLAS product per stage on
+    # contiguous copies (the stage matrices are small, the horizon's columns grow).
+    diagonal = True
+    for i in range(N):
+        for r in range(n2):
+            for q in range(n2):
+                if r != q and Lt[i, r, q] != 0.0:
+                    diagonal = False
     for i in range(N):
         live = n2 + i * m  # columns of M[i] that can be nonzero
+        if live > n2:
+            A_i = np.ascontiguousarray(J[i, :, :n2])
+            product = A_i @ np.ascontiguousarray(M[i, :, n2:live])
+            for r in range(n2):
+                for c in range(live - n2):
+                    M[i + 1, r, n2 + c] = product[r, c]
         for r in range(n2):
-            target = M[i + 1, r]
-            for c in range(cols):
-                target[c] = 0.0
-            for q in range(n2):
-                a = J[i, r, q]
-                source = M[i, q]
-                for c in range(live):
-                    target[c] += a * source[c]
             for j in range(m):
-                target[live + j] = J[i, r, n2 + j]
+                M[i + 1, r, live + j] = J[i, r, n2 + j]
+            for c in range(live + m, cols):
+                M[i + 1, r, c] = 0.0
     for i in range(N):
         live = n2 + (i + 1) * m
-        for r in range(n2):
-            target = Maug[i, r]
-            for c in range(cols + 1):
-                target[c] = 0.0
-            acc = 0.0
-            for q in range(n2):
-                a = Lt[i, r, q]
-                if a == 0.0:
-                    continue
-                source = M[i + 1, q]
-                for c in range(live):
-                    target[c] += a * source[c]
-                acc += a * (S[i + 1, q] - x_bar[q])
-            target[cols] = acc
-    flat = Maug.reshape(N * n2, cols + 1)
+        if diagonal:
+            for r in range(n2):
+                w = Lt[i, r, r]
+                target = Maug[i, r]
+                source = M[i + 1, r]
+                for c in range(n2, live):
+                    target[c] = w * source[c]
+                for c in range(live, cols):
+                    target[c] = 0.0
+                target[cols] = w * (S[i + 1, r] - x_bar[r])
+        else:
+            weighted = np.ascontiguousarray(Lt[i]) @ np.ascontiguousarray(M[i + 1, :, n2:live])
+            for r in range(n2):
+                target = Maug[i, r]
+                for c in range(live - n2):
+                    target[n2 + c] = weighted[r, c]
+                for c in range(live, cols):
+                    target[c] = 0.0
+                acc = 0.0
+                for q in range(n2):
+                    acc += Lt[i, r, q] * (S[i + 1, q] - x_bar[q])
+                target[cols] = acc
+    flat = np.ascontiguousarray(Maug.reshape(N * n2, cols + 1)[:, n2:])  # BLAS wants contiguous
     gram = flat.T @ flat
     for a in range(nu):
         for b in range(nu):
-            H[a, b] = gram[n2 + a, n2 + b]
-        for b in range(n2):
-            F[a, b] = gram[n2 + a, b]
-        g0[a] = gram[n2 + a, cols]
+            H[a, b] = gram[a, b]
+        g0[a] = gram[a, nu]
     for i in range(N):
         for a in range(m):
             acc = 0.0
@@ -220,19 +233,16 @@ def condense(
                 y_lin += W_y[j, q] * S[i, n + q]
             lo0[row] = lower[i, j] - y_lin
             up0[row] = upper[i, j] - y_lin
-            for c in range(cols):
-                acc = 0.0
-                for q in range(n):
-                    acc += W_y[j, q] * M[i, n + q, c]
-                if c < n2:
-                    E[row, c] = acc
-                else:
-                    A[row, c - n2] = acc
+            for c in range(nu):
+                A[row, c] = 0.0
+            for q in range(n):
+                w = W_y[j, q]
+                source = M[i, n + q]
+                for c in range(nu):
+                    A[row, c] += w * source[n2 + c]
     level = alpha if alpha > 0.0 else 0.0
     for r in range(n2):
         row = n_out + r
-        for c in range(n2):
-            E[row, c] = M[N, r, c]
         for c in range(nu):
             A[row, c] = M[N, r, n2 + c]
         half = unit_half[r] * level
@@ -257,48 +267,77 @@ def condense(
 def insert_state(
     x_hat: Any,
     S: Any,
-    F: Any,
+    J: Any,
+    Lt: Any,
+    Maug: Any,
+    W_y: Any,
     g0: Any,
-    E: Any,
     lo0: Any,
     up0: Any,
-    dx0: Any,
+    dX: Any,
     f: Any,
     lo: Any,
     up: Any,
 ) -> None:
-    r"""Feedback data of the condensed QP.
+    r"""Feedback data of the condensed QP for :math:`\delta x_0 = \hat x - \tilde x_0`.
 
-    :math:`\delta x_0 = \hat x - \tilde x_0`, :math:`f = g_0 + F \delta x_0`, rows
-    :math:`lo_0 - E \delta x_0` and :math:`up_0 - E \delta x_0`.
+    Propagates :math:`\delta x^0_{i+1} = A_i \delta x^0_i` into ``dX`` (N + 1, 2n), then
+    :math:`f = g_0 + \sum_i (L_i \Gamma_{i+1})^\top L_i \delta x^0_{i+1}` and the rows
+    :math:`lo_0 - W_y \delta h^0_i`, :math:`up_0 - W_y \delta h^0_i` (i = 1..N-1) and
+    :math:`lo_0 - \delta x^0_N`, :math:`up_0 - \delta x^0_N` (terminal box).
     """
-    n2 = dx0.shape[0]
+    N = J.shape[0]
+    n2 = J.shape[1]
+    n = n2 // 2
+    p = W_y.shape[0]
+    nu = f.shape[0]
     for q in range(n2):
-        dx0[q] = x_hat[q] - S[0, q]
-    for a in range(f.shape[0]):
-        acc = g0[a]
-        for q in range(n2):
-            acc += F[a, q] * dx0[q]
-        f[a] = acc
-    for row in range(lo.shape[0]):
-        acc = 0.0
-        for q in range(n2):
-            acc += E[row, q] * dx0[q]
-        lo[row] = lo0[row] - acc
-        up[row] = up0[row] - acc
+        dX[0, q] = x_hat[q] - S[0, q]
+    for i in range(N):
+        for r in range(n2):
+            acc = 0.0
+            for q in range(n2):
+                acc += J[i, r, q] * dX[i, q]
+            dX[i + 1, r] = acc
+    for a in range(nu):
+        f[a] = g0[a]
+    weighted = np.empty(n2)
+    for i in range(N):
+        for r in range(n2):
+            acc = 0.0
+            for q in range(n2):
+                acc += Lt[i, r, q] * dX[i + 1, q]
+            weighted[r] = acc
+        for r in range(n2):
+            w = weighted[r]
+            row = Maug[i, r]
+            for a in range(nu):
+                f[a] += row[n2 + a] * w
+    n_out = (N - 1) * p
+    for i in range(1, N):
+        for j in range(p):
+            row = (i - 1) * p + j
+            acc = 0.0
+            for q in range(n):
+                acc += W_y[j, q] * dX[i, n + q]
+            lo[row] = lo0[row] - acc
+            up[row] = up0[row] - acc
+    for r in range(n2):
+        lo[n_out + r] = lo0[n_out + r] - dX[N, r]
+        up[n_out + r] = up0[n_out + r] - dX[N, r]
 
 
 @njit(cache=True)
 def expand_point(
-    z: Any, A: Any, low: Any, high: Any, rows: int, M: Any, S: Any, dx0: Any, x_linear: Any, u: Any
+    z: Any, A: Any, low: Any, high: Any, rows: int, M: Any, S: Any, dX: Any, x_linear: Any, u: Any
 ) -> float:
     r"""From the QP point ``z`` (its first ``N m`` entries :math:`\delta u`): the largest
-    violation of the bounds ``low <= [z; A z] <= high`` (first ``rows`` entries), the
-    linearized states :math:`\tilde x + M [\delta x_0; \delta u]` and the inputs
+    violation of ``low <= [z; A z] <= high`` over the first ``rows`` entries, the linearized
+    states :math:`\tilde x_i + \delta x^0_i + \Gamma_i \delta u` and the inputs
     :math:`\tilde u + \delta u`."""
     nu = A.shape[1]
     violation = 0.0
-    for a in range(nu):
+    for a in range(min(nu, rows)):
         value = z[a]
         if low[a] - value > violation:
             violation = low[a] - value
@@ -316,11 +355,10 @@ def expand_point(
     m = u.shape[1]
     for i in range(N1):
         for r in range(n2):
-            acc = S[i, r]
-            for q in range(n2):
-                acc += M[i, r, q] * dx0[q]
-            for a in range(nu):
-                acc += M[i, r, n2 + a] * z[a]
+            acc = S[i, r] + dX[i, r]
+            if i:
+                for a in range(nu):
+                    acc += M[i, r, n2 + a] * z[a]
             x_linear[i, r] = acc
     for i in range(u.shape[0]):
         for j in range(m):

@@ -151,6 +151,7 @@ class CondensedTranscription(TranscriptionBase):
             self._b_y = np.ascontiguousarray(model.b_y)
             self._W_y = np.ascontiguousarray(model.W_y)
             self._f = np.zeros(nu)
+            self._dX = np.zeros((N + 1, n2))
         self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
         settings: dict[str, Any] = dict(config.solver_settings)
         self._sessions = {
@@ -196,8 +197,7 @@ class CondensedTranscription(TranscriptionBase):
             self._scale = _compiled.condense(
                 J, S, M, self._Maug, self._Lt_all, x_bar, u_bar, self._R, self._W_y,
                 self._b_y, lower, upper, self._unit_half, float(alpha), float(self.config.u_max),
-                self._H, self._F, self._g0, self._A, self._E, self._lo0, self._up0,
-                self._lb, self._ub,
+                self._H, self._g0, self._A, self._lo0, self._up0, self._lb, self._ub,
             )  # fmt: skip
             return
         matmul = np.matmul
@@ -306,12 +306,13 @@ class CondensedTranscription(TranscriptionBase):
         n2, N, m = 2 * self.n, self.N, self.m
         S = traj.S
         dx0 = self._dx0
-        compiled = self.compiled and kind != "soft"
-        if compiled:
+        compiled = self.compiled
+        if compiled:  # delta x_0 propagated here, not condensed in prepare (compiled.py)
             f, lo, up = self._f, self._lo, self._up
             _compiled.insert_state(
-                x_hat, S, self._F, self._g0, self._E, self._lo0, self._up0, dx0, f, lo, up
-            )
+                x_hat, S, traj.J, self._Lt_all, self._Maug, self._W_y, self._g0,
+                self._lo0, self._up0, self._dX, f, lo, up,
+            )  # fmt: skip
         else:
             np.subtract(x_hat, S[0, :n2], out=dx0)
             f = self._F @ dx0
@@ -338,10 +339,12 @@ class CondensedTranscription(TranscriptionBase):
         if compiled:
             x_linear = np.empty((N + 1, n2))
             u = np.empty((N, m))
-            rows = nu + qp.A.shape[0]
+            rows = nu if kind == "soft" else nu + qp.A.shape[0]
             violation = _compiled.expand_point(
-                z, self._A, self._low, self._high, rows, self._M, S, dx0, x_linear, u
+                z, self._A, self._low, self._high, rows, self._M, S, self._dX, x_linear, u
             )
+            if kind == "soft":  # slacks: the QP's own rows
+                violation = qp.max_violation(z)
             return StepResult(
                 status=status,
                 u=u,
