@@ -1,19 +1,22 @@
-"""Controller step time of the one pipeline, optionally side by side with an older version.
+"""Controller step time of the one pipeline, optionally side by side with another version.
 
 Runs scenario 1 (bench's short variant) with ``OffsetFreeController(model,
 MPCConfig(solver=...))`` for each backend and horizon and prints the median / p95 of the
 full ``step`` and the medians of ``prepare`` and ``feedback`` (microseconds).
 
-With ``--baseline REV`` (a git revision of this repository, e.g. the commit before a
-refactor), that version is exported into a temporary folder, renamed to the package
-``ltv_lstm_mpc_baseline`` and run *in the same process*, step by step interleaved with the
-current one (order alternating ABBA, each controller with its own plant): the machine's
-drift then hits both alike, and the printed ratio new / old of the medians is a side-by-side
-figure. For the versions that still had it, the baseline runs the former
-``FastOffsetFreeController`` for the QP backends.
+Side by side, in the same process, step by step interleaved (order alternating ABBA, each
+controller with its own plant), so that the machine's drift hits both alike and the ratio
+new / old of the medians means something:
+
+- ``--baseline REV``: a git revision of this repository (e.g. the commit before a
+  refactor), exported into a temporary folder and renamed to the package
+  ``ltv_lstm_mpc_baseline``; for the versions that still had it, the baseline runs the
+  former ``FastOffsetFreeController`` for the QP backends;
+- ``--numpy-kernel``: this version on the numpy reference kernel (``compiled=False``).
 
     python experiments/pipeline_speed.py --steps 300
     python experiments/pipeline_speed.py --baseline a853d65 --steps 300 --rounds 3
+    python experiments/pipeline_speed.py --numpy-kernel --steps 300 --rounds 3
 """
 
 from __future__ import annotations
@@ -62,10 +65,15 @@ def export_baseline(revision: str, folder: Path) -> ModuleType:
     return importlib.import_module(BASELINE)
 
 
-def _controller(lib: ModuleType, solver: str, N: int) -> tuple[Any, Any, Any]:
+def _controller(
+    lib: ModuleType, solver: str, N: int, numpy_kernel: bool = False
+) -> tuple[Any, Any, Any]:
     """(controller, plant, scenario) of scenario 1 in the library ``lib``."""
     name = lib.__name__
     model = lib.load_model("ph_lstm_n5.npz")
+    if numpy_kernel:  # the numpy reference of eq. (lstm) and of the condensing
+        kernel = importlib.import_module(f"{name}.lstm.kernel")
+        model.kernel = kernel.LSTMKernel(model, compiled=False)
     try:
         harness = importlib.import_module(f"{name}.bench.harness")
     except ImportError:  # the layout before the one pipeline
@@ -85,9 +93,12 @@ def _controller(lib: ModuleType, solver: str, N: int) -> tuple[Any, Any, Any]:
     return ctrl, scenario.make_plant(model), scenario
 
 
-def compare(libs: list[ModuleType], solver: str, N: int, steps: int) -> list[dict[str, Any]]:
-    """Run the loops of ``libs`` interleaved; per library: step times and first inputs."""
-    runs = [_controller(lib, solver, N) for lib in libs]
+def compare(
+    libs: list[tuple[ModuleType, bool]], solver: str, N: int, steps: int
+) -> list[dict[str, Any]]:
+    """Run the loops of ``libs`` ((module, numpy kernel) pairs) interleaved; per entry:
+    step times and first inputs."""
+    runs = [_controller(lib, solver, N, numpy_kernel) for lib, numpy_kernel in libs]
     outputs = [plant.output() for _, plant, _ in runs]
     times: list[list[float]] = [[] for _ in runs]
     inputs: list[list[float]] = [[] for _ in runs]
@@ -119,18 +130,25 @@ def compare(libs: list[ModuleType], solver: str, N: int, steps: int) -> list[dic
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--baseline", default=None, help="git revision to compare with")
+    parser.add_argument(
+        "--numpy-kernel",
+        action="store_true",
+        help="compare with this version on the numpy kernel (LSTMKernel(compiled=False))",
+    )
     parser.add_argument("--rounds", type=int, default=1, help="repetitions of every case")
     parser.add_argument("--steps", type=int, default=300)
     args = parser.parse_args()
     import ltv_lstm_mpc
 
-    libs: list[ModuleType] = [ltv_lstm_mpc]
+    libs: list[tuple[ModuleType, bool]] = [(ltv_lstm_mpc, False)]
     with tempfile.TemporaryDirectory() as tmp:
         if args.baseline:
-            libs.append(export_baseline(args.baseline, Path(tmp)))
+            libs.append((export_baseline(args.baseline, Path(tmp)), False))
+        elif args.numpy_kernel:
+            libs.append((ltv_lstm_mpc, True))
         print(
             f"{'backend':>16} {'N':>3} | {'step med':>8} {'p95':>7} {'prep':>6} {'feed':>6}"
-            + (" | old med  new/old  max|du_phi|" if args.baseline else "")
+            + (" | old med  new/old  max|du_phi|" if len(libs) > 1 else "")
         )
         for solver, N in CASES:
             steps = args.steps if solver == "daqp" else min(args.steps, 120)
@@ -149,7 +167,7 @@ def main() -> None:
                 f"{us * np.percentile(new, 95):7.0f} {us * np.median(pooled(0, 'prepare')):6.0f} "
                 f"{us * np.median(pooled(0, 'feedback')):6.0f}"
             )
-            if args.baseline:
+            if len(libs) > 1:
                 old = pooled(1, "total")
                 du = max(
                     float(np.max(np.abs(a["u"] - b["u"])))
