@@ -79,3 +79,18 @@ def bench_model_path():
     from ltv_lstm_mpc.lstm.shipped import shipped_path
 
     return shipped_path("ph_lstm_n5.npz")
+
+
+def test_bench_reports_overhead_and_the_ratio_to_the_numpy_kernel(tmp_path) -> None:
+    out = tmp_path / "bench"
+    argv = ["bench", "--smoke", "--steps", "12", "--quiet", "--out", str(out),
+            "--backends", "daqp", "--numpy-kernel"]  # fmt: skip
+    assert _main(argv) == 0
+    with open(out / "bench.csv", newline="") as handle:
+        (row,) = list(csv.DictReader(handle))
+    step, solve = float(row["step_median_us"]), float(row["solve_median_us"])
+    overhead = float(row["overhead_median_us"])
+    assert 0 < overhead < step and solve > 0
+    numpy_step = float(row["step_numpy_median_us"])
+    assert float(row["ratio_to_numpy"]) == pytest.approx(step / numpy_step, rel=1e-12)
+    assert "÷numpy kernel" in (out / "bench.md").read_text()

@@ -50,6 +50,7 @@ from ltv_lstm_mpc.cli.arguments import UsageError, output_folder, positive_float
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.simulation import simulate
+from ltv_lstm_mpc.lstm.kernel import LSTMKernel
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.rti import RobustMPC, resolve_transcription
@@ -86,6 +87,9 @@ CSV_COLUMNS = (
     "solve_median_us",
     "prepare_median_us",
     "feedback_median_us",
+    "overhead_median_us",
+    "step_numpy_median_us",
+    "ratio_to_numpy",
     "ratio_to_nmpc",
     "ratio_to_fastest",
     "u0_diff_max",
@@ -272,6 +276,7 @@ def _summary(run: dict[str, Any]) -> dict[str, Any]:
         "solve_median_us": med(solve),
         "prepare_median_us": med(run["prepare"] * us),
         "feedback_median_us": med(run["feedback"] * us),
+        "overhead_median_us": med(total - solve),  # everything but the solver calls
         "cost": float(np.sum(run["stage_cost"])),
         "output_violation_steps": int(np.sum(violation > 1e-9)),
         "output_violation_max": float(np.max(violation)),
@@ -315,6 +320,7 @@ def run_bench(
     slow_steps: int = 60,
     time_cap: float = 60.0,
     log: Callable[[str], None] | None = None,
+    numpy_kernel: bool = False,
 ) -> list[dict[str, Any]]:
     """Run every backend on every scenario and horizon; returns the CSV rows.
 
@@ -331,8 +337,19 @@ def run_bench(
         Cap for N >= 50 through cvxpy / qpsolvers / sparse DAQP (``subsampled`` = 1).
     time_cap : float
         Wall-time cap per run, s (the run stops early; ``steps`` says how far it got).
+    numpy_kernel : bool
+        Also run every backend on a twin of the model with the numpy reference kernel
+        (``LSTMKernel(compiled=False)``) right after it, and report ``ratio_to_numpy``.
     """
     chosen = resolve_backends(backends)
+    twin: LSTMModel | None = None
+    if numpy_kernel:
+        twin = LSTMModel(
+            **model.weights(),
+            normalization=model.normalization,
+            y_phi_constraint=model.y_phi_constraint,
+        )
+        twin.kernel = LSTMKernel(twin, compiled=False)
     rows: list[dict[str, Any]] = []
     for scenario in scenarios:
         for N in horizons:
@@ -359,6 +376,10 @@ def run_bench(
                     row.update(_summary(run))
                     row["family"] = run["transcription"]
                     runs[backend] = run
+                    if twin is not None:
+                        slow = _summary(_run(backend, twin, scenario, N, cert, n_steps, time_cap))
+                        row["step_numpy_median_us"] = slow["step_median_us"]
+                        row["ratio_to_numpy"] = row["step_median_us"] / slow["step_median_us"]
                 except Exception as error:  # a backend failure is a result, not a crash
                     row.update(error=f"{type(error).__name__}: {error}"[:200], steps=0)
                 if log is not None:
@@ -407,6 +428,10 @@ _MD_COLUMNS = (
     ("reference_median_us", "ref µs"),
     ("build_median_us", "lin+build µs"),
     ("solve_median_us", "solve µs"),
+    ("prepare_median_us", "prepare µs"),
+    ("feedback_median_us", "feedback µs"),
+    ("overhead_median_us", "step-solve µs"),
+    ("ratio_to_numpy", "÷numpy kernel"),
     ("ratio_to_nmpc", "÷NMPC"),
     ("ratio_to_fastest", "÷fastest"),
     ("u0_diff_max", "max |Δu| (mL/s)"),
@@ -676,6 +701,11 @@ def _parser_args(parser: argparse.ArgumentParser) -> None:
         "--save-subproblems", metavar="DIR", default=None, help="also save replayable subproblems"
     )
     parser.add_argument("--quiet", action="store_true", help="no per-run log lines")
+    parser.add_argument(
+        "--numpy-kernel",
+        action="store_true",
+        help="also run each backend on the numpy reference kernel and report the ratio",
+    )
 
 
 DEFAULT_SCENARIOS = ("1_*", "4_*", "standin*")
@@ -763,6 +793,7 @@ def main_bench(args: argparse.Namespace) -> int:
                 slow_steps=args.slow_steps,
                 time_cap=args.time_cap,
                 log=log,
+                numpy_kernel=args.numpy_kernel,
             )
     out = Path(args.out)
     write_outputs(rows, out, notes)
