@@ -1,14 +1,23 @@
-r"""Compiled (numba) versions of :class:`~ltv_lstm_mpc.lstm.kernel.LSTMKernel`'s loops.
+r"""Compiled (numba) versions of the controller's hot loops; the numpy code is the reference.
 
-The same eq. (lstm) and eq. (jacobian) as the numpy reference in
-:mod:`ltv_lstm_mpc.lstm.kernel`, written as scalar loops over the gates and compiled with
-``numba.njit(cache=True)`` (compiled once, cached on disk next to this file). They read
-and write the same :class:`~ltv_lstm_mpc.lstm.kernel.Trajectory` buffers. The Jacobians
-follow the reference's order of operations (bit for bit on the same activations); the
-rollout's matrix-vector product and the exponentials come from a different library than
-numpy's, so the two kernels agree to a few ulps (tested to 1e-12).
+Compiled with ``numba.njit(cache=True)`` (once, cached on disk next to this file) and
+used when the model's :class:`~ltv_lstm_mpc.lstm.kernel.LSTMKernel` is compiled (the
+default; ``compiled=False`` or ``LTV_LSTM_MPC_KERNEL=numpy`` select the numpy reference):
 
-:data:`AVAILABLE` is False when numba cannot be imported; the kernel then uses numpy.
+- :func:`rollout`, :func:`pairs`, :func:`jacobians`: eq. (lstm) and eq. (jacobian) on the
+  :class:`~ltv_lstm_mpc.lstm.kernel.Trajectory` buffers (reference: ``LSTMKernel``);
+- :func:`condense`, :func:`insert_state`, :func:`expand_point`: the condensed QP of
+  ``CondensedTranscription`` (reference: its numpy ``build`` / ``solve``);
+- :func:`chord_newton`: the warm path of ``ReferenceCalculator`` (reference: ``_chord``);
+- :func:`plan_metrics`: re-simulation, cost and residuals of the applied plan (reference:
+  ``PlanCost`` and ``plan_residuals`` in ``mpc/fhocp.py``).
+
+The Jacobians follow the reference's order of operations (bit for bit on the same
+activations); elsewhere sums run in another order and the exponentials come from another
+library than numpy's, so the results agree to a few ulps (every function is tested against
+its reference to 1e-12 in ``tests/test_kernel.py``).
+
+:data:`AVAILABLE` is False when numba cannot be imported; the numpy reference then runs.
 """
 
 from __future__ import annotations
