@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from lstm_factories import random_lstm
@@ -9,7 +11,10 @@ from lstm_factories import random_lstm
 from ltv_lstm_mpc.lstm import compiled
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
 
-pytestmark = pytest.mark.skipif(not compiled.AVAILABLE, reason="numba is not installed")
+pytestmark = pytest.mark.skipif(
+    not compiled.AVAILABLE or os.environ.get("LTV_LSTM_MPC_KERNEL", "").lower() == "numpy",
+    reason="compares the compiled kernel with the numpy one: needs numba and the default kernel",
+)
 
 SHAPES = [(1, 1, 1), (3, 1, 1), (5, 1, 1), (4, 2, 2), (8, 3, 3), (20, 2, 2)]
 
