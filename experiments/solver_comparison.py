@@ -1,4 +1,4 @@
-"""Solver comparison experiment (issue 6): every backend on the paper's closed loops.
+"""Solver comparison experiment: every backend on the paper's closed loops.
 
 Same as ``ltv-lstm-mpc bench`` (see :mod:`ltv_lstm_mpc.bench.harness` for the columns); writes
 ``bench.csv``, ``bench.md`` and ``bench_N<N>.png`` under ``--out`` (default

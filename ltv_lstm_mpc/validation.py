@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 
-__all__ = ["real_vector"]
+__all__ = ["real_array", "real_vector"]
 
 FloatArray = NDArray[np.float64]
 
@@ -27,6 +27,19 @@ _KIND_NAMES = {"b": "boolean", "c": "complex", "U": "string", "S": "bytes", "O":
 def _describe(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
+
+
+def real_array(name: str, value: Any, *, kinds: str = "biuf") -> NDArray[Any]:
+    """``value`` as an array whose dtype kind is in ``kinds`` (real numbers; booleans too
+    by default), else :class:`InvalidValueError` naming it: complex numbers, strings and
+    objects are refused, never converted."""
+    array = value if isinstance(value, np.ndarray) else np.asarray(value)
+    if array.dtype.kind not in kinds:
+        what = _KIND_NAMES.get(array.dtype.kind, str(array.dtype))
+        raise InvalidValueError(
+            f"{name} must be real numbers, got {what} values {_describe(value)}"
+        )
+    return array
 
 
 def real_vector(name: str, value: Any, size: int) -> FloatArray:
@@ -52,13 +65,7 @@ def real_vector(name: str, value: Any, size: int) -> FloatArray:
         raise InvalidValueError(
             f"{name} must be real numbers, got {type(value).__name__} {_describe(value)}"
         )
-    array = value if isinstance(value, np.ndarray) else np.asarray(value)
-    kind = array.dtype.kind
-    if kind not in "iuf":
-        what = _KIND_NAMES.get(kind, str(array.dtype))
-        raise InvalidValueError(
-            f"{name} must be real numbers, got {what} values {_describe(value)}"
-        )
+    array = real_array(name, value, kinds="iuf")
     if array.shape != (size,):
         if array.ndim == 0 and size == 1:
             array = array.reshape(1)
@@ -68,5 +75,5 @@ def real_vector(name: str, value: Any, size: int) -> FloatArray:
     array = array.astype(np.float64, copy=False)
     # One sum on the hot path; the exact test only when it is not finite.
     if not math.isfinite(float(array.sum())) and not bool(np.isfinite(array).all()):
-        raise InvalidValueError(f"{name} must be finite, got {_describe(value)}")
+        raise InvalidValueError(f"{name} contains NaN or inf: {_describe(value)}")
     return array

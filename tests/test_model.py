@@ -235,8 +235,8 @@ EXPECTED_MODEL_FILE_MESSAGES = {
     "npy_named_npz": "single-array .npy file",
     "text": "not an .npz archive",
     "folder": "is a folder",
-    "strings": "W_f must hold real numbers, got string values",
-    "complex": "U_o must hold real numbers, got complex values",
+    "strings": "W_f must be real numbers, got string values",
+    "complex": "U_o must be real numbers, got complex values",
 }
 
 
@@ -253,7 +253,7 @@ def test_every_bad_model_file_is_a_model_format_error(tmp_path, kind: str) -> No
 def test_non_real_weights_are_rejected_by_name() -> None:
     arrays = random_lstm(np.random.default_rng(0), 3).weights()
     for name, bad in (("b_c", arrays["b_c"] + 1j), ("W_y", arrays["W_y"].astype(str))):
-        with pytest.raises(InvalidValueError, match=f"{name} must hold real numbers"):
+        with pytest.raises(InvalidValueError, match=f"{name} must be real numbers"):
             LSTMModel(**{**arrays, name: bad})
 
 

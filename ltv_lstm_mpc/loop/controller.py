@@ -196,7 +196,7 @@ class OffsetFreeController:
         return last, np.asarray(self.model.output(last.x_bar) + d_hat, dtype=np.float64), True
 
     def _physical_y(self, y: FloatArray) -> list[float]:
-        return [float(v) for v in (y + 1.0) * self._y_scale + self._y_min]
+        return [float(v) for v in self.model.denormalize_y(y)]
 
     def _diagnose(
         self, y0: FloatArray, d_hat: FloatArray, reference: ReferenceSolution, stale: bool

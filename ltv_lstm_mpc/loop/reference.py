@@ -14,15 +14,15 @@ analytic Jacobian of eq. (jacobian), warm-started from the previous solution.
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, UnreachableSetpointError
+from ltv_lstm_mpc.exceptions import InvalidValueError, UnreachableSetpointError
 from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.validation import real_vector
 
 __all__ = ["KBarEstimate", "ReferenceCalculator", "ReferenceSolution", "estimate_K_bar"]
 
@@ -128,8 +128,7 @@ class ReferenceCalculator:
         self._eye = np.eye(n2)
         self._jacobian = np.zeros((n2 + m, n2 + m))
         self._jacobian[n2:, model.n : n2] = model.W_y
-        self._last: tuple[FloatArray, FloatArray] | None = None
-        self._last_z = np.zeros(0)  # the same, concatenated (warm path)
+        self._last_z: FloatArray | None = None  # previous solution [x_bar; u_bar]
         # Warm path (chord Newton on the model's kernel), see :meth:`_chord`.
         self._traj = model.kernel.trajectory(1)
         self._z_view = self._traj.S[0, : n2 + m]
@@ -164,7 +163,7 @@ class ReferenceCalculator:
 
     def reset(self) -> None:
         """Forget the warm start."""
-        self._last = None
+        self._last_z = None
         self._Jinv = None
         self._last_target = None
 
@@ -216,7 +215,7 @@ class ReferenceCalculator:
         one residual check. ``ok`` is False when an iteration with a fresh Jacobian does not
         decrease the residual: the caller then runs the damped Newton with restarts.
         """
-        assert self._last is not None
+        assert self._last_z is not None
         n2 = 2 * self.model.n
         if self._compiled:
             return self._chord_compiled(target)
@@ -309,22 +308,12 @@ class ReferenceCalculator:
         """
         model = self.model
         p = model.p
-        y0_arr = np.atleast_1d(np.asarray(y0, dtype=np.float64))
-        d_arr = np.atleast_1d(np.asarray(d_hat, dtype=np.float64))
-        if (
-            y0_arr.shape != (p,)
-            or d_arr.shape != (p,)
-            or not math.isfinite(float(y0_arr.sum() + d_arr.sum()))
-        ):  # one cheap test on the hot path; the exact ones name the culprit
-            for name, value in (("y0", y0_arr), ("d_hat", d_arr)):
-                if value.shape != (p,):
-                    raise DimensionError(f"{name} has shape {value.shape}, expected ({p},)")
-                if not np.all(np.isfinite(value)):
-                    raise InvalidValueError(f"{name} contains NaN or inf: {value}")
+        y0_arr = real_vector("y0", y0, p)
+        d_arr = real_vector("d_hat", d_hat, p)
         target = y0_arr - d_arr  # g(x_bar) must equal y0 - d_hat
         n2 = 2 * model.n
         chord: tuple[FloatArray, float] | None = None
-        if warm is None and self._last is not None:
+        if warm is None and self._last_z is not None:
             z, norm, iterations, ok = self._chord(target)
             u_bar = z[n2:]
             admissible = ok and float(np.abs(u_bar).max()) <= self.u_max * (1 + 1e-12)
@@ -333,12 +322,11 @@ class ReferenceCalculator:
                 # it as a candidate and let the restarts find the closest admissible one.
                 chord, admissible = (z, norm), False
             if admissible:
-                self._last = (z[:n2].copy(), u_bar.copy())
                 self._last_z = z
                 self._last_target = target
                 return ReferenceSolution(
-                    x_bar=self._last[0],
-                    u_bar=self._last[1],
+                    x_bar=z[:n2].copy(),
+                    u_bar=u_bar.copy(),
                     residual=norm,
                     jacobian_condition=float("nan"),
                     u_admissible=True,
@@ -350,8 +338,8 @@ class ReferenceCalculator:
         starts: list[FloatArray] = []
         if warm is not None:
             starts.append(np.concatenate([np.asarray(warm[0], float), np.asarray(warm[1], float)]))
-        elif self._last is not None:
-            starts.append(np.concatenate(self._last))
+        elif self._last_z is not None:
+            starts.append(self._last_z.copy())
         previous = starts[0] if starts else None
         # Grid equilibria closest in output to the target (several for MIMO models, where
         # the equilibrium map can fold and distinct starts reach distinct equilibria).
@@ -394,8 +382,7 @@ class ReferenceCalculator:
             iterations=total_iterations,
         )
         if converged and u_admissible:
-            self._last = (x_bar, u_bar)
-            self._last_z = np.concatenate(self._last)
+            self._last_z = z.copy()
             self._last_target = target
         if self.strict and not solution.ok:
             low, high = self.reachable_output_range

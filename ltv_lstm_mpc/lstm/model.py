@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
+from ltv_lstm_mpc.validation import real_array
 
 __all__ = ["WEIGHT_NAMES", "LSTMModel", "ModelFormatError", "Normalization"]
 
@@ -57,20 +58,9 @@ class ModelFormatError(LtvMpcError, ValueError):
     """A model file or state dict lacks an array or holds an unexpected one."""
 
 
-def _real_array(name: str, value: ArrayLike) -> NDArray[Any]:
-    """``value`` as an array of real numbers (bool, int, float), else InvalidValueError."""
-    raw = np.asarray(value)
-    if raw.dtype.kind not in "biuf":  # complex, strings, objects: no silent conversion
-        kind = {"c": "complex", "U": "string", "S": "bytes", "O": "object"}.get(raw.dtype.kind)
-        raise InvalidValueError(
-            f"{name} must hold real numbers, got {kind or raw.dtype} values (dtype {raw.dtype})"
-        )
-    return raw
-
-
 def _as_finite_array(name: str, value: ArrayLike, shape: tuple[int, ...]) -> FloatArray:
     """Convert ``value`` to a float64 array of exactly ``shape``, rejecting NaN/inf."""
-    array = np.array(_real_array(name, value), dtype=np.float64, copy=True)
+    array = np.array(real_array(name, value), dtype=np.float64, copy=True)
     if array.shape != shape:
         raise DimensionError(
             f"{name} has shape {array.shape}, expected {shape} "
@@ -141,7 +131,7 @@ class Normalization:
 
     def __post_init__(self) -> None:
         for name in _NORMALIZATION_NAMES:
-            real = _real_array(name, getattr(self, name))
+            real = real_array(name, getattr(self, name))
             value = np.atleast_1d(np.array(real, dtype=np.float64))
             if value.ndim != 1:
                 raise DimensionError(f"{name} must be a 1-D array, got shape {value.shape}")
@@ -247,9 +237,9 @@ class LSTMModel:
         normalization: Normalization | None = None,
         y_phi_constraint: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> None:
-        U_f_arr = np.asarray(_real_array("U_f", U_f), dtype=np.float64)
-        W_f_arr = np.asarray(_real_array("W_f", W_f), dtype=np.float64)
-        W_y_arr = np.asarray(_real_array("W_y", W_y), dtype=np.float64)
+        U_f_arr = np.asarray(real_array("U_f", U_f), dtype=np.float64)
+        W_f_arr = np.asarray(real_array("W_f", W_f), dtype=np.float64)
+        W_y_arr = np.asarray(real_array("W_y", W_y), dtype=np.float64)
         if U_f_arr.ndim != 2 or U_f_arr.shape[0] != U_f_arr.shape[1]:
             raise DimensionError(f"U_f must be a square (n, n) matrix, got shape {U_f_arr.shape}")
         n = U_f_arr.shape[0]

@@ -1,10 +1,9 @@
 r"""The FHOCP front-end shared by every transcription (SPEC section 4).
 
-One definition of: the arguments' checks (:func:`checked_vector`),
-the proof candidate (:func:`shifted_candidate`, Theorem 3 Part 2b), the checks no solver
-can fix (:func:`precheck_status`), the cost eq. (optimization_cost) (:class:`PlanCost`),
-the nonlinear residuals of a plan (:func:`plan_residuals`) and the result
-(:class:`MPCSolution`).
+One definition of: the proof candidate (:func:`shifted_candidate`, Theorem 3 Part 2b),
+the checks no solver can fix (:func:`precheck_status`), the cost eq. (optimization_cost)
+(:class:`PlanCost`), the nonlinear residuals of a plan (:func:`plan_residuals`) and the
+result (:class:`MPCSolution`). Argument checks: :func:`ltv_lstm_mpc.validation.real_vector`.
 """
 
 from __future__ import annotations
@@ -19,13 +18,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.certificates.certify import Certification
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
-from ltv_lstm_mpc.validation import real_vector
 
 __all__ = [
     "MPCSolution",
     "MPCSolver",
     "PlanCost",
-    "checked_vector",
     "plan_residuals",
     "precheck_status",
     "shifted_candidate",
@@ -108,12 +105,6 @@ class MPCSolution:
     prepare_time: float = 0.0
     feedback_time: float = 0.0
     reason: str = ""
-
-
-def checked_vector(name: str, value: ArrayLike, size: int) -> FloatArray:
-    """``value`` as a finite float64 vector of shape (size,); clear errors otherwise
-    (:func:`ltv_lstm_mpc.validation.real_vector`)."""
-    return real_vector(name, value, size)
 
 
 def shifted_candidate(previous_u: FloatArray | None, u_bar: FloatArray, N: int) -> FloatArray:

@@ -38,13 +38,13 @@ from ltv_lstm_mpc.mpc.fhocp import (
     MPCSolution,
     MPCSolver,
     PlanCost,
-    checked_vector,
     plan_residuals,
     precheck_status,
     shifted_candidate,
 )
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus
+from ltv_lstm_mpc.validation import real_vector
 
 __all__ = [
     "NLP_SOLVERS",
@@ -506,7 +506,7 @@ class RobustMPC:
         """
         model = self.model
         n2, m, p = 2 * model.n, model.m, model.p
-        x_hat_a = checked_vector("x_hat", x_hat, n2)
+        x_hat_a = real_vector("x_hat", x_hat, n2)
         e_hat = float(e_hat)
         if not np.isfinite(e_hat) or e_hat < 0:
             raise InvalidValueError(f"e_hat must be a finite nonnegative number, got {e_hat}")
@@ -516,9 +516,9 @@ class RobustMPC:
             if not np.all(np.isfinite(np.asarray(warm, dtype=np.float64))):
                 raise InvalidValueError("warm contains NaN or inf")
         self.prepare(
-            checked_vector("x_bar", x_bar, n2),
-            checked_vector("u_bar", u_bar, m),
-            checked_vector("y0", y0, p),
+            real_vector("x_bar", x_bar, n2),
+            real_vector("u_bar", u_bar, m),
+            real_vector("y0", y0, p),
             e_hat,
             x_pred=x_hat_a,
             warm=warm,
