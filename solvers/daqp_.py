@@ -274,11 +274,7 @@ class DaqpDense(DenseBackend):
             self._H, self._f, self._A, self._bu, self._bl, sense, **self.options
         )
         flag = int(exitflag)
-        status = STATUS_MAP.get(flag)
-        notes: tuple[str, ...] = ()
-        if status is None:
-            status, note = map_status(STATUS_MAP, flag)
-            notes = (str(note),)
+        status, notes = _status(flag)
         z = duals = None
         if status.has_solution:
             z = np.asarray(x, dtype=np.float64)
@@ -303,13 +299,18 @@ class DaqpDense(DenseBackend):
             self._H, self._f, self._A, self._bu, self._bl, self._cold, **self.options
         )
         flag = int(exitflag)
-        status = STATUS_MAP.get(flag)
-        native = f"exitflag {flag}"
-        if status is None:
-            status, note = map_status(STATUS_MAP, flag)
-            native = f"{native}; {note}"
+        status, notes = _status(flag)
         z = x if status.has_solution else None
-        return status, z, int(info["iterations"]), native
+        return status, z, int(info["iterations"]), "; ".join((f"exitflag {flag}", *notes))
+
+
+def _status(flag: int) -> tuple[SolverStatus, tuple[str, ...]]:
+    """The dense backend's status of a DAQP exit flag, and a note for an unknown one."""
+    status = STATUS_MAP.get(flag)
+    if status is not None:
+        return status, ()
+    status, note = map_status(STATUS_MAP, flag)
+    return status, (str(note),)
 
 
 def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:

@@ -297,6 +297,12 @@ class DenseBackend(abc.ABC):
 DenseBackendFactory = Callable[[str, float, Mapping[str, Any]], DenseBackend]
 
 
+def _usable_point(z: FloatArray, qp: DenseQP) -> bool:
+    """A solver point of the right shape with finite entries (one sum on the hot path: a
+    non-finite entry makes it non-finite; the exact test runs only then)."""
+    return z.shape == qp.f.shape and (math.isfinite(float(z.sum())) or bool(np.isfinite(z).all()))
+
+
 # --------------------------------------------------------------------------------------
 # session
 # --------------------------------------------------------------------------------------
@@ -426,9 +432,7 @@ class DenseSession:
             self.update(qp)
         status, z, iterations, info = self._backend.solve_point()
         if z is not None:
-            if z.shape != qp.f.shape or not (
-                math.isfinite(float(z.sum())) or bool(np.isfinite(z).all())
-            ):
+            if not _usable_point(z, qp):
                 return (
                     SolverStatus.FAILED,
                     None,
@@ -447,11 +451,7 @@ class DenseSession:
         raw_z = raw.z
         duals = raw.duals
         if raw_z is not None:
-            ok = raw_z.shape == qp.f.shape
-            if ok:
-                # A non-finite entry makes the sum non-finite; the exact check runs only then.
-                ok = math.isfinite(float(raw_z.sum())) or bool(np.isfinite(raw_z).all())
-            if ok:
+            if _usable_point(raw_z, qp):
                 if raw.objective is not None and math.isfinite(raw.objective):
                     objective = raw.objective
                 else:

@@ -250,12 +250,7 @@ def _add_reproduce(subparsers: Any) -> None:
     parser.add_argument("--short", action="store_true", help="quarter-length schedules (smoke)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
-    parser.add_argument(
-        "--max-offset",
-        type=positive_float,
-        default=None,
-        help="exit with status 3 when a scenario's final offset exceeds this (pH)",
-    )
+    _add_max_offset(parser)
     parser.set_defaults(func=_run_reproduce)
 
 
@@ -282,6 +277,15 @@ def _run_reproduce(args: argparse.Namespace) -> int:
         + (f"; results in {args.out}" if args.out else "")
     )
     return _offset_status([s["final_offset"] for s in report["scenarios"]], args.max_offset)
+
+
+def _add_max_offset(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--max-offset",
+        type=positive_float,
+        default=None,
+        help="exit with status 3 when a final offset exceeds this (physical output units)",
+    )
 
 
 def _offset_status(offsets: Sequence[float | None], max_offset: float | None) -> int:
@@ -360,12 +364,7 @@ def _add_simulate(subparsers: Any) -> None:
         "--out", type=output_folder, default=None, help="output folder (PNG/CSV/JSON)"
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument(
-        "--max-offset",
-        type=positive_float,
-        default=None,
-        help="exit with status 3 when the final offset exceeds this (physical units)",
-    )
+    _add_max_offset(parser)
     parser.set_defaults(func=_run_simulate)
 
 

@@ -138,9 +138,10 @@ def _as_schedule(
     if value is None:
         return [None] * steps
     if callable(value):
+        values = [value(k) for k in range(steps)]
         return [
-            real_vector(f"{name}({k})", value(k), width if width is not None else np.size(value(k)))
-            for k in range(steps)
+            real_vector(f"{name}({k})", v, width if width is not None else np.size(v))
+            for k, v in enumerate(values)
         ]
     if isinstance(value, (bool, str, bytes)):
         real_vector(name, value, 1)  # raises with the standard message

@@ -143,11 +143,9 @@ class CondensedTranscription(TranscriptionBase):
             )
             self._Lt_all = np.ascontiguousarray(Lt_all)
             self._R = np.ascontiguousarray(R, dtype=np.float64)
-            self._H = np.zeros((nu, nu))
-            self._F = np.zeros((nu, n2))
+            self._H = np.zeros((nu, nu))  # no F, E: delta x_0 enters at feedback time
             self._g0 = np.zeros(nu)
             self._A = np.zeros((self._mA, nu))
-            self._E = np.zeros((self._mA, n2))
             self._b_y = np.ascontiguousarray(model.b_y)
             self._W_y = np.ascontiguousarray(model.W_y)
             self._f = np.zeros(nu)
