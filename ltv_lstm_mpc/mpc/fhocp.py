@@ -222,7 +222,8 @@ class PlanCost:
         self._q = q0 if np.array_equal(Q, q0 * np.eye(Q.shape[0])) else None
         self._r = r0 if np.array_equal(R, r0 * np.eye(R.shape[0])) else None
         P = self.P_f
-        self._p = (float(P[0, 0]), float(P[0, 1] + P[1, 0]), float(P[1, 1]))
+        #: :math:`(P_{11}, P_{12} + P_{21}, P_{22})` of the terminal norm (eq. terminal_constraint).
+        self.terminal_terms = (float(P[0, 0]), float(P[0, 1] + P[1, 0]), float(P[1, 1]))
 
     def __call__(self, x: FloatArray, u: FloatArray, x_bar: FloatArray, u_bar: FloatArray) -> float:
         """J of states ``x`` (N + 1, 2n) and inputs ``u`` (N, m)."""
@@ -256,5 +257,5 @@ class PlanCost:
         d = x_N - x_bar
         dc, dh = d[:n], d[n:]
         tc2, th2 = float(np.vdot(dc, dc)), float(np.vdot(dh, dh))
-        p11, p12, p22 = self._p
+        p11, p12, p22 = self.terminal_terms
         return math.sqrt(max(p11 * tc2 + p12 * math.sqrt(tc2 * th2) + p22 * th2, 0.0))

@@ -194,7 +194,7 @@ class RobustMPC:
         # buffers of the compiled plan checks (lstm/compiled.plan_metrics)
         self._Q = np.ascontiguousarray(Q, dtype=np.float64)
         self._R = np.ascontiguousarray(R, dtype=np.float64)
-        self._P_terms = np.array(self._cost._p)
+        self._P_terms = np.array(self._cost.terminal_terms)
         self._metrics = np.zeros(4)
         self._no_rows = np.zeros((0, 2 * model.n))
         self._W_y = np.ascontiguousarray(model.W_y)
