@@ -72,8 +72,9 @@ class ControllerStep:
         the previous target is kept, see ``stale_reference``); ``"unreachable"`` (the same
         at the first step: the inadmissible equilibrium found is used).
     d_hat_saturated : ndarray of bool (p,)
-        :math:`|\\hat d_k| = d_{max}` per output: the plant-model mismatch has reached the
-        disturbance bound the guarantees assume.
+        :math:`|\\hat d_k| = d_{max}` per output (the saturation of eq. d_lstm_observer is
+        active): the plant-model mismatch has reached the bound of
+        :math:`\\mathcal D = \\{\\|d\\|_\\infty \\le d_{max}\\}` the guarantees assume.
     """
 
     y: FloatArray
