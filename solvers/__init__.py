@@ -129,7 +129,7 @@ A missing or unknown solver raises :class:`~ltv_lstm_mpc.exceptions.SolverNotFou
 
 from __future__ import annotations
 
-from .dense import DenseBackend, DenseQP, DenseSession
+from .dense import DenseBackend, DenseCone, DenseQP, DenseSession
 from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, frozen_csc
 from .reformulation import ConeReformulation, PolyhedralInnerApproximation
 from .registry import (
@@ -153,6 +153,7 @@ __all__ = [
     "ConeReformulation",
     "ConvexProblem",
     "DenseBackend",
+    "DenseCone",
     "DenseQP",
     "DenseSession",
     "PolyhedralInnerApproximation",

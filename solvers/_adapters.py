@@ -6,8 +6,9 @@
   solver accepts dense QPs, slowly where it has no dense backend of its own.
 - :func:`convex_from_dense`: a ConvexProblem :class:`~._base.Backend` on top of a
   dense backend (``quadprog``, ``proxqp``, users' dense-only backends):
-  equalities become rows with ``lo = up``, missing bounds are infinite; cones
-  are refused by the session like on every QP-only backend.
+  equalities become rows with ``lo = up``, missing bounds are infinite; the cones
+  become :class:`~.dense.DenseCone` for a dense backend that solves them
+  (``clarabel``) and are refused by the session on every QP-only one.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Any, ClassVar, cast
 import numpy as np
 
 from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart
-from .dense import DenseBackend, DenseBackendFactory, DenseQP
+from .dense import DenseBackend, DenseBackendFactory, DenseCone, DenseQP
 from .problem import ConvexProblem, Solution
 
 __all__ = ["convex_from_dense", "dense_from_convex", "dense_qp_of"]
@@ -55,6 +56,10 @@ class DenseFromConvex(DenseBackend):
 
     def _make(self) -> Backend:
         return self._factory(self.name, self._tolerance, self._settings)
+
+    def handles_cones(self) -> bool:
+        """Cones are passed on to the inner backend: exact where it solves them."""
+        return self._inner.handles_cones()
 
     def setup(self, qp: DenseQP) -> None:
         """Convert and set the inner backend up."""
@@ -116,10 +121,8 @@ def dense_from_convex(factory: BackendFactory) -> DenseBackendFactory:
 # ConvexProblems on a dense backend
 # --------------------------------------------------------------------------------------
 def dense_qp_of(problem: ConvexProblem) -> DenseQP:
-    """The cone-free ``problem`` as a :class:`DenseQP` (``[A_eq; G]``, ``lo = up`` for equalities).
-
-    The cones are ignored: callers refuse problems with cones first.
-    """
+    """``problem`` as a :class:`DenseQP` (``[A_eq; G]``, ``lo = up`` for equalities, its cones
+    as :class:`DenseCone`; a QP-only dense backend refuses those)."""
     n = problem.n_variables
     rows: list[FloatArray] = []
     lo: list[FloatArray] = []
@@ -141,11 +144,12 @@ def dense_qp_of(problem: ConvexProblem) -> DenseQP:
         up=np.concatenate(up) if up else np.zeros(0),
         lb=np.full(n, -np.inf) if problem.lb is None else np.array(problem.lb),
         ub=np.full(n, np.inf) if problem.ub is None else np.array(problem.ub),
+        cones=tuple(DenseCone(c.F.toarray(), c.g, c.e, c.f) for c in problem.cones),
     )
 
 
 class ConvexFromDense(Backend):
-    """Solves a cone-free :class:`ConvexProblem` with a dense backend."""
+    """Solves a :class:`ConvexProblem` with a dense backend (cones only where it solves them)."""
 
     backend: ClassVar[str] = "adapter"
     supports_cones: ClassVar[bool] = False
@@ -168,6 +172,10 @@ class ConvexFromDense(Backend):
         self._used = False
         self._p = 0
         self._notes: tuple[str, ...] = ()
+
+    def handles_cones(self) -> bool:
+        """Whether the dense backend solves second-order cones."""
+        return self._inner.handles_cones()
 
     def setup(self, problem: ConvexProblem) -> None:
         """Convert and set the dense backend up."""

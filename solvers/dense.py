@@ -20,6 +20,12 @@ dense backend (:attr:`~ltv_lstm_mpc.solvers.SolverInfo.native_dense`: ``daqp``,
 use it, the others go through :meth:`DenseQP.to_convex_problem` and their
 :class:`~ltv_lstm_mpc.solvers.ConvexProblem` backend (correct, not fast).
 
+A :class:`DenseQP` may carry second-order cones :math:`\|F x + g\| \le e^\top x + f`
+(:class:`DenseCone`, dense data, e.g. the terminal set of a condensed MPC with exact
+cones). Only backends that solve cones (:attr:`DenseBackend.supports_cones`: the native
+``clarabel``, or a cone solver through the ConvexProblem adapter) accept such a QP; every
+other backend refuses it with an error naming the ones that do (never dropped silently).
+
 Multipliers (``Solution.duals``) of a dense solve follow the layer's KKT sign
 convention ``H x + f + A' y_ineq + y_bounds = 0``: ``"ineq"`` has shape
 ``(m_A,)`` (``> 0`` where ``A x = up`` is active, ``< 0`` where ``A x = lo``
@@ -44,9 +50,9 @@ import scipy.sparse as sp
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, SolverError
 
 from ._base import FloatArray, RawResult, WarmStart
-from .problem import ConvexProblem, Solution, SolverStatus, _check_bounds
+from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, _check_bounds
 
-__all__ = ["DenseBackend", "DenseBackendFactory", "DenseQP", "DenseSession"]
+__all__ = ["DenseBackend", "DenseBackendFactory", "DenseCone", "DenseQP", "DenseSession"]
 
 _FORMAT = "dense_qp"
 _FORMAT_VERSION = 1
@@ -66,6 +72,62 @@ def _full_csc(M: FloatArray) -> sp.csc_matrix:
         ),
         shape=(r, c),
     )
+
+
+@dataclass(eq=False)
+class DenseCone:
+    r"""Second-order cone :math:`\|F x + g\|_2 \le e^\top x + f` on the variables of a DenseQP.
+
+    Mutable like :class:`DenseQP` (values are overwritten in place every step).
+
+    Parameters
+    ----------
+    F : (k, n) array
+        Dense, ``k >= 1``.
+    g : (k,) array
+    e : (n,) array
+    f : float
+    """
+
+    F: FloatArray
+    g: FloatArray
+    e: FloatArray
+    f: float
+
+    def __post_init__(self) -> None:
+        self.F = np.asarray(self.F, dtype=np.float64)
+        self.g = np.asarray(self.g, dtype=np.float64)
+        self.e = np.asarray(self.e, dtype=np.float64)
+        self.f = float(self.f)
+
+    @property
+    def dim(self) -> int:
+        """Number of rows ``k`` of ``F`` (the cone has dimension ``k + 1``)."""
+        return int(self.F.shape[0])
+
+    def violation(self, x: FloatArray) -> float:
+        r""":math:`\|F x + g\| - e^\top x - f` (positive where the cone is violated)."""
+        return float(np.linalg.norm(self.F @ x + self.g) - self.e @ x - self.f)
+
+    def check(self, index: int, n: int) -> None:
+        """Validate shapes and values (``index`` names the cone in messages)."""
+        name = f"cones[{index}]"
+        if self.F.ndim != 2 or self.F.shape[1] != n or self.F.shape[0] == 0:
+            raise DimensionError(
+                f"{name}.F must have shape (k, {n}) with k >= 1, got {self.F.shape}"
+            )
+        k = self.F.shape[0]
+        if self.g.shape != (k,):
+            raise DimensionError(f"{name}.g must have shape ({k},), got {self.g.shape}")
+        if self.e.shape != (n,):
+            raise DimensionError(f"{name}.e must have shape ({n},), got {self.e.shape}")
+        for label, arr in (("F", self.F), ("g", self.g), ("e", self.e), ("f", self.f)):
+            if not np.all(np.isfinite(arr)):
+                raise InvalidValueError(f"{name}.{label} has non-finite entries (NaN or inf)")
+
+    def copy(self) -> DenseCone:
+        """Deep copy (new arrays)."""
+        return DenseCone(self.F.copy(), self.g.copy(), self.e.copy(), self.f)
 
 
 @dataclass(eq=False)
@@ -89,6 +151,8 @@ class DenseQP:
         Row bounds, ``-inf`` / ``+inf`` allowed; ``lo == up`` is an equality.
     lb, ub : (n,) arrays
         Variable bounds, ``-inf`` / ``+inf`` allowed.
+    cones : tuple of DenseCone
+        Second-order cones (default none: a QP). Only cone-capable backends accept them.
     """
 
     H: FloatArray
@@ -98,10 +162,12 @@ class DenseQP:
     up: FloatArray
     lb: FloatArray
     ub: FloatArray
+    cones: tuple[DenseCone, ...] = ()
 
     def __post_init__(self) -> None:
         for name in _FIELDS:
             setattr(self, name, np.asarray(getattr(self, name), dtype=np.float64))
+        self.cones = tuple(self.cones)
 
     # ----------------------------------------------------------------------------------
     @property
@@ -114,8 +180,10 @@ class DenseQP:
         """Number of rows ``m_A`` of ``A``."""
         return int(self.A.shape[0])
 
-    def structure_key(self) -> tuple[int, int]:
-        """``(n, m_A)``: two QPs with the same key differ only in values."""
+    def structure_key(self) -> tuple[int, ...]:
+        """``(n, m_A)``, then the row count of each cone: QPs with one key differ only in values."""
+        if self.cones:
+            return (self.f.shape[0], self.A.shape[0], *(c.F.shape[0] for c in self.cones))
         return (self.f.shape[0], self.A.shape[0])
 
     def check(self) -> None:
@@ -164,6 +232,12 @@ class DenseQP:
                 )
         _check_bounds("lo", self.lo, "up", self.up)
         _check_bounds("lb", self.lb, "ub", self.ub)
+        for index, cone in enumerate(self.cones):
+            if not isinstance(cone, DenseCone):
+                raise InvalidValueError(
+                    f"cones[{index}] must be a DenseCone, got {type(cone).__name__}"
+                )
+            cone.check(index, n)
 
     # ----------------------------------------------------------------------------------
     def objective(self, x: npt.ArrayLike) -> float:
@@ -187,6 +261,8 @@ class DenseQP:
         if self.A.shape[0]:
             Ax = self.A @ xx
             viol = max(viol, float((self.lo - Ax).max()), float((Ax - self.up).max()))
+        for cone in self.cones:
+            viol = max(viol, cone.violation(xx))
         return viol
 
     def to_convex_problem(self) -> ConvexProblem:
@@ -202,11 +278,16 @@ class DenseQP:
         kwargs: dict[str, Any] = {"lb": self.lb, "ub": self.ub}
         if m:
             kwargs.update(G=_full_csc(self.A), l=self.lo, u=self.up)
+        if self.cones:
+            kwargs["cones"] = tuple(
+                SecondOrderCone(_full_csc(c.F), c.g, c.e, c.f) for c in self.cones
+            )
         return ConvexProblem(P=P, q=self.f, **kwargs)
 
     def copy(self) -> DenseQP:
         """Deep copy (new arrays)."""
-        return DenseQP(*(np.array(getattr(self, name)) for name in _FIELDS))
+        H, f, A, lo, up, lb, ub = (np.array(getattr(self, name)) for name in _FIELDS)
+        return DenseQP(H, f, A, lo, up, lb, ub, cones=tuple(c.copy() for c in self.cones))
 
     # ----------------------------------------------------------------------------------
     def save(self, path: str | PathLike[str]) -> Path:
@@ -215,6 +296,13 @@ class DenseQP:
         if p.suffix != ".npz":
             p = p.with_name(p.name + ".npz")
         arrays = {name: np.asarray(getattr(self, name)) for name in _FIELDS}
+        for i, cone in enumerate(self.cones):
+            arrays |= {
+                f"cone{i}_F": cone.F,
+                f"cone{i}_g": cone.g,
+                f"cone{i}_e": cone.e,
+                f"cone{i}_f": np.asarray(cone.f),
+            }
         np.savez(
             p,
             format=np.asarray(_FORMAT),
@@ -238,7 +326,19 @@ class DenseQP:
         missing = [name for name in _FIELDS if name not in store]
         if missing:
             raise InvalidValueError(f"{path}: missing arrays {missing}")
-        qp = cls(*(store[name] for name in _FIELDS))
+        cones: list[DenseCone] = []
+        while f"cone{len(cones)}_F" in store:
+            i = len(cones)
+            cones.append(
+                DenseCone(
+                    store[f"cone{i}_F"],
+                    store[f"cone{i}_g"],
+                    store[f"cone{i}_e"],
+                    float(store[f"cone{i}_f"]),
+                )
+            )
+        H, f, A, lo, up, lb, ub = (store[name] for name in _FIELDS)
+        qp = cls(H, f, A, lo, up, lb, ub, cones=tuple(cones))
         qp.check()
         return qp
 
@@ -262,12 +362,18 @@ class DenseBackend(abc.ABC):
     supports_update: ClassVar[bool] = False
     #: Whether a warm start is used (otherwise it is ignored with a note).
     supports_warm_start: ClassVar[bool] = False
+    #: Whether second-order cones (:attr:`DenseQP.cones`) are solved exactly.
+    supports_cones: ClassVar[bool] = False
 
     def __init__(self, name: str, solver: str, options: Mapping[str, Any]) -> None:
         """Store the registry name, the native solver name and the merged options."""
         self.name = name
         self.solver = solver
         self.options = dict(options)
+
+    def handles_cones(self) -> bool:
+        """Whether this workspace solves the cones of a :class:`DenseQP` exactly."""
+        return self.supports_cones
 
     @abc.abstractmethod
     def setup(self, qp: DenseQP) -> None:
@@ -343,7 +449,7 @@ class DenseSession:
         # Built now: validates tolerance and settings early.
         self._backend: DenseBackend = self._factory(solver, self.tolerance, self.settings)
         self._fresh = True
-        self._key: tuple[int, int] | None = None
+        self._key: tuple[int, ...] | None = None
         self._qp: DenseQP | None = None
         self._in_place = self._backend.supports_update
         self._backend_name = self._backend.backend
@@ -358,8 +464,8 @@ class DenseSession:
         return self._backend_name
 
     @property
-    def structure_key(self) -> tuple[int, int] | None:
-        """``(n, m_A)`` of the workspace (``None`` before the first solve)."""
+    def structure_key(self) -> tuple[int, ...] | None:
+        """:meth:`DenseQP.structure_key` of the workspace (``None`` before the first solve)."""
         return self._key
 
     def reset(self) -> None:
@@ -373,6 +479,14 @@ class DenseSession:
         if not isinstance(qp, DenseQP):
             raise InvalidValueError(f"qp must be a DenseQP, got {type(qp).__name__}")
         qp.check()
+        if qp.cones and not self._backend.handles_cones():
+            from .registry import cone_solvers
+
+            raise InvalidValueError(
+                f"{self.solver} solves QPs only and the QP has {len(qp.cones)} second-order "
+                "cone(s); cones are never dropped silently. Use a cone solver ("
+                f"{', '.join(cone_solvers()) or 'none installed'}) or a QP without cones"
+            )
         if not self._fresh:
             self._backend = self._factory(self.solver, self.tolerance, self.settings)
         self._fresh = False
@@ -409,7 +523,7 @@ class DenseSession:
             say so in ``info``.
         """
         start = time.perf_counter()
-        if (qp.f.shape[0], qp.A.shape[0]) != self._key:
+        if qp.structure_key() != self._key:
             self.setup(qp)
         else:
             self.update(qp)
@@ -426,7 +540,7 @@ class DenseSession:
         ``FAILED`` and ``z`` into ``None``), without building a :class:`Solution`
         (no duals, objective or timings). ``z`` is the backend's fresh array.
         """
-        if (qp.f.shape[0], qp.A.shape[0]) != self._key:
+        if qp.structure_key() != self._key:
             self.setup(qp)
         else:
             self.update(qp)

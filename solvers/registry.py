@@ -42,6 +42,8 @@ _EXTRA_HINT = 'pip install "ltv_lstm_mpc[solvers]"'
 _NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.:@,+\-]*")
 #: Native solver names (lower case, last part of a registry name) of first-order methods.
 FIRST_ORDER = frozenset({"osqp", "scs", "proxqp"})
+#: Native backends that solve second-order cones exactly.
+NATIVE_CONE_SOLVERS = frozenset({"clarabel"})
 
 
 @dataclass(frozen=True)
@@ -54,7 +56,7 @@ class SolverInfo:
         Registry name.
     family : str
         ``"cvxpy"``, ``"qpsolvers"``, ``"osqp"``, ``"piqp"``, ``"daqp"``,
-        ``"quadprog"``, ``"proxqp"`` or ``"user"`` (:func:`register_backend`).
+        ``"quadprog"``, ``"proxqp"``, ``"clarabel"`` or ``"user"`` (:func:`register_backend`).
     supports_cones : bool
         Solves second-order cones exactly.
     native_dense : bool
@@ -100,6 +102,7 @@ def _native_entries() -> list[tuple[str, str, Callable[[], tuple[Any, Any]]]]:
         ),
         ("daqp", "daqp", lambda: (_module("daqp_").make, _module("daqp_").make_dense)),
         ("quadprog", "quadprog", lambda: (None, _module("quadprog_").make_dense)),
+        ("clarabel", "clarabel", lambda: (None, _module("clarabel_").make_dense)),
         ("proxqp", "proxsuite", lambda: (None, _module("proxqp_").make_dense)),
     ]
 
@@ -140,7 +143,8 @@ def _registry() -> dict[str, _Entry]:
         except ImportError:
             continue
         family = name.split(":")[0]
-        info = SolverInfo(name, family, False, dense is not None, family in FIRST_ORDER)
+        cones = family in NATIVE_CONE_SOLVERS
+        info = SolverInfo(name, family, cones, dense is not None, family in FIRST_ORDER)
         reg[name] = _Entry(info, factory, dense)
     return reg
 
@@ -151,8 +155,9 @@ def available_solvers() -> list[str]:
     ``cvxpy:<SOLVER>`` for the cvxpy solvers this layer supports (CLARABEL, ECOS,
     SCS for cones; OSQP, PIQP, PROXQP, DAQP, HIGHS for QPs), ``qpsolvers:<name>``
     for every solver in ``qpsolvers.available_solvers``, the native ``osqp``,
-    ``piqp`` (``piqp:sparse``, ``piqp:dense``), ``daqp``, ``quadprog`` and
-    ``proxqp``, then the solvers added with :func:`register_backend`.
+    ``piqp`` (``piqp:sparse``, ``piqp:dense``), ``daqp``, ``quadprog``,
+    ``proxqp`` and ``clarabel`` (dense, exact cones), then the solvers added with
+    :func:`register_backend`.
     """
     return list(_registry())
 
@@ -170,7 +175,7 @@ def _entry(name: str) -> _Entry:
     raise SolverNotFound(
         f"solver {name!r} is not available. Installed: {', '.join(reg) or 'none'}. "
         f"Names are 'cvxpy:<SOLVER>', 'qpsolvers:<solver>', 'osqp', 'piqp', 'daqp', "
-        f"'quadprog', 'proxqp' or one added with register_backend(); "
+        f"'quadprog', 'proxqp', 'clarabel' or one added with register_backend(); "
         f"install the solvers with: {_EXTRA_HINT}"
     )
 

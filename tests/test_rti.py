@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ltv_lstm_mpc.solvers import available_solvers
+from ltv_lstm_mpc.solvers import available_solvers, solver_info
 
 from ltv_lstm_mpc import ReferenceCalculator, load_model
 from ltv_lstm_mpc.mpc.config import MPCConfig
@@ -45,7 +45,7 @@ def test_every_backend_gives_the_same_first_input(model, solver, clarabel_first_
     np.testing.assert_allclose(
         solution.u[0], clarabel_first_input, atol=FIRST_INPUT_TOL.get(solver, 2e-6)
     )
-    if solver.startswith("cvxpy:") and solver.split(":")[1] in ("CLARABEL", "ECOS", "SCS"):
+    if solver_info(solver).supports_cones:  # cvxpy's cone solvers, native clarabel
         assert solution.reformulation is None
     else:
         assert solution.reformulation == "terminal_box_and_quadratic_cost_bound"

@@ -13,16 +13,28 @@ preallocated arrays)
 with the tightened output rows of eq. (optimization_constraint_yub)/(ylb) (i = 1..N-1)
 and the terminal set as rows in :math:`\delta u`, the input box as simple bounds, and
 :math:`\delta x_0 = \hat x_k - \tilde x_0` inserted at feedback time (one matrix-vector
-product per data vector). QP-only by construction, so the terminal cones get the
-conservative replacement of SPEC 4, the math of
-:class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` (box inside
-:math:`\mathcal X_f(k)`, cost bound
-:math:`(P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`); its name is
-recorded in every :class:`~ltv_lstm_mpc.mpc.fhocp.MPCSolution`.
+product per data vector).
+
+The terminal set and cost take one of two forms, chosen by the solver:
+
+- **exact cones** for a solver that solves second-order cones (the native ``clarabel``,
+  or a cone solver through the dense adapter): the variables are
+  :math:`(\delta u, t_c, t_h)`, stage N has no state weight, and the terminal term is
+  :math:`t^\top P_f t` with :math:`\|c_N - \bar c\| \le t_c`,
+  :math:`\|h_N - \bar h\| \le t_h`, :math:`\|P_f^{1/2} t\| \le \alpha_k`, :math:`t \ge 0`
+  (the relaxation of :class:`~ltv_lstm_mpc.mpc.sparse.FHOCPSubproblem`, exact because
+  :math:`P_f \ge 0` entrywise), with :math:`c_N, h_N` affine in :math:`\delta u` by the
+  condensing: the same FHOCP as the sparse transcription, in fewer variables;
+- **QP-only** solvers get the conservative replacement of SPEC 4, the math of
+  :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` (box inside
+  :math:`\mathcal X_f(k)`, cost bound
+  :math:`(P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`); its name
+  is recorded in every :class:`~ltv_lstm_mpc.mpc.fhocp.MPCSolution`.
 
 The ``"soft"`` problem adds exact-penalty (L1) slacks :math:`s \ge 0` on the output rows
 (:math:`\underline y - s \le y \le \overline y + s`) and :math:`s_T \ge 0` on the terminal
-level (the box of level :math:`\max(\alpha_k, 0) + s_T`): :math:`\delta u = 0` with large
+level (the box of level :math:`\max(\alpha_k, 0) + s_T`; with exact cones
+:math:`\|P_f^{1/2} t\| \le \alpha_k + s_T`): :math:`\delta u = 0` with large
 slacks is feasible, so the soft QP is feasible by construction. The slacks also get a
 small quadratic weight (:attr:`CondensedTranscription.slack_regularization`), without
 which the Hessian is too ill-conditioned for active-set solvers. First-order backends
@@ -46,7 +58,13 @@ from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.sparse import TerminalBoxReformulation, terminal_box_data
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
-from ltv_lstm_mpc.solvers import DenseQP, DenseSession, feasibility_tolerance
+from ltv_lstm_mpc.solvers import (
+    DenseCone,
+    DenseQP,
+    DenseSession,
+    feasibility_tolerance,
+    solver_info,
+)
 
 __all__ = ["CondensedTranscription"]
 
@@ -91,10 +109,16 @@ class CondensedTranscription(TranscriptionBase):
         n2 = 2 * n
         self.model, self.config = model, config
         self.n, self.m, self.p, self.N = n, m, p, N
-        self.reformulation = TerminalBoxReformulation.name
-        weight_c, weight_h, unit_tau = terminal_box_data(np.asarray(tightening.P_f))
-        # ---- weights: ||L' (x_i - x_bar)||^2 per stage i = 1..N (stage N: terminal bound)
+        #: Exact terminal cones (a cone solver) or the box reformulation (QP-only solvers).
+        self.exact_cones = solver_info(config.solver).supports_cones
+        self.reformulation = None if self.exact_cones else TerminalBoxReformulation.name
+        P_f = np.asarray(tightening.P_f, dtype=np.float64)
+        weight_c, weight_h, unit_tau = terminal_box_data(P_f)
+        # ---- weights: ||L' (x_i - x_bar)||^2 per stage i = 1..N (stage N: the terminal
+        # bound of the box reformulation; none with exact cones, where t'P_f t is the term)
         term = np.concatenate([np.full(n, weight_c), np.full(n, weight_h)])
+        if self.exact_cones:
+            term = np.zeros(n2)
         self._diag_Q = bool(np.allclose(Q, np.diag(np.diag(Q))))
         if self._diag_Q:
             sw = np.tile(np.sqrt(np.diag(Q)), (N, 1))
@@ -151,6 +175,8 @@ class CondensedTranscription(TranscriptionBase):
             self._f = np.zeros(nu)
             self._dX = np.zeros((N + 1, n2))
         self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
+        if self.exact_cones:
+            self._cone_qp = {kind: self._cone_problem(kind, P_f) for kind in kinds}
         settings: dict[str, Any] = dict(config.solver_settings)
         self._sessions = {
             kind: DenseSession(config.solver, tolerance=config.tolerance, **settings)
@@ -169,6 +195,80 @@ class CondensedTranscription(TranscriptionBase):
             )
             for kind in kinds
         }
+
+    def _cone_problem(self, kind: str, P_f: FloatArray) -> DenseQP:
+        r"""The preallocated exact-cone QP of ``kind`` (values are written by :meth:`_cone_data`).
+
+        Variables ``[du, t_c, t_h]`` (``"soft"``: then the output slacks and ``s_T``).
+        """
+        n, N, m = self.n, self.N, self.m
+        nu, ns = N * m, self._n_out
+        soft = kind == "soft"
+        nz = nu + 2 + (ns + 1 if soft else 0)
+        t = slice(nu, nu + 2)
+        H = np.zeros((nz, nz))
+        H[t, t] = P_f  # the QP objective is half the cost: 1/2 t'P_f t
+        f = np.zeros(nz)
+        lb = np.zeros(nz)  # slacks >= 0; t >= 0 follows from its cones (no bound rows)
+        lb[t] = -np.inf
+        ub = np.full(nz, np.inf)
+        if soft:
+            f[nu + 2 :] = 0.5 * self.config.soft_penalty
+            A = np.zeros((2 * ns, nz))
+            A[:ns, nu + 2 : nu + 2 + ns] = np.eye(ns)
+            A[ns:, nu + 2 : nu + 2 + ns] = -np.eye(ns)
+            lo = np.concatenate([np.zeros(ns), np.full(ns, -np.inf)])
+            up = np.concatenate([np.full(ns, np.inf), np.zeros(ns)])
+        elif kind == "paper":  # no output rows, no terminal set (the cost stays exact)
+            A, lo, up = np.zeros((0, nz)), np.zeros(0), np.zeros(0)
+        else:
+            A, lo, up = np.zeros((ns, nz)), np.zeros(ns), np.zeros(ns)
+        cone_c = DenseCone(np.zeros((n, nz)), np.zeros(n), np.eye(nz)[nu], 0.0)
+        cone_h = DenseCone(np.zeros((n, nz)), np.zeros(n), np.eye(nz)[nu + 1], 0.0)
+        cones = [cone_c, cone_h]
+        if kind != "paper":
+            F_t = np.zeros((2, nz))
+            F_t[:, t] = np.linalg.cholesky(P_f).T  # ||F_t z||^2 = t'P_f t
+            e_t = np.eye(nz)[nz - 1] if soft else np.zeros(nz)  # alpha_k + s_T
+            cones.append(DenseCone(F_t, np.zeros(2), e_t, 0.0))
+        return DenseQP(H=H, f=f, A=A, lo=lo, up=up, lb=lb, ub=ub, cones=tuple(cones))
+
+    def _cone_data(self, kind: str, f: FloatArray, lo: FloatArray, up: FloatArray) -> DenseQP:
+        r"""Write one linearization into the exact-cone QP of ``kind``.
+
+        ``lo``/``up`` are the condensed rows after inserting :math:`\delta x_0`: the output
+        rows, then the terminal box rows, whose centre is :math:`\bar x - x_N(\delta u = 0)`.
+        """
+        qp = self._cone_qp[kind]
+        n, nu, ns = self.n, self.N * self.m, self._n_out
+        H = self._H
+        qp.H[:nu, :nu] = H
+        qp.f[:nu] = f
+        if kind == "soft":
+            reg = self.slack_regularization * float(np.max(np.diag(H)))
+            idx = np.arange(nu + 2, qp.f.shape[0])
+            qp.H[idx, idx] = reg
+        A_out, A_T = self._A[:ns], self._A[ns:]
+        if kind == "soft":
+            qp.A[:ns, :nu] = A_out
+            qp.A[ns:, :nu] = A_out
+            qp.lo[:ns] = lo[:ns]
+            qp.up[ns:] = up[:ns]
+        elif kind == "nominal":
+            qp.A[:, :nu] = A_out
+            qp.lo[:] = lo[:ns]
+            qp.up[:] = up[:ns]
+        qp.lb[:nu] = self._lb
+        qp.ub[:nu] = self._ub
+        centre = 0.5 * (lo[ns:] + up[ns:])  # x_bar - x_N at du = 0
+        cone_c, cone_h = qp.cones[0], qp.cones[1]
+        cone_c.F[:, :nu] = A_T[:n]
+        np.negative(centre[:n], out=cone_c.g)
+        cone_h.F[:, :nu] = A_T[n:]
+        np.negative(centre[n:], out=cone_h.g)
+        if kind != "paper":
+            qp.cones[2].f = float(self._alpha)
+        return qp
 
     def reset(self) -> None:
         """Drop the solver workspaces' warm starts."""
@@ -318,7 +418,8 @@ class CondensedTranscription(TranscriptionBase):
             shift = self._E @ dx0
             lo = np.subtract(self._lo0, shift, out=self._lo)
             up = np.subtract(self._up0, shift, out=self._up)
-        qp = self._data(kind, f, lo, up)
+        exact = self.exact_cones
+        qp = self._cone_data(kind, f, lo, up) if exact else self._data(kind, f, lo, up)
         start = time.perf_counter()
         status, z, iterations, info = self._sessions[kind].solve_point(qp)
         elapsed = time.perf_counter() - start
@@ -337,11 +438,11 @@ class CondensedTranscription(TranscriptionBase):
         if compiled:
             x_linear = np.empty((N + 1, n2))
             u = np.empty((N, m))
-            rows = nu if kind == "soft" else nu + qp.A.shape[0]
+            rows = nu if kind == "soft" or exact else nu + qp.A.shape[0]
             violation = _compiled.expand_point(
                 z, self._A, self._low, self._high, rows, self._M, S, self._dX, x_linear, u
             )
-            if kind == "soft":  # slacks: the QP's own rows
+            if kind == "soft" or exact:  # slacks or cones: the QP's own rows and cones
                 violation = qp.max_violation(z)
             return StepResult(
                 status=status,
@@ -353,7 +454,10 @@ class CondensedTranscription(TranscriptionBase):
                 iterations=iterations,
                 info=info,
             )
-        violation = self._violation(kind, qp, z) / self._scale
+        if exact:
+            violation = qp.max_violation(z) / self._scale
+        else:
+            violation = self._violation(kind, qp, z) / self._scale
         dxu = self._dxu
         dxu[:n2] = dx0
         dxu[n2:] = z[:nu]

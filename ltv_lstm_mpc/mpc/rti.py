@@ -64,8 +64,9 @@ NLP_SOLVERS = ("ipopt", "nmpc:ipopt")
 def resolve_transcription(config: MPCConfig) -> str:
     """The transcription ``config`` asks for, checked against its solver and fields.
 
-    ``"auto"``: ``"nonlinear"`` for IPOPT, ``"sparse"`` for cone solvers and cvxpy's QP
-    solvers, ``"condensed"`` for every other QP solver.
+    ``"auto"``: ``"nonlinear"`` for IPOPT, ``"sparse"`` for cvxpy's solvers (cones
+    included), ``"condensed"`` for every other solver: QP-only ones (terminal box
+    reformulation) and the native cone solver ``clarabel`` (exact cones).
 
     Raises
     ------
@@ -93,7 +94,9 @@ def resolve_transcription(config: MPCConfig) -> str:
     else:
         info = solver_info(config.solver)  # SolverNotFound names the installed ones
         if chosen == "auto":
-            sparse = info.supports_cones or config.solver.startswith("cvxpy:")
+            sparse = config.solver.startswith("cvxpy:") or (
+                info.supports_cones and not info.native_dense
+            )
             chosen = "sparse" if sparse else "condensed"
     if chosen == "nonlinear" and config.sqp_iterations != 1:
         raise InvalidValueError(

@@ -48,7 +48,9 @@ TOLERANCES: dict[str, Tol] = {
 NO_NATIVE_STATUS = frozenset({"qpsolvers:daqp", "qpsolvers:highs", "qpsolvers:quadprog"})
 
 SOLVERS = available_solvers()
-CONE_SOLVERS = [s for s in SOLVERS if s in ("cvxpy:CLARABEL", "cvxpy:ECOS", "cvxpy:SCS")]
+CONE_SOLVERS = [
+    s for s in SOLVERS if s in ("cvxpy:CLARABEL", "cvxpy:ECOS", "cvxpy:SCS", "clarabel")
+]
 
 
 def tol(solver: str) -> Tol:

@@ -25,11 +25,12 @@ def test_available_solvers_lists_the_families() -> None:
     assert names == SOLVERS
     assert len(set(names)) == len(names)
     assert all(
-        n.split(":")[0] in {"cvxpy", "qpsolvers", "osqp", "piqp", "daqp", "quadprog", "proxqp"}
+        n.split(":")[0]
+        in {"cvxpy", "qpsolvers", "osqp", "piqp", "daqp", "quadprog", "proxqp", "clarabel"}
         for n in names
     )
     assert "cvxpy:CLARABEL" in names  # the default and the tests' reference
-    assert set(cone_solvers()) <= {"cvxpy:CLARABEL", "cvxpy:ECOS", "cvxpy:SCS"}
+    assert set(cone_solvers()) <= {"cvxpy:CLARABEL", "cvxpy:ECOS", "cvxpy:SCS", "clarabel"}
 
 
 @pytest.mark.parametrize("name", ["gurobi", "cvxpy:NOPE", "qpsolvers:mosek"])
