@@ -32,8 +32,11 @@ from ltv_lstm_mpc.bench.harness import bench_scenarios  # noqa: E402
 from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
 
 
-def loop(solver: str, N: int, steps: int) -> tuple[OffsetFreeController, list[float]]:
-    """One closed loop; returns the controller and the wall time of each step."""
+def loop(
+    solver: str, N: int, steps: int, profiler: cProfile.Profile | None = None
+) -> tuple[OffsetFreeController, list[float]]:
+    """One closed loop; returns the controller and the wall time of each step (``profiler``:
+    enabled around each ``step`` call only, not the construction or the plant)."""
     model = load_model("ph_lstm_n5.npz")
     scenario = bench_scenarios(model)[0]
     config = replace(scenario.config, N=N, solver=solver)
@@ -42,9 +45,13 @@ def loop(solver: str, N: int, steps: int) -> tuple[OffsetFreeController, list[fl
     y = plant.output()
     times = []
     for k in range(min(steps, len(scenario.setpoints))):
+        if profiler is not None:
+            profiler.enable()
         t0 = time.perf_counter()
         u = ctrl.step(y, scenario.setpoints[k])
         times.append(time.perf_counter() - t0)
+        if profiler is not None:
+            profiler.disable()
         d = scenario.disturbances[k]
         y = plant.step(u, None if np.isnan(d) else d)
     return ctrl, times
@@ -81,9 +88,7 @@ def main() -> None:
     print(f"  {'rest (controller, records)':<28} {rest:7.1f} us")
 
     profiler = cProfile.Profile()
-    profiler.enable()
-    _, ptimes = loop(args.solver, args.N, args.steps)
-    profiler.disable()
+    _, ptimes = loop(args.solver, args.N, args.steps, profiler)
     n_steps = len(ptimes)
     stats = pstats.Stats(profiler)
     rows = []

@@ -75,6 +75,15 @@ def _status_map() -> dict[str, SolverStatus]:
 STATUS_MAP: Mapping[str, SolverStatus] = _status_map()
 
 
+def _index(idx: IntArray) -> IntArray | slice:
+    """``idx`` as a slice where it is a contiguous range (views instead of copies)."""
+    if idx.size == 0:
+        return slice(0, 0)
+    if idx[-1] - idx[0] + 1 == idx.size:
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
 class ClarabelDense(DenseBackend):
     """Dense CLARABEL workspace with exact second-order cones (see the module docstring)."""
 
@@ -113,15 +122,16 @@ class ClarabelDense(DenseBackend):
         eq_vars = np.flatnonzero(qp.lb == qp.ub)
         not_eq_row = qp.lo != qp.up
         not_eq_var = qp.lb != qp.ub
-        self._eq_rows = eq_rows
-        self._up_rows = np.flatnonzero(np.isfinite(qp.up) & not_eq_row)
-        self._lo_rows = np.flatnonzero(np.isfinite(qp.lo) & not_eq_row)
-        self._eq_vars = eq_vars
-        self._ub_vars = np.flatnonzero(np.isfinite(qp.ub) & not_eq_var)
-        self._lo_vars = np.flatnonzero(np.isfinite(qp.lb) & not_eq_var)
+        up_rows = np.flatnonzero(np.isfinite(qp.up) & not_eq_row)
+        lo_rows = np.flatnonzero(np.isfinite(qp.lo) & not_eq_row)
+        ub_vars = np.flatnonzero(np.isfinite(qp.ub) & not_eq_var)
+        lo_vars = np.flatnonzero(np.isfinite(qp.lb) & not_eq_var)
+        self._eq_rows, self._up_rows, self._lo_rows = map(_index, (eq_rows, up_rows, lo_rows))
+        self._eq_vars, self._ub_vars, self._lo_vars = map(_index, (eq_vars, ub_vars, lo_vars))
+        self._has_eq = bool(eq_rows.size or eq_vars.size)
         n_zero = eq_rows.size + eq_vars.size
-        n_rows_linear = self._up_rows.size + self._lo_rows.size
-        n_bounds = self._ub_vars.size + self._lo_vars.size
+        n_rows_linear = up_rows.size + lo_rows.size
+        n_bounds = ub_vars.size + lo_vars.size
         n_nonneg = n_rows_linear + n_bounds
         cone_dims = [c.dim + 1 for c in qp.cones]
         total = n_zero + n_nonneg + sum(cone_dims)
@@ -138,20 +148,20 @@ class ClarabelDense(DenseBackend):
         M[r + np.arange(eq_vars.size), eq_vars] = 1.0
         mask[r + np.arange(eq_vars.size), eq_vars] = True
         r += eq_vars.size
-        self._r_up = slice(r, r + self._up_rows.size)
+        self._r_up = slice(r, r + up_rows.size)
         mask[self._r_up] = True
-        r += self._up_rows.size
-        self._r_lo = slice(r, r + self._lo_rows.size)
+        r += up_rows.size
+        self._r_lo = slice(r, r + lo_rows.size)
         mask[self._r_lo] = True
-        r += self._lo_rows.size
-        self._r_ub = slice(r, r + self._ub_vars.size)
-        M[r + np.arange(self._ub_vars.size), self._ub_vars] = 1.0
-        mask[r + np.arange(self._ub_vars.size), self._ub_vars] = True
-        r += self._ub_vars.size
-        self._r_lb = slice(r, r + self._lo_vars.size)
-        M[r + np.arange(self._lo_vars.size), self._lo_vars] = -1.0
-        mask[r + np.arange(self._lo_vars.size), self._lo_vars] = True
-        r += self._lo_vars.size
+        r += lo_rows.size
+        self._r_ub = slice(r, r + ub_vars.size)
+        M[r + np.arange(ub_vars.size), ub_vars] = 1.0
+        mask[r + np.arange(ub_vars.size), ub_vars] = True
+        r += ub_vars.size
+        self._r_lb = slice(r, r + lo_vars.size)
+        M[r + np.arange(lo_vars.size), lo_vars] = -1.0
+        mask[r + np.arange(lo_vars.size), lo_vars] = True
+        r += lo_vars.size
         self._r_cones: list[slice] = []
         for dim in cone_dims:
             self._r_cones.append(slice(r, r + dim))
@@ -186,9 +196,10 @@ class ClarabelDense(DenseBackend):
         """Write the values of ``qp`` into the dense image, ``b`` and the data vectors."""
         M, b = self._M, self._b
         A = qp.A
-        M[self._r_eq_rows] = A[self._eq_rows]
-        b[self._r_eq_rows] = qp.up[self._eq_rows]
-        b[self._r_eq_vars] = qp.ub[self._eq_vars]
+        if self._has_eq:
+            M[self._r_eq_rows] = A[self._eq_rows]
+            b[self._r_eq_rows] = qp.up[self._eq_rows]
+            b[self._r_eq_vars] = qp.ub[self._eq_vars]
         M[self._r_up] = A[self._up_rows]
         b[self._r_up] = qp.up[self._up_rows]
         np.negative(A[self._lo_rows], out=M[self._r_lo])
@@ -241,7 +252,7 @@ class ClarabelDense(DenseBackend):
         z = np.asarray(solution.x, dtype=np.float64)
         y = np.asarray(solution.z, dtype=np.float64)
         ineq = np.zeros(self._m)
-        bounds = np.zeros(self._n)
+        bounds = np.zeros(self._n)  # (index sets are disjoint within ineq and within bounds)
         ineq[self._eq_rows] += y[self._r_eq_rows]
         ineq[self._up_rows] += y[self._r_up]
         ineq[self._lo_rows] -= y[self._r_lo]

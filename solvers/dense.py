@@ -107,7 +107,9 @@ class DenseCone:
 
     def violation(self, x: FloatArray) -> float:
         r""":math:`\|F x + g\| - e^\top x - f` (positive where the cone is violated)."""
-        return float(np.linalg.norm(self.F @ x + self.g) - self.e @ x - self.f)
+        r = self.F @ x
+        r += self.g
+        return math.sqrt(float(r @ r)) - float(self.e @ x) - self.f
 
     def check(self, index: int, n: int) -> None:
         """Validate shapes and values (``index`` names the cone in messages)."""
