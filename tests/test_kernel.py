@@ -207,6 +207,37 @@ def test_compiled_chord_newton_matches_the_numpy_warm_path(n: int, m: int) -> No
     assert fast.counts["factorizations"] > 0
 
 
+@pytest.mark.parametrize(("n", "m", "gains"), [(5, 1, False), (5, 1, True), (4, 2, True)])
+def test_compiled_observer_update_matches_the_numpy_one(n: int, m: int, gains: bool) -> None:
+    """eq. (lstm_observer): one numba call vs the numpy innovation + kernel step, with and
+    without gate injection, d_hat reaching its saturation."""
+    from ltv_lstm_mpc.certificates.stability import ObserverGains
+    from ltv_lstm_mpc.loop.observer import Observer
+
+    rng = np.random.default_rng(n + m)
+    model = random_lstm(rng, n, m, m, scale=1.5)
+    fill = 0.05 if gains else 0.0
+    observer_gains = ObserverGains(
+        L_f=np.full((n, m), fill),
+        L_i=np.full((n, m), -fill),
+        L_o=np.full((n, m), 0.5 * fill),
+        L_d=0.3 * np.eye(m),
+    )
+    fast = Observer(model, observer_gains, d_max=0.05)
+    reference = Observer(model, observer_gains, d_max=0.05)
+    assert fast._compiled
+    reference._compiled = False
+    saturated = 0
+    for _ in range(30):
+        y, u = rng.normal(size=m), rng.uniform(-1, 1, size=m)
+        fast.update(y, u)
+        reference.update(y, u)
+        np.testing.assert_allclose(fast.x_hat, reference.x_hat, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast.d_hat, reference.d_hat, rtol=0, atol=1e-14)
+        saturated += int(np.any(np.abs(fast.d_hat) == 0.05))
+    assert saturated > 0  # the saturation of eq. (d_lstm_observer) was exercised
+
+
 @pytest.mark.parametrize("diagonal_Q", [True, False])
 def test_compiled_plan_checks_match_the_numpy_ones(diagonal_Q: bool) -> None:
     """Re-simulation, cost and residuals (plan_metrics) vs the numpy core: a whole MPC on a

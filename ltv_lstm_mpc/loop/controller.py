@@ -150,7 +150,6 @@ class OffsetFreeController:
         assert norm is not None  # checked above
         self._y_min, self._y_scale = norm.y_phi_min, norm.y_scale
         self._u_min, self._u_scale = norm.u_phi_min, norm.u_scale
-        self._W_y, self._b_y = model.W_y, model.b_y
         self.records: list[ControllerStep] = []
         self.reset()
 
@@ -273,12 +272,7 @@ class OffsetFreeController:
 
     def _update_observer(self, y: FloatArray, u: FloatArray) -> None:
         """eq. (lstm_observer): (y_k, u_k) -> (x_hat_{k+1}, d_hat_{k+1})."""
-        observer = self.observer
-        innovation = self._W_y @ observer.x_hat[self.model.n :]
-        innovation += self._b_y
-        innovation += observer.d_hat
-        np.subtract(y, innovation, out=innovation)
-        observer.advance(innovation, u)
+        self.observer.update(y, u)
 
     def _denormalize_u(self, u: FloatArray) -> FloatArray:
         """Physical input from the normalized one."""

@@ -66,6 +66,21 @@ class Observer:
         # Gate gains in the kernel's (f, i, o, c) order; None when all are zero (Remark 3).
         L_gates = np.vstack([gains.L_f, gains.L_i, gains.L_o, np.zeros((n, p))])
         self._L_gates: FloatArray | None = L_gates if np.any(L_gates) else None
+        # Compiled update (lstm/compiled.observer_update) on a compiled kernel; the numpy
+        # code of advance() is its reference.
+        self._compiled = model.kernel.compiled
+        if self._compiled:
+            self._W_y = np.ascontiguousarray(model.W_y, dtype=np.float64)
+            self._b_y = np.ascontiguousarray(model.b_y, dtype=np.float64)
+            self._L_gates_c = np.ascontiguousarray(
+                np.zeros((0, p)) if self._L_gates is None else self._L_gates
+            )
+            self._L_d = np.ascontiguousarray(gains.L_d, dtype=np.float64)
+            self._S = np.zeros(2 * n + model.m + 1)
+            self._S[-1] = 1.0
+            self._T = np.zeros(4 * n)
+            self._TC = np.zeros(n)
+            self._extra = np.zeros(4 * n)
         self.x_hat = np.zeros(2 * n)
         self.d_hat = np.zeros(p)
         self.reset(
@@ -134,6 +149,32 @@ class Observer:
         np.maximum(d_new, -self.d_max, out=d_new)
         self.d_hat = d_new
 
+    def update(self, y: FloatArray, u: FloatArray) -> None:
+        r"""eq. (lstm_observer) from a measurement :math:`y_k` and input :math:`u_k` (no checks).
+
+        The controller's hot-loop call: one compiled call on a compiled kernel
+        (``lstm/compiled.observer_update``), else the innovation
+        :math:`y_k - \hat y_k` and :meth:`advance` (the numpy reference).
+        """
+        if self._compiled:
+            from ltv_lstm_mpc.lstm import compiled
+
+            x_new = np.empty_like(self.x_hat)
+            d_new = np.empty_like(self.d_hat)
+            compiled.observer_update(
+                self.model.kernel.WU, self._W_y, self._b_y, self._L_gates_c, self._L_d,
+                self.d_max, self.x_hat, self.d_hat, y, u, self._S, self._T, self._TC,
+                self._extra, x_new, d_new,
+            )  # fmt: skip
+            self.x_hat, self.d_hat = x_new, d_new  # rebound, never mutated (see controller)
+            return
+        model = self.model
+        innovation = model.W_y @ self.x_hat[model.n :]
+        innovation += model.b_y
+        innovation += self.d_hat
+        np.subtract(y, innovation, out=innovation)
+        self.advance(innovation, u)
+
     def step(self, y: ArrayLike, u: ArrayLike) -> tuple[FloatArray, FloatArray]:
         r"""Update with measurement :math:`y_k` and applied input :math:`u_k`.
 
@@ -145,7 +186,7 @@ class Observer:
             :math:`\hat d_{k+1}`.
         """
         model = self.model
-        n, p = model.n, model.p
+        p = model.p
         y_arr = np.atleast_1d(np.asarray(y, dtype=np.float64))
         u_arr = np.atleast_1d(np.asarray(u, dtype=np.float64))
         if y_arr.shape != (p,):
@@ -154,6 +195,5 @@ class Observer:
             raise DimensionError(f"u has shape {u_arr.shape}, expected ({model.m},)")
         if not (np.all(np.isfinite(y_arr)) and np.all(np.isfinite(u_arr))):
             raise InvalidValueError(f"y and u must be finite, got y={y_arr}, u={u_arr}")
-        innovation = y_arr - (self.x_hat[n:] @ model.W_y.T + model.b_y + self.d_hat)
-        self.advance(innovation, u_arr)
+        self.update(y_arr, u_arr)
         return self.x_hat.copy(), self.d_hat.copy()

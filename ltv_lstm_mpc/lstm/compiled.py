@@ -9,6 +9,8 @@ default; ``compiled=False`` or ``LTV_LSTM_MPC_KERNEL=numpy`` select the numpy re
 - :func:`condense`, :func:`insert_state`, :func:`expand_point`: the condensed QP of
   ``CondensedTranscription`` (reference: its numpy ``build`` / ``solve``);
 - :func:`chord_newton`: the warm path of ``ReferenceCalculator`` (reference: ``_chord``);
+- :func:`observer_update`: eq. (lstm_observer), innovation to next estimate (reference:
+  ``Observer.update`` on the numpy kernel);
 - :func:`plan_metrics`: re-simulation, cost and residuals of the applied plan (reference:
   ``PlanCost`` and ``plan_residuals`` in ``mpc/fhocp.py``).
 
@@ -50,6 +52,7 @@ __all__ = [
     "expand_point",
     "insert_state",
     "jacobians",
+    "observer_update",
     "pairs",
     "plan_metrics",
     "rollout",
@@ -86,6 +89,46 @@ def rollout(WU: Any, S: Any, T: Any, TC: Any, k0: int, k1: int, extra: Any) -> N
     n = WU.shape[0] // 4
     for k in range(k0, k1):
         _cell(WU, S[k, n:], T[k], S[k, :n], S[k + 1, :n], S[k + 1, n : 2 * n], TC[k], extra)
+
+
+@njit(cache=True)
+def observer_update(
+    WU: Any, W_y: Any, b_y: Any, L_gates: Any, L_d: Any, d_max: float,
+    x_hat: Any, d_hat: Any, y: Any, u: Any, S: Any, T: Any, TC: Any, extra: Any,
+    x_out: Any, d_out: Any,
+) -> None:  # fmt: skip
+    r"""eq. (lstm_observer): :math:`(\hat x_k, \hat d_k, y_k, u_k) \to (\hat x_{k+1},
+    \hat d_{k+1})` into ``x_out``, ``d_out``. The innovation is
+    :math:`y_k - W_y \hat h_k - b_y - \hat d_k`; ``L_gates`` (4n, p) injects it into the
+    gates (0 rows: no injection, Remark 3); :math:`\hat d` is saturated at ``d_max``.
+    ``S`` (one row of a Trajectory), ``T``, ``TC`` and ``extra`` (4n) are scratch."""
+    n = WU.shape[0] // 4
+    p = W_y.shape[0]
+    m = u.shape[0]
+    innovation = np.empty(p)
+    for j in range(p):
+        acc = y[j] - b_y[j] - d_hat[j]
+        for a in range(n):
+            acc -= W_y[j, a] * x_hat[n + a]
+        innovation[j] = acc
+    for a in range(2 * n):
+        S[a] = x_hat[a]
+    for j in range(m):
+        S[2 * n + j] = u[j]
+    injected = extra[:0]
+    if L_gates.shape[0]:
+        for r in range(4 * n):
+            acc = 0.0
+            for j in range(p):
+                acc += L_gates[r, j] * innovation[j]
+            extra[r] = acc
+        injected = extra
+    _cell(WU, S[n:], T, S[:n], x_out[:n], x_out[n : 2 * n], TC, injected)
+    for j in range(p):
+        acc = d_hat[j]
+        for l in range(p):
+            acc += L_d[j, l] * innovation[l]
+        d_out[j] = min(max(acc, -d_max), d_max)
 
 
 @njit(cache=True)
