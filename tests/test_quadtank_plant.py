@@ -155,8 +155,8 @@ def test_model_file_stores_the_sampling_time(tmp_path) -> None:  # type: ignore[
     assert base.Ts is None
     old = base.save(tmp_path / "old.npz")
     assert LSTMModel.load(old).Ts is None  # files without Ts load as before
-    model = LSTMModel(**base.weights(), y_phi_constraint=base.y_phi_constraint, Ts=10.0)
+    model = LSTMModel.from_arrays({**base.to_arrays(), "Ts": 10.0})
     loaded = LSTMModel.load(model.save(tmp_path / "with_ts.npz"))
-    assert loaded.Ts == 10.0
+    assert loaded.Ts == 10.0 and loaded.to_arrays()["Ts"] == 10.0
     with pytest.raises(InvalidValueError, match="Ts"):
-        LSTMModel(**base.weights(), Ts=-1.0)
+        LSTMModel.from_arrays({**base.weights(), "Ts": -1.0})

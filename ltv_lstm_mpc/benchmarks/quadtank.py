@@ -207,7 +207,7 @@ def quadtank_scenarios(*, short: bool = False) -> list[QuadTankScenario]:
         Segments of 120 instead of 300 samples (smoke runs; they may not settle fully).
     """
     length = 120 if short else 300
-    setpoint_levels = [(14.0, 14.0), (14.0, 10.0), (10.0, 12.0), (12.3, 12.8)]
+    setpoint_levels = [(14.0, 14.0), (14.0, 11.0), (10.0, 12.0), (12.3, 12.8)]
     lengths = [length] * len(setpoint_levels)
     leak_setpoint = (12.0, 12.0)
     leak_levels = [(0.0, 0.0), (0.002, 0.0), (0.002, 0.002), (0.0, 0.0)]
