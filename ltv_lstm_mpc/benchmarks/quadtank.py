@@ -171,6 +171,8 @@ class QuadTankResult:
             "min_level": sim.y_phi.min(axis=0).tolist(),
             "max_level": sim.y_phi.max(axis=0).tolist(),
             "max_predicted_violation": float(np.max(sim.output_violation)),
+            "max_abs_d_hat": np.abs(sim.d_hat).max(axis=0).tolist(),
+            "d_max": self.controller.config.d_max,
             "fallback_steps": int(np.sum(sim.policy != "nominal")),
             **counts,
             "median_step_time_s": float(np.median(sim.time_total)),
