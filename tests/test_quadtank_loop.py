@@ -37,6 +37,11 @@ def model():  # type: ignore[no-untyped-def]
 def test_shipped_model_file_holds_ts_constraint_and_normalization(model) -> None:  # type: ignore[no-untyped-def]
     assert (model.m, model.p) == (2, 2) and model.n == REPORT["config"]["n"]
     assert model.Ts == 10.0 and REPORT["Ts"] == 10.0
+    # The CLI defaults name this file and its size.
+    from ltv_lstm_mpc.cli.main import QUADTANK_MODEL as CLI_MODEL
+    from ltv_lstm_mpc.training.cli import QUADTANK_NEURONS
+
+    assert CLI_MODEL == QUADTANK_MODEL == f"quadtank_lstm_n{QUADTANK_NEURONS}.npz"
     assert model.y_phi_constraint is not None and model.normalization is not None
     low, high = model.y_phi_constraint
     np.testing.assert_array_equal(low, [QUADTANK_LEVEL_CONSTRAINT[0]] * 2)
@@ -157,3 +162,12 @@ def test_full_benchmark_is_offset_free_on_both_paths(model) -> None:  # type: ig
     for summary in report["scenarios"]:
         assert summary["offset_free"], summary["segment_offsets"]
         assert summary["constraint_violation_steps"] == 0
+
+
+def test_cli_refuses_a_single_output_model_on_the_quadruple_tank(capsys) -> None:  # type: ignore[no-untyped-def]
+    code = main(["simulate", "--plant", "quadtank", "--model", "ph_lstm_n5.npz", "--no-progress"])
+    assert code == 2
+    assert "two pumps and two levels; this model has m = 1, p = 1" in capsys.readouterr().err
+    code = main(["reproduce", "--benchmark", "quadtank", "--model", "ph_lstm_n5.npz", "--short"])
+    assert code == 1
+    assert "m = 1, p = 1" in capsys.readouterr().err
