@@ -36,11 +36,11 @@ so a level at 0 cannot drain further; after each integration step the levels are
 
 *Integrator.* Classical Runge-Kutta 4, ``substeps = 20`` per sampling period
 (dt = 0.5 s against the fastest time constant, about 10 s for an upper tank at the
-smallest levels of the operating range), input and leak held constant over the period (zero-order hold). Against
-scipy ``solve_ivp`` (DOP853, rtol = 1e-13) the one-step level error is about 3e-9 cm
-(max 2.6e-9 over 10 random steps with and without leaks; tested < 1e-8). One
-:meth:`QuadrupleTankPlant.step` (plain Python floats) takes about 0.1 ms on the 2-core
-development VM.
+smallest levels of the operating range), input and leak held constant over the period
+(zero-order hold). Against scipy ``solve_ivp`` (DOP853, rtol = 1e-13) the one-step level
+error is about 3e-9 cm (max 2.6e-9 over 10 random steps with and without leaks; tested
+< 1e-8). One :meth:`QuadrupleTankPlant.step` (plain Python floats) takes about 0.1 ms on
+the 2-core development VM.
 
 *Measurement noise* (optional): zero-mean Gaussian noise of standard deviation
 ``noise_std`` (cm) added to each measured level by :meth:`QuadrupleTankPlant.output`, drawn
