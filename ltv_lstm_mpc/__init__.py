@@ -57,6 +57,7 @@ from ltv_lstm_mpc.mpc.rti import RobustMPC, resolve_transcription
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
 from ltv_lstm_mpc.plants.protocol import Plant
+from ltv_lstm_mpc.plants.quadtank import QuadrupleTankPlant
 
 __all__ = [
     "Certification",
@@ -85,6 +86,7 @@ __all__ = [
     "OffsetFreeController",
     "PHNeutralizationPlant",
     "Plant",
+    "QuadrupleTankPlant",
     "ReferenceCalculator",
     "ReferenceSolution",
     "RobustMPC",

@@ -4,6 +4,11 @@ Subcommands
 -----------
 certify
     Print every certificate number of the paper for a model (``--json`` for one JSON object).
+reproduce
+    The paper's five closed-loop simulations (``--benchmark quadtank``: the quadruple-tank
+    benchmark, :mod:`ltv_lstm_mpc.benchmarks.quadtank`).
+simulate
+    One configurable closed loop (``--plant ph``, ``lstm`` or ``quadtank``).
 generate-data, train
     Identification data and delta-ISS LSTM training (see ``ltv_lstm_mpc.training.cli``).
 """
@@ -42,6 +47,8 @@ __all__ = ["build_parser", "main"]
 
 EXAMPLE_MODEL = "example_delta_iss_n3.npz"
 PH_MODEL = "ph_lstm_n5.npz"
+#: The shipped quadruple-tank model (same name as ``benchmarks.quadtank.QUADTANK_MODEL``).
+QUADTANK_MODEL = "quadtank_lstm_n8.npz"
 
 
 def _resolve_model_path(name: str) -> Path:
@@ -68,7 +75,7 @@ def _add_certify(subparsers: Any) -> None:
         default=PH_MODEL,
         help=(
             f"model .npz file or the name of a shipped model (default: {PH_MODEL}; also "
-            f"shipped: {EXAMPLE_MODEL})"
+            f"shipped: {QUADTANK_MODEL}, {EXAMPLE_MODEL})"
         ),
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -227,26 +234,41 @@ def _run_certify(args: argparse.Namespace) -> int:
 def _add_reproduce(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "reproduce",
-        help="run the paper's five closed-loop simulations and print a summary table",
+        help="run the paper's five closed-loop simulations (or --benchmark quadtank)",
         description=(
             "Reproduce the five simulations of the paper's Section V on the shipped pH model: "
             "(1) LSTM plant under Theorem 3's conditions, (2) larger changes, (3) set-point "
             "steps with infeasible instants, (4) pH plant with L_d = 0.01, (5) pH plant with "
             "L_d = 0.1. Prints steady-state offsets, constraint violations, infeasible steps, "
             "step times and the certificate numbers next to the paper's. With --out DIR, writes "
-            "a PNG, CSV and JSON per scenario and DIR/summary.json."
+            "a PNG, CSV and JSON per scenario and DIR/summary.json. --benchmark quadtank: the "
+            "quadruple-tank process with the shipped (2, 2) model, set-point changes on both "
+            "levels and a leak, on the daqp and clarabel paths (offsets per output in cm)."
         ),
+    )
+    parser.add_argument(
+        "--benchmark",
+        choices=["paper", "quadtank"],
+        default="paper",
+        help="paper: the pH scenarios of Section V (default); quadtank: the quadruple tank",
     )
     parser.add_argument(
         "--out", type=output_folder, default=None, help="output folder (PNG/CSV/JSON)"
     )
     parser.add_argument(
-        "--model", default=PH_MODEL, help=f"model file or shipped name (default {PH_MODEL})"
+        "--model",
+        default=None,
+        help=f"model file or shipped name (default {PH_MODEL}; --benchmark quadtank: "
+        f"{QUADTANK_MODEL})",
     )
     parser.add_argument(
         "--only", nargs="*", default=None, help="run only scenarios whose name contains these"
     )
-    parser.add_argument("--solver", default=None, help="solver backend (default cvxpy:CLARABEL)")
+    parser.add_argument(
+        "--solver",
+        default=None,
+        help="solver backend (default cvxpy:CLARABEL; --benchmark quadtank: daqp and clarabel)",
+    )
     parser.add_argument("--short", action="store_true", help="quarter-length schedules (smoke)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -255,9 +277,11 @@ def _add_reproduce(subparsers: Any) -> None:
 
 
 def _run_reproduce(args: argparse.Namespace) -> int:
+    if args.benchmark == "quadtank":
+        return _run_reproduce_quadtank(args)
     from ltv_lstm_mpc.paper.reproduce import format_certificates, format_table, reproduce
 
-    path = _resolve_model_path(args.model)
+    path = _resolve_model_path(args.model or PH_MODEL)
     model = LSTMModel.load(path)
     report = reproduce(
         model,
@@ -274,6 +298,47 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     print(format_certificates(report["certificates"]))
     print(
         f"\nwall time {report['wall_time_s']:.1f} s"
+        + (f"; results in {args.out}" if args.out else "")
+    )
+    return _offset_status([s["final_offset"] for s in report["scenarios"]], args.max_offset)
+
+
+def _run_reproduce_quadtank(args: argparse.Namespace) -> int:
+    from ltv_lstm_mpc.benchmarks.quadtank import (
+        DEFAULT_SOLVERS,
+        format_quadtank_table,
+        reproduce_quadtank,
+    )
+
+    path = _resolve_model_path(args.model or QUADTANK_MODEL)
+    model = LSTMModel.load(path)
+    report = reproduce_quadtank(
+        model,
+        args.out,
+        solvers=DEFAULT_SOLVERS if args.solver is None else (args.solver,),
+        only=args.only,
+        short=args.short,
+        progress=not args.no_progress,
+        plot=not args.no_plots,
+        model_info={"path": str(path)},
+    )
+    print(format_quadtank_table(report["scenarios"]))
+    cert = report["certificate"]
+    interval = cert["y0_interval_phi"]
+    print(
+        f"\nrho_A_delta {cert['rho_A_delta']:.4f}, rho_s {cert['rho_s']:.4f}, rho_o "
+        f"{cert['rho_o']:.4f} (L_d = {cert['L_d']}), e_inf {cert['e_inf']:.4g}, admissible "
+        + (
+            "set-points -"
+            if interval is None
+            else "set-points "
+            + ", ".join(
+                f"h{j + 1} [{interval[0][j]:.2f}, {interval[1][j]:.2f}] cm" for j in range(2)
+            )
+        )
+    )
+    print(
+        f"wall time {report['wall_time_s']:.1f} s"
         + (f"; results in {args.out}" if args.out else "")
     )
     return _offset_status([s["final_offset"] for s in report["scenarios"]], args.max_offset)
@@ -300,25 +365,42 @@ def _offset_status(offsets: Sequence[float | None], max_offset: float | None) ->
     return 0
 
 
+#: Default set-points of ``simulate --plant quadtank`` (h1,h2 in cm per segment).
+_QUADTANK_SETPOINTS = ("14,14", "13,11", "12.3,12.8")
+
+
 def _add_simulate(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "simulate",
         help="run one configurable closed-loop scenario",
         description=(
-            "Closed loop of the offset-free LSTM MPC on the pH plant or the LSTM plant: a "
-            "piecewise-constant set-point and disturbance schedule, any solver, horizon and "
-            "observer gain. Writes PNG/CSV/JSON with --out."
+            "Closed loop of the offset-free LSTM MPC on the pH plant, the LSTM plant or the "
+            "quadruple-tank process: a piecewise-constant set-point and disturbance schedule, "
+            "any solver, horizon and observer gain. Writes PNG/CSV/JSON with --out."
         ),
     )
-    parser.add_argument("--model", default=PH_MODEL, help=f"model (default {PH_MODEL})")
-    parser.add_argument("--plant", choices=["ph", "lstm"], default="ph", help="plant (default ph)")
+    parser.add_argument(
+        "--model",
+        default=None,
+        help=f"model (default {PH_MODEL}; --plant quadtank: {QUADTANK_MODEL})",
+    )
+    parser.add_argument(
+        "--plant",
+        choices=["ph", "lstm", "quadtank"],
+        default="ph",
+        help=(
+            "plant (default ph); quadtank: the quadruple-tank process (pump voltages in V, "
+            "levels in cm, disturbances = leak areas of tanks 1 and 2 in cm^2)"
+        ),
+    )
     parser.add_argument(
         "--setpoints",
         nargs="+",
         default=None,
         help=(
-            "set-point per segment, physical units (default 7.5 6.8 8.0 pH); for a model with "
-            "p > 1 outputs one comma-separated value per output, e.g. 0.2,0.1 0.3,0.0"
+            "set-point per segment, physical units (default 7.5 6.8 8.0 pH; quadtank: "
+            f"{' '.join(_QUADTANK_SETPOINTS)} cm); for a model with p > 1 outputs one "
+            "comma-separated value per output, e.g. 0.2,0.1 0.3,0.0"
         ),
     )
     parser.add_argument(
@@ -326,8 +408,9 @@ def _add_simulate(subparsers: Any) -> None:
         nargs="+",
         default=None,
         help=(
-            "disturbance per segment (q2 in mL/s for ph, output offset for lstm; "
-            "comma-separated per output for p > 1)"
+            "disturbance per segment (q2 in mL/s for ph, output offset for lstm, leak areas "
+            "of tanks 1 and 2 in cm^2 for quadtank, default none; comma-separated per output "
+            "for p > 1)"
         ),
     )
     parser.add_argument(
@@ -375,7 +458,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
     from ltv_lstm_mpc.paper.reproduce import format_table, write_scenario_outputs
     from ltv_lstm_mpc.paper.scenarios import Scenario, run_scenario
 
-    model = LSTMModel.load(_resolve_model_path(args.model))
+    default_model = QUADTANK_MODEL if args.plant == "quadtank" else PH_MODEL
+    model = LSTMModel.load(_resolve_model_path(args.model or default_model))
     config = MPCConfig(
         N=args.N,
         L_d=args.L_d,
@@ -391,21 +475,34 @@ def _run_simulate(args: argparse.Namespace) -> int:
         if args.plant == "ph":
             raise UsageError(
                 f"the pH plant has one input and one output; this model has m = {model.m}, "
-                f"p = {model.p}: use --plant lstm"
+                f"p = {model.p}: use --plant lstm (or --plant quadtank for a quadruple-tank model)"
             )
-        if args.setpoints is None:
+        plant = None
+        setpoint_tokens = args.setpoints
+        if args.plant == "quadtank":
+            from ltv_lstm_mpc.plants.quadtank import QUADTANK_TS, QuadrupleTankPlant
+
+            if (model.m, model.p) != (2, 2):
+                raise UsageError(
+                    f"the quadruple tank has two pumps and two levels; this model has "
+                    f"m = {model.m}, p = {model.p}"
+                )
+            plant = QuadrupleTankPlant(Ts=model.Ts if model.Ts is not None else QUADTANK_TS)
+            setpoint_tokens = setpoint_tokens or list(_QUADTANK_SETPOINTS)
+        if setpoint_tokens is None:
             raise UsageError(
                 f"give --setpoints, one comma-separated value per output (p = {model.p})"
             )
         mimo, sim = run_mimo(
             model,
             config,
-            args.setpoints,
+            setpoint_tokens,
             args.disturbances,
             args.segment,
             rate_limit,
             args.out,
             not args.no_progress,
+            plant=plant,
         )
         offsets = mimo["segment_offsets"]
         print(f"{'segment':>7}  " + "  ".join(f"offset y_{j:<6}" for j in range(model.p)))
@@ -419,6 +516,12 @@ def _run_simulate(args: argparse.Namespace) -> int:
             f"step {1e6 * mimo['median_step_time_s']:.0f} us ({sim.transcription})"
         )
         return _offset_status([mimo["final_offset"]], args.max_offset)
+    if args.plant == "quadtank":
+        raise UsageError(
+            f"the quadruple tank has two pumps and two levels; this model has m = {model.m}, "
+            f"p = {model.p}: use --model {QUADTANK_MODEL} or a model from "
+            "`ltv-lstm-mpc train --plant quadtank`"
+        )
     tokens = args.setpoints or ["7.5", "6.8", "8.0"]
     try:
         setpoints = [float(t) for t in tokens]

@@ -1,7 +1,9 @@
-"""``ltv-lstm-mpc simulate`` for multi-output models (m = p > 1) on the LSTM plant.
+"""``ltv-lstm-mpc simulate`` for multi-output models (m = p > 1).
 
 The pH plant is single-input single-output, so a MIMO model runs on its own LSTM plant
-(Fig. 2) with an output disturbance per output. Set-points and disturbances are given
+(Fig. 2) with an output disturbance per output, or on a plant given by the caller (the
+quadruple-tank process of ``--plant quadtank``, whose disturbances are the leak areas of
+tanks 1 and 2). Set-points and disturbances are given
 per segment, one comma-separated value per output (``--setpoints 0.2,0.1 0.3,0.0``), in
 the model's physical output units. The summary gives, per output, the offset at the end
 of every segment, the violations of the model's output constraint by the plant output,
@@ -24,6 +26,7 @@ from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
+from ltv_lstm_mpc.plants.protocol import Plant
 
 __all__ = ["parse_vectors", "run_mimo"]
 
@@ -60,22 +63,31 @@ def run_mimo(
     rate_limit: float | None,
     out: Path | None,
     progress: bool,
+    *,
+    plant: Plant | None = None,
 ) -> tuple[dict[str, Any], SimulationResult]:
-    """Run the MIMO closed loop; returns (summary, simulation)."""
+    """Run the MIMO closed loop; returns (summary, simulation).
+
+    ``plant`` defaults to the model's own :class:`LSTMPlant`; another plant is used as
+    given (reset it first) and its disturbance has ``plant.disturbance_size`` entries per
+    segment (default: p).
+    """
     p = model.p
+    size = None if plant is None else getattr(plant, "disturbance_size", None)
+    q = p if size is None else int(size)
     setpoints = parse_vectors("--setpoints", setpoint_tokens, p)
     segments = setpoints.shape[0]
     if disturbance_tokens:
-        disturbances = parse_vectors("--disturbances", disturbance_tokens, p)
+        disturbances = parse_vectors("--disturbances", disturbance_tokens, q)
     else:
-        disturbances = np.zeros((segments, p))
+        disturbances = np.zeros((segments, q))
     if disturbances.shape[0] != segments:
         raise UsageError(
             f"give one disturbance per set-point segment: {segments} set-points, "
             f"{disturbances.shape[0]} disturbances"
         )
     controller = OffsetFreeController(model, config, setpoint_rate_limit=rate_limit)
-    plant = LSTMPlant(model)
+    plant = LSTMPlant(model) if plant is None else plant
     y0_schedule = np.repeat(setpoints, segment, axis=0)
     d_schedule = np.repeat(disturbances, segment, axis=0)
     steps = segments * segment
@@ -115,7 +127,7 @@ def _write(
     p, m = sim.y_phi.shape[1], sim.u_phi.shape[1]
     header = ["k"]
     header += [f"y_phi_{j}" for j in range(p)] + [f"y0_phi_{j}" for j in range(p)]
-    header += [f"u_phi_{j}" for j in range(m)] + [f"d_phi_{j}" for j in range(p)]
+    header += [f"u_phi_{j}" for j in range(m)] + [f"d_phi_{j}" for j in range(d.shape[1])]
     header += [f"d_hat_{j}" for j in range(p)] + ["setpoint_status", "status", "policy"]
     with (out / "simulate.csv").open("w", newline="") as handle:
         writer = csv.writer(handle)

@@ -52,6 +52,8 @@ WEIGHT_NAMES: tuple[str, ...] = (
 )
 _NORMALIZATION_NAMES = ("u_phi_min", "u_phi_max", "y_phi_min", "y_phi_max")
 _CONSTRAINT_NAMES = ("y_phi_constraint_min", "y_phi_constraint_max")
+#: Optional scalar array of the file format: the sampling time in seconds.
+_TS_NAME = "Ts"
 
 
 class ModelFormatError(LtvMpcError, ValueError):
@@ -202,6 +204,9 @@ class LSTMModel:
         Output constraint :math:`\mathcal Y_\phi` in physical units, each of shape (p,)
         (the shipped pH models: [6, 9] pH). The MPC uses it when its config gives no
         ``y_min/y_max``; stored in the file as ``y_phi_constraint_min/max``.
+    Ts : float (or a one-element array), optional
+        Sampling time of the model in seconds (the period of the data it was identified
+        on); stored in the file as the scalar ``Ts``. None: not stated.
 
     Raises
     ------
@@ -236,6 +241,7 @@ class LSTMModel:
         b_y: ArrayLike,
         normalization: Normalization | None = None,
         y_phi_constraint: tuple[ArrayLike, ArrayLike] | None = None,
+        Ts: ArrayLike | None = None,
     ) -> None:
         U_f_arr = np.asarray(real_array("U_f", U_f), dtype=np.float64)
         W_f_arr = np.asarray(real_array("W_f", W_f), dtype=np.float64)
@@ -301,6 +307,15 @@ class LSTMModel:
                     f"y_phi_constraint_max {high.tolist()} on every output"
                 )
             self.y_phi_constraint = (low, high)
+        #: Sampling time in seconds, or None when the model does not state it.
+        self.Ts: float | None = None
+        if Ts is not None:
+            ts = np.asarray(real_array("Ts", Ts), dtype=np.float64)
+            if ts.size != 1 or not (np.isfinite(ts).all() and float(ts.reshape(-1)[0]) > 0):
+                raise InvalidValueError(
+                    f"Ts (sampling time, s) must be one positive finite number, got {Ts!r}"
+                )
+            self.Ts = float(ts.reshape(-1)[0])
         # Stacked gate weights, order (f, i, o, c): one matmul per step instead of four.
         self._W_gates = np.vstack([self.W_f, self.W_i, self.W_o, self.W_c])
         self._U_gates = np.vstack([self.U_f, self.U_i, self.U_o, self.U_c])
@@ -528,7 +543,7 @@ class LSTMModel:
                 f"(optionally {list(_NORMALIZATION_NAMES)})"
             )
         present_norm = [name for name in _NORMALIZATION_NAMES if name in arrays]
-        optional = (*_NORMALIZATION_NAMES, *_CONSTRAINT_NAMES)
+        optional = (*_NORMALIZATION_NAMES, *_CONSTRAINT_NAMES, _TS_NAME)
         unknown = sorted(set(arrays) - set(WEIGHT_NAMES) - set(optional))
         if unknown:
             raise ModelFormatError(
@@ -559,6 +574,7 @@ class LSTMModel:
             **{name: arrays[name] for name in WEIGHT_NAMES},
             normalization=normalization,
             y_phi_constraint=constraint,
+            Ts=arrays.get(_TS_NAME),
         )
 
     @classmethod
@@ -571,7 +587,8 @@ class LSTMModel:
         ``y_phi_min, y_phi_max`` (p,) (the normalization), and
         ``y_phi_constraint_min, y_phi_constraint_max`` (p,) (the output constraint
         :math:`\mathcal Y_\phi` in physical units, used by the MPC when its config gives
-        no ``y_min/y_max``).
+        no ``y_min/y_max``) and the scalar ``Ts`` (sampling time, s). Files without the
+        optional arrays load as before.
         """
         path = Path(path)
         if not path.exists():
@@ -585,7 +602,8 @@ class LSTMModel:
             raise ModelFormatError(f"{path}: {error}") from None
 
     def to_arrays(self) -> dict[str, FloatArray]:
-        """All arrays of the file format (weights and, if present, normalization)."""
+        """All arrays of the file format (weights and, if present, normalization, output
+        constraint and Ts)."""
         arrays = self.weights()
         if self.normalization is not None:
             for name in _NORMALIZATION_NAMES:
@@ -593,6 +611,8 @@ class LSTMModel:
         if self.y_phi_constraint is not None:
             for name, value in zip(_CONSTRAINT_NAMES, self.y_phi_constraint, strict=True):
                 arrays[name] = np.array(value)
+        if self.Ts is not None:
+            arrays[_TS_NAME] = np.array(self.Ts)
         return arrays
 
     def output_constraint(self) -> tuple[FloatArray, FloatArray] | None:
@@ -620,6 +640,7 @@ class LSTMModel:
         *,
         normalization: Normalization | None = None,
         y_phi_constraint: tuple[ArrayLike, ArrayLike] | None = None,
+        Ts: float | None = None,
     ) -> LSTMModel:
         """Build a model from a single-layer ``torch.nn.LSTM`` + ``torch.nn.Linear`` state dict.
 
@@ -676,7 +697,7 @@ class LSTMModel:
             arrays[f"W_{gate}"] = w_ih[rows]
             arrays[f"U_{gate}"] = w_hh[rows]
             arrays[f"b_{gate}"] = bias[rows]
-        return cls(**arrays, normalization=normalization, y_phi_constraint=y_phi_constraint)
+        return cls(**arrays, normalization=normalization, y_phi_constraint=y_phi_constraint, Ts=Ts)
 
     def __repr__(self) -> str:
         norm = "with" if self.normalization is not None else "without"

@@ -6,6 +6,8 @@ protocol
     :class:`Plant`, the role every plant fills.
 ph
     :class:`PHNeutralizationPlant`, the pH-neutralization benchmark (paper Section V).
+quadtank
+    :class:`QuadrupleTankPlant`, Johansson's quadruple-tank process (two pumps, two levels).
 lstm_plant
     :class:`LSTMPlant`, the LSTM model with an additive output disturbance (Fig. 2).
 """
@@ -18,12 +20,20 @@ from ltv_lstm_mpc.plants.ph import (
     simulate_ph_batch,
 )
 from ltv_lstm_mpc.plants.protocol import Plant
+from ltv_lstm_mpc.plants.quadtank import (
+    QuadrupleTankParameters,
+    QuadrupleTankPlant,
+    simulate_quadtank_batch,
+)
 
 __all__ = [
     "LSTMPlant",
     "PHNeutralizationPlant",
     "PHParameters",
     "Plant",
+    "QuadrupleTankParameters",
+    "QuadrupleTankPlant",
     "ph_from_state",
     "simulate_ph_batch",
+    "simulate_quadtank_batch",
 ]

@@ -3,7 +3,9 @@
 :func:`register` adds them to an ``argparse`` sub-parser collection; each sets
 ``func(args) -> int`` (exit status). Defaults reproduce the paper (Section V): 15 sequences x
 1500 steps split 10/3/2, n = 5, lambda1 = 0.03, lambda2 = 0.02, Adam lr 1e-3, 1000 epochs.
-torch is imported only when ``train`` runs.
+``--plant quadtank`` runs the same design on the quadruple-tank process (two pumps, two
+levels; :mod:`ltv_lstm_mpc.training.datasets`); its default n is
+:data:`QUADTANK_NEURONS`. torch is imported only when ``train`` runs.
 """
 
 from __future__ import annotations
@@ -21,9 +23,22 @@ from ltv_lstm_mpc.training.datasets import IdentificationDataset, generate_datas
 __all__ = ["generate_data_command", "register", "train_command"]
 
 _DEFAULT_DATA = "ph_identification_data.npz"
+#: Data file name per plant (``train`` without ``--data`` saves the generated data there).
+_DATA_NAMES = {"ph": _DEFAULT_DATA, "quadtank": "quadtank_identification_data.npz"}
+#: Default LSTM size for ``--plant quadtank`` (the shipped ``quadtank_lstm_n8.npz``).
+QUADTANK_NEURONS = 8
 
 
 def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
+    parser.add_argument(
+        "--plant",
+        choices=sorted(_DATA_NAMES),
+        default="ph",
+        help=(
+            "plant to identify: ph (pH neutralization, one input) or quadtank (quadruple tank, "
+            "pump voltages v1, v2 in V -> levels h1, h2 in cm, Ts = 10 s); default ph"
+        ),
+    )
     parser.add_argument(
         seed_flag, dest="data_seed", type=int, default=0, help="master seed of the data (default 0)"
     )
@@ -60,16 +75,24 @@ def _split_sizes(args: argparse.Namespace) -> tuple[int, int, int]:
 
 
 def _generate(args: argparse.Namespace) -> IdentificationDataset:
+    plant_name = getattr(args, "plant", "ph")
+    label = "quadruple-tank process" if plant_name == "quadtank" else "pH plant"
     print(
-        f"simulating {args.sequences} sequences x {args.steps} steps of the pH plant "
+        f"simulating {args.sequences} sequences x {args.steps} steps of the {label} "
         f"(seed {args.data_seed})...",
         file=sys.stderr,
     )
+    plant = None
+    if plant_name == "quadtank":
+        from ltv_lstm_mpc.plants.quadtank import QuadrupleTankPlant
+
+        plant = QuadrupleTankPlant()
     return generate_dataset(
         seed=args.data_seed,
         sequences=args.sequences,
         steps=args.steps,
         split_sizes=_split_sizes(args),
+        plant=plant,
         progress=not getattr(args, "no_progress", False),
     )
 
@@ -96,8 +119,11 @@ def train_command(args: argparse.Namespace) -> int:
     except ImportError as error:  # pragma: no cover - torch missing
         print(f"error: {error}", file=sys.stderr)
         return 1
+    neurons = args.neurons
+    if neurons is None and getattr(args, "plant", "ph") == "quadtank" and args.data is None:
+        neurons = QUADTANK_NEURONS
     overrides: dict[str, Any] = {
-        "n": args.neurons,
+        "n": neurons,
         "epochs": args.epochs,
         "max_extra_epochs": args.max_extra_epochs,
         "seed": args.seed,
@@ -124,7 +150,8 @@ def train_command(args: argparse.Namespace) -> int:
             dataset = _generate(args)
             out = Path(args.out)
             out.mkdir(parents=True, exist_ok=True)
-            print(f"wrote {dataset.save(out / _DEFAULT_DATA)}", file=sys.stderr)
+            data_name = _DATA_NAMES[getattr(args, "plant", "ph")]
+            print(f"wrote {dataset.save(out / data_name)}", file=sys.stderr)
         result = train(
             dataset,
             config,
@@ -140,6 +167,15 @@ def train_command(args: argparse.Namespace) -> int:
         return 1
     report = result.report
     fit = report["fit"]
+    per_output = report.get("fit_per_output", {})
+    if any(len(v) > 1 for v in per_output.values()):
+        print(
+            "FIT per output "
+            + "; ".join(
+                f"{k} " + ", ".join(f"{v:.2f}" for v in values) + " %"
+                for k, values in per_output.items()
+            )
+        )
     print(
         "FIT "
         + ", ".join(f"{k} {v:.2f} %" for k, v in fit.items())
@@ -157,12 +193,14 @@ def register(subparsers: Any) -> None:
     """Add ``generate-data`` and ``train`` to ``subparsers`` (from ``add_subparsers()``)."""
     gen = subparsers.add_parser(
         "generate-data",
-        help="simulate the pH plant's identification data (paper Section V)",
+        help="simulate identification data (pH plant, paper Section V; or the quadruple tank)",
         description=(
             "Simulate the pH-neutralization plant under multilevel pseudo-random base flow "
             "q3 in [12.5, 17] mL/s (levels held 10..100 samples, Ts = 10 s, q2 = 0.55 mL/s), "
             "starting from the nominal steady state, and save the sequences split "
-            "train/val/test as .npz (optionally CSV)."
+            "train/val/test as .npz (optionally CSV). --plant quadtank: the quadruple-tank "
+            "process, one such signal per pump voltage in [1.5, 4] V, from the steady state "
+            "of (3, 3) V."
         ),
     )
     gen.add_argument(
@@ -177,11 +215,12 @@ def register(subparsers: Any) -> None:
 
     tr = subparsers.add_parser(
         "train",
-        help="train a delta-ISS LSTM on the pH data (needs torch)",
+        help="train a delta-ISS LSTM on the pH (or --plant quadtank) data (needs torch)",
         description=(
             "Train an LSTM with the paper's delta-ISS-penalized loss (MSE + lambda1 max(r1,0) "
             "+ lambda1 max(r2,0) + lambda2 min(r1,0) + lambda2 min(r2,0)), Adam, stopping after "
-            "the planned epochs only once delta-ISS holds. Writes <out>/ph_lstm_n<N>.npz, a JSON "
+            "the planned epochs only once delta-ISS holds. Writes <out>/ph_lstm_n<N>.npz "
+            "(--plant quadtank: quadtank_lstm_n<N>.npz), a JSON "
             "report and a PNG of the test-set prediction; checkpoints allow --resume. "
             "Needs torch: pip install torch==2.13.0, then pip install -e '.[train]'."
         ),
@@ -202,7 +241,12 @@ def register(subparsers: Any) -> None:
         default=None,
         help="training seed (initialization, shuffling; default 0)",
     )
-    tr.add_argument("--neurons", type=positive_int, default=None, help="LSTM neurons n (default 5)")
+    tr.add_argument(
+        "--neurons",
+        type=positive_int,
+        default=None,
+        help=f"LSTM neurons n (default 5; --plant quadtank: {QUADTANK_NEURONS})",
+    )
     tr.add_argument(
         "--epochs", type=positive_int, default=None, help="planned epochs (default 1000)"
     )

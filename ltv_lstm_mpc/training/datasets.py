@@ -1,4 +1,4 @@
-r"""Identification data for the pH benchmark (paper Section V, "LSTM model identification").
+r"""Identification data (paper Section V, "LSTM model identification"): pH and quadruple tank.
 
 * :func:`multilevel_signal` — multilevel pseudo-random input: piecewise-constant levels drawn
   uniformly in :math:`\mathcal{U}_\phi = [12.5, 17]` mL/s, each held a random integer number of
@@ -20,6 +20,19 @@ applied on [k Ts, (k+1) Ts) and ``y_phi[k]`` (pH) is measured at the instant k T
 ``u_phi[k]`` acts: ``y_phi[0]`` is the initial steady-state pH and ``y_phi[k]`` depends on
 ``u_phi[0..k-1]`` only — the same alignment as the LSTM output :math:`\xi_k = W_y h_k + b_y`
 (SPEC 1). Arrays have shape (sequences in the split, T).
+
+Quadruple tank (two inputs, two outputs)
+----------------------------------------
+``generate_dataset(plant=QuadrupleTankPlant())`` runs the same design on Johansson's
+quadruple-tank process: each pump voltage is its own multilevel pseudo-random signal in the
+pump range (:data:`~ltv_lstm_mpc.plants.quadtank.QUADTANK_U_RANGE`, V), both drawn from the
+sequence's random stream (pump 1 first), so the two pumps switch at different instants and
+every direction of the input space is excited, the one that drives the levels apart (the
+coupling) included. Every sequence starts at the steady state of the nominal voltages
+(3, 3) V, without leak; Ts = 10 s. Arrays have shape (S, T, 2): ``u_phi[..., j]`` is
+pump j + 1 (V), ``y_phi[..., j]`` the level h_{j+1} (cm). The metadata state the input of the
+initial steady state (``u_phi_initial``), the level constraint of the benchmark
+(``y_phi_constraint``, cm) and the file stem of the trained model (``model_stem``).
 """
 
 from __future__ import annotations
@@ -37,12 +50,18 @@ from numpy.typing import NDArray
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.lstm.model import Normalization
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant, ph_from_state, simulate_ph_batch
+from ltv_lstm_mpc.plants.quadtank import (
+    QUADTANK_LEVEL_CONSTRAINT,
+    QuadrupleTankPlant,
+    simulate_quadtank_batch,
+)
 
 __all__ = [
     "SPLITS",
     "IdentificationDataset",
     "generate_dataset",
     "generate_split",
+    "initial_input",
     "multilevel_signal",
     "sequence_rng",
     "split_indices",
@@ -61,7 +80,29 @@ UNITS: dict[str, str] = {
     "Ts": "s",
 }
 
+#: Units of the stored signals of the quadruple-tank data.
+QUADTANK_UNITS: dict[str, str] = {
+    "u_phi": "V (pump voltages v1, v2)",
+    "y_phi": "cm (lower levels h1, h2)",
+    "d_phi": "cm^2 (leak areas of tanks 1, 2; 0 in the data)",
+    "Ts": "s",
+}
+
 FORMAT_VERSION = 1
+
+#: Plants :func:`generate_dataset` can simulate.
+IdentificationPlant = PHNeutralizationPlant | QuadrupleTankPlant
+
+
+def initial_input(metadata: Mapping[str, Any]) -> FloatArray:
+    """Physical input of the steady state every sequence starts from, shape (m,).
+
+    ``metadata["u_phi_initial"]`` (a list, any number of inputs) or the pH data's
+    ``metadata["q3_initial"]`` (default 15.6 mL/s).
+    """
+    if "u_phi_initial" in metadata:
+        return np.atleast_1d(np.asarray(metadata["u_phi_initial"], dtype=np.float64))
+    return np.array([float(metadata.get("q3_initial", 15.6))])
 
 
 def multilevel_signal(
@@ -117,18 +158,52 @@ def split_indices(split_sizes: tuple[int, int, int] = (10, 3, 2)) -> dict[str, l
     return out
 
 
+def _simulate_quadtank(
+    indices: list[int],
+    *,
+    seed: int,
+    sequences: int,
+    steps: int,
+    plant: QuadrupleTankPlant,
+    min_hold: int,
+    max_hold: int,
+) -> tuple[FloatArray, FloatArray]:
+    """(u_phi, y_phi) of shape (len(indices), steps, 2) for the quadruple tank."""
+    u = np.empty((len(indices), steps, 2))
+    for row, index in enumerate(indices):
+        rng = sequence_rng(seed, index, sequences)
+        for j in range(2):
+            u[row, :, j] = multilevel_signal(
+                rng, steps, plant.u_phi_min, plant.u_phi_max, min_hold=min_hold, max_hold=max_hold
+            )
+    if not indices:
+        return u, np.empty((0, steps, 2))
+    h0 = np.tile(plant.steady_state(plant.v_nominal), (len(indices), 1))
+    levels = simulate_quadtank_batch(
+        h0, plant.saturate(u[:, : steps - 1]), Ts=plant.Ts, substeps=plant.substeps,
+        params=plant.params,
+    )  # fmt: skip
+    return u, np.ascontiguousarray(levels[..., :2])
+
+
 def _simulate(
     indices: list[int],
     *,
     seed: int,
     sequences: int,
     steps: int,
-    plant: PHNeutralizationPlant,
+    plant: IdentificationPlant,
     min_hold: int,
     max_hold: int,
     progress: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
-    """(u_phi, y_phi) of shape (len(indices), steps) for the given sequence indices."""
+    """(u_phi, y_phi) of shape (len(indices), steps) (pH) or (len(indices), steps, 2)
+    (quadruple tank) for the given sequence indices."""
+    if isinstance(plant, QuadrupleTankPlant):
+        return _simulate_quadtank(
+            indices, seed=seed, sequences=sequences, steps=steps, plant=plant,
+            min_hold=min_hold, max_hold=max_hold,
+        )  # fmt: skip
     u = np.empty((len(indices), steps))
     for row, index in enumerate(indices):
         rng = sequence_rng(seed, index, sequences)
@@ -158,10 +233,11 @@ class IdentificationDataset:
 
     Attributes
     ----------
-    u_phi : mapping str -> ndarray, shape (S, T)
-        Base flow q3 (mL/s) per split ``"train"``, ``"val"``, ``"test"``.
-    y_phi : mapping str -> ndarray, shape (S, T)
-        pH per split; ``y_phi[s][:, k]`` is measured before ``u_phi[s][:, k]`` acts.
+    u_phi : mapping str -> ndarray, shape (S, T) or (S, T, m)
+        Inputs per split ``"train"``, ``"val"``, ``"test"`` (pH data: base flow q3, mL/s,
+        (S, T); several inputs: one channel per last index).
+    y_phi : mapping str -> ndarray, shape (S, T) or (S, T, p)
+        Outputs per split; ``y_phi[s][:, k]`` is measured before ``u_phi[s][:, k]`` acts.
     metadata : mapping
         Units, seed, Ts, q1, q2, initial q3, hold range, sequence indices per split, ...
     """
@@ -178,9 +254,10 @@ class IdentificationDataset:
                 raise DimensionError(f"dataset needs the splits {SPLITS}; missing {name!r}")
             u = np.array(self.u_phi[name], dtype=np.float64)
             y = np.array(self.y_phi[name], dtype=np.float64)
-            if u.ndim != 2 or u.shape != y.shape:
+            if u.ndim not in (2, 3) or y.ndim not in (2, 3) or u.shape[:2] != y.shape[:2]:
                 raise DimensionError(
-                    f"split {name!r}: u_phi {u.shape} and y_phi {y.shape} must be equal (S, T)"
+                    f"split {name!r}: u_phi {u.shape} and y_phi {y.shape} must be (S, T) or "
+                    "(S, T, channels) with the same S and T"
                 )
             if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
                 raise InvalidValueError(f"split {name!r} contains NaN or inf")
@@ -197,14 +274,31 @@ class IdentificationDataset:
             raise InvalidValueError(f"unknown split {name!r}; allowed: {list(SPLITS)}")
         return self.u_phi[name], self.y_phi[name]
 
+    @property
+    def inputs(self) -> int:
+        """Number of input channels m (1 for (S, T) arrays)."""
+        u = self.u_phi["train"]
+        return 1 if u.ndim == 2 else int(u.shape[2])
+
+    @property
+    def outputs(self) -> int:
+        """Number of output channels p (1 for (S, T) arrays)."""
+        y = self.y_phi["train"]
+        return 1 if y.ndim == 2 else int(y.shape[2])
+
+    def channels(self, name: str) -> tuple[FloatArray, FloatArray]:
+        """``(u_phi, y_phi)`` of one split, always 3-D: (S, T, m) and (S, T, p)."""
+        u, y = self.split(name)
+        return (u if u.ndim == 3 else u[..., None]), (y if y.ndim == 3 else y[..., None])
+
     def normalization(self) -> Normalization:
-        """[-1, 1] normalization from the training split's min/max (SPEC 1)."""
-        u, y = self.split("train")
+        """[-1, 1] normalization from the training split's min/max per channel (SPEC 1)."""
+        u, y = self.channels("train")
         return Normalization(
-            u_phi_min=np.array([u.min()]),
-            u_phi_max=np.array([u.max()]),
-            y_phi_min=np.array([y.min()]),
-            y_phi_max=np.array([y.max()]),
+            u_phi_min=u.min(axis=(0, 1)),
+            u_phi_max=u.max(axis=(0, 1)),
+            y_phi_min=y.min(axis=(0, 1)),
+            y_phi_max=y.max(axis=(0, 1)),
         )
 
     def save(self, path: str | Path) -> Path:
@@ -242,11 +336,14 @@ class IdentificationDataset:
         return cls(u_phi=u, y_phi=y, metadata=meta)
 
     def to_csv(self, path: str | Path) -> Path:
-        """Write one tidy CSV: ``split, sequence, k, time_s, u_phi_mL_s, y_phi_pH``."""
+        """Write one tidy CSV: ``split, sequence, k, time_s, u_phi_mL_s, y_phi_pH`` (pH
+        data) or ``..., u_phi_0, u_phi_1, y_phi_0, y_phi_1`` (several channels)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         Ts = float(self.metadata.get("Ts", 10.0))
         indices = self.metadata.get("sequence_indices", {})
+        if self.u_phi["train"].ndim == 3 or self.y_phi["train"].ndim == 3:
+            return self._to_csv_channels(path, Ts, indices)
         with path.open("w", newline="") as handle:
             writer = csv.writer(handle)
             writer.writerow(["split", "sequence", "k", "time_s", "u_phi_mL_s", "y_phi_pH"])
@@ -267,6 +364,27 @@ class IdentificationDataset:
                         )
         return path
 
+    def _to_csv_channels(self, path: Path, Ts: float, indices: Mapping[str, Any]) -> Path:
+        m, p = self.inputs, self.outputs
+        with path.open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(
+                ["split", "sequence", "k", "time_s"]
+                + [f"u_phi_{j}" for j in range(m)]
+                + [f"y_phi_{j}" for j in range(p)]
+            )
+            for name in SPLITS:
+                u, y = self.channels(name)
+                seq_ids = indices.get(name, list(range(u.shape[0])))
+                for row in range(u.shape[0]):
+                    for k in range(u.shape[1]):
+                        writer.writerow(
+                            [name, seq_ids[row], k, f"{k * Ts:g}"]
+                            + [repr(float(v)) for v in u[row, k]]
+                            + [repr(float(v)) for v in y[row, k]]
+                        )
+        return path
+
     def __repr__(self) -> str:
         shapes = ", ".join(f"{name}={self.u_phi[name].shape}" for name in SPLITS)
         return f"IdentificationDataset({shapes}, seed={self.metadata.get('seed')})"
@@ -277,10 +395,31 @@ def _metadata(
     sequences: int,
     steps: int,
     split_sizes: tuple[int, int, int],
-    plant: PHNeutralizationPlant,
+    plant: IdentificationPlant,
     min_hold: int,
     max_hold: int,
 ) -> dict[str, Any]:
+    if isinstance(plant, QuadrupleTankPlant):
+        return {
+            "format_version": FORMAT_VERSION,
+            "plant": "QuadrupleTankPlant",
+            "units": QUADTANK_UNITS,
+            "seed": int(seed),
+            "sequences": int(sequences),
+            "steps": int(steps),
+            "split_sizes": [int(s) for s in split_sizes],
+            "sequence_indices": split_indices(split_sizes),
+            "Ts": plant.Ts,
+            "substeps": plant.substeps,
+            "parameters": dict(plant.params.__dict__),
+            "u_phi_initial": plant.v_nominal.tolist(),
+            "u_phi_range": [plant.u_phi_min, plant.u_phi_max],
+            "y_phi_constraint": [list(QUADTANK_LEVEL_CONSTRAINT)] * 2,
+            "model_stem": "quadtank_lstm",
+            "hold_range": [int(min_hold), int(max_hold)],
+            "initial_state": "steady state of u_phi_initial, no leak",
+            "alignment": "y_phi[k] measured at k*Ts, before u_phi[k] acts",
+        }
     return {
         "format_version": FORMAT_VERSION,
         "plant": "PHNeutralizationPlant",
@@ -318,13 +457,14 @@ def generate_split(
     sequences: int = 15,
     steps: int = 1500,
     split_sizes: tuple[int, int, int] = (10, 3, 2),
-    plant: PHNeutralizationPlant | None = None,
+    plant: IdentificationPlant | None = None,
     min_hold: int = 10,
     max_hold: int = 100,
 ) -> tuple[FloatArray, FloatArray]:
     """Regenerate one split alone; identical to the same split of :func:`generate_dataset`.
 
-    Returns ``(u_phi, y_phi)``, each of shape (split size, steps).
+    Returns ``(u_phi, y_phi)``, each of shape (split size, steps) (pH) or
+    (split size, steps, 2) (quadruple tank).
     """
     if split not in SPLITS:
         raise InvalidValueError(f"unknown split {split!r}; allowed: {list(SPLITS)}")
@@ -347,7 +487,7 @@ def generate_dataset(
     steps: int = 1500,
     split_sizes: tuple[int, int, int] = (10, 3, 2),
     *,
-    plant: PHNeutralizationPlant | None = None,
+    plant: IdentificationPlant | None = None,
     min_hold: int = 10,
     max_hold: int = 100,
     progress: bool = False,
@@ -362,8 +502,10 @@ def generate_dataset(
         Number of sequences and samples per sequence (paper: 15 x 1500).
     split_sizes : (int, int, int)
         Train / validation / test sequence counts (paper: 10 / 3 / 2), assigned in order.
-    plant : PHNeutralizationPlant, optional
-        Plant to simulate (default: Table I, Ts = 10 s, q2 = 0.55 mL/s).
+    plant : PHNeutralizationPlant or QuadrupleTankPlant, optional
+        Plant to simulate (default: the pH plant of Table I, Ts = 10 s, q2 = 0.55 mL/s;
+        a :class:`~ltv_lstm_mpc.plants.quadtank.QuadrupleTankPlant` gives two-input data,
+        see the module docstring).
     min_hold, max_hold : int
         Range of the number of samples each level is held (paper: 10..100).
     progress : bool

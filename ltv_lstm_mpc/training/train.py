@@ -45,6 +45,13 @@ Design choices the paper leaves open
   outputs of all sequences of a split concatenated (one number per split), simulated with
   :meth:`~ltv_lstm_mpc.lstm.model.LSTMModel.simulate` on the exported model from the equilibrium
   above. The per-sequence FITs are reported too.
+* **Several inputs and outputs** (e.g. the quadruple tank, data of shape (S, T, m) and
+  (S, T, p)): the network has m inputs and p outputs, the MSE averages over the outputs
+  (normalized units), the initial equilibrium is that of the data's ``u_phi_initial``, the
+  FIT is computed per output (``fit_per_output``) and ``fit`` is the smallest of them (also
+  the validation number the best weights are chosen by). The exported model carries the
+  data's output constraint (``y_phi_constraint`` in the metadata; the pH data: the paper's
+  [6, 9] pH) and sampling time ``Ts``.
 """
 
 from __future__ import annotations
@@ -69,7 +76,7 @@ from ltv_lstm_mpc.certificates.stability import (
 )
 from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.model import LSTMModel, Normalization
-from ltv_lstm_mpc.training.datasets import SPLITS, IdentificationDataset
+from ltv_lstm_mpc.training.datasets import SPLITS, IdentificationDataset, initial_input
 
 __all__ = [
     "TORCH_INSTALL_HINT",
@@ -268,38 +275,59 @@ def fit_index(y_real: ArrayLike, y: ArrayLike) -> float:
     return 100.0 * (1.0 - float(np.linalg.norm(real - pred)) / denominator)
 
 
-def simulate_sequences(model: LSTMModel, u_phi: ArrayLike, q3_initial: float) -> FloatArray:
-    """Physical outputs of ``model`` for each row of ``u_phi`` (S, T), from the equilibrium of
-    the constant physical input ``q3_initial`` (the data's initial steady state); uses
-    :meth:`LSTMModel.simulate`. Returns (S, T): entry k is the output before ``u_phi[k]`` acts.
+def simulate_sequences(
+    model: LSTMModel, u_phi: ArrayLike, q3_initial: float | ArrayLike
+) -> FloatArray:
+    """Physical outputs of ``model`` for each sequence of ``u_phi``, from the equilibrium of
+    the constant physical input ``q3_initial`` (the data's initial steady state, one value
+    per input); uses :meth:`LSTMModel.simulate`.
+
+    ``u_phi`` of shape (S, T) (one input) gives (S, T) outputs (one output); (S, T, m) gives
+    (S, T, p). Entry k is the output before ``u_phi[k]`` acts.
     """
-    u_arr = np.atleast_2d(np.asarray(u_phi, dtype=np.float64))
-    x0 = model.equilibrium(model.normalize_u(np.array([q3_initial])))
-    out = np.empty(u_arr.shape)
-    for row in range(u_arr.shape[0]):
-        u_norm = model.normalize_u(u_arr[row][:, None])
+    u_arr = np.asarray(u_phi, dtype=np.float64)
+    channels = u_arr.ndim == 3
+    u3 = u_arr if channels else np.atleast_2d(u_arr)[..., None]
+    x0 = model.equilibrium(model.normalize_u(np.atleast_1d(np.asarray(q3_initial, dtype=float))))
+    out = np.empty((u3.shape[0], u3.shape[1], model.p))
+    for row in range(u3.shape[0]):
+        u_norm = model.normalize_u(u3[row])
         _, y = model.simulate(x0, u_norm[:-1])
-        out[row] = model.denormalize_y(y)[:, 0]
-    return out
+        out[row] = model.denormalize_y(y)
+    return out if channels else out[..., 0]
 
 
 def evaluate_model(
     model: LSTMModel, dataset: IdentificationDataset, splits: tuple[str, ...] = SPLITS
 ) -> dict[str, dict[str, Any]]:
-    """FIT per split (concatenated sequences) and per sequence, with numpy simulation.
+    """FIT per split (concatenated sequences), per output and per sequence (numpy simulation).
 
-    Returns ``{split: {"fit": float, "fit_per_sequence": [...]}}``.
+    Returns ``{split: {"fit": float, "fit_per_output": [...], "fit_per_sequence": [...]}}``;
+    with several outputs ``fit`` is the smallest per-output FIT and ``fit_per_sequence``
+    holds one list per sequence (one FIT per output).
     """
-    q3_initial = float(dataset.metadata.get("q3_initial", 15.6))
+    u0 = initial_input(dataset.metadata)
     result: dict[str, dict[str, Any]] = {}
     for name in splits:
         u, y = dataset.split(name)
         if u.shape[0] == 0:
             continue
-        pred = simulate_sequences(model, u, q3_initial)
+        pred = simulate_sequences(model, u, u0)
+        if y.ndim == 2:
+            result[name] = {
+                "fit": fit_index(y, pred),
+                "fit_per_output": [fit_index(y, pred)],
+                "fit_per_sequence": [fit_index(y[i], pred[i]) for i in range(y.shape[0])],
+            }
+            continue
+        per_output = [fit_index(y[..., j], pred[..., j]) for j in range(y.shape[2])]
         result[name] = {
-            "fit": fit_index(y, pred),
-            "fit_per_sequence": [fit_index(y[i], pred[i]) for i in range(y.shape[0])],
+            "fit": min(per_output),
+            "fit_per_output": per_output,
+            "fit_per_sequence": [
+                [fit_index(y[i, :, j], pred[i, :, j]) for j in range(y.shape[2])]
+                for i in range(y.shape[0])
+            ],
         }
     return result
 
@@ -384,12 +412,12 @@ def _delta_iss_penalty(r1: Any, r2: Any, config: TrainingConfig) -> Any:
     )
 
 
-def _build_network(config: TrainingConfig) -> tuple[Any, Any]:
+def _build_network(config: TrainingConfig, m: int = 1, p: int = 1) -> tuple[Any, Any]:
     torch = _import_torch()
     dtype = torch.float64 if config.dtype == "float64" else torch.float32
     torch.manual_seed(config.seed)
-    lstm = torch.nn.LSTM(input_size=1, hidden_size=config.n, batch_first=True).to(dtype)
-    linear = torch.nn.Linear(config.n, 1).to(dtype)
+    lstm = torch.nn.LSTM(input_size=m, hidden_size=config.n, batch_first=True).to(dtype)
+    linear = torch.nn.Linear(config.n, p).to(dtype)
     if config.forget_bias_init is not None:
         n = config.n
         with torch.no_grad():
@@ -404,48 +432,80 @@ def _state_dict(lstm: Any, linear: Any) -> dict[str, Any]:
     return out
 
 
-def _export(state: dict[str, Any], normalization: Normalization) -> LSTMModel:
+def _export(
+    state: dict[str, Any],
+    normalization: Normalization,
+    y_phi_constraint: tuple[Any, Any] = PAPER_Y_PHI_BOUNDS,
+    Ts: float | None = None,
+) -> LSTMModel:
     arrays = {k: v.detach().cpu().double().numpy() for k, v in state.items()}
-    # The pH benchmark's output constraint Y_phi = [6, 9] pH (Section V) travels with the model.
+    # The output constraint (pH: the paper's Y_phi = [6, 9] pH, Section V) and the sampling
+    # time travel with the model.
+    p = normalization.y_phi_min.shape[0]
+    low, high = (np.broadcast_to(np.asarray(v, dtype=np.float64), (p,)) for v in y_phi_constraint)
     return LSTMModel.from_torch_state_dict(
-        arrays, normalization=normalization, y_phi_constraint=PAPER_Y_PHI_BOUNDS
+        arrays, normalization=normalization, y_phi_constraint=(low, high), Ts=Ts
     )
 
 
-def _initial_state(lstm: Any, u0: float, batch: int, config: TrainingConfig) -> tuple[Any, Any]:
-    """Approximate equilibrium (h, c) for the constant normalized input u0, expanded to a batch."""
+def _data_constraint(dataset: IdentificationDataset) -> tuple[Any, Any]:
+    """The output constraint stated by the data (``y_phi_constraint``: one (low, high) per
+    output), else the pH benchmark's [6, 9] pH."""
+    stated = dataset.metadata.get("y_phi_constraint")
+    if stated is None:
+        return PAPER_Y_PHI_BOUNDS
+    pairs = np.asarray(stated, dtype=np.float64).reshape(-1, 2)
+    return pairs[:, 0], pairs[:, 1]
+
+
+def _initial_state(
+    lstm: Any, u0: float | FloatArray, batch: int, config: TrainingConfig
+) -> tuple[Any, Any]:
+    """Approximate equilibrium (h, c) for the constant normalized input u0 (a number or one
+    value per input), expanded to a batch."""
     torch = _import_torch()
     dtype = lstm.weight_hh_l0.dtype
     n = config.n
+    u0_row = torch.as_tensor(np.atleast_1d(np.asarray(u0, dtype=np.float64)), dtype=dtype)
     h = torch.zeros(1, 1, n, dtype=dtype)
     c = torch.zeros(1, 1, n, dtype=dtype)
     if config.equilibrium_steps > 0:
         with torch.no_grad():
-            u = torch.full((1, config.equilibrium_steps, 1), u0, dtype=dtype)
+            u = u0_row.expand(1, config.equilibrium_steps, u0_row.shape[0])
             _, (h, c) = lstm(u, (h, c))
     if config.equilibrium_grad_steps > 0:
-        u = torch.full((1, config.equilibrium_grad_steps, 1), u0, dtype=dtype)
+        u = u0_row.expand(1, config.equilibrium_grad_steps, u0_row.shape[0])
         _, (h, c) = lstm(u, (h.detach(), c.detach()))
     return h.expand(1, batch, n).contiguous(), c.expand(1, batch, n).contiguous()
 
 
 def _predict(lstm: Any, linear: Any, u: Any, state: tuple[Any, Any]) -> tuple[Any, tuple[Any, Any]]:
-    """Outputs aligned with the data (y_k from h_k) for inputs u (B, L, 1) from state (h, c)."""
+    """Outputs aligned with the data (y_k from h_k) for inputs u (B, L, m) from state (h, c)."""
     torch = _import_torch()
     out, new_state = lstm(u, state)
     h_seq = torch.cat([state[0].transpose(0, 1), out[:, :-1]], dim=1)
     return linear(h_seq), new_state
 
 
-def _torch_fit(lstm: Any, linear: Any, u: Any, y: Any, u0: float, config: TrainingConfig) -> float:
-    """Validation FIT (normalized units give the same FIT as physical ones: affine map)."""
+def _torch_fit(
+    lstm: Any, linear: Any, u: Any, y: Any, u0: float | FloatArray, config: TrainingConfig
+) -> float:
+    """Validation FIT (normalized units give the same FIT as physical ones: affine map per
+    channel); with several outputs the smallest per-output FIT."""
     torch = _import_torch()
     with torch.no_grad():
         state = _initial_state(lstm, u0, u.shape[0], config)
         pred, _ = _predict(lstm, linear, u, state)
-        err = torch.linalg.vector_norm(y - pred)
-        den = torch.linalg.vector_norm(y - y.mean())
-        return float(100.0 * (1.0 - err / den))
+        if y.shape[-1] == 1:
+            err = torch.linalg.vector_norm(y - pred)
+            den = torch.linalg.vector_norm(y - y.mean())
+            return float(100.0 * (1.0 - err / den))
+        fits = []
+        for j in range(y.shape[-1]):
+            err = torch.linalg.vector_norm(y[..., j] - pred[..., j])
+            den = torch.linalg.vector_norm(y[..., j] - y[..., j].mean())
+            fits.append(float(100.0 * (1.0 - err / den)))
+        return min(fits)
 
 
 def _library_version() -> str:
@@ -470,6 +530,8 @@ def plot_prediction(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if dataset.inputs > 1 or dataset.outputs > 1:
+        return _plot_prediction_channels(model, dataset, Path(path), split)
     u, y = dataset.split(split)
     pred = simulate_sequences(model, u, float(dataset.metadata.get("q3_initial", 15.6)))
     Ts = float(dataset.metadata.get("Ts", 10.0))
@@ -489,6 +551,48 @@ def plot_prediction(
     fig.suptitle(f"Open-loop prediction on the {split} set: FIT {fit_index(y, pred):.2f} %")
     fig.tight_layout()
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def _plot_prediction_channels(
+    model: LSTMModel, dataset: IdentificationDataset, path: Path, split: str
+) -> Path:
+    """The multi-channel version of :func:`plot_prediction`: per sequence, every output
+    (plant vs LSTM) and the inputs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    u, y = dataset.channels(split)
+    pred = simulate_sequences(model, u, initial_input(dataset.metadata))
+    Ts = float(dataset.metadata.get("Ts", 10.0))
+    rows, p = u.shape[0], y.shape[2]
+    fig, axes = plt.subplots(rows * (p + 1), 1, figsize=(10, 2.2 * rows * (p + 1) + 1),
+                             sharex=True, squeeze=False)  # fmt: skip
+    t = np.arange(u.shape[1]) * Ts / 60.0
+    for row in range(rows):
+        for j in range(p):
+            ax = axes[row * (p + 1) + j, 0]
+            ax.plot(t, y[row, :, j], label="plant", color="k", lw=1.2)
+            ax.plot(t, pred[row, :, j], label="LSTM", color="tab:blue", lw=1.0, ls="--")
+            ax.set_ylabel(f"y_{j}")
+            ax.set_title(
+                f"{split} sequence {row}, output {j}: FIT "
+                f"{fit_index(y[row, :, j], pred[row, :, j]):.1f} %"
+            )
+            ax.legend(loc="upper right")
+        ax_u = axes[row * (p + 1) + p, 0]
+        for j in range(u.shape[2]):
+            ax_u.step(t, u[row, :, j], where="post", lw=1.0, label=f"u_{j}")
+        ax_u.legend(loc="upper right")
+    axes[-1, 0].set_xlabel("time (min)")
+    fits = ", ".join(f"{fit_index(y[..., j], pred[..., j]):.2f} %" for j in range(p))
+    fig.suptitle(f"Open-loop prediction on the {split} set: FIT per output {fits}")
+    fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=80)
     plt.close(fig)
@@ -522,7 +626,8 @@ def train(
     resume : bool
         Continue from ``out_dir/checkpoint.pt`` if it exists and its config matches.
     name : str, optional
-        File stem; default ``ph_lstm_n<n>``.
+        File stem; default ``<stem>_n<n>`` with the data's ``model_stem`` (pH data:
+        ``ph_lstm``).
     callback : callable, optional
         Called with each evaluation record.
 
@@ -539,31 +644,38 @@ def train(
     config = config if config is not None else TrainingConfig()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    name = name if name is not None else f"ph_lstm_n{config.n}"
+    stem = str(dataset.metadata.get("model_stem", "ph_lstm"))
+    name = name if name is not None else f"{stem}_n{config.n}"
     torch.set_num_threads(config.threads)
     dtype = torch.float64 if config.dtype == "float64" else torch.float32
 
     normalization = dataset.normalization()
-    u_tr_phi, y_tr_phi = dataset.split("train")
-    u_va_phi, y_va_phi = dataset.split("val")
-    T = u_tr_phi.shape[1]
+    T = dataset.u_phi["train"].shape[1]
     if config.washout >= T:
         raise InvalidValueError(
             f"washout {config.washout} must be shorter than the sequences ({T})"
         )
 
     def tensor(a: FloatArray) -> Any:
-        return torch.as_tensor(np.ascontiguousarray(a)[..., None], dtype=dtype)
+        return torch.as_tensor(np.ascontiguousarray(a), dtype=dtype)
 
-    u_tr = tensor(normalization.normalize_u(u_tr_phi[..., None])[..., 0])
-    y_tr = tensor(normalization.normalize_y(y_tr_phi[..., None])[..., 0])
-    has_val = u_va_phi.shape[0] > 0
-    u_va = tensor(normalization.normalize_u(u_va_phi[..., None])[..., 0]) if has_val else None
-    y_va = tensor(normalization.normalize_y(y_va_phi[..., None])[..., 0]) if has_val else None
-    q3_initial = float(dataset.metadata.get("q3_initial", 15.6))
-    u0 = float(normalization.normalize_u(np.array([q3_initial]))[0])
+    u_tr3, y_tr3 = dataset.channels("train")
+    u_va3, y_va3 = dataset.channels("val")
+    u_tr = tensor(normalization.normalize_u(u_tr3))
+    y_tr = tensor(normalization.normalize_y(y_tr3))
+    has_val = dataset.u_phi["val"].shape[0] > 0
+    u_va = tensor(normalization.normalize_u(u_va3)) if has_val else None
+    y_va = tensor(normalization.normalize_y(y_va3)) if has_val else None
+    u0_norm = normalization.normalize_u(initial_input(dataset.metadata))
+    u0: float | FloatArray = float(u0_norm[0]) if u0_norm.shape == (1,) else u0_norm
+    constraint = _data_constraint(dataset)
+    Ts = dataset.metadata.get("Ts")
+    Ts_value = None if Ts is None else float(Ts)
 
-    lstm, linear = _build_network(config)
+    def export(state: dict[str, Any]) -> LSTMModel:
+        return _export(state, normalization, constraint, Ts_value)
+
+    lstm, linear = _build_network(config, dataset.inputs, dataset.outputs)
     params = list(lstm.parameters()) + list(linear.parameters())
     optimizer = torch.optim.Adam(params, lr=config.lr)
     rng = np.random.default_rng(config.seed)
@@ -594,7 +706,7 @@ def train(
         best = ckpt["best"]
         elapsed_before = float(ckpt["elapsed"])
         certified_now = delta_iss_certificate(
-            _export(_state_dict(lstm, linear), normalization), config.u_max
+            export(_state_dict(lstm, linear)), config.u_max
         ).is_delta_iss
 
     def save_checkpoint() -> None:
@@ -658,7 +770,7 @@ def train(
             epoch += 1
             if epoch <= config.epochs:
                 bar.update(1)
-            model_np = _export(_state_dict(lstm, linear), normalization)
+            model_np = export(_state_dict(lstm, linear))
             cert = delta_iss_certificate(model_np, config.u_max)
             certified_now = cert.is_delta_iss
             if epoch % config.eval_every == 0 or epoch >= config.epochs:
@@ -706,7 +818,7 @@ def train(
         )
     # If the last weights are not certified (extra epochs exhausted) the best certified ones
     # seen earlier are still exported; the report records it ("final_weights_certified").
-    model = _export(best["state"], normalization)
+    model = export(best["state"])
     return _finish(
         model, dataset, config, out, name, history, best, epoch, wall_time, certified_now
     )
@@ -732,11 +844,13 @@ def _finish(
     report: dict[str, Any] = {
         "model_file": model_path.name,
         "fit": {split: value["fit"] for split, value in fits.items()},
+        "fit_per_output": {split: value["fit_per_output"] for split, value in fits.items()},
         "fit_per_sequence": {split: value["fit_per_sequence"] for split, value in fits.items()},
         "fit_definition": (
-            "100 (1 - ||y_real - y|| / ||y_real - mean(y_real)||) % on the physical outputs (pH) "
-            "of all sequences of the split concatenated; open-loop simulation with "
-            "LSTMModel.simulate from the equilibrium of the data's initial input"
+            "100 (1 - ||y_real - y|| / ||y_real - mean(y_real)||) % on the physical outputs "
+            f"({dataset.metadata.get('units', {}).get('y_phi', 'pH')}) of all sequences of the "
+            "split concatenated, per output; 'fit' is the smallest per-output FIT; open-loop "
+            "simulation with LSTMModel.simulate from the equilibrium of the data's initial input"
         ),
         "r1": cert.r1,
         "r2": cert.r2,
@@ -757,9 +871,13 @@ def _finish(
             key: getattr(model.normalization, key).tolist()
             for key in ("u_phi_min", "u_phi_max", "y_phi_min", "y_phi_max")
         },
+        "Ts": model.Ts,
+        "y_phi_constraint": None
+        if model.y_phi_constraint is None
+        else [v.tolist() for v in model.y_phi_constraint],
         "initial_state": (
-            "LSTM equilibrium for the constant input q3_initial (the plant starts at its "
-            "steady state for it)"
+            "LSTM equilibrium for the constant input of the data's initial steady state "
+            "(q3_initial or u_phi_initial)"
         ),
         "library_version": _library_version(),
         "torch_version": str(torch.__version__),
