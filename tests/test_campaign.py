@@ -26,7 +26,17 @@ from ltv_lstm_mpc.cli.main import main
 from ltv_lstm_mpc.exceptions import CampaignSpecError
 
 #: Columns that hold wall times (differ between runs).
-TIMING = {"wall_s", "setup_s", "median_step_s", "p95_step_s", "max_step_s", "median_mpc_s"}
+TIMING = {
+    "wall_s",
+    "setup_s",
+    "median_step_s",
+    "p95_step_s",
+    "max_step_s",
+    "median_mpc_s",
+    "started_at",
+    "finished_at",
+    "worker",
+}
 
 
 def tiny(**factors: Any) -> dict[str, Any]:

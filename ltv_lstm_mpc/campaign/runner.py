@@ -298,15 +298,18 @@ def estimate_campaign(
     *,
     workers: int = 1,
     retry_errors: bool = False,
-    calibration_steps: int = 20,
-    max_groups: int = 6,
+    calibration_steps: int = 10,
+    calibration_budget_s: float = 20.0,
 ) -> Estimate:
     """Count the tasks and estimate the wall time from short calibration runs.
 
-    One task per (solver, N, transcription) group (the first ``max_groups`` groups; the
-    others get the slowest measured figures) runs ``calibration_steps`` samples in this
-    process; a task then costs its setup plus its steps times the measured step time
-    (capped by ``max_seconds``), and the pending tasks are spread over ``workers``.
+    Tasks are grouped by (solver, N, transcription). One task per group runs
+    ``calibration_steps`` samples in this process (the slowest step, the first, counts as
+    setup; each solver at its largest N first,
+    then the other groups, until ``calibration_budget_s`` is spent); a group not measured
+    takes its solver's measurement at the nearest N, else the slowest measured. A task
+    then costs its setup plus its steps times the step time (capped by ``max_seconds``),
+    and the pending tasks are spread over ``workers`` (never below the longest task).
     """
     store = ResultStore(out) if out is not None else None
     if store is not None:
@@ -314,31 +317,51 @@ def estimate_campaign(
     else:
         pending, finished = list(spec.tasks), {}
 
-    def group(task: Task) -> str:
+    def group(task: Task) -> tuple[str, int, str]:
         s = task.settings
-        return f"{s['solver']}, N = {s['N']}, {s['transcription']}"
+        return (s["solver"], s["N"], s["transcription"])
 
-    groups: dict[str, Task] = {}
+    groups: dict[tuple[str, int, str], Task] = {}
     for task in pending:
         groups.setdefault(group(task), task)
-    calibration: dict[str, tuple[float, float]] = {}
+    largest: dict[tuple[str, str], tuple[str, int, str]] = {}
+    for solver, N, transcription in groups:
+        best = largest.get((solver, transcription))
+        if best is None or N > best[1]:
+            largest[(solver, transcription)] = (solver, N, transcription)
+    order = list(largest.values()) + [g for g in groups if g not in largest.values()]
+    calibration: dict[tuple[str, int, str], tuple[float, float]] = {}
+    started = time.perf_counter()
     if pending:  # warm-up: imports, compiled kernels
         run_task(replace(pending[0], trace=False), steps_limit=2)
-    for label, task in list(groups.items())[:max_groups]:
-        row = run_task(replace(task, trace=False), steps_limit=calibration_steps).row
-        steps = max(int(row["steps_done"]), 1)
-        calibration[label] = (float(row["setup_s"]), (row["wall_s"] - row["setup_s"]) / steps)
+    for name in order:
+        if calibration and time.perf_counter() - started > calibration_budget_s:
+            break
+        row = run_task(replace(groups[name], trace=False), steps_limit=calibration_steps).row
+        # The first (slowest) step builds the solver's problem: count it as setup.
+        setup = float(row["setup_s"]) + float(row["max_step_s"])
+        steps = max(int(row["steps_done"]) - 1, 1)
+        calibration[name] = (setup, max(float(row["wall_s"]) - setup, 0.0) / steps)
     slowest = max(calibration.values(), key=lambda c: c[0] + 1000 * c[1], default=(0.0, 0.0))
-    total = 0.0
+
+    def figures(name: tuple[str, int, str]) -> tuple[float, float]:
+        if name in calibration:
+            return calibration[name]
+        same = [g for g in calibration if (g[0], g[2]) == (name[0], name[2])]
+        if same:
+            return calibration[min(same, key=lambda g: abs(g[1] - name[1]))]
+        return slowest
+
+    total = longest = 0.0
     steps_of: dict[tuple[str, str, bool], int] = {}
     for task in pending:
-        setup, step = calibration.get(group(task), slowest)
-        scenario_id = (
-            task.model_location,
-            task.settings.get("scenario", ""),
-            bool(task.settings.get("short")),
-        )
+        setup, step = figures(group(task))
         if "scenario" in task.settings:
+            scenario_id = (
+                task.model_location,
+                str(task.settings["scenario"]),
+                bool(task.settings["short"]),
+            )
             if scenario_id not in steps_of:
                 steps_of[scenario_id] = _scenario_steps(task)
             steps = steps_of[scenario_id]
@@ -346,12 +369,17 @@ def estimate_campaign(
             steps = int(task.settings["steps"])
         seconds = setup + step * steps
         cap = task.settings.get("max_seconds")
-        total += min(seconds, setup + cap) if cap is not None else seconds
+        seconds = min(seconds, setup + cap) if cap is not None else seconds
+        total += seconds
+        longest = max(longest, seconds)
     return Estimate(
         tasks=len(spec.tasks),
         finished=len(finished),
         pending=len(pending),
         workers=workers,
-        seconds=total / max(workers, 1),
-        calibration=[(label, *values) for label, values in calibration.items()],
+        seconds=max(total / max(workers, 1), longest),
+        calibration=[
+            (f"{solver}, N = {N}, {transcription}", *values)
+            for (solver, N, transcription), values in calibration.items()
+        ],
     )

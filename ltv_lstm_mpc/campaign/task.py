@@ -23,6 +23,8 @@ Metrics (physical units; the true plant output, not the noisy measurement):
 * ``median_step_s``, ``p95_step_s``, ``max_step_s``, ``median_mpc_s``: controller step
   times; ``setup_s`` (model, certificates, controller) and ``wall_s`` (the whole task);
   ``transcription_used`` (what ``transcription = "auto"`` chose).
+* ``started_at``, ``finished_at`` (Unix times) and ``worker`` (``host:pid``), set by
+  :func:`execute`.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import hashlib
 import itertools
 import json
 import os
+import socket
 import time
 import traceback
 import typing
@@ -94,6 +97,9 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "warning_messages",
     "setup_s",
     "wall_s",
+    "started_at",
+    "finished_at",
+    "worker",
     "library_version",
 )
 
@@ -459,10 +465,12 @@ def execute(task: Task, function: TaskFunction = run_task, attempts: int = 2) ->
     Returns
     -------
     TaskOutcome
-        The function's outcome (``row["attempts"]`` set), or the error row.
+        The function's outcome, or the error row; ``attempts``, ``started_at`` and
+        ``finished_at`` (Unix times, s) and ``worker`` (``host:pid``) set.
     """
-    start = time.perf_counter()
+    start, started_at = time.perf_counter(), time.time()
     message = ""
+    outcome = None
     for attempt in range(1, attempts + 1):
         try:
             outcome = function(task)
@@ -470,5 +478,14 @@ def execute(task: Task, function: TaskFunction = run_task, attempts: int = 2) ->
             message = _describe(error)
             continue
         outcome.row["attempts"] = attempt
-        return outcome
-    return error_outcome(task, message, attempts=attempts, wall_s=time.perf_counter() - start)
+        break
+    if outcome is None:
+        outcome = error_outcome(
+            task, message, attempts=attempts, wall_s=time.perf_counter() - start
+        )
+    outcome.row.update(
+        started_at=started_at,
+        finished_at=time.time(),
+        worker=f"{socket.gethostname()}:{os.getpid()}",
+    )
+    return outcome
