@@ -102,25 +102,26 @@ def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     groups = factor_levels(rows, "mismatch") if "mismatch" in rows[0] else [None]
     figure = Figure(figsize=(10, 3.8), layout="constrained")
     axes = figure.subplots(1, 2)
-    for ax, (column, label) in zip(
-        axes,
-        (("violations", "violations (samples)"), ("max_violation", "largest violation")),
-        strict=True,
-    ):
+    panels = (("violations", "violations (samples)"), ("max_violation", "largest violation"))
+    for ax, (column, title) in zip(axes, panels, strict=True):
         for group in groups:
             subset = [r for r in rows if group is None or r.get("mismatch") == group]
-            means = [
-                np.mean(v)
-                if (v := _values([r for r in subset if r.get("noise_std") == x], column))
-                else np.nan
-                for x in noise
-            ]
-            xs = [_number(r.get("noise_std")) for r in subset if r.get("status") == "ok"]
-            ys = [_number(r.get(column)) for r in subset if r.get("status") == "ok"]
-            ax.scatter(xs, ys, s=8, alpha=0.35)
-            ax.plot(noise, means, marker="o", label="all" if group is None else _label(group))
+            means = []
+            for level in noise:
+                values = _values([r for r in subset if r.get("noise_std") == level], column)
+                means.append(float(np.mean(values)) if values else math.nan)
+            ok = [r for r in subset if r.get("status") == "ok"]
+            name = "all" if group is None else _label(group)
+            (line,) = ax.plot(noise, means, marker="o", label=name)
+            ax.scatter(
+                [_number(r.get("noise_std")) for r in ok],
+                [_number(r.get(column)) for r in ok],
+                s=8,
+                alpha=0.35,
+                color=line.get_color(),
+            )
         ax.set_xlabel("measurement noise std (output units)")
-        ax.set_title(label)
+        ax.set_title(title)
         ax.grid(alpha=0.3)
     axes[0].legend(title="mismatch" if groups != [None] else None, fontsize=8)
     figure.suptitle("true-plant constraint violations vs measurement noise")
@@ -143,10 +144,15 @@ def _heatmap(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     ax = figure.subplots()
     shown = np.log10(np.where(np.isfinite(grid) & (grid > 0), grid, np.nan))
     image = ax.imshow(shown, aspect="auto", cmap="viridis")
+    low, high = np.nanmin(shown, initial=np.inf), np.nanmax(shown, initial=-np.inf)
     for i in range(len(solvers)):
         for j in range(len(horizons)):
             if math.isfinite(grid[i, j]):
-                ax.text(j, i, f"{grid[i, j]:.3g}", ha="center", va="center", color="w", fontsize=8)
+                bright = high > low and (shown[i, j] - low) / (high - low) > 0.6
+                ax.text(
+                    j, i, f"{grid[i, j]:.3g}", ha="center", va="center", fontsize=8,
+                    color="k" if bright else "w",
+                )  # fmt: skip
     ax.set_xticks(range(len(horizons)), [str(n) for n in horizons])
     ax.set_yticks(range(len(solvers)), [str(s) for s in solvers])
     ax.set_xlabel("N")
