@@ -249,6 +249,29 @@ def test_mismatch_changes_the_plant_and_scenario_tasks_match_the_paper_scenarios
     assert json.loads(row["segment_offsets"]) == pytest.approx(reference["segment_offsets"])
 
 
+def test_lstm_plant_task_applies_its_output_disturbance_schedule(tmp_path) -> None:
+    data = {
+        "campaign": {
+            "plant": "lstm",
+            "steps": 30,
+            "setpoints": [7.2],
+            "disturbances": [0.0, 0.05],
+            "y0_initial": 7.1,
+            "solver": "daqp",
+            "trace": True,
+        }
+    }
+    run = run_campaign(parse_spec(data), tmp_path, serial=True, progress=False, report=False)
+    (row,) = run.rows
+    trace = read_trace(tmp_path, row["key"])
+    assert row["plant"] == "lstm" and row["status"] == "ok"
+    assert trace["y_phi"][0] == pytest.approx(7.1, abs=1e-8)
+    np.testing.assert_array_equal(trace["d_phi"], [0.0] * 15 + [0.05] * 15)
+    assert json.loads(row["segment_offsets"]) == pytest.approx(
+        [abs(trace["y_phi"][k] - 7.2) for k in (14, 29)]
+    )
+
+
 # ----------------------------------------------------------------------------- faults, resume
 
 

@@ -2,7 +2,8 @@
 
 ``ltv-lstm-mpc campaign SPEC.toml --out DIR [--scheduler ADDRESS] [--workers N] [--serial]
 [--dry-run] [--retry-errors]``. A bad spec is a usage error (exit code 2, the message names
-the entry); a library error is exit code 1. Dask is imported only when the tasks run on it.
+the entry); a library error is exit code 1; tasks that fail are recorded, not fatal (exit
+code 0, their count on stderr). Dask is imported only when the tasks run on it.
 """
 
 from __future__ import annotations
@@ -21,8 +22,17 @@ __all__ = ["campaign_command", "register"]
 
 def register(subparsers: Any) -> None:
     """Add the ``campaign`` subcommand to the ``ltv-lstm-mpc`` parser."""
+    from ltv_lstm_mpc.campaign.spec import describe_settings
+
+    settings = "\n".join(f"  {name:<15} {doc}" for name, doc in describe_settings())
     parser = subparsers.add_parser(
         "campaign",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=(
+            "settings ([campaign] fixed values, [factors] lists, [[cases]] overrides):\n"
+            f"{settings}\n"
+            "  (also in [campaign]: name, trace = true | {setting = [values]})"
+        ),
         help="run many closed loops (a product of factors) on Dask, resumable",
         description=(
             "Run every task of a campaign spec (TOML: [campaign] fixed settings, [factors] "
@@ -126,4 +136,10 @@ def campaign_command(args: argparse.Namespace) -> int:
     for path in run.files:
         if path.name.startswith(("results", "report")):
             print(f"  {path}")
+    if run.errors:
+        print(
+            f"{run.errors} tasks failed (recorded with their errors in the results and "
+            "report.md; --retry-errors reruns them)",
+            file=sys.stderr,
+        )
     return 0

@@ -201,6 +201,8 @@ def run_campaign(
     log : callable, optional
         Receives one-line progress messages.
     """
+    if serial and scheduler is not None:
+        raise CampaignError("serial runs in this process: give serial=True or a scheduler")
     start = time.perf_counter()
     store = ResultStore(out)
     store.prepare(spec.name, [task.key for task in spec.tasks], spec.text)

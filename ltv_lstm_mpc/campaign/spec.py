@@ -249,8 +249,12 @@ SETTINGS: dict[str, Setting] = {
     "scenario": Setting(_scenario, "a paper scenario: fixes plant, schedule and rate limit"),
     "short": Setting(_boolean, "scenario tasks: the quarter-length schedules"),
     "steps": Setting(_integer(1), "samples of the closed loop"),
-    "setpoints": Setting(_number_list(nonnegative=False), "set-points, equal segments, phys."),
-    "q2": Setting(_number_list(nonnegative=True), "pH plant buffer flow q2, mL/s, segments"),
+    "setpoints": Setting(
+        _number_list(nonnegative=False), "set-points (physical), one per equal segment"
+    ),
+    "q2": Setting(
+        _number_list(nonnegative=True), "pH plant buffer flow q2 (mL/s), one per equal segment"
+    ),
     "disturbances": Setting(
         _number_list(nonnegative=False), "pH plant: q2 (mL/s); LSTM plant: output disturbance"
     ),
@@ -614,5 +618,8 @@ def load_spec(path: str | Path) -> CampaignSpec:
 
 
 def describe_settings() -> Sequence[tuple[str, str]]:
-    """(setting, meaning) pairs, for help texts."""
-    return [(name, setting.doc) for name, setting in SETTINGS.items()]
+    """(setting, meaning and default) pairs, for help texts."""
+    return [
+        (name, setting.doc + (f" (default {DEFAULTS[name]!r})" if name in DEFAULTS else ""))
+        for name, setting in SETTINGS.items()
+    ]

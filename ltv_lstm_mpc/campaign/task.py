@@ -155,7 +155,7 @@ def setting_column(name: str, value: Any) -> Any:
     if name == "mismatch":
         if not value:
             return "nominal"
-        return ",".join(f"{k}*{v:g}" for k, v in sorted(value.items()))
+        return ",".join(f"{k}*{v!r}" for k, v in sorted(value.items()))
     if isinstance(value, (list, dict)):
         return json.dumps(value)
     return value
