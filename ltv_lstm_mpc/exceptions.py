@@ -9,6 +9,7 @@ built-in exception a user would expect (``ValueError`` for bad input,
 from __future__ import annotations
 
 __all__ = [
+    "CampaignSpecError",
     "DimensionError",
     "InvalidValueError",
     "LtvMpcError",
@@ -72,3 +73,15 @@ class SolverNotFound(LtvMpcError, ImportError):
 
 class SolverError(LtvMpcError, RuntimeError):
     """A solver failed in a way the caller asked to be raised rather than recorded."""
+
+
+class CampaignSpecError(LtvMpcError, ValueError):
+    """A campaign spec (TOML) is invalid.
+
+    The message starts with the bad entry (e.g. ``[factors].noise_std``) and says how to
+    fix it; ``field`` holds that entry.
+    """
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field

@@ -11,6 +11,8 @@ simulate
     One configurable closed loop (``--plant ph``, ``lstm`` or ``quadtank``).
 generate-data, train
     Identification data and delta-ISS LSTM training (see ``ltv_lstm_mpc.training.cli``).
+campaign
+    Many closed loops over a product of factors, on Dask (see ``ltv_lstm_mpc.campaign.cli``).
 """
 
 from __future__ import annotations
@@ -593,8 +595,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: Modules whose ``register(subparsers)`` adds subcommands (train, bench, replay).
-OPTIONAL_COMMAND_MODULES = ("ltv_lstm_mpc.training.cli", "ltv_lstm_mpc.bench.harness")
+#: Modules whose ``register(subparsers)`` adds subcommands (train, bench, replay, campaign).
+OPTIONAL_COMMAND_MODULES = (
+    "ltv_lstm_mpc.training.cli",
+    "ltv_lstm_mpc.bench.harness",
+    "ltv_lstm_mpc.campaign.cli",
+)
 
 
 def _register_optional_commands(subparsers: Any) -> None:

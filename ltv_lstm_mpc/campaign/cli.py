@@ -1,0 +1,145 @@
+"""Sub-command ``campaign`` of the ``ltv-lstm-mpc`` command line.
+
+``ltv-lstm-mpc campaign SPEC.toml --out DIR [--scheduler ADDRESS] [--workers N] [--serial]
+[--dry-run] [--retry-errors]``. A bad spec is a usage error (exit code 2, the message names
+the entry); a library error is exit code 1; tasks that fail are recorded, not fatal (exit
+code 0, their count on stderr). Dask is imported only when the tasks run on it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from ltv_lstm_mpc.cli.arguments import UsageError, output_folder, positive_int
+from ltv_lstm_mpc.exceptions import CampaignSpecError
+
+__all__ = ["campaign_command", "register"]
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``campaign`` subcommand to the ``ltv-lstm-mpc`` parser."""
+    from ltv_lstm_mpc.campaign.spec import describe_settings
+
+    settings = "\n".join(f"  {name:<15} {doc}" for name, doc in describe_settings())
+    parser = subparsers.add_parser(
+        "campaign",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=(
+            "settings ([campaign] fixed values, [factors] lists, [[cases]] overrides):\n"
+            f"{settings}\n"
+            "  (also in [campaign]: name, trace = true | {setting = [values]})"
+        ),
+        help="run many closed loops (a product of factors) on Dask, resumable",
+        description=(
+            "Run every task of a campaign spec (TOML: [campaign] fixed settings, [factors] "
+            "lists whose product is the task list, optional [[cases]]), one closed loop each, "
+            "on a Dask LocalCluster (one worker process per core), an existing scheduler "
+            "(--scheduler) or this process (--serial). Each finished task is stored at once "
+            "under --out; rerunning skips finished tasks. Writes results.parquet/.csv, traces "
+            "for the spec's trace subset, report.md and plots."
+        ),
+    )
+    parser.add_argument("spec", type=Path, help="campaign spec (.toml)")
+    parser.add_argument("--out", type=output_folder, required=True, help="output folder")
+    parser.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS", help="address of a running Dask scheduler"
+    )
+    parser.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help=f"worker processes of the LocalCluster (default: one per core, {os.cpu_count()})",
+    )
+    parser.add_argument("--serial", action="store_true", help="run in this process, no Dask")
+    parser.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the task count and a time estimate from short calibration runs",
+    )
+    parser.add_argument(
+        "--retry-errors", action="store_true", help="rerun the tasks stored with an error"
+    )
+    parser.add_argument("--no-report", action="store_true", help="skip report.md and the plots")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(func=campaign_command)
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _scheduler_workers(address: str) -> int:
+    from ltv_lstm_mpc.campaign.runner import dask_client
+
+    with dask_client(address) as client:
+        workers = client.scheduler_info().get("workers", {})
+        return max(sum(int(w.get("nthreads", 1)) for w in workers.values()), 1)
+
+
+def campaign_command(args: argparse.Namespace) -> int:
+    """``ltv-lstm-mpc campaign``: run (or estimate) a campaign; returns the exit status."""
+    from ltv_lstm_mpc.campaign.runner import estimate_campaign, run_campaign
+    from ltv_lstm_mpc.campaign.spec import load_spec
+
+    if args.serial and (args.scheduler is not None or args.workers is not None):
+        raise UsageError("--serial runs in this process: drop --scheduler / --workers")
+    if args.scheduler is not None and args.workers is not None:
+        raise UsageError("--workers sizes the LocalCluster; an existing --scheduler has its own")
+    if not args.spec.is_file():
+        raise UsageError(f"no campaign spec file {str(args.spec)!r}")
+    try:
+        spec = load_spec(args.spec)
+    except CampaignSpecError as error:
+        raise UsageError(f"{args.spec}: {error}") from None
+    if args.dry_run:
+        if args.serial:
+            workers = 1
+        elif args.scheduler is not None:
+            workers = _scheduler_workers(args.scheduler)
+        else:
+            workers = args.workers or os.cpu_count() or 1
+        estimate = estimate_campaign(spec, args.out, workers=workers)
+        print(
+            f"campaign {spec.name}: {estimate.tasks} tasks ({estimate.finished} finished in "
+            f"{args.out}, {estimate.pending} to run)"
+        )
+        for label, setup, step in estimate.calibration:
+            print(f"  calibration {label}: setup {setup:.2f} s, {1e3 * step:.3g} ms per step")
+        print(
+            f"estimated time: {_duration(estimate.seconds)} on {workers} worker"
+            f"{'s' if workers != 1 else ''} (plus starting the cluster)"
+        )
+        return 0
+    run = run_campaign(
+        spec,
+        args.out,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        serial=args.serial,
+        retry_errors=args.retry_errors,
+        progress=not args.no_progress,
+        report=not args.no_report,
+        log=lambda message: print(message, file=sys.stderr),
+    )
+    print(
+        f"campaign {spec.name}: {len(run.rows)} tasks ({run.executed} run now, {run.skipped} "
+        f"already finished), {run.errors} errors; {run.wall_s:.1f} s"
+    )
+    for path in run.files:
+        if path.name.startswith(("results", "report")):
+            print(f"  {path}")
+    if run.errors:
+        print(
+            f"{run.errors} tasks failed (recorded with their errors in the results and "
+            "report.md; --retry-errors reruns them)",
+            file=sys.stderr,
+        )
+    return 0

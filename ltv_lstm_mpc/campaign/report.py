@@ -1,0 +1,287 @@
+"""Campaign report: a markdown summary and plots of the results table.
+
+:func:`write_report` writes ``report.md`` and, under ``plots/``,
+
+* ``by_<factor>.png`` for every factor with more than one level: the distributions
+  (box plots) of the final offset, the true-plant violations and the median step time per
+  level;
+* ``violations_vs_noise.png`` when the measurement noise varies: violations (and their
+  largest size) against ``noise_std``, one mean line per plant mismatch;
+* ``step_time_heatmap.png`` when the backend or the horizon varies: median step time per
+  backend x N.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ltv_lstm_mpc.campaign.store import atomic_write
+
+__all__ = ["factor_levels", "write_report"]
+
+#: (column, axis label, scale) of the distribution plots and tables.
+_METRICS = (
+    ("final_offset", "final offset", 1.0),
+    ("violations", "violations (samples)", 1.0),
+    ("median_step_s", "median step (ms)", 1e3),
+)
+
+
+def _number(value: Any) -> float:
+    if value is None or isinstance(value, (bool, str)):
+        return math.nan
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def factor_levels(rows: Sequence[Mapping[str, Any]], name: str) -> list[Any]:
+    """Distinct values of a column: numbers sorted, anything else in order of appearance."""
+    levels = list(dict.fromkeys(row.get(name) for row in rows))
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in levels):
+        return sorted(levels)
+    return levels
+
+
+def _values(rows: Sequence[Mapping[str, Any]], column: str, scale: float = 1.0) -> list[float]:
+    values = [_number(row.get(column)) * scale for row in rows if row.get("status") == "ok"]
+    return [v for v in values if math.isfinite(v)]
+
+
+def _label(value: Any) -> str:
+    text = f"{value:g}" if isinstance(value, float) else str(value)
+    return text if len(text) <= 28 else text[:25] + "..."
+
+
+def _fmt(value: float, digits: int = 3) -> str:
+    return "-" if not math.isfinite(value) else f"{value:.{digits}g}"
+
+
+def _stats(values: Sequence[float]) -> tuple[float, float, float]:
+    if not values:
+        return math.nan, math.nan, math.nan
+    return float(np.mean(values)), float(np.median(values)), float(np.max(values))
+
+
+def _save(figure: Figure, path: Path) -> Path:
+    import io
+
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=110)
+    atomic_write(path, buffer.getvalue())
+    return path
+
+
+def _factor_plot(rows: Sequence[Mapping[str, Any]], name: str, path: Path) -> Path:
+    levels = factor_levels(rows, name)
+    figure = Figure(figsize=(4.0 * len(_METRICS), 3.6), layout="constrained")
+    axes = figure.subplots(1, len(_METRICS))
+    for ax, (column, label, scale) in zip(axes, _METRICS, strict=True):
+        data = [_values([r for r in rows if r.get(name) == lv], column, scale) for lv in levels]
+        positions = [i for i, d in enumerate(data) if d]
+        if positions:
+            ax.boxplot([data[i] for i in positions], positions=positions, widths=0.6)
+        ax.set_xticks(range(len(levels)), [_label(lv) for lv in levels], rotation=30, ha="right")
+        ax.set_xlim(-0.6, len(levels) - 0.4)
+        ax.set_title(label)
+        ax.set_xlabel(name)
+        ax.grid(alpha=0.3)
+    figure.suptitle(f"distributions per {name}")
+    return _save(figure, path)
+
+
+def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
+    noise = factor_levels(rows, "noise_std")
+    groups = factor_levels(rows, "mismatch") if "mismatch" in rows[0] else [None]
+    figure = Figure(figsize=(10, 3.8), layout="constrained")
+    axes = figure.subplots(1, 2)
+    panels = (("violations", "violations (samples)"), ("max_violation", "largest violation"))
+    for ax, (column, title) in zip(axes, panels, strict=True):
+        for group in groups:
+            subset = [r for r in rows if group is None or r.get("mismatch") == group]
+            means = []
+            for level in noise:
+                values = _values([r for r in subset if r.get("noise_std") == level], column)
+                means.append(float(np.mean(values)) if values else math.nan)
+            ok = [r for r in subset if r.get("status") == "ok"]
+            name = "all" if group is None else _label(group)
+            (line,) = ax.plot(noise, means, marker="o", label=name)
+            ax.scatter(
+                [_number(r.get("noise_std")) for r in ok],
+                [_number(r.get(column)) for r in ok],
+                s=8,
+                alpha=0.35,
+                color=line.get_color(),
+            )
+        ax.set_xlabel("measurement noise std (output units)")
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    axes[0].legend(title="mismatch" if groups != [None] else None, fontsize=8)
+    figure.suptitle("true-plant constraint violations vs measurement noise")
+    return _save(figure, path)
+
+
+def _heatmap(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
+    solvers = factor_levels(rows, "solver")
+    horizons = factor_levels(rows, "N")
+    grid = np.full((len(solvers), len(horizons)), np.nan)
+    for i, solver in enumerate(solvers):
+        for j, N in enumerate(horizons):
+            subset = [r for r in rows if r.get("solver") == solver and r.get("N") == N]
+            values = _values(subset, "median_step_s", 1e3)
+            if values:
+                grid[i, j] = float(np.median(values))
+    figure = Figure(
+        figsize=(2.0 + 1.3 * len(horizons), 1.2 + 0.38 * len(solvers)), layout="constrained"
+    )
+    ax = figure.subplots()
+    shown = np.log10(np.where(np.isfinite(grid) & (grid > 0), grid, np.nan))
+    image = ax.imshow(shown, aspect="auto", cmap="viridis")
+    low, high = np.nanmin(shown, initial=np.inf), np.nanmax(shown, initial=-np.inf)
+    for i in range(len(solvers)):
+        for j in range(len(horizons)):
+            if math.isfinite(grid[i, j]):
+                bright = high > low and (shown[i, j] - low) / (high - low) > 0.6
+                ax.text(
+                    j, i, f"{grid[i, j]:.3g}", ha="center", va="center", fontsize=8,
+                    color="k" if bright else "w",
+                )  # fmt: skip
+    ax.set_xticks(range(len(horizons)), [str(n) for n in horizons])
+    ax.set_yticks(range(len(solvers)), [str(s) for s in solvers])
+    ax.set_xlabel("N")
+    figure.colorbar(image, ax=ax, label="log10 median step (ms)")
+    ax.set_title("median controller step (ms), backend x N")
+    return _save(figure, path)
+
+
+def _varying(rows: Sequence[Mapping[str, Any]], names: Sequence[str]) -> list[str]:
+    return [n for n in names if len(factor_levels(rows, n)) > 1]
+
+
+def write_report(
+    rows: Sequence[Mapping[str, Any]],
+    factors: Sequence[str],
+    out: str | Path,
+    *,
+    title: str = "campaign",
+    plots: bool = True,
+) -> list[Path]:
+    """Write ``report.md`` (and the plots) for a results table.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        The rows (:class:`~ltv_lstm_mpc.campaign.runner.CampaignRun` ``rows``, or the
+        results table read back).
+    factors : sequence of str
+        The campaign's varying settings (columns to break the results down by).
+    out : path
+        The campaign folder.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    root = Path(out)
+    ok = [r for r in rows if r.get("status") == "ok"]
+    errors = [r for r in rows if r.get("status") != "ok"]
+    varying = _varying(rows, factors)
+    files: list[Path] = []
+    figures: list[tuple[str, Path]] = []
+    if plots and ok:
+        for name in varying:
+            figures.append(
+                (f"by {name}", _factor_plot(rows, name, root / "plots" / f"by_{name}.png"))
+            )
+        if "noise_std" in rows[0] and len(factor_levels(rows, "noise_std")) > 1:
+            figures.append(
+                (
+                    "violations vs noise",
+                    _noise_plot(rows, root / "plots" / "violations_vs_noise.png"),
+                )
+            )
+        if "solver" in rows[0] and "N" in rows[0] and ({"solver", "N"} & set(varying)):
+            figures.append(
+                ("step time, backend x N", _heatmap(rows, root / "plots" / "step_time_heatmap.png"))
+            )
+    levels = ", ".join(f"`{n}` ({len(factor_levels(rows, n))})" for n in factors)
+    wall = sum(v for v in (_number(r.get("wall_s")) for r in rows) if math.isfinite(v))
+    lines = [
+        f"# Campaign `{title}`",
+        "",
+        f"{len(rows)} tasks: {len(ok)} ok, {len(errors)} errors; task time {wall:.1f} s in total.",
+        f"Factors (levels): {levels or 'none'}.",
+        "",
+        "Metrics in physical units on the true plant output; step times of the controller.",
+        "",
+        "## Overall",
+        "",
+        "| metric | mean | median | max |",
+        "|---|---|---|---|",
+    ]
+    for column in (
+        "final_offset",
+        "violations",
+        "max_violation",
+        "infeasible_steps",
+        "fallback_steps",
+        "d_hat_saturated_steps",
+        "closed_loop_cost",
+    ):
+        mean, median, top = _stats(_values(rows, column))
+        lines.append(f"| {column} | {_fmt(mean)} | {_fmt(median)} | {_fmt(top)} |")
+    for column in ("median_step_s", "p95_step_s", "max_step_s"):
+        mean, median, top = _stats(_values(rows, column, 1e3))
+        lines.append(f"| {column[:-2]} (ms) | {_fmt(mean)} | {_fmt(median)} | {_fmt(top)} |")
+    for name in varying:
+        lines += [
+            "",
+            f"## By `{name}`",
+            "",
+            f"| {name} | tasks | errors | final offset mean / max | violations mean | "
+            "infeasible mean | median step (ms) |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for level in factor_levels(rows, name):
+            subset = [r for r in rows if r.get(name) == level]
+            failed = sum(1 for r in subset if r.get("status") != "ok")
+            offset = _stats(_values(subset, "final_offset"))
+            violations = _stats(_values(subset, "violations"))
+            infeasible = _stats(_values(subset, "infeasible_steps"))
+            step = _stats(_values(subset, "median_step_s", 1e3))
+            lines.append(
+                f"| {_label(level)} | {len(subset)} | {failed} | {_fmt(offset[0])} / "
+                f"{_fmt(offset[2])} | {_fmt(violations[0])} | {_fmt(infeasible[0])} | "
+                f"{_fmt(step[1])} |"
+            )
+    if errors:
+        lines += [
+            "",
+            "## Errors",
+            "",
+            "| key | " + " | ".join(factors) + " | error |",
+            "|---|" + "---|" * len(factors) + "---|",
+        ]
+        for row in errors[:50]:
+            error = str(row.get("error", "")).replace("|", "/").replace("\n", " ")[:300]
+            cells = " | ".join(_label(row.get(n)) for n in factors)
+            lines.append(f"| {row.get('key')} | {cells} | {error} |")
+        if len(errors) > 50:
+            lines.append(f"\n... and {len(errors) - 50} more (see the results table).")
+    if figures:
+        lines += ["", "## Plots", ""]
+        for caption, path in figures:
+            lines.append(f"![{caption}]({path.relative_to(root).as_posix()})")
+        files.extend(path for _, path in figures)
+    report = root / "report.md"
+    atomic_write(report, ("\n".join(lines) + "\n").encode("utf-8"))
+    files.append(report)
+    return files

@@ -1,0 +1,387 @@
+"""Run a campaign: in this process, or on Dask (a LocalCluster or an existing scheduler).
+
+Both runners hand the same picklable tasks to the same function
+(:func:`ltv_lstm_mpc.campaign.task.execute`) and write each outcome the moment it comes
+back (:class:`~ltv_lstm_mpc.campaign.store.ResultStore`); only where the tasks run differs.
+On Dask every task is one future: a worker that dies mid-task has its task rescheduled
+by the scheduler (up to ``distributed.scheduler.allowed-failures`` times, then the task is
+recorded as an error), and everything already finished is on disk. The client writes
+the files, so remote workers need no access to the output folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from tqdm.auto import tqdm
+
+from ltv_lstm_mpc import __version__
+from ltv_lstm_mpc.campaign.spec import CampaignSpec
+from ltv_lstm_mpc.campaign.store import ResultStore, ordered_columns
+from ltv_lstm_mpc.campaign.task import (
+    Task,
+    TaskFunction,
+    TaskOutcome,
+    error_outcome,
+    execute,
+    run_task,
+)
+from ltv_lstm_mpc.exceptions import LtvMpcError
+
+__all__ = [
+    "CampaignError",
+    "CampaignRun",
+    "Estimate",
+    "dask_client",
+    "estimate_campaign",
+    "pending_tasks",
+    "run_campaign",
+]
+
+INSTALL_HINT = "install the extra: python -m pip install 'ltv_lstm_mpc[campaign]'"
+
+
+class CampaignError(LtvMpcError, RuntimeError):
+    """A campaign cannot run (Dask missing, workers on another library version, ...)."""
+
+
+@dataclass(frozen=True)
+class CampaignRun:
+    """The outcome of :func:`run_campaign`.
+
+    Attributes
+    ----------
+    rows : list of dict
+        One row per task of the spec, in task order (stored and new), every row with
+        every column (None where a failed task has no value).
+    executed, skipped : int
+        Tasks run by this call; tasks found finished in the output folder.
+    errors : int
+        Rows with ``status == "error"``.
+    wall_s : float
+        Wall time of this call, s.
+    files : list of Path
+        Results (Parquet, CSV) and report files written.
+    """
+
+    rows: list[dict[str, Any]]
+    executed: int
+    skipped: int
+    errors: int
+    wall_s: float
+    files: list[Path] = field(default_factory=list)
+
+
+def pending_tasks(
+    spec: CampaignSpec, store: ResultStore, *, retry_errors: bool = False
+) -> tuple[list[Task], dict[str, dict[str, Any]]]:
+    """Tasks still to run and the rows already stored (``retry_errors``: rerun error rows)."""
+    finished = store.finished(task.key for task in spec.tasks)
+    if retry_errors:
+        finished = {k: row for k, row in finished.items() if row.get("status") != "error"}
+    return [task for task in spec.tasks if task.key not in finished], finished
+
+
+@contextlib.contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+    """A ``distributed.Client``: to ``scheduler``, or to a new LocalCluster (closed after).
+
+    The LocalCluster has ``workers`` worker processes (default: one per core) with one
+    thread each (a closed loop is single-threaded; its BLAS runs on one thread).
+    """
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise CampaignError(f"running on Dask needs dask[distributed]: {INSTALL_HINT}") from None
+    if scheduler is not None:
+        client = Client(scheduler)
+        try:
+            _check_worker_versions(client)
+            yield client
+        finally:
+            client.close()
+        return
+    count = workers if workers is not None else (os.cpu_count() or 1)
+    with (
+        LocalCluster(
+            n_workers=count,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",  # a free port: several clusters may run at once
+            silence_logs=logging.ERROR,
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        yield client
+
+
+def _library_version() -> str:
+    import ltv_lstm_mpc
+
+    return ltv_lstm_mpc.__version__
+
+
+def _check_worker_versions(client: Any) -> None:
+    versions = client.run(_library_version)
+    other = {worker: v for worker, v in versions.items() if v != __version__}
+    if other:
+        raise CampaignError(
+            f"workers run another ltv_lstm_mpc version than this client ({__version__}): "
+            f"{other}; task keys include the version, install the same one everywhere"
+        )
+
+
+def _run_serial(tasks: Sequence[Task], function: TaskFunction) -> Iterator[TaskOutcome]:
+    for task in tasks:
+        yield execute(task, function)
+
+
+def _run_dask(client: Any, tasks: Sequence[Task], function: TaskFunction) -> Iterator[TaskOutcome]:
+    from distributed import as_completed
+
+    futures = {
+        client.submit(execute, task, function, key=f"ltv-campaign-{task.key}", pure=False): task
+        for task in tasks
+    }
+    for future in as_completed(futures):
+        task = futures[future]
+        try:
+            outcome = future.result()
+        except Exception as error:  # KilledWorker (died too often), cancelled, ...
+            outcome = error_outcome(
+                task, f"{type(error).__name__}: {error}", attempts=0, wall_s=math.nan
+            )
+        future.release()
+        yield outcome
+
+
+def run_campaign(
+    spec: CampaignSpec,
+    out: str | Path,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    serial: bool = False,
+    retry_errors: bool = False,
+    progress: bool = True,
+    report: bool = True,
+    task_function: TaskFunction = run_task,
+    log: Callable[[str], None] | None = None,
+) -> CampaignRun:
+    """Run every unfinished task of ``spec``, store each at once, then the tables and report.
+
+    Parameters
+    ----------
+    spec : CampaignSpec
+    out : path
+        Output folder (see :mod:`ltv_lstm_mpc.campaign.store`); finished tasks found there
+        are skipped.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``); default: a new
+        LocalCluster with ``workers`` processes (one per core by default).
+    serial : bool
+        Run in this process, without Dask.
+    retry_errors : bool
+        Rerun the tasks stored with ``status = "error"``.
+    progress : bool
+        Progress bar over the tasks.
+    report : bool
+        Write ``report.md`` and the plots.
+    task_function : callable
+        What runs one task (default :func:`~ltv_lstm_mpc.campaign.task.run_task`); it
+        must be picklable for Dask (see :mod:`ltv_lstm_mpc.campaign.testing`).
+    log : callable, optional
+        Receives one-line progress messages.
+    """
+    if serial and scheduler is not None:
+        raise CampaignError("serial runs in this process: give serial=True or a scheduler")
+    start = time.perf_counter()
+    store = ResultStore(out)
+    store.prepare(spec.name, [task.key for task in spec.tasks], spec.text)
+    pending, finished = pending_tasks(spec, store, retry_errors=retry_errors)
+    where = (
+        "this process"
+        if serial
+        else (scheduler or f"a LocalCluster of {workers or os.cpu_count()} workers")
+    )
+    if log is not None:
+        log(
+            f"{spec.name}: {len(spec.tasks)} tasks, {len(finished)} finished, "
+            f"{len(pending)} to run in {where}"
+        )
+    executed = 0
+    with contextlib.ExitStack() as stack:
+        if not pending:
+            outcomes: Iterator[TaskOutcome] = iter(())
+        elif serial:
+            outcomes = _run_serial(pending, task_function)
+        else:
+            client = stack.enter_context(dask_client(scheduler, workers))
+            outcomes = _run_dask(client, pending, task_function)
+        bar = stack.enter_context(
+            tqdm(total=len(pending), desc=spec.name, unit="task", disable=not progress)
+        )
+        for outcome in outcomes:
+            store.write(outcome)
+            executed += 1
+            bar.update(1)
+            if outcome.row.get("status") == "error":
+                bar.set_postfix_str(f"last error: {outcome.row['key']}", refresh=False)
+    stored = store.finished(task.key for task in spec.tasks)
+    rows = [stored[task.key] for task in spec.tasks if task.key in stored]
+    columns = ordered_columns(rows)
+    rows = [{column: row.get(column) for column in columns} for row in rows]
+    files = store.write_results(rows) if rows else []
+    if report and rows:
+        from ltv_lstm_mpc.campaign.report import write_report
+
+        files.extend(write_report(rows, spec.varying, store.root, title=spec.name))
+    errors = sum(1 for row in rows if row.get("status") == "error")
+    return CampaignRun(
+        rows=rows,
+        executed=executed,
+        skipped=len(finished),
+        errors=errors,
+        wall_s=time.perf_counter() - start,
+        files=files,
+    )
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The dry-run's numbers (:func:`estimate_campaign`).
+
+    Attributes
+    ----------
+    tasks, finished, pending : int
+        Tasks of the spec; already in the output folder; still to run.
+    workers : int
+        Parallel workers assumed.
+    seconds : float
+        Estimated wall time of the pending tasks, s (without starting the cluster).
+    calibration : list of (label, setup_s, step_s)
+        Measured per (solver, N, transcription) group: setup and per-step time.
+    """
+
+    tasks: int
+    finished: int
+    pending: int
+    workers: int
+    seconds: float
+    calibration: list[tuple[str, float, float]]
+
+
+def _scenario_steps(task: Task) -> int:
+    if "scenario" not in task.settings:
+        return int(task.settings["steps"])
+    from ltv_lstm_mpc.lstm.shipped import load_model
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+    model = load_model(task.model_location)
+    short = bool(task.settings["short"])
+    return next(
+        sc.steps
+        for sc in paper_scenarios(model, short=short)
+        if sc.name == task.settings["scenario"]
+    )
+
+
+def estimate_campaign(
+    spec: CampaignSpec,
+    out: str | Path | None = None,
+    *,
+    workers: int = 1,
+    retry_errors: bool = False,
+    calibration_steps: int = 10,
+    calibration_budget_s: float = 20.0,
+) -> Estimate:
+    """Count the tasks and estimate the wall time from short calibration runs.
+
+    Tasks are grouped by (solver, N, transcription). One task per group runs
+    ``calibration_steps`` samples in this process (the slowest step, the first, counts as
+    setup; each solver at its largest N first,
+    then the other groups, until ``calibration_budget_s`` is spent); a group not measured
+    takes its solver's measurement at the nearest N, else the slowest measured. A task
+    then costs its setup plus its steps times the step time (capped by ``max_seconds``),
+    and the pending tasks are spread over ``workers`` (never below the longest task).
+    """
+    store = ResultStore(out) if out is not None else None
+    if store is not None:
+        pending, finished = pending_tasks(spec, store, retry_errors=retry_errors)
+    else:
+        pending, finished = list(spec.tasks), {}
+
+    def group(task: Task) -> tuple[str, int, str]:
+        s = task.settings
+        return (s["solver"], s["N"], s["transcription"])
+
+    groups: dict[tuple[str, int, str], Task] = {}
+    for task in pending:
+        groups.setdefault(group(task), task)
+    largest: dict[tuple[str, str], tuple[str, int, str]] = {}
+    for solver, N, transcription in groups:
+        best = largest.get((solver, transcription))
+        if best is None or N > best[1]:
+            largest[(solver, transcription)] = (solver, N, transcription)
+    order = list(largest.values()) + [g for g in groups if g not in largest.values()]
+    calibration: dict[tuple[str, int, str], tuple[float, float]] = {}
+    started = time.perf_counter()
+    if pending:  # warm-up: imports, compiled kernels
+        run_task(replace(pending[0], trace=False), steps_limit=2)
+    for name in order:
+        if calibration and time.perf_counter() - started > calibration_budget_s:
+            break
+        row = run_task(replace(groups[name], trace=False), steps_limit=calibration_steps).row
+        # The first (slowest) step builds the solver's problem: count it as setup.
+        setup = float(row["setup_s"]) + float(row["max_step_s"])
+        steps = max(int(row["steps_done"]) - 1, 1)
+        calibration[name] = (setup, max(float(row["wall_s"]) - setup, 0.0) / steps)
+    slowest = max(calibration.values(), key=lambda c: c[0] + 1000 * c[1], default=(0.0, 0.0))
+
+    def figures(name: tuple[str, int, str]) -> tuple[float, float]:
+        if name in calibration:
+            return calibration[name]
+        same = [g for g in calibration if (g[0], g[2]) == (name[0], name[2])]
+        if same:
+            return calibration[min(same, key=lambda g: abs(g[1] - name[1]))]
+        return slowest
+
+    total = longest = 0.0
+    steps_of: dict[tuple[str, str, bool], int] = {}
+    for task in pending:
+        setup, step = figures(group(task))
+        if "scenario" in task.settings:
+            scenario_id = (
+                task.model_location,
+                str(task.settings["scenario"]),
+                bool(task.settings["short"]),
+            )
+            if scenario_id not in steps_of:
+                steps_of[scenario_id] = _scenario_steps(task)
+            steps = steps_of[scenario_id]
+        else:
+            steps = int(task.settings["steps"])
+        seconds = setup + step * steps
+        cap = task.settings.get("max_seconds")
+        seconds = min(seconds, setup + cap) if cap is not None else seconds
+        total += seconds
+        longest = max(longest, seconds)
+    return Estimate(
+        tasks=len(spec.tasks),
+        finished=len(finished),
+        pending=len(pending),
+        workers=workers,
+        seconds=max(total / max(workers, 1), longest),
+        calibration=[
+            (f"{solver}, N = {N}, {transcription}", *values)
+            for (solver, N, transcription), values in calibration.items()
+        ],
+    )

@@ -1,0 +1,625 @@
+r"""Campaign specs: fixed settings and factors in a TOML file; the tasks are their product.
+
+A spec has three parts::
+
+    [campaign]                      # fixed settings (and the campaign's name, trace subset)
+    name = "ph_robustness"
+    plant = "ph"
+    model = "ph_lstm_n5.npz"        # a path (relative to the spec file) or a shipped model
+    steps = 900
+    setpoints = [7.5, 6.8, 8.0]     # physical units, held for equal segments
+    q2 = [0.55, 0.7]                # pH plant buffer flow, mL/s, equal segments
+    solver = "daqp"
+    trace = { seed = [0] }          # per-step traces for the tasks with seed 0
+
+    [factors]                       # every key is a setting mapped to a list of values
+    noise_std = [0.0, 0.01, 0.05]
+    L_d = [0.01, 0.1]
+    seed = [0, 1, 2]
+
+    [[cases]]                       # optional: an explicit list of setting overrides
+    mismatch = {}
+    [[cases]]
+    mismatch = { W_a1 = 1.1 }
+
+The tasks are ``cases x product(factors)`` (one empty case when there are none), each
+one closed loop (:func:`ltv_lstm_mpc.campaign.task.run_task`). Every setting is checked
+when the spec is read: a bad entry raises
+:class:`~ltv_lstm_mpc.exceptions.CampaignSpecError` naming it (``[factors].noise_std[1]``)
+and the fix.
+
+Settings (:data:`SETTINGS` documents each): ``plant``, ``model``, ``scenario`` (one of the
+paper's scenarios, :data:`SCENARIO_NAMES`; it fixes plant, schedule and rate limit),
+``short``, ``steps``, ``setpoints``, ``q2`` (pH plant) or ``disturbances`` (pH plant: q2;
+LSTM plant: output disturbance), ``y0_initial``, ``L_d``, ``N``, ``solver`` (``"installed"``
+in a factor list means every installed backend), ``transcription``, ``policy``,
+``sqp_iterations``, ``rate_limit``, ``d_max``, ``noise_std``, ``seed``, ``mismatch``,
+``max_seconds``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import itertools
+import math
+import tomllib
+import typing
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from ltv_lstm_mpc.campaign.task import Task, task_key
+from ltv_lstm_mpc.exceptions import CampaignSpecError
+from ltv_lstm_mpc.mpc.config import TRANSCRIPTIONS, InfeasibilityPolicy
+from ltv_lstm_mpc.plants.ph import PHParameters
+
+__all__ = [
+    "DEFAULTS",
+    "INSTALLED",
+    "SCENARIO_NAMES",
+    "SETTINGS",
+    "CampaignSpec",
+    "TraceSelector",
+    "load_spec",
+    "parse_spec",
+]
+
+#: The paper's scenarios (:func:`ltv_lstm_mpc.paper.scenarios.paper_scenarios`) and their plant.
+SCENARIO_NAMES: dict[str, str] = {
+    "1_lstm_theorem3": "lstm",
+    "2_lstm_larger": "lstm",
+    "3_lstm_steps": "lstm",
+    "4_ph_small_Ld": "ph",
+    "5_ph_large_Ld": "ph",
+}
+#: In a ``solver`` factor list: every backend of ``ltv_lstm_mpc.solvers.available_solvers()``.
+INSTALLED = "installed"
+#: Settings a scenario fixes itself (a task with ``scenario`` must not set them).
+SCENARIO_FIXED = ("plant", "steps", "setpoints", "q2", "disturbances", "rate_limit", "y0_initial")
+#: Keys of ``[campaign]`` that are not settings.
+CAMPAIGN_ONLY = ("name", "trace")
+#: Values of the settings a task does not set (``L_d`` and ``rate_limit`` of a scenario task
+#: come from the scenario).
+DEFAULTS: dict[str, Any] = {
+    "plant": "ph",
+    "model": "ph_lstm_n5.npz",
+    "L_d": 0.1,
+    "N": 5,
+    "solver": "daqp",
+    "transcription": "auto",
+    "policy": "paper",
+    "sqp_iterations": 1,
+    "rate_limit": 0.01,
+    "d_max": 0.1,
+    "noise_std": 0.0,
+    "seed": 0,
+    "mismatch": {},
+}
+_POLICIES: tuple[str, ...] = typing.get_args(InfeasibilityPolicy)
+_PH_PARAMETERS = tuple(f.name for f in fields(PHParameters))
+
+
+class _Bad(Exception):
+    """A value failed its check; the message says what is expected."""
+
+
+Checker = Callable[[Any], Any]
+
+
+def _type_name(value: Any) -> str:
+    return type(value).__name__
+
+
+def _choice(*allowed: str) -> Checker:
+    def check(value: Any) -> str:
+        if not isinstance(value, str) or value not in allowed:
+            raise _Bad(f"expected one of {list(allowed)}, got {value!r}")
+        return value
+
+    return check
+
+
+def _string(value: Any) -> str:
+    if not isinstance(value, str) or not value:
+        raise _Bad(f"expected a non-empty string, got {value!r}")
+    return value
+
+
+def _boolean(value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise _Bad(f"expected true or false, got {value!r}")
+    return value
+
+
+def _integer(minimum: int) -> Checker:
+    def check(value: Any) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _Bad(f"expected an integer >= {minimum}, got {_type_name(value)} {value!r}")
+        if value < minimum:
+            raise _Bad(f"expected an integer >= {minimum}, got {value}")
+        return int(value)
+
+    return check
+
+
+def _real(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _Bad(f"expected a number, got {_type_name(value)} {value!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise _Bad(f"expected a finite number, got {value!r}")
+    return number
+
+
+def _number(low: float | None = None, high: float | None = None, *, open_low: bool) -> Checker:
+    def check(value: Any) -> float:
+        number = _real(value)
+        if low is not None and (number <= low if open_low else number < low):
+            raise _Bad(f"expected a number {'>' if open_low else '>='} {low:g}, got {value!r}")
+        if high is not None and not number < high:
+            raise _Bad(f"expected a number < {high:g}, got {value!r}")
+        return number
+
+    return check
+
+
+def _number_list(*, nonnegative: bool) -> Checker:
+    def check(value: Any) -> list[float]:
+        if not isinstance(value, list) or not value:
+            raise _Bad(f"expected a non-empty list of numbers (one per segment), got {value!r}")
+        numbers = []
+        for index, item in enumerate(value):
+            try:
+                number = _real(item)
+            except _Bad as error:
+                raise _Bad(f"entry {index}: {error}") from None
+            if nonnegative and number < 0:
+                raise _Bad(f"entry {index}: expected a number >= 0, got {item!r}")
+            numbers.append(number)
+        return numbers
+
+    return check
+
+
+def _mismatch(value: Any) -> dict[str, float]:
+    if not isinstance(value, dict):
+        raise _Bad(
+            "expected a table of pH-plant parameter scale factors, e.g. "
+            f"{{ W_a1 = 1.1, A1 = 0.9 }} ({{}} = nominal), got {value!r}"
+        )
+    nominal = PHParameters()
+    scales: dict[str, float] = {}
+    for name in sorted(value):
+        if name not in _PH_PARAMETERS:
+            raise _Bad(f"unknown pH-plant parameter {name!r}; parameters: {list(_PH_PARAMETERS)}")
+        try:
+            scale = _number(0.0, open_low=True)(value[name])
+        except _Bad as error:
+            raise _Bad(f"{name}: {error} (a scale factor of the nominal value)") from None
+        if getattr(nominal, name) == 0.0 and scale != 1.0:
+            raise _Bad(
+                f"{name} is 0 in the nominal plant, so scaling it changes nothing; "
+                "scale a nonzero parameter"
+            )
+        scales[name] = scale
+    return scales
+
+
+def _scenario(value: Any) -> str:
+    if isinstance(value, str):
+        if value in SCENARIO_NAMES:
+            return value
+        matches = [name for name in SCENARIO_NAMES if name.split("_", 1)[1] == value]
+        if matches:
+            return matches[0]
+    raise _Bad(f"expected a paper scenario name {list(SCENARIO_NAMES)}, got {value!r}")
+
+
+def solver_names() -> list[str]:
+    """Solver names a spec accepts: the installed backends, and IPOPT with the nmpc extra."""
+    from ltv_lstm_mpc.mpc.rti import NLP_SOLVERS
+    from ltv_lstm_mpc.solvers import available_solvers
+
+    names = list(available_solvers())
+    if importlib.util.find_spec("casadi") is not None:
+        names.extend(NLP_SOLVERS)
+    return names
+
+
+def _solver(value: Any) -> str:
+    names = solver_names()
+    if not isinstance(value, str) or value not in names:
+        raise _Bad(f"unknown or uninstalled solver {value!r}; installed: {names}")
+    return value
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting of a task: its check (returns the canonical value) and meaning."""
+
+    check: Checker
+    doc: str
+
+
+#: Every setting a spec understands (keys of ``[campaign]``, ``[factors]`` and ``[[cases]]``).
+SETTINGS: dict[str, Setting] = {
+    "plant": Setting(_choice("ph", "lstm"), "pH process (Fig. 1) or LSTM + output disturbance"),
+    "model": Setting(_string, "model .npz path (relative to the spec) or shipped name"),
+    "scenario": Setting(_scenario, "a paper scenario: fixes plant, schedule and rate limit"),
+    "short": Setting(_boolean, "scenario tasks: the quarter-length schedules"),
+    "steps": Setting(_integer(1), "samples of the closed loop"),
+    "setpoints": Setting(
+        _number_list(nonnegative=False), "set-points (physical), one per equal segment"
+    ),
+    "q2": Setting(
+        _number_list(nonnegative=True), "pH plant buffer flow q2 (mL/s), one per equal segment"
+    ),
+    "disturbances": Setting(
+        _number_list(nonnegative=False), "pH plant: q2 (mL/s); LSTM plant: output disturbance"
+    ),
+    "y0_initial": Setting(_real, "LSTM plant: initial output (default: mid-range input)"),
+    "L_d": Setting(_number(0.0, 2.0, open_low=True), "observer gain L_d = l_d I_p"),
+    "N": Setting(_integer(1), "prediction horizon"),
+    "solver": Setting(_solver, "solver backend (ltv_lstm_mpc.solvers.available_solvers())"),
+    "transcription": Setting(_choice(*TRANSCRIPTIONS), "FHOCP transcription"),
+    "policy": Setting(_choice(*_POLICIES), "infeasibility policy"),
+    "sqp_iterations": Setting(_integer(1), "linearizations per step (1 = RTI)"),
+    "rate_limit": Setting(
+        _number(0.0, open_low=False), "normalized set-point change per step (0: none)"
+    ),
+    "d_max": Setting(_number(0.0, open_low=True), "disturbance bound d_max (normalized)"),
+    "noise_std": Setting(
+        _number(0.0, open_low=False), "std of Gaussian measurement noise, output units"
+    ),
+    "seed": Setting(_integer(0), "seed of the measurement noise"),
+    "mismatch": Setting(_mismatch, "pH plant parameter scale factors, e.g. {W_a1 = 1.1}"),
+    "max_seconds": Setting(
+        _number(0.0, open_low=True), "stop a closed loop after this wall time, s"
+    ),
+}
+
+
+@dataclass(frozen=True)
+class TraceSelector:
+    """Which tasks also write per-step traces.
+
+    Attributes
+    ----------
+    every : bool
+        All tasks (``trace = true``).
+    match : dict
+        Setting -> accepted values (``trace = { seed = [0], noise_std = [0.05] }``): a task
+        is traced when each of its settings is among the values given.
+    """
+
+    every: bool = False
+    match: dict[str, list[Any]] = field(default_factory=dict)
+
+    def selects(self, settings: Mapping[str, Any]) -> bool:
+        """Whether the task with these settings writes a trace."""
+        if self.every:
+            return True
+        if not self.match:
+            return False
+        return all(
+            name in settings and settings[name] in values for name, values in self.match.items()
+        )
+
+
+@dataclass(frozen=True)
+class CampaignSpec:
+    """A parsed, validated campaign.
+
+    Attributes
+    ----------
+    name : str
+        Campaign name (``[campaign].name``, default the spec file's stem).
+    fixed : dict
+        Settings of ``[campaign]`` (canonical values).
+    factors : dict
+        Setting -> list of values of ``[factors]`` (``"installed"`` expanded).
+    cases : list of dict
+        The ``[[cases]]`` overrides (``[{}]`` when there are none).
+    trace : TraceSelector
+    tasks : tuple of Task
+        The product, in order (outer: cases; then the factors in the spec's order).
+    source : Path or None
+        The spec file.
+    text : str
+        The spec's TOML text (copied into the output folder).
+    """
+
+    name: str
+    fixed: dict[str, Any]
+    factors: dict[str, list[Any]]
+    cases: list[dict[str, Any]]
+    trace: TraceSelector
+    tasks: tuple[Task, ...]
+    source: Path | None = None
+    text: str = ""
+
+    @property
+    def varying(self) -> list[str]:
+        """Settings that differ between tasks (factors and case keys), in spec order."""
+        names = list(self.factors)
+        for case in self.cases:
+            names.extend(name for name in case if name not in names)
+        return names
+
+
+def _table(value: Any, where: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise CampaignSpecError(where, f"expected a table, got {_type_name(value)} {value!r}")
+    return value
+
+
+def _check_key(name: str, where: str) -> Setting:
+    if name not in SETTINGS:
+        raise CampaignSpecError(
+            f"{where}.{name}",
+            f"unknown setting; settings: {list(SETTINGS)}"
+            + (f" (and {list(CAMPAIGN_ONLY)} in [campaign])" if where == "[campaign]" else ""),
+        )
+    return SETTINGS[name]
+
+
+def _checked(name: str, value: Any, where: str) -> Any:
+    setting = _check_key(name, where)
+    try:
+        return setting.check(value)
+    except _Bad as error:
+        raise CampaignSpecError(f"{where}.{name}", str(error)) from None
+
+
+def _factor_values(name: str, values: Any) -> list[Any]:
+    where = f"[factors].{name}"
+    _check_key(name, "[factors]")
+    if not isinstance(values, list):
+        raise CampaignSpecError(
+            where, f"expected a list of values, got {values!r}; write {name} = [{values!r}]"
+        )
+    if not values:
+        raise CampaignSpecError(where, "empty list: give at least one value (or remove the key)")
+    if name == "solver" and INSTALLED in values:
+        from ltv_lstm_mpc.solvers import available_solvers
+
+        expanded: list[Any] = []
+        for value in values:
+            for item in available_solvers() if value == INSTALLED else [value]:
+                if item not in expanded:
+                    expanded.append(item)
+        values = expanded
+    checked = []
+    for index, value in enumerate(values):
+        try:
+            checked.append(SETTINGS[name].check(value))
+        except _Bad as error:
+            raise CampaignSpecError(f"{where}[{index}]", str(error)) from None
+    return checked
+
+
+def _trace_selector(value: Any) -> TraceSelector:
+    where = "[campaign].trace"
+    if isinstance(value, bool):
+        return TraceSelector(every=value)
+    if not isinstance(value, dict):
+        raise CampaignSpecError(
+            where,
+            "expected true, false or a table setting -> list of values, e.g. "
+            f"{{ seed = [0] }}, got {value!r}",
+        )
+    match: dict[str, list[Any]] = {}
+    for name, values in value.items():
+        _check_key(name, where)
+        listed = values if isinstance(values, list) else [values]
+        try:
+            match[name] = [SETTINGS[name].check(v) for v in listed]
+        except _Bad as error:
+            raise CampaignSpecError(f"{where}.{name}", str(error)) from None
+    return TraceSelector(match=match)
+
+
+def _resolve_model(name: str, base_dir: Path | None, field_name: str) -> str:
+    """Where a worker finds the model: an absolute path, or a shipped model name."""
+    from ltv_lstm_mpc.lstm.shipped import shipped_models
+
+    path = Path(name)
+    candidates = [path] if path.is_absolute() else [(base_dir or Path.cwd()) / path, path]
+    for candidate in candidates:
+        if candidate.is_file():
+            return str(candidate.resolve())
+    if name in shipped_models():
+        return name
+    raise CampaignSpecError(
+        field_name,
+        f"no model file {name!r} (looked in {[str(c) for c in candidates]}) and no shipped "
+        f"model of that name; shipped models: {shipped_models()}",
+    )
+
+
+def _resolve_task(
+    given: dict[str, Any], where: dict[str, str], base_dir: Path | None
+) -> tuple[dict[str, Any], str]:
+    """Complete one task's settings with the defaults and check their combination."""
+
+    def fail(name: str, message: str) -> CampaignSpecError:
+        return CampaignSpecError(where.get(name, f"[campaign].{name}"), message)
+
+    settings = dict(given)
+    scenario = settings.get("scenario")
+    if scenario is not None:
+        for name in SCENARIO_FIXED:
+            if name in settings:
+                raise fail(
+                    name,
+                    f"the scenario {scenario!r} fixes its own plant, schedule and rate limit; "
+                    f"remove {name} or the scenario",
+                )
+        plant = SCENARIO_NAMES[scenario]
+    else:
+        if "short" in settings:
+            raise fail("short", "applies to scenario tasks only: set scenario or remove short")
+        for name in ("steps", "setpoints"):
+            if name not in settings:
+                raise fail(name, f"{name} is required unless a scenario is set")
+        plant = settings.setdefault("plant", DEFAULTS["plant"])
+        settings.setdefault("rate_limit", DEFAULTS["rate_limit"])
+        if "q2" in settings and "disturbances" in settings:
+            raise fail("q2", "give q2 or disturbances, not both (for the pH plant they are q2)")
+        if "q2" in settings and plant != "ph":
+            raise fail(
+                "q2",
+                "q2 is the pH plant's buffer flow; for plant = 'lstm' use disturbances "
+                "(output disturbance in output units)",
+            )
+        steps = settings["steps"]
+        for name in ("setpoints", "q2", "disturbances"):
+            if name in settings and len(settings[name]) > steps:
+                raise fail(name, f"{len(settings[name])} segments for steps = {steps}")
+        if "y0_initial" in settings and plant != "lstm":
+            raise fail("y0_initial", "applies to the LSTM plant (the pH plant starts at pH 7.03)")
+        if "disturbances" not in settings and "q2" not in settings:
+            settings["q2" if plant == "ph" else "disturbances"] = [0.55 if plant == "ph" else 0.0]
+    if settings.get("mismatch") and plant != "ph":
+        raise fail("mismatch", "parameter mismatch applies to the pH plant only")
+    from_scenario = ("plant", "rate_limit", "L_d") if scenario is not None else ()
+    for name, value in DEFAULTS.items():
+        if name not in from_scenario:
+            settings.setdefault(name, value)
+    if scenario is not None:
+        settings.setdefault("short", False)
+    model = _resolve_model(settings["model"], base_dir, where.get("model", "[campaign].model"))
+    ordered = {name: settings[name] for name in SETTINGS if name in settings}
+    return ordered, model
+
+
+def parse_spec(
+    data: Mapping[str, Any],
+    *,
+    name: str | None = None,
+    base_dir: Path | None = None,
+    source: Path | None = None,
+    text: str = "",
+) -> CampaignSpec:
+    """Validate a spec given as a mapping (the parsed TOML) and build its tasks.
+
+    Parameters
+    ----------
+    data : mapping
+        ``{"campaign": {...}, "factors": {...}, "cases": [...]}``; every part optional.
+    name : str, optional
+        Default campaign name (``[campaign].name`` wins).
+    base_dir : Path, optional
+        Folder that relative model paths are relative to (default: the working folder).
+
+    Raises
+    ------
+    CampaignSpecError
+        The first bad entry, named (``[factors].L_d[2]``), with the fix.
+    """
+    for key in data:
+        if key not in ("campaign", "factors", "cases"):
+            raise CampaignSpecError(
+                f"[{key}]", "unknown table; a spec has [campaign], [factors] and [[cases]]"
+            )
+    campaign = _table(data.get("campaign", {}), "[campaign]")
+    factors_table = _table(data.get("factors", {}), "[factors]")
+    raw_cases = data.get("cases", [{}])
+    if not isinstance(raw_cases, list) or not raw_cases:
+        raise CampaignSpecError("[[cases]]", "expected one or more [[cases]] tables")
+
+    campaign_name = campaign.get("name", name or "campaign")
+    if not isinstance(campaign_name, str) or not campaign_name:
+        raise CampaignSpecError(
+            "[campaign].name", f"expected a non-empty string, got {campaign_name!r}"
+        )
+    trace = _trace_selector(campaign.get("trace", False))
+    fixed = {
+        key: _checked(key, value, "[campaign]")
+        for key, value in campaign.items()
+        if key not in CAMPAIGN_ONLY
+    }
+    factors = {key: _factor_values(key, values) for key, values in factors_table.items()}
+    cases: list[dict[str, Any]] = []
+    for index, case in enumerate(raw_cases):
+        where = f"[[cases]][{index}]"
+        table = _table(case, where)
+        cases.append({key: _checked(key, value, where) for key, value in table.items()})
+    for key in factors:
+        if key in fixed:
+            raise CampaignSpecError(
+                f"[factors].{key}", "also set in [campaign]: keep one of the two"
+            )
+    for index, case in enumerate(cases):
+        for key in case:
+            if key in factors:
+                raise CampaignSpecError(
+                    f"[[cases]][{index}].{key}", "also a factor: keep one of the two"
+                )
+
+    tasks: list[Task] = []
+    seen: set[str] = set()
+    names = list(factors)
+    for index, case in enumerate(cases):
+        for combination in itertools.product(*(factors[n] for n in names)):
+            given = {**fixed, **case, **dict(zip(names, combination, strict=True))}
+            origin = {name: f"[campaign].{name}" for name in fixed}
+            origin.update({name: f"[[cases]][{index}].{name}" for name in case})
+            origin.update({name: f"[factors].{name}" for name in names})
+            settings, model = _resolve_task(given, origin, base_dir)
+            key = task_key(settings)
+            if key in seen:
+                continue
+            seen.add(key)
+            tasks.append(
+                Task(
+                    key=key,
+                    settings=settings,
+                    model_location=model,
+                    trace=trace.selects(settings),
+                )
+            )
+    spec = CampaignSpec(
+        name=campaign_name,
+        fixed=fixed,
+        factors=factors,
+        cases=cases,
+        trace=trace,
+        tasks=tuple(tasks),
+        source=source,
+        text=text,
+    )
+    for name_ in spec.trace.match:
+        if name_ not in fixed and name_ not in spec.varying and name_ not in DEFAULTS:
+            raise CampaignSpecError(
+                f"[campaign].trace.{name_}", "is never set by this campaign: no task matches"
+            )
+    return spec
+
+
+def load_spec(path: str | Path) -> CampaignSpec:
+    """Read and validate a campaign spec from a TOML file (see the module docstring).
+
+    Raises
+    ------
+    CampaignSpecError
+        Bad TOML (with the parser's line and column) or a bad entry.
+    OSError
+        The file cannot be read.
+    """
+    file = Path(path)
+    text = file.read_text(encoding="utf-8")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise CampaignSpecError(str(file), f"not valid TOML: {error}") from None
+    return parse_spec(data, name=file.stem, base_dir=file.parent, source=file, text=text)
+
+
+def describe_settings() -> Sequence[tuple[str, str]]:
+    """(setting, meaning and default) pairs, for help texts."""
+    return [
+        (name, setting.doc + (f" (default {DEFAULTS[name]!r})" if name in DEFAULTS else ""))
+        for name, setting in SETTINGS.items()
+    ]

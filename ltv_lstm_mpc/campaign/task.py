@@ -1,0 +1,491 @@
+r"""One campaign task: one closed loop of the one controller, a plain function of its settings.
+
+:func:`run_task` builds the plant (with measurement noise and pH-plant parameter mismatch
+when asked), the :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController`, runs
+:func:`~ltv_lstm_mpc.loop.simulation.simulate` and returns one row of the results table
+(:data:`METRIC_COLUMNS`) and, for the traced subset, the per-step trace. It reads nothing
+but its :class:`Task` and the model file and keeps no state between calls, so it runs the
+same in this process or on any Dask worker. :func:`execute` is what the runners call: it
+retries a raising task once and records the error instead of raising.
+
+Metrics (physical units; the true plant output, not the noisy measurement):
+
+* ``final_offset``: largest :math:`|y_k - y^0_k|` at the last sample of the constant
+  segments (set-point and disturbance both constant); ``segment_offsets`` lists them.
+* ``violations``: samples of the true plant output outside the model's output
+  constraint (``y_phi_constraint``, the paper's [6, 9] pH for the shipped models);
+  ``max_violation`` and ``violation_sum`` their size.
+* ``closed_loop_cost``: mean of :math:`\|y_k - y^0_k\|^2` over the run (requested set-point).
+* ``infeasible_steps`` (nominal FHOCP not solved), ``fallback_steps`` and
+  ``fallback_<policy>_steps``, ``d_hat_saturated_steps``, the set-point status counts,
+  ``optimal_steps``, ``failed_steps``, ``solver_error_steps`` and every FHOCP status in
+  ``status_counts`` (JSON).
+* ``median_step_s``, ``p95_step_s``, ``max_step_s``, ``median_mpc_s``: controller step
+  times; ``setup_s`` (model, certificates, controller) and ``wall_s`` (the whole task);
+  ``transcription_used`` (what ``transcription = "auto"`` chose).
+* ``started_at``, ``finished_at`` (Unix times) and ``worker`` (``host:pid``), set by
+  :func:`execute`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import os
+import socket
+import time
+import traceback
+import typing
+import warnings
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ltv_lstm_mpc import __version__
+from ltv_lstm_mpc.exceptions import LtvMpcError
+from ltv_lstm_mpc.mpc.config import InfeasibilityPolicy
+
+__all__ = [
+    "METRIC_COLUMNS",
+    "MeasuredPlant",
+    "Task",
+    "TaskFunction",
+    "TaskOutcome",
+    "execute",
+    "run_task",
+    "setting_column",
+    "task_key",
+]
+
+FloatArray = NDArray[np.float64]
+
+_POLICIES: tuple[str, ...] = typing.get_args(InfeasibilityPolicy)
+_SETPOINT_STATUSES = ("ok", "outside_admissible", "unreachable_stale", "unreachable")
+
+#: Metric columns of a row, in order (after the key and the settings).
+METRIC_COLUMNS: tuple[str, ...] = (
+    "status",
+    "error",
+    "attempts",
+    "steps_done",
+    "final_offset",
+    "segment_offsets",
+    "violations",
+    "max_violation",
+    "violation_sum",
+    "closed_loop_cost",
+    "infeasible_steps",
+    "fallback_steps",
+    *(f"fallback_{policy}_steps" for policy in _POLICIES),
+    "d_hat_saturated_steps",
+    *(f"setpoint_{name}_steps" for name in _SETPOINT_STATUSES),
+    "optimal_steps",
+    "failed_steps",
+    "solver_error_steps",
+    "status_counts",
+    "median_step_s",
+    "p95_step_s",
+    "max_step_s",
+    "median_mpc_s",
+    "transcription_used",
+    "warnings",
+    "warning_messages",
+    "setup_s",
+    "wall_s",
+    "started_at",
+    "finished_at",
+    "worker",
+    "library_version",
+)
+
+
+@dataclass(frozen=True)
+class Task:
+    """One closed loop of a campaign.
+
+    Attributes
+    ----------
+    key : str
+        Hash of the settings and the library version (:func:`task_key`): the name of its
+        result file.
+    settings : dict
+        Every setting of the task (canonical values, see
+        :data:`ltv_lstm_mpc.campaign.spec.SETTINGS`).
+    model_location : str
+        Absolute model path, or the name of a shipped model.
+    trace : bool
+        Also return the per-step trace.
+    """
+
+    key: str
+    settings: dict[str, Any]
+    model_location: str
+    trace: bool = False
+
+
+@dataclass(frozen=True)
+class TaskOutcome:
+    """What a task returns: its row and, for the traced subset, its per-step trace."""
+
+    row: dict[str, Any]
+    trace: dict[str, list[Any]] | None = None
+
+
+#: A task function: a task in, its outcome out (:func:`run_task` or a wrapper of it).
+TaskFunction = Callable[[Task], TaskOutcome]
+
+
+def task_key(settings: Mapping[str, Any], version: str = __version__) -> str:
+    """Hash (20 hex digits) of the canonical settings and the library version."""
+    text = json.dumps(
+        {"settings": dict(settings), "library_version": version},
+        sort_keys=True,
+        separators=(",", ":"),
+    )
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:20]
+
+
+def setting_column(name: str, value: Any) -> Any:
+    """A setting as a table cell: lists as JSON text, a mismatch as ``"W_a1*1.1"``."""
+    if name == "mismatch":
+        if not value:
+            return "nominal"
+        return ",".join(f"{k}*{v!r}" for k, v in sorted(value.items()))
+    if isinstance(value, (list, dict)):
+        return json.dumps(value)
+    return value
+
+
+class MeasuredPlant:
+    """A plant whose measurement carries Gaussian noise; records the true outputs.
+
+    ``output()`` and ``step()`` return the true output plus
+    :math:`\\sigma \\varepsilon_k`, :math:`\\varepsilon_k \\sim \\mathcal N(0, I)` drawn from
+    ``numpy.random.default_rng(seed)``; ``true_outputs`` holds every true output returned.
+    The same seed gives the same noise sequence whatever ``noise_std`` is (common random
+    numbers across noise levels).
+
+    Parameters
+    ----------
+    plant : Plant
+        The plant (pH process or LSTM plant), already at its initial condition.
+    noise_std : float
+        Standard deviation, output units (0: exact measurements).
+    seed : int
+        Seed of the noise.
+    """
+
+    def __init__(self, plant: Any, noise_std: float, seed: int) -> None:
+        self.plant = plant
+        self.noise_std = float(noise_std)
+        self._rng = np.random.default_rng(seed)
+        if hasattr(plant, "disturbance_size"):
+            self.disturbance_size = plant.disturbance_size
+        self.true_outputs: list[FloatArray] = []
+
+    def _measure(self, y: ArrayLike) -> FloatArray:
+        true = np.atleast_1d(np.asarray(y, dtype=np.float64)).copy()
+        self.true_outputs.append(true)
+        noise = self._rng.standard_normal(true.shape)
+        return true + self.noise_std * noise if self.noise_std > 0 else true.copy()
+
+    def reset(self) -> Any:
+        """Reset the plant (the noise sequence continues)."""
+        self.true_outputs = []
+        return self.plant.reset()
+
+    def output(self) -> FloatArray:
+        """Noisy measurement of the current output."""
+        return self._measure(self.plant.output())
+
+    def step(self, u_phi: ArrayLike, d_phi: ArrayLike | None = None) -> FloatArray:
+        """Step the plant and return the noisy measurement of its new output."""
+        return self._measure(self.plant.step(u_phi, d_phi))
+
+
+def _equal_segments(values: Sequence[float], steps: int) -> tuple[FloatArray, list[int]]:
+    """Per-sample series holding each value for an equal share of ``steps``; the edges."""
+    count = len(values)
+    edges = [round(i * steps / count) for i in range(count + 1)]
+    lengths = np.diff(edges)
+    return np.repeat(np.asarray(values, dtype=np.float64), lengths), edges
+
+
+@dataclass(frozen=True)
+class _Loop:
+    """Everything one closed loop needs, built from a task's settings."""
+
+    plant: Any
+    controller: Any
+    setpoints: FloatArray
+    disturbances: FloatArray
+    segments: list[tuple[int, int]]
+    facts: dict[str, Any]
+
+
+def _build_loop(task: Task, model: Any, steps_limit: int | None) -> _Loop:
+    from ltv_lstm_mpc.loop.controller import OffsetFreeController
+    from ltv_lstm_mpc.mpc.config import MPCConfig
+    from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
+    from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant, PHParameters
+
+    s = task.settings
+    if model.p != 1:
+        raise LtvMpcError(
+            f"campaigns run single-output models (this one has p = {model.p} outputs)"
+        )
+    overrides: dict[str, Any] = {
+        "N": s["N"],
+        "solver": s["solver"],
+        "transcription": s["transcription"],
+        "infeasibility_policy": s["policy"],
+        "sqp_iterations": s["sqp_iterations"],
+        "d_max": s["d_max"],
+    }
+    if "scenario" in s:
+        from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+        (scenario,) = [
+            sc for sc in paper_scenarios(model, short=s["short"]) if sc.name == s["scenario"]
+        ]
+        if "L_d" in s:
+            overrides["L_d"] = s["L_d"]
+        config = replace(scenario.config, **overrides)
+        plant_kind, rate_limit = scenario.plant, scenario.setpoint_rate_limit
+        setpoints, disturbances = scenario.setpoints, scenario.disturbances
+        segments = list(scenario.segments)
+        y0_initial: float | None = scenario.y0_phi_initial
+    else:
+        config = MPCConfig(L_d=s["L_d"], **overrides)
+        plant_kind = s["plant"]
+        rate_limit = s["rate_limit"] if s["rate_limit"] > 0 else None
+        steps = s["steps"]
+        setpoints, sp_edges = _equal_segments(s["setpoints"], steps)
+        disturbances, d_edges = _equal_segments(s.get("q2", s.get("disturbances", [])), steps)
+        edges = sorted(set(sp_edges) | set(d_edges))
+        segments = list(itertools.pairwise(edges))
+        y0_initial = s.get("y0_initial")
+    if steps_limit is not None:
+        setpoints, disturbances = setpoints[:steps_limit], disturbances[:steps_limit]
+        segments = [(a, min(b, steps_limit)) for a, b in segments if a < steps_limit]
+    if plant_kind == "ph":
+        nominal = PHParameters()
+        params = replace(
+            nominal, **{name: getattr(nominal, name) * k for name, k in s["mismatch"].items()}
+        )
+        inner: Any = PHNeutralizationPlant(q1=params.q1, params=params)
+        inner.reset()
+    elif y0_initial is not None:
+        inner = LSTMPlant(model, y0_phi=y0_initial)
+    else:
+        inner = LSTMPlant(model)
+    controller = OffsetFreeController(model, config, setpoint_rate_limit=rate_limit)
+    facts = {
+        "plant": plant_kind,
+        "steps": int(setpoints.shape[0]),
+        "L_d": config.L_d,
+        "rate_limit": 0.0 if rate_limit is None else float(rate_limit),
+    }
+    return _Loop(
+        plant=MeasuredPlant(inner, s["noise_std"], s["seed"]),
+        controller=controller,
+        setpoints=setpoints,
+        disturbances=disturbances,
+        segments=segments,
+        facts=facts,
+    )
+
+
+def _base_row(task: Task) -> dict[str, Any]:
+    row: dict[str, Any] = {"key": task.key}
+    for name, value in task.settings.items():
+        row[name] = setting_column(name, value)
+    return row
+
+
+def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatArray]:
+    done = int(sim.y_phi.shape[0])
+    y_true = np.array(loop.plant.true_outputs[:done]).reshape(done, -1)
+    y0 = np.asarray(sim.y0_phi, dtype=np.float64).reshape(done, -1)
+    error = np.abs(y_true - y0).max(axis=1) if done else np.zeros(0)
+    offsets = [float(error[end - 1]) for _, end in loop.segments if 0 < end <= done]
+    constraint = model.y_phi_constraint
+    if constraint is None:
+        violation = np.full(done, np.nan)
+    else:
+        low, high = constraint
+        violation = np.maximum(np.maximum(low - y_true, y_true - high).max(axis=1), 0.0)
+    statuses = Counter(str(v) for v in sim.status)
+    counts = sim.summary_counts()
+    times = np.asarray(sim.time_total, dtype=np.float64)
+    row: dict[str, Any] = {
+        "steps_done": done,
+        "final_offset": max(offsets) if offsets else None,
+        "segment_offsets": json.dumps(offsets),
+        "violations": int(np.sum(violation > 1e-9)) if constraint is not None else None,
+        "max_violation": float(np.max(violation, initial=0.0)) if constraint is not None else None,
+        "violation_sum": float(np.sum(violation)) if constraint is not None else None,
+        "closed_loop_cost": float(np.mean(np.sum((y_true - y0) ** 2, axis=1))) if done else None,
+        "infeasible_steps": int(np.sum(~sim.feasible)),
+        "fallback_steps": int(np.sum(sim.policy != "nominal")),
+        **{f"fallback_{p}_steps": int(np.sum(sim.policy == p)) for p in _POLICIES},
+        "d_hat_saturated_steps": counts.get("d_hat_saturated_steps", 0),
+        **{
+            f"setpoint_{name}_steps": counts.get(f"setpoint_{name}_steps", 0)
+            for name in _SETPOINT_STATUSES
+        },
+        "optimal_steps": sum(n for k, n in statuses.items() if k.startswith("optimal")),
+        "failed_steps": statuses.get("failed", 0),
+        "solver_error_steps": statuses.get("solver_error", 0),
+        "status_counts": json.dumps(dict(sorted(statuses.items()))),
+        "median_step_s": float(np.median(times)) if done else None,
+        "p95_step_s": float(np.quantile(times, 0.95)) if done else None,
+        "max_step_s": float(np.max(times)) if done else None,
+        "median_mpc_s": float(np.median(sim.time_mpc)) if done else None,
+        "transcription_used": sim.transcription,
+    }
+    return row, violation
+
+
+def _trace(loop: _Loop, sim: Any, model: Any, violation: FloatArray) -> dict[str, list[Any]]:
+    done = int(sim.y_phi.shape[0])
+    y_true = np.array(loop.plant.true_outputs[:done]).reshape(done, -1)
+    y0_used = model.denormalize_y(np.asarray(sim.y0).reshape(done, -1)) if done else sim.y0
+    columns: dict[str, Any] = {
+        "k": np.arange(done),
+        "y_phi": y_true[:, 0],
+        "y_measured_phi": sim.y_phi[:, 0],
+        "y0_phi": sim.y0_phi[:, 0],
+        "y0_used_phi": np.asarray(y0_used).reshape(done, -1)[:, 0],
+        "u_phi": sim.u_phi[:, 0],
+        "d_phi": sim.d_phi[:, 0],
+        "d_hat": sim.d_hat[:, 0],
+        "violation": violation,
+        "feasible": sim.feasible,
+        "policy": sim.policy,
+        "status": sim.status,
+        "setpoint_status": sim.setpoint_status,
+        "d_hat_saturated": sim.d_hat_saturated.any(axis=1),
+        "time_total_s": sim.time_total,
+        "time_mpc_s": sim.time_mpc,
+    }
+    return {name: np.asarray(values).tolist() for name, values in columns.items()}
+
+
+def run_task(task: Task, *, steps_limit: int | None = None) -> TaskOutcome:
+    """Run one closed loop and return its row (and trace when ``task.trace``).
+
+    Parameters
+    ----------
+    task : Task
+    steps_limit : int, optional
+        Run at most this many samples (the dry-run's calibration).
+
+    Raises
+    ------
+    Exception
+        Whatever the closed loop raises (:func:`execute` records it).
+    """
+    from ltv_lstm_mpc.loop.simulation import simulate
+    from ltv_lstm_mpc.lstm.shipped import load_model
+
+    start = time.perf_counter()
+    model = load_model(task.model_location)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        loop = _build_loop(task, model, steps_limit)
+        setup = time.perf_counter() - start
+        sim = simulate(
+            loop.plant,
+            loop.controller,
+            loop.setpoints,
+            loop.disturbances,
+            int(loop.setpoints.shape[0]),
+            progress=False,
+            max_seconds=task.settings.get("max_seconds"),
+        )
+    metrics, violation = _metrics(loop, sim, model)
+    messages = list(dict.fromkeys(str(w.message) for w in caught))
+    row = _base_row(task)
+    row.update(loop.facts)  # plant, steps, L_d, rate_limit actually used
+    row.update(
+        {
+            "status": "ok",
+            "error": "",
+            "attempts": 1,
+            **metrics,
+            "warnings": len(caught),
+            "warning_messages": " | ".join(m[:200] for m in messages[:3]),
+            "setup_s": setup,
+            "wall_s": time.perf_counter() - start,
+            "library_version": __version__,
+        }
+    )
+    trace = _trace(loop, sim, model, violation) if task.trace else None
+    return TaskOutcome(row=row, trace=trace)
+
+
+def error_outcome(task: Task, error: str, *, attempts: int, wall_s: float) -> TaskOutcome:
+    """The row of a task that failed: its settings, ``status = "error"`` and the error."""
+    row = _base_row(task)
+    row.update(
+        {
+            "status": "error",
+            "error": error,
+            "attempts": attempts,
+            "wall_s": wall_s,
+            "library_version": __version__,
+        }
+    )
+    return TaskOutcome(row=row)
+
+
+def _describe(error: BaseException) -> str:
+    frames = traceback.extract_tb(error.__traceback__)
+    where = f" (at {os.path.basename(frames[-1].filename)}:{frames[-1].lineno})" if frames else ""
+    return f"{type(error).__name__}: {error}{where}"
+
+
+def execute(task: Task, function: TaskFunction = run_task, attempts: int = 2) -> TaskOutcome:
+    """Run ``function(task)``, retrying once; a task that still raises becomes an error row.
+
+    Parameters
+    ----------
+    task : Task
+    function : callable
+        The task function (default :func:`run_task`).
+    attempts : int
+        Tries before the error is recorded (2: retried once).
+
+    Returns
+    -------
+    TaskOutcome
+        The function's outcome, or the error row; ``attempts``, ``started_at`` and
+        ``finished_at`` (Unix times, s) and ``worker`` (``host:pid``) set.
+    """
+    start, started_at = time.perf_counter(), time.time()
+    message = ""
+    outcome = None
+    for attempt in range(1, attempts + 1):
+        try:
+            outcome = function(task)
+        except Exception as error:
+            message = _describe(error)
+            continue
+        outcome.row["attempts"] = attempt
+        break
+    if outcome is None:
+        outcome = error_outcome(
+            task, message, attempts=attempts, wall_s=time.perf_counter() - start
+        )
+    outcome.row.update(
+        started_at=started_at,
+        finished_at=time.time(),
+        worker=f"{socket.gethostname()}:{os.getpid()}",
+    )
+    return outcome
