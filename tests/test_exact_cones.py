@@ -227,3 +227,23 @@ def test_closed_loop_same_inputs_native_condensed_and_cvxpy_sparse(model) -> Non
         assert all(r.mpc.feasible for r in controller.records)
         assert {r.mpc.reformulation for r in controller.records} == {None}
     np.testing.assert_allclose(runs["clarabel"], runs["cvxpy:CLARABEL"], atol=1e-5)
+
+
+@pytest.mark.parametrize("policy", ["paper", "soft"])
+def test_policies_on_the_states_of_scenario_3_with_exact_cones(model, policy) -> None:
+    """Scenario 3 (short) on the exact-cone condensed path: every infeasible instant is
+    handled by the policy itself (the soft SOCP is feasible by construction: no +shift), as
+    many infeasible instants as cvxpy's sparse cones give under the paper policy (50), and no
+    output violation."""
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios, run_scenario
+
+    scenario = next(s for s in paper_scenarios(model, short=True) if s.name.startswith("3"))
+    config = dataclasses.replace(scenario.config, solver="clarabel", infeasibility_policy=policy)
+    result = run_scenario(dataclasses.replace(scenario, config=config), model)
+    infeasible = [r.mpc for r in result.controller.records if not r.mpc.feasible]
+    assert len(infeasible) >= 50
+    if policy == "paper":
+        assert len(infeasible) == 50
+    assert {s.policy for s in infeasible} == {policy}
+    assert {s.reformulation for s in infeasible} == {None}
+    assert result.summary()["max_output_violation"] == 0.0
