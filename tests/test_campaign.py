@@ -87,13 +87,46 @@ def test_spec_tasks_are_the_product_in_order_with_stable_keys() -> None:
     assert [t.key for t in parse_spec(tiny(noise_std=[0.0, 0.02, 0.05], seed=[0, 1])).tasks] == [
         t.key for t in spec.tasks
     ]
-    settings = spec.tasks[0].settings
-    assert task_key(settings) == spec.tasks[0].key
-    assert task_key(settings, version="999.0") != spec.tasks[0].key
+    first = spec.tasks[0]
+    settings = first.settings
+    assert task_key(settings, model_sha256=first.model_sha256) == first.key
+    assert task_key(settings, version="999.0", model_sha256=first.model_sha256) != first.key
+    assert task_key(settings) != first.key  # the model file's digest is part of the key
     assert [t.trace for t in spec.tasks] == [True, False] * 3
     assert spec.varying == ["noise_std", "seed"]
     # defaults filled in
     assert settings["N"] == 5 and settings["L_d"] == 0.1 and settings["mismatch"] == {}
+
+
+def test_a_retrained_model_makes_new_tasks_and_travels_with_them(tmp_path) -> None:
+    """The key holds the model file's SHA-256 (a model retrained in place is not served
+    from the old results) and a model file travels inside its tasks (remote workers)."""
+    from ltv_lstm_mpc import load_model
+    from ltv_lstm_mpc.campaign.task import load_task_model
+
+    shipped = load_model("ph_lstm_n5.npz")
+    path = tmp_path / "m.npz"
+    shipped.save(path)
+    first = parse_spec(tiny(model=[str(path)])).tasks[0]
+    assert first.model_bytes == path.read_bytes()
+    np.testing.assert_array_equal(load_task_model(first).W_y, shipped.W_y)
+    other = load_model("ph_lstm_n5.npz")
+    other.W_y = other.W_y * 1.01
+    other.save(path)
+    second = parse_spec(tiny(model=[str(path)])).tasks[0]
+    assert second.settings == first.settings and second.key != first.key
+    assert parse_spec(tiny()).tasks[0].model_bytes is None  # shipped: workers have it
+
+
+def test_spec_checks_combinations_before_running() -> None:
+    with pytest.raises(CampaignSpecError, match=r"q2.*>= 0"):
+        parse_spec(tiny(q2=[[0.55, -0.5]]))
+    with pytest.raises(CampaignSpecError, match=r"transcription.*nonlinear"):
+        parse_spec(tiny(transcription=["nonlinear"]))
+    with pytest.raises(CampaignSpecError, match=r"model.*p = 2 outputs"):
+        parse_spec(tiny(model=["quadtank_lstm_n8.npz"]))
+    nominal = parse_spec(tiny(mismatch=[{}, {"A1": 1.0}]))
+    assert len(nominal.tasks) == 1  # a scale factor of 1 is the nominal plant
 
 
 def test_cases_multiply_the_factors_and_installed_expands() -> None:
@@ -510,3 +543,39 @@ def test_example_specs_parse() -> None:
 
     assert len(comparison.tasks) == len(available_solvers()) * 3 * 5
     assert {t.settings["N"] for t in comparison.tasks} == {5, 20, 50}
+
+
+def test_tasks_the_cluster_lost_run_again_errors_only_when_asked(tmp_path) -> None:
+    """A row with status "lost" (the cluster lost the task: KilledWorker, cancelled) is not a
+    result: the next call runs it again; an "error" row (the task raised) is kept unless
+    retry_errors."""
+    from ltv_lstm_mpc.campaign.task import error_outcome
+
+    spec = parse_spec(tiny())
+    out = tmp_path / "out"
+    store = ResultStore(out)
+    store.prepare(spec.name, [t.key for t in spec.tasks])
+    lost, failed = spec.tasks[0], spec.tasks[1]
+    store.write(error_outcome(lost, "KilledWorker: ...", attempts=0, wall_s=0.0, status="lost"))
+    store.write(error_outcome(failed, "ValueError: ...", attempts=2, wall_s=0.0))
+    calls = tmp_path / "calls"
+    run = run_campaign(
+        spec, out, serial=True, progress=False, report=False, task_function=CountingTask(calls)
+    )
+    assert set(executions(calls)) == {t.key for t in spec.tasks} - {failed.key}
+    assert (run.executed, run.skipped, run.errors) == (len(spec.tasks) - 1, 1, 1)
+    run = run_campaign(spec, out, serial=True, progress=False, report=False, retry_errors=True)
+    assert (run.executed, run.errors) == (1, 0)
+
+
+def test_fallback_columns_by_policy_add_up(tmp_path) -> None:
+    """fallback_steps = sum of the per-policy columns, "<policy>+shift" included."""
+    from ltv_lstm_mpc.campaign.task import METRIC_COLUMNS, run_task
+
+    spec = parse_spec(tiny(setpoints=[[7.4, 8.75]], policy=["soft"], rate_limit=[0.0]))
+    row = run_task(spec.tasks[0]).row
+    columns = [c for c in METRIC_COLUMNS if c.startswith("fallback_") and c != "fallback_steps"]
+    assert "fallback_soft+shift_steps" in columns and "fallback_paper+shift_steps" in columns
+    assert row["fallback_steps"] > 0
+    assert sum(row[c] for c in columns) == row["fallback_steps"]
+    assert row["truncated"] is False

@@ -97,6 +97,9 @@ def test_cli_generate_data_quadtank(tmp_path: Path) -> None:
     assert code == 0
     ds = IdentificationDataset.load(out)
     assert ds.u_phi["train"].shape == (1, 40, 2) and ds.metadata["plant"] == "QuadrupleTankPlant"
+    # train --data takes the plant of the file; a contradicting --plant is a usage error
+    code = main(["train", "--data", str(out), "--plant", "ph", "--out", str(tmp_path / "m")])
+    assert code == 2
 
 
 @pytest.mark.torch

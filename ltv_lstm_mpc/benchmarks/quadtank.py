@@ -6,10 +6,10 @@ voltages in V, levels in cm, Ts = 10 s) with the shipped (2, 2) delta-ISS LSTM
 :data:`QUADTANK_MODEL`. Two scenarios, each on the condensed QP path (``"daqp"``, conservative
 terminal box) and on an exact-cone path (``"clarabel"``, condensed with second-order cones):
 
-1. ``1_setpoints`` — set-point changes on both levels: both up (the high-gain direction),
-   then the levels driven apart (one up, one down: the low-gain direction, which needs large
-   opposite pump moves and excites the coupling through the upper tanks), then a change of
-   one level only, then back.
+1. ``1_setpoints`` — set-point changes on both levels (h1, h2 in cm): both up to (14, 14)
+   (the high-gain direction); then h2 alone down to (14, 11), which drives the levels apart
+   (the low-gain direction: large opposite pump moves, the coupling through the upper tanks
+   excited); then one up and one down to (10, 12); then both to (12.3, 12.8).
 2. ``2_leak`` — constant set-point and an unmeasured disturbance: a leak opens in tank 1,
    then one in tank 2 as well, then both close (the leak areas are the plant's ``d_phi``).
 

@@ -213,6 +213,16 @@ def write_report(
                 ("step time, backend x N", _heatmap(rows, root / "plots" / "step_time_heatmap.png"))
             )
     levels = ", ".join(f"`{n}` ({len(factor_levels(rows, n))})" for n in factors)
+    truncated = [r for r in ok if r.get("truncated") is True]
+    truncated_note = (
+        [
+            f"**{len(truncated)} task(s) stopped early** (`max_seconds`; column `truncated`): "
+            "their offsets cover only the segments they reached.",
+            "",
+        ]
+        if truncated
+        else []
+    )
     wall = sum(v for v in (_number(r.get("wall_s")) for r in rows) if math.isfinite(v))
     lines = [
         f"# Campaign `{title}`",
@@ -220,6 +230,7 @@ def write_report(
         f"{len(rows)} tasks: {len(ok)} ok, {len(errors)} errors; task time {wall:.1f} s in total.",
         f"Factors (levels): {levels or 'none'}.",
         "",
+        *truncated_note,
         "Metrics in physical units on the true plant output; step times of the controller.",
         "",
         "## Overall",

@@ -65,7 +65,8 @@ class CampaignRun:
     executed, skipped : int
         Tasks run by this call; tasks found finished in the output folder.
     errors : int
-        Rows with ``status == "error"``.
+        Rows with ``status`` ``"error"`` (the task raised) or ``"lost"`` (the cluster lost
+        it; run again by the next call).
     wall_s : float
         Wall time of this call, s.
     files : list of Path
@@ -85,6 +86,8 @@ def pending_tasks(
 ) -> tuple[list[Task], dict[str, dict[str, Any]]]:
     """Tasks still to run and the rows already stored (``retry_errors``: rerun error rows)."""
     finished = store.finished(task.key for task in spec.tasks)
+    # "lost" (the cluster lost the task, not the task's own error) always runs again
+    finished = {k: row for k, row in finished.items() if row.get("status") != "lost"}
     if retry_errors:
         finished = {k: row for k, row in finished.items() if row.get("status") != "error"}
     return [task for task in spec.tasks if task.key not in finished], finished
@@ -157,7 +160,7 @@ def _run_dask(client: Any, tasks: Sequence[Task], function: TaskFunction) -> Ite
             outcome = future.result()
         except Exception as error:  # KilledWorker (died too often), cancelled, ...
             outcome = error_outcome(
-                task, f"{type(error).__name__}: {error}", attempts=0, wall_s=math.nan
+                task, f"{type(error).__name__}: {error}", attempts=0, wall_s=math.nan, status="lost"
             )
         future.release()
         yield outcome
@@ -233,7 +236,7 @@ def run_campaign(
             store.write(outcome)
             executed += 1
             bar.update(1)
-            if outcome.row.get("status") == "error":
+            if outcome.row.get("status") in ("error", "lost"):
                 bar.set_postfix_str(f"last error: {outcome.row['key']}", refresh=False)
     stored = store.finished(task.key for task in spec.tasks)
     rows = [stored[task.key] for task in spec.tasks if task.key in stored]
@@ -244,7 +247,7 @@ def run_campaign(
         from ltv_lstm_mpc.campaign.report import write_report
 
         files.extend(write_report(rows, spec.varying, store.root, title=spec.name))
-    errors = sum(1 for row in rows if row.get("status") == "error")
+    errors = sum(1 for row in rows if row.get("status") in ("error", "lost"))
     return CampaignRun(
         rows=rows,
         executed=executed,
@@ -282,10 +285,10 @@ class Estimate:
 def _scenario_steps(task: Task) -> int:
     if "scenario" not in task.settings:
         return int(task.settings["steps"])
-    from ltv_lstm_mpc.lstm.shipped import load_model
+    from ltv_lstm_mpc.campaign.task import load_task_model
     from ltv_lstm_mpc.paper.scenarios import paper_scenarios
 
-    model = load_model(task.model_location)
+    model = load_task_model(task)
     short = bool(task.settings["short"])
     return next(
         sc.steps

@@ -39,6 +39,7 @@ in a factor list means every installed backend), ``transcription``, ``policy``,
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import itertools
 import math
@@ -202,7 +203,8 @@ def _mismatch(value: Any) -> dict[str, float]:
                 f"{name} is 0 in the nominal plant, so scaling it changes nothing; "
                 "scale a nonzero parameter"
             )
-        scales[name] = scale
+        if scale != 1.0:  # a factor of 1 is the nominal value: same task as without it
+            scales[name] = scale
     return scales
 
 
@@ -483,15 +485,66 @@ def _resolve_task(
             settings["q2" if plant == "ph" else "disturbances"] = [0.55 if plant == "ph" else 0.0]
     if settings.get("mismatch") and plant != "ph":
         raise fail("mismatch", "parameter mismatch applies to the pH plant only")
+    if plant == "ph":
+        for name in ("q2", "disturbances"):
+            negative = [v for v in settings.get(name, []) if v < 0]
+            if negative:
+                raise fail(name, f"the pH plant's buffer flow q2 is >= 0 mL/s, got {negative}")
     from_scenario = ("plant", "rate_limit", "L_d") if scenario is not None else ()
     for name, value in DEFAULTS.items():
         if name not in from_scenario:
             settings.setdefault(name, value)
     if scenario is not None:
         settings.setdefault("short", False)
+    _check_transcription(settings, fail)
     model = _resolve_model(settings["model"], base_dir, where.get("model", "[campaign].model"))
     ordered = {name: settings[name] for name in SETTINGS if name in settings}
     return ordered, model
+
+
+def _check_transcription(settings: dict[str, Any], fail: Any) -> None:
+    """The solver / transcription / SQP combination, checked now instead of in every task."""
+    from ltv_lstm_mpc.exceptions import LtvMpcError
+    from ltv_lstm_mpc.mpc.config import MPCConfig
+    from ltv_lstm_mpc.mpc.rti import resolve_transcription
+
+    try:
+        resolve_transcription(
+            MPCConfig(
+                solver=settings["solver"],
+                transcription=settings["transcription"],
+                sqp_iterations=settings["sqp_iterations"],
+            )
+        )
+    except LtvMpcError as error:
+        raise fail("transcription", str(error)) from None
+
+
+@dataclass(frozen=True)
+class _ModelFile:
+    """What the tasks carry of one model: its digest and, for a file, its bytes."""
+
+    sha256: str
+    data: bytes | None
+
+
+def _model_file(location: str, field_name: str, cache: dict[str, _ModelFile]) -> _ModelFile:
+    """Read (once per campaign) the model at ``location``; refuse multi-output models."""
+    if location in cache:
+        return cache[location]
+    from ltv_lstm_mpc.lstm.shipped import load_model, shipped_models, shipped_path
+
+    shipped = location in shipped_models() and not Path(location).is_absolute()
+    data = (shipped_path(location) if shipped else Path(location)).read_bytes()
+    model = load_model(location)
+    if model.p != 1:
+        raise CampaignSpecError(
+            field_name,
+            f"{location!r} has p = {model.p} outputs; campaigns run single-output models "
+            "(the pH loop and its LSTM plant)",
+        )
+    cache[location] = _ModelFile(hashlib.sha256(data).hexdigest(), None if shipped else data)
+    return cache[location]
 
 
 def parse_spec(
@@ -560,6 +613,7 @@ def parse_spec(
 
     tasks: list[Task] = []
     seen: set[str] = set()
+    models: dict[str, _ModelFile] = {}
     names = list(factors)
     for index, case in enumerate(cases):
         for combination in itertools.product(*(factors[n] for n in names)):
@@ -568,7 +622,8 @@ def parse_spec(
             origin.update({name: f"[[cases]][{index}].{name}" for name in case})
             origin.update({name: f"[factors].{name}" for name in names})
             settings, model = _resolve_task(given, origin, base_dir)
-            key = task_key(settings)
+            model_file = _model_file(model, origin.get("model", "[campaign].model"), models)
+            key = task_key(settings, model_sha256=model_file.sha256)
             if key in seen:
                 continue
             seen.add(key)
@@ -578,6 +633,8 @@ def parse_spec(
                     settings=settings,
                     model_location=model,
                     trace=trace.selects(settings),
+                    model_sha256=model_file.sha256,
+                    model_bytes=model_file.data,
                 )
             )
     spec = CampaignSpec(

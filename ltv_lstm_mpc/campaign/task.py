@@ -30,6 +30,7 @@ Metrics (physical units; the true plant output, not the noisy measurement):
 from __future__ import annotations
 
 import hashlib
+import io
 import itertools
 import json
 import os
@@ -57,6 +58,7 @@ __all__ = [
     "TaskFunction",
     "TaskOutcome",
     "execute",
+    "load_task_model",
     "run_task",
     "setting_column",
     "task_key",
@@ -82,6 +84,8 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "infeasible_steps",
     "fallback_steps",
     *(f"fallback_{policy}_steps" for policy in _POLICIES),
+    *(f"fallback_{policy}+shift_steps" for policy in _POLICIES if policy != "shift"),
+    "truncated",
     "d_hat_saturated_steps",
     *(f"setpoint_{name}_steps" for name in _SETPOINT_STATUSES),
     "optimal_steps",
@@ -101,6 +105,7 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "finished_at",
     "worker",
     "library_version",
+    "model_sha256",
 )
 
 
@@ -117,15 +122,35 @@ class Task:
         Every setting of the task (canonical values, see
         :data:`ltv_lstm_mpc.campaign.spec.SETTINGS`).
     model_location : str
-        Absolute model path, or the name of a shipped model.
+        Absolute model path on the submitting machine, or the name of a shipped model.
     trace : bool
         Also return the per-step trace.
+    model_sha256 : str
+        SHA-256 of the model file (part of the key: a retrained model is a new task).
+    model_bytes : bytes, optional
+        The model file itself (for a path; None for a shipped model): workers of a remote
+        cluster need no access to the submitting machine's files.
     """
 
     key: str
     settings: dict[str, Any]
     model_location: str
     trace: bool = False
+    model_sha256: str = ""
+    model_bytes: bytes | None = None
+
+
+def load_task_model(task: Task) -> Any:
+    """The task's :class:`~ltv_lstm_mpc.lstm.model.LSTMModel` (from its bytes when it has them)."""
+    if task.model_bytes is None:
+        from ltv_lstm_mpc.lstm.shipped import load_model
+
+        return load_model(task.model_location)
+    from ltv_lstm_mpc.lstm.model import LSTMModel
+
+    with np.load(io.BytesIO(task.model_bytes), allow_pickle=False) as data:
+        arrays = {name: data[name] for name in data.files}
+    return LSTMModel.from_arrays(arrays)
 
 
 @dataclass(frozen=True)
@@ -140,10 +165,14 @@ class TaskOutcome:
 TaskFunction = Callable[[Task], TaskOutcome]
 
 
-def task_key(settings: Mapping[str, Any], version: str = __version__) -> str:
-    """Hash (20 hex digits) of the canonical settings and the library version."""
+def task_key(
+    settings: Mapping[str, Any], version: str = __version__, model_sha256: str = ""
+) -> str:
+    """Hash (20 hex digits) of the canonical settings, the library version and the model
+    file's SHA-256 (so that a model retrained in place, or another file of the same name,
+    makes new tasks)."""
     text = json.dumps(
-        {"settings": dict(settings), "library_version": version},
+        {"settings": dict(settings), "library_version": version, "model_sha256": model_sha256},
         sort_keys=True,
         separators=(",", ":"),
     )
@@ -305,6 +334,7 @@ def _base_row(task: Task) -> dict[str, Any]:
     row: dict[str, Any] = {"key": task.key}
     for name, value in task.settings.items():
         row[name] = setting_column(name, value)
+    row["model_sha256"] = task.model_sha256
     return row
 
 
@@ -334,6 +364,13 @@ def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatAr
         "infeasible_steps": int(np.sum(~sim.feasible)),
         "fallback_steps": int(np.sum(sim.policy != "nominal")),
         **{f"fallback_{p}_steps": int(np.sum(sim.policy == p)) for p in _POLICIES},
+        # the policy itself failed and the shifted plan was applied (RobustMPC)
+        **{
+            f"fallback_{p}+shift_steps": int(np.sum(sim.policy == f"{p}+shift"))
+            for p in _POLICIES
+            if p != "shift"
+        },
+        "truncated": done < int(loop.setpoints.shape[0]),  # stopped by max_seconds
         "d_hat_saturated_steps": counts.get("d_hat_saturated_steps", 0),
         **{
             f"setpoint_{name}_steps": counts.get(f"setpoint_{name}_steps", 0)
@@ -392,10 +429,9 @@ def run_task(task: Task, *, steps_limit: int | None = None) -> TaskOutcome:
         Whatever the closed loop raises (:func:`execute` records it).
     """
     from ltv_lstm_mpc.loop.simulation import simulate
-    from ltv_lstm_mpc.lstm.shipped import load_model
 
     start = time.perf_counter()
-    model = load_model(task.model_location)
+    model = load_task_model(task)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         loop = _build_loop(task, model, steps_limit)
@@ -430,12 +466,15 @@ def run_task(task: Task, *, steps_limit: int | None = None) -> TaskOutcome:
     return TaskOutcome(row=row, trace=trace)
 
 
-def error_outcome(task: Task, error: str, *, attempts: int, wall_s: float) -> TaskOutcome:
-    """The row of a task that failed: its settings, ``status = "error"`` and the error."""
+def error_outcome(
+    task: Task, error: str, *, attempts: int, wall_s: float, status: str = "error"
+) -> TaskOutcome:
+    """The row of a task that failed: its settings, ``status`` (``"error"``: the task
+    raised; ``"lost"``: the cluster lost it, e.g. its workers kept dying) and the error."""
     row = _base_row(task)
     row.update(
         {
-            "status": "error",
+            "status": status,
             "error": error,
             "attempts": attempts,
             "wall_s": wall_s,

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from ltv_lstm_mpc import __version__
+from ltv_lstm_mpc.benchmarks.quadtank import QUADTANK_MODEL
 from ltv_lstm_mpc.certificates.certify import (
     PAPER_Y_PHI_BOUNDS,
     Certification,
@@ -49,8 +50,6 @@ __all__ = ["build_parser", "main"]
 
 EXAMPLE_MODEL = "example_delta_iss_n3.npz"
 PH_MODEL = "ph_lstm_n5.npz"
-#: The shipped quadruple-tank model (same name as ``benchmarks.quadtank.QUADTANK_MODEL``).
-QUADTANK_MODEL = "quadtank_lstm_n8.npz"
 
 
 def _resolve_model_path(name: str) -> Path:

@@ -33,10 +33,11 @@ def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
     parser.add_argument(
         "--plant",
         choices=sorted(_DATA_NAMES),
-        default="ph",
+        default=None,
         help=(
             "plant to identify: ph (pH neutralization, one input) or quadtank (quadruple tank, "
-            "pump voltages v1, v2 in V -> levels h1, h2 in cm, Ts = 10 s); default ph"
+            "pump voltages v1, v2 in V -> levels h1, h2 in cm, Ts = 10 s); default ph, or "
+            "the plant of the --data file"
         ),
     )
     parser.add_argument(
@@ -74,8 +75,18 @@ def _split_sizes(args: argparse.Namespace) -> tuple[int, int, int]:
     return (args.sequences - val - test, val, test)
 
 
+def _plant_name(args: argparse.Namespace) -> str:
+    """``--plant`` (default ``"ph"``)."""
+    return getattr(args, "plant", None) or "ph"
+
+
+def _data_plant(dataset: IdentificationDataset) -> str:
+    """The ``--plant`` name of a data file's plant."""
+    return "quadtank" if dataset.metadata.get("plant") == "QuadrupleTankPlant" else "ph"
+
+
 def _generate(args: argparse.Namespace) -> IdentificationDataset:
-    plant_name = getattr(args, "plant", "ph")
+    plant_name = _plant_name(args)
     label = "quadruple-tank process" if plant_name == "quadtank" else "pH plant"
     print(
         f"simulating {args.sequences} sequences x {args.steps} steps of the {label} "
@@ -119,8 +130,24 @@ def train_command(args: argparse.Namespace) -> int:
     except ImportError as error:  # pragma: no cover - torch missing
         print(f"error: {error}", file=sys.stderr)
         return 1
+    dataset: IdentificationDataset | None = None
+    plant_name = _plant_name(args)
+    if args.data is not None:
+        try:
+            dataset = IdentificationDataset.load(args.data)
+        except (LtvMpcError, OSError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 1
+        plant_name = _data_plant(dataset)
+        if args.plant is not None and args.plant != plant_name:
+            print(
+                f"error: --plant {args.plant} but {args.data} holds data of the {plant_name} "
+                f"plant ({dataset.metadata.get('plant')}); drop --plant or use matching data",
+                file=sys.stderr,
+            )
+            return 2
     neurons = args.neurons
-    if neurons is None and getattr(args, "plant", "ph") == "quadtank" and args.data is None:
+    if neurons is None and plant_name == "quadtank":
         neurons = QUADTANK_NEURONS
     overrides: dict[str, Any] = {
         "n": neurons,
@@ -144,13 +171,11 @@ def train_command(args: argparse.Namespace) -> int:
             TrainingConfig(),
             **{k: v for k, v in overrides.items() if v is not None},
         )
-        if args.data is not None:
-            dataset = IdentificationDataset.load(args.data)
-        else:
+        if dataset is None:
             dataset = _generate(args)
             out = Path(args.out)
             out.mkdir(parents=True, exist_ok=True)
-            data_name = _DATA_NAMES[getattr(args, "plant", "ph")]
+            data_name = _DATA_NAMES[plant_name]
             print(f"wrote {dataset.save(out / data_name)}", file=sys.stderr)
         result = train(
             dataset,

@@ -530,10 +530,12 @@ def plot_prediction(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if dataset.inputs > 1 or dataset.outputs > 1:
+    ph_data = dataset.metadata.get("plant", "PHNeutralizationPlant") == "PHNeutralizationPlant"
+    if dataset.inputs > 1 or dataset.outputs > 1 or not ph_data:
+        # any process but the pH one: generic channel labels, its own initial input
         return _plot_prediction_channels(model, dataset, Path(path), split)
     u, y = dataset.split(split)
-    pred = simulate_sequences(model, u, float(dataset.metadata.get("q3_initial", 15.6)))
+    pred = simulate_sequences(model, u, float(initial_input(dataset.metadata)[0]))
     Ts = float(dataset.metadata.get("Ts", 10.0))
     rows = u.shape[0]
     fig, axes = plt.subplots(2 * rows, 1, figsize=(10, 3.2 * rows + 1), sharex=True, squeeze=False)
