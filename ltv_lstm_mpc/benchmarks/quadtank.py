@@ -25,7 +25,6 @@ every run uses the same ones.
 from __future__ import annotations
 
 import csv
-import itertools
 import json
 import time
 from collections.abc import Sequence
@@ -38,6 +37,8 @@ from numpy.typing import NDArray
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.schedules import piecewise_constant
+from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
 from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
@@ -186,20 +187,6 @@ class QuadTankResult:
         }
 
 
-def _segments(lengths: Sequence[int]) -> list[tuple[int, int]]:
-    edges = np.concatenate([[0], np.cumsum(lengths)])
-    return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
-
-
-def _piecewise(levels: Sequence[Sequence[float]], lengths: Sequence[int]) -> FloatArray:
-    return np.concatenate(
-        [
-            np.tile(np.asarray(v, dtype=np.float64), (n, 1))
-            for v, n in zip(levels, lengths, strict=True)
-        ]
-    )
-
-
 def quadtank_scenarios(*, short: bool = False) -> list[QuadTankScenario]:
     """The two scenarios of the benchmark (see the module docstring).
 
@@ -217,21 +204,21 @@ def quadtank_scenarios(*, short: bool = False) -> list[QuadTankScenario]:
         QuadTankScenario(
             name="1_setpoints",
             title="Quadruple tank: set-point changes on both levels",
-            setpoints=_piecewise(setpoint_levels, lengths),
+            setpoints=piecewise_constant(setpoint_levels, lengths),
             leaks=np.zeros((sum(lengths), 2)),
             config=QUADTANK_CONFIG,
             setpoint_rate_limit=SETPOINT_RATE_LIMIT,
-            segments=_segments(lengths),
+            segments=schedule_segments(lengths),
             notes="both levels up; levels apart (coupling); one level; back (cm)",
         ),
         QuadTankScenario(
             name="2_leak",
             title="Quadruple tank: leaks in tanks 1 and 2 (unmeasured disturbance)",
-            setpoints=_piecewise([leak_setpoint] * len(leak_levels), lengths),
-            leaks=_piecewise(leak_levels, lengths),
+            setpoints=piecewise_constant([leak_setpoint] * len(leak_levels), lengths),
+            leaks=piecewise_constant(leak_levels, lengths),
             config=QUADTANK_CONFIG,
             setpoint_rate_limit=SETPOINT_RATE_LIMIT,
-            segments=_segments(lengths),
+            segments=schedule_segments(lengths),
             notes="leak areas 0.002 cm^2 (about 3 % of the outlets) in tank 1, then tank 2",
         ),
     ]

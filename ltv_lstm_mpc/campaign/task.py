@@ -40,7 +40,7 @@ import traceback
 import typing
 import warnings
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc import __version__
 from ltv_lstm_mpc.exceptions import LtvMpcError
+from ltv_lstm_mpc.loop.schedules import equal_segments
 from ltv_lstm_mpc.mpc.config import InfeasibilityPolicy
 
 __all__ = [
@@ -237,14 +238,6 @@ class MeasuredPlant:
         return self._measure(self.plant.step(u_phi, d_phi))
 
 
-def _equal_segments(values: Sequence[float], steps: int) -> tuple[FloatArray, list[int]]:
-    """Per-sample series holding each value for an equal share of ``steps``; the edges."""
-    count = len(values)
-    edges = [round(i * steps / count) for i in range(count + 1)]
-    lengths = np.diff(edges)
-    return np.repeat(np.asarray(values, dtype=np.float64), lengths), edges
-
-
 @dataclass(frozen=True)
 class _Loop:
     """Everything one closed loop needs, built from a task's settings."""
@@ -294,8 +287,8 @@ def _build_loop(task: Task, model: Any, steps_limit: int | None) -> _Loop:
         plant_kind = s["plant"]
         rate_limit = s["rate_limit"] if s["rate_limit"] > 0 else None
         steps = s["steps"]
-        setpoints, sp_edges = _equal_segments(s["setpoints"], steps)
-        disturbances, d_edges = _equal_segments(s.get("q2", s.get("disturbances", [])), steps)
+        setpoints, sp_edges = equal_segments(s["setpoints"], steps)
+        disturbances, d_edges = equal_segments(s.get("q2", s.get("disturbances", [])), steps)
         edges = sorted(set(sp_edges) | set(d_edges))
         segments = list(itertools.pairwise(edges))
         y0_initial = s.get("y0_initial")

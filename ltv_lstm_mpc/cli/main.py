@@ -18,7 +18,6 @@ campaign
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import sys
 from collections.abc import Sequence
@@ -43,6 +42,7 @@ from ltv_lstm_mpc.cli.arguments import (
     real,
 )
 from ltv_lstm_mpc.exceptions import LtvMpcError
+from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.lstm.shipped import shipped_path
 
@@ -541,7 +541,6 @@ def _run_simulate(args: argparse.Namespace) -> int:
             "disturbances"
         )
     lengths = [args.segment] * segments
-    edges = np.concatenate([[0], np.cumsum(lengths)])
     scenario = Scenario(
         name="simulate",
         title=f"{args.plant} plant, {args.solver}, N = {args.N}, L_d = {args.L_d}",
@@ -550,7 +549,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
         disturbances=np.repeat(np.asarray(disturbances, dtype=float), args.segment),
         config=config,
         setpoint_rate_limit=rate_limit,
-        segments=[(int(a), int(b)) for a, b in itertools.pairwise(edges)],
+        segments=schedule_segments(lengths),
     )
     result = run_scenario(scenario, model, progress=not args.no_progress)
     summary = write_scenario_outputs(result, args.out) if args.out is not None else result.summary()

@@ -20,7 +20,6 @@ Physical units: pH for outputs and the LSTM plant's output disturbance, mL/s for
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
@@ -30,6 +29,8 @@ from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.certify import certify
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.schedules import piecewise_constant
+from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
 from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
@@ -51,17 +52,11 @@ FloatArray = NDArray[np.float64]
 Y_PHI_MIN, Y_PHI_MAX = 6.0, 9.0
 
 
-def _piecewise(levels: Sequence[float], lengths: Sequence[int]) -> FloatArray:
-    return np.concatenate(
-        [np.full(n, v, dtype=np.float64) for v, n in zip(levels, lengths, strict=True)]
-    )
-
-
 def _ramped(
     levels: Sequence[float], lengths: Sequence[int], slope: float, start: float
 ) -> FloatArray:
     """Piecewise-constant targets reached by ramps of at most ``slope`` per step."""
-    target = _piecewise(levels, lengths)
+    target = piecewise_constant(levels, lengths)
     out = np.empty_like(target)
     value = start
     for k, goal in enumerate(target):
@@ -219,11 +214,11 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
             name="1_lstm_theorem3",
             title="LSTM plant, slow changes satisfying Theorem 3",
             plant="lstm",
-            setpoints=_piecewise(levels1, L),
+            setpoints=piecewise_constant(levels1, L),
             disturbances=d_ramp,
             config=base,
             setpoint_rate_limit=rate,
-            segments=_segments(L),
+            segments=schedule_segments(L),
             notes=(
                 f"rate limit {rate:.4g} (normalized/step, SPEC 2.10c, valid over "
                 f"[{range1[0]}, {range1[1]}] pH); |w| <= 0.8 w_max"
@@ -237,11 +232,11 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
             name="2_lstm_larger",
             title="LSTM plant, larger set-point and disturbance changes",
             plant="lstm",
-            setpoints=_piecewise([7.8, 6.7, 8.2, 7.0], L2),
-            disturbances=_piecewise([0.0, 0.08, -0.06, 0.04], L2),
+            setpoints=piecewise_constant([7.8, 6.7, 8.2, 7.0], L2),
+            disturbances=piecewise_constant([0.0, 0.08, -0.06, 0.04], L2),
             config=base,
             setpoint_rate_limit=10 * rate,
-            segments=_segments(L2),
+            segments=schedule_segments(L2),
             notes="10x Theorem 3's rate, output-disturbance steps of 0.06-0.14 pH",
         )
     )
@@ -251,17 +246,17 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
             name="3_lstm_steps",
             title="LSTM plant, large set-point steps (infeasible instants shaded)",
             plant="lstm",
-            setpoints=_piecewise([8.3, 6.6, 8.4, 7.0], L2),
-            disturbances=_piecewise([0.0, 0.1, -0.1, 0.0], L2),
+            setpoints=piecewise_constant([8.3, 6.6, 8.4, 7.0], L2),
+            disturbances=piecewise_constant([0.0, 0.1, -0.1, 0.0], L2),
             config=base,
             setpoint_rate_limit=None,
-            segments=_segments(L2),
+            segments=schedule_segments(L2),
             notes="set-point steps without rate limiter",
         )
     )
     # 4 and 5: the pH plant with a q2 step.
     L4 = [1500 // scale, 1500 // scale, 1500 // scale]
-    q2 = _piecewise([0.55, 0.7], [L4[0], L4[1] + L4[2]])  # q2 step with the 2nd set-point
+    q2 = piecewise_constant([0.55, 0.7], [L4[0], L4[1] + L4[2]])  # q2 step with the 2nd set-point
     for name, title, l_d, lengths, disturbance in (
         ("4_ph_small_Ld", "pH plant, L_d = 0.01 (offset-free, slow)", 0.01, L4, q2),
         (
@@ -269,7 +264,7 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
             "pH plant, L_d = 0.1 (offset-free, faster)",
             0.1,
             [500 // scale] * 4,
-            _piecewise([0.55, 0.7, 0.45, 0.55], [500 // scale] * 4),
+            piecewise_constant([0.55, 0.7, 0.45, 0.55], [500 // scale] * 4),
         ),
     ):
         levels = [7.5, 6.8, 8.0, 7.0][: len(lengths)]
@@ -278,20 +273,15 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
                 name=name,
                 title=title,
                 plant="ph",
-                setpoints=_piecewise(levels, lengths),
+                setpoints=piecewise_constant(levels, lengths),
                 disturbances=disturbance[: sum(lengths)],
                 config=replace(base, L_d=l_d),
                 setpoint_rate_limit=0.01,
-                segments=_segments(lengths),
+                segments=schedule_segments(lengths),
                 notes="q2 steps; set-point rate limit 0.01 normalized/step",
             )
         )
     return scenarios
-
-
-def _segments(lengths: Sequence[int]) -> list[tuple[int, int]]:
-    edges = np.concatenate([[0], np.cumsum(lengths)])
-    return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
 
 
 def run_scenario(
