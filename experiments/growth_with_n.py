@@ -2,7 +2,9 @@
 
 Random delta-ISS LSTMs with n = 5 / 10 / 20 / 40 neurons, SISO and (2,2), each in closed
 loop with its own LSTM plant (a slow set-point sine inside the admissible interval).
-Prints the median and p95 of the full step. With ``--load`` a busy process runs on the
+Prints the median and p95 of the full step and the ratio to n = 5; the loops of the four
+sizes run interleaved step by step (order alternating), so that the ratios are measured
+side by side. With ``--load`` a busy process runs on the
 other core during the measurement (the tail latency must not depend on it: the loop runs
 on one BLAS thread, see ``simulate``). Compare the compiled and the numpy kernel with
 ``LTV_LSTM_MPC_KERNEL=numpy``.
@@ -16,11 +18,13 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import time
+from typing import Any
 
 import numpy as np
 
-from ltv_lstm_mpc import LSTMModel, MPCConfig, Normalization, OffsetFreeController, simulate
+from ltv_lstm_mpc import LSTMModel, MPCConfig, Normalization, OffsetFreeController
 from ltv_lstm_mpc.certificates.stability import delta_iss_certificate
+from ltv_lstm_mpc.loop.simulation import single_threaded_blas
 from ltv_lstm_mpc.plants import LSTMPlant
 
 
@@ -55,7 +59,8 @@ def _busy(stop: float) -> None:
         sum(i * i for i in range(1000))
 
 
-def measure(n: int, m: int, steps: int) -> tuple[float, float]:
+def _loop(n: int, m: int) -> tuple[OffsetFreeController, LSTMPlant, Any]:
+    """Controller, plant and set-point schedule of the closed loop of one model size."""
     model = random_model(n, m)
     controller = OffsetFreeController(model, MPCConfig(solver="daqp", N=20))
     plant = LSTMPlant(model)
@@ -66,9 +71,25 @@ def measure(n: int, m: int, steps: int) -> tuple[float, float]:
     def setpoint(k: int) -> np.ndarray:
         return np.asarray(y_start + amplitude * np.sin(0.02 * k), dtype=np.float64)
 
-    result = simulate(plant, controller, setpoint, steps=steps, progress=False)
-    times = result.time_total[10:]
-    return 1e6 * float(np.median(times)), 1e6 * float(np.percentile(times, 95))
+    return controller, plant, setpoint
+
+
+def measure(sizes: tuple[int, ...], m: int, steps: int) -> list[tuple[float, float]]:
+    """Median and p95 step time (us) of each size, the loops interleaved step by step
+    (order alternating) so that the machine's drift hits every size alike."""
+    loops = [_loop(n, m) for n in sizes]
+    outputs = [plant.output() for _, plant, _ in loops]
+    times: list[list[float]] = [[] for _ in loops]
+    with single_threaded_blas():
+        for k in range(steps):
+            order = range(len(loops)) if k % 2 == 0 else reversed(range(len(loops)))
+            for j in order:
+                controller, plant, setpoint = loops[j]
+                start = time.perf_counter()
+                u = controller.step(outputs[j], setpoint(k))
+                times[j].append(time.perf_counter() - start)
+                outputs[j] = plant.step(u, None)
+    return [(1e6 * float(np.median(t[10:])), 1e6 * float(np.percentile(t[10:], 95))) for t in times]
 
 
 def main() -> None:
@@ -81,11 +102,18 @@ def main() -> None:
         worker = multiprocessing.Process(target=_busy, args=(time.time() + 3600,), daemon=True)
         worker.start()
     try:
-        print(f"{'n':>3} {'m=p':>4} | {'median us':>9} {'p95 us':>7} {'p95/median':>10}")
+        print(
+            f"{'n':>3} {'m=p':>4} | {'median us':>9} {'p95 us':>7} {'p95/median':>10} {'/ n=5':>6}"
+        )
+        sizes = (5, 10, 20, 40)
         for m in (1, 2):
-            for n in (5, 10, 20, 40):
-                median, p95 = measure(n, m, args.steps)
-                print(f"{n:>3} {m:>4} | {median:9.0f} {p95:7.0f} {p95 / median:10.2f}", flush=True)
+            results = measure(sizes, m, args.steps)
+            for n, (median, p95) in zip(sizes, results, strict=True):
+                ratio = median / results[0][0]
+                print(
+                    f"{n:>3} {m:>4} | {median:9.0f} {p95:7.0f} {p95 / median:10.2f} {ratio:6.2f}",
+                    flush=True,
+                )
     finally:
         if worker is not None:
             worker.terminate()

@@ -296,6 +296,7 @@ class CondensedTranscription(TranscriptionBase):
                 J, S, M, self._Maug, self._Lt_all, x_bar, u_bar, self._R, self._W_y,
                 self._b_y, lower, upper, self._unit_half, float(alpha), float(self.config.u_max),
                 self._H, self._g0, self._A, self._lo0, self._up0, self._lb, self._ub,
+                self._diag_Q,
             )  # fmt: skip
             return
         matmul = np.matmul
@@ -409,7 +410,7 @@ class CondensedTranscription(TranscriptionBase):
             f, lo, up = self._f, self._lo, self._up
             _compiled.insert_state(
                 x_hat, S, traj.J, self._Lt_all, self._Maug, self._W_y, self._g0,
-                self._lo0, self._up0, self._dX, f, lo, up,
+                self._lo0, self._up0, self._dX, f, lo, up, self._diag_Q,
             )  # fmt: skip
         else:
             np.subtract(x_hat, S[0, :n2], out=dx0)

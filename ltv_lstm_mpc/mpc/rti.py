@@ -196,6 +196,7 @@ class RobustMPC:
         self._cost = PlanCost(Q, R, np.asarray(ti.P_f), model.n)
         # buffers of the compiled plan checks (lstm/compiled.plan_metrics)
         self._Q = np.ascontiguousarray(Q, dtype=np.float64)
+        self._Q_diagonal = bool(np.all(self._Q == np.diag(np.diag(self._Q))))
         self._R = np.ascontiguousarray(R, dtype=np.float64)
         self._P_terms = np.array(self._cost.terminal_terms)
         self._metrics = np.zeros(4)
@@ -426,6 +427,7 @@ class RobustMPC:
                 self._kernel.WU, P, plan.T, plan.TC, self._W_y, self._b_y, self._x_bar,
                 self._u_bar, self._Q, self._R, self._P_terms, self._lower, self._upper,
                 self._no_rows if x_linear is None else x_linear, x_plan, metrics,
+                self._Q_diagonal,
             )  # fmt: skip
             cost = float(metrics[0])
             residuals = {
