@@ -54,25 +54,21 @@ from .tolerances import known_settings, solver_options
 __all__ = ["STATUS_MAP", "ClarabelDense", "make_dense"]
 
 
-def _status_map() -> dict[str, SolverStatus]:
-    return {
-        "Solved": SolverStatus.OPTIMAL,
-        "AlmostSolved": SolverStatus.OPTIMAL_INACCURATE,
-        "PrimalInfeasible": SolverStatus.INFEASIBLE,
-        "AlmostPrimalInfeasible": SolverStatus.INFEASIBLE,
-        "DualInfeasible": SolverStatus.UNBOUNDED,
-        "AlmostDualInfeasible": SolverStatus.UNBOUNDED,
-        "MaxIterations": SolverStatus.MAX_ITER,
-        "MaxTime": SolverStatus.MAX_ITER,
-        "NumericalError": SolverStatus.FAILED,
-        "InsufficientProgress": SolverStatus.FAILED,
-        "CallbackTerminated": SolverStatus.FAILED,
-        "Unsolved": SolverStatus.FAILED,
-    }
-
-
-#: CLARABEL's ``SolverStatus`` name -> SolverStatus.
-STATUS_MAP: Mapping[str, SolverStatus] = _status_map()
+#: CLARABEL's ``SolverStatus`` name -> SolverStatus (also used by the qpsolvers backend).
+STATUS_MAP: Mapping[str, SolverStatus] = {
+    "Solved": SolverStatus.OPTIMAL,
+    "AlmostSolved": SolverStatus.OPTIMAL_INACCURATE,
+    "PrimalInfeasible": SolverStatus.INFEASIBLE,
+    "AlmostPrimalInfeasible": SolverStatus.INFEASIBLE,
+    "DualInfeasible": SolverStatus.UNBOUNDED,
+    "AlmostDualInfeasible": SolverStatus.UNBOUNDED,
+    "MaxIterations": SolverStatus.MAX_ITER,
+    "MaxTime": SolverStatus.MAX_ITER,
+    "NumericalError": SolverStatus.FAILED,
+    "InsufficientProgress": SolverStatus.FAILED,
+    "CallbackTerminated": SolverStatus.FAILED,
+    "Unsolved": SolverStatus.FAILED,
+}
 
 
 def _index(idx: IntArray) -> IntArray | slice:
@@ -139,34 +135,33 @@ class ClarabelDense(DenseBackend):
         self._M = M = np.zeros((total, n), order="F")
         mask = np.zeros((total, n), dtype=bool)
         self._b = np.zeros(total)
-        # row offsets of each block
         r = 0
-        self._r_eq_rows = slice(r, r + eq_rows.size)
-        mask[self._r_eq_rows] = True
-        r += eq_rows.size
-        self._r_eq_vars = slice(r, r + eq_vars.size)
-        M[r + np.arange(eq_vars.size), eq_vars] = 1.0
-        mask[r + np.arange(eq_vars.size), eq_vars] = True
-        r += eq_vars.size
-        self._r_up = slice(r, r + up_rows.size)
-        mask[self._r_up] = True
-        r += up_rows.size
-        self._r_lo = slice(r, r + lo_rows.size)
-        mask[self._r_lo] = True
-        r += lo_rows.size
-        self._r_ub = slice(r, r + ub_vars.size)
-        M[r + np.arange(ub_vars.size), ub_vars] = 1.0
-        mask[r + np.arange(ub_vars.size), ub_vars] = True
-        r += ub_vars.size
-        self._r_lb = slice(r, r + lo_vars.size)
-        M[r + np.arange(lo_vars.size), lo_vars] = -1.0
-        mask[r + np.arange(lo_vars.size), lo_vars] = True
-        r += lo_vars.size
-        self._r_cones: list[slice] = []
-        for dim in cone_dims:
-            self._r_cones.append(slice(r, r + dim))
-            mask[r : r + dim] = True
-            r += dim
+
+        def dense_block(count: int) -> slice:
+            """Rows copied from A or a cone: every entry is in the pattern."""
+            nonlocal r
+            rows = slice(r, r + count)
+            mask[rows] = True
+            r += count
+            return rows
+
+        def unit_block(variables: IntArray, sign: float) -> slice:
+            """Rows sign * x_j of bounds: one constant entry per row."""
+            nonlocal r
+            rows = slice(r, r + variables.size)
+            at = np.arange(rows.start, rows.stop)
+            M[at, variables] = sign
+            mask[at, variables] = True
+            r = rows.stop
+            return rows
+
+        self._r_eq_rows = dense_block(eq_rows.size)
+        self._r_eq_vars = unit_block(eq_vars, 1.0)
+        self._r_up = dense_block(up_rows.size)
+        self._r_lo = dense_block(lo_rows.size)
+        self._r_ub = unit_block(ub_vars, 1.0)
+        self._r_lb = unit_block(lo_vars, -1.0)
+        self._r_cones = [dense_block(dim) for dim in cone_dims]
         self._A_take: IntArray = np.flatnonzero(mask.ravel(order="F"))
         _, cols = np.nonzero(mask.T)  # column-major: CSC order
         self._A_pattern = (cols.astype(np.int64), np.concatenate([[0], np.cumsum(mask.sum(0))]))

@@ -44,25 +44,10 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
+from .clarabel_ import STATUS_MAP as CLARABEL_STATUS_MAP
 from .dense import DenseBackend, DenseQP
 from .problem import ConvexProblem, SolverStatus
 from .tolerances import known_settings, solver_options
-
-#: clarabel ``SolverStatus`` name -> SolverStatus.
-CLARABEL_STATUS_MAP: Mapping[str, SolverStatus] = {
-    "Solved": SolverStatus.OPTIMAL,
-    "AlmostSolved": SolverStatus.OPTIMAL_INACCURATE,
-    "PrimalInfeasible": SolverStatus.INFEASIBLE,
-    "AlmostPrimalInfeasible": SolverStatus.INFEASIBLE,
-    "DualInfeasible": SolverStatus.UNBOUNDED,
-    "AlmostDualInfeasible": SolverStatus.UNBOUNDED,
-    "MaxIterations": SolverStatus.MAX_ITER,
-    "MaxTime": SolverStatus.MAX_ITER,
-    "NumericalError": SolverStatus.FAILED,
-    "InsufficientProgress": SolverStatus.FAILED,
-    "CallbackTerminated": SolverStatus.FAILED,
-    "Unsolved": SolverStatus.FAILED,
-}
 
 #: ECOS exit flag -> SolverStatus (``ecos.h``; +10 marks "close to" the tolerances).
 ECOS_STATUS_MAP: Mapping[int, SolverStatus] = {
