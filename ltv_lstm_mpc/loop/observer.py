@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.certificates.stability import ObserverGains
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
+from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.model import LSTMModel
 
 __all__ = ["Observer"]
@@ -157,11 +158,9 @@ class Observer:
         :math:`y_k - \hat y_k` and :meth:`advance` (the numpy reference).
         """
         if self._compiled:
-            from ltv_lstm_mpc.lstm import compiled
-
             x_new = np.empty_like(self.x_hat)
             d_new = np.empty_like(self.d_hat)
-            compiled.observer_update(
+            _compiled.observer_update(
                 self.model.kernel.WU, self._W_y, self._b_y, self._L_gates_c, self._L_d,
                 self.d_max, self.x_hat, self.d_hat, y, u, self._S, self._T, self._TC,
                 self._extra, x_new, d_new,

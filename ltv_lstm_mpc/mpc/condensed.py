@@ -119,7 +119,7 @@ class CondensedTranscription(TranscriptionBase):
         term = np.concatenate([np.full(n, weight_c), np.full(n, weight_h)])
         if self.exact_cones:
             term = np.zeros(n2)
-        self._diag_Q = bool(np.allclose(Q, np.diag(np.diag(Q))))
+        self._diag_Q = bool(np.all(Q == np.diag(np.diag(Q))))  # exactly (as RobustMPC's check)
         if self._diag_Q:
             sw = np.tile(np.sqrt(np.diag(Q)), (N, 1))
             sw[N - 1] = np.sqrt(term)
@@ -246,8 +246,7 @@ class CondensedTranscription(TranscriptionBase):
         qp.f[:nu] = f
         if kind == "soft":
             reg = self.slack_regularization * float(np.max(np.diag(H)))
-            idx = np.arange(nu + 2, qp.f.shape[0])
-            qp.H[idx, idx] = reg
+            np.fill_diagonal(qp.H[nu + 2 :, nu + 2 :], reg)  # slacks: view, in place
         A_out, A_T = self._A[:ns], self._A[ns:]
         if kind == "soft":
             qp.A[:ns, :nu] = A_out
