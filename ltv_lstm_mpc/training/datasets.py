@@ -399,31 +399,8 @@ def _metadata(
     min_hold: int,
     max_hold: int,
 ) -> dict[str, Any]:
-    if isinstance(plant, QuadrupleTankPlant):
-        return {
-            "format_version": FORMAT_VERSION,
-            "plant": "QuadrupleTankPlant",
-            "units": QUADTANK_UNITS,
-            "seed": int(seed),
-            "sequences": int(sequences),
-            "steps": int(steps),
-            "split_sizes": [int(s) for s in split_sizes],
-            "sequence_indices": split_indices(split_sizes),
-            "Ts": plant.Ts,
-            "substeps": plant.substeps,
-            "parameters": dict(plant.params.__dict__),
-            "u_phi_initial": plant.v_nominal.tolist(),
-            "u_phi_range": [plant.u_phi_min, plant.u_phi_max],
-            "y_phi_constraint": [list(QUADTANK_LEVEL_CONSTRAINT)] * 2,
-            "model_stem": "quadtank_lstm",
-            "hold_range": [int(min_hold), int(max_hold)],
-            "initial_state": "steady state of u_phi_initial, no leak",
-            "alignment": "y_phi[k] measured at k*Ts, before u_phi[k] acts",
-        }
-    return {
+    common: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
-        "plant": "PHNeutralizationPlant",
-        "units": UNITS,
         "seed": int(seed),
         "sequences": int(sequences),
         "steps": int(steps),
@@ -431,13 +408,29 @@ def _metadata(
         "sequence_indices": split_indices(split_sizes),
         "Ts": plant.Ts,
         "substeps": plant.substeps,
+        "u_phi_range": [plant.u_phi_min, plant.u_phi_max],
+        "hold_range": [int(min_hold), int(max_hold)],
+        "alignment": "y_phi[k] measured at k*Ts, before u_phi[k] acts",
+    }
+    if isinstance(plant, QuadrupleTankPlant):
+        return {
+            "plant": "QuadrupleTankPlant",
+            "units": QUADTANK_UNITS,
+            **common,
+            "parameters": dict(plant.params.__dict__),
+            "u_phi_initial": plant.v_nominal.tolist(),
+            "y_phi_constraint": [list(QUADTANK_LEVEL_CONSTRAINT)] * 2,
+            "model_stem": "quadtank_lstm",
+            "initial_state": "steady state of u_phi_initial, no leak",
+        }
+    return {
+        "plant": "PHNeutralizationPlant",
+        "units": UNITS,
+        **common,
         "q1": plant.params.q1,
         "q2": plant.q2_nominal,
         "q3_initial": plant.q3_nominal,
-        "u_phi_range": [plant.u_phi_min, plant.u_phi_max],
-        "hold_range": [int(min_hold), int(max_hold)],
         "initial_state": "nominal steady state (q3 = q3_initial, q2 = q2)",
-        "alignment": "y_phi[k] measured at k*Ts, before u_phi[k] acts",
     }
 
 
