@@ -181,3 +181,23 @@ def test_lstm_plant_protocol_equilibrium_and_output_disturbance() -> None:
     target = float(y0[0])
     plant_y = LSTMPlant(model, y0_phi=target)
     assert plant_y.output()[0] == pytest.approx(target, abs=1e-6)
+
+
+def test_noisy_measurement_violations_are_judged_on_the_true_plant() -> None:
+    """simulate records the true output behind each noisy measurement (y_phi_true) and
+    computes plant_violation from it, not from the noise."""
+    from ltv_lstm_mpc import MPCConfig, OffsetFreeController, load_model, simulate
+    from ltv_lstm_mpc.plants import NoisyMeasurement, PHNeutralizationPlant
+
+    model = load_model("ph_lstm_n5.npz")
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp"))
+    plant = NoisyMeasurement(PHNeutralizationPlant(), noise_std=1.5, seed=0)
+    result = simulate(plant, controller, 7.0, steps=12, progress=False)
+    assert result.y_phi_true is not None
+    noise = result.y_phi - result.y_phi_true
+    assert 0.5 < float(np.std(noise)) < 3.0  # the controller saw the noise
+    assert np.any((result.y_phi < 6.0) | (result.y_phi > 9.0))  # measured: outside [6, 9]
+    assert np.all((result.y_phi_true > 6.0) & (result.y_phi_true < 9.0))
+    np.testing.assert_array_equal(result.plant_violation, np.zeros(12))  # the true plant
+    exact = simulate(PHNeutralizationPlant(), controller, 7.0, steps=5, progress=False)
+    np.testing.assert_array_equal(exact.y_phi_true, exact.y_phi)

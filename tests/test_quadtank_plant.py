@@ -10,6 +10,7 @@ from scipy.integrate import solve_ivp
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.plants import (
+    NoisyMeasurement,
     Plant,
     QuadrupleTankParameters,
     QuadrupleTankPlant,
@@ -121,15 +122,17 @@ def test_levels_never_negative_under_a_large_leak() -> None:
 
 
 def test_measurement_noise_is_seeded_and_leaves_the_state_alone() -> None:
-    plant = QuadrupleTankPlant(noise_std=0.05, noise_seed=3)
+    plant = NoisyMeasurement(QuadrupleTankPlant(), noise_std=0.05, seed=3)
     samples = np.array([plant.output() for _ in range(4000)])
     np.testing.assert_allclose(samples.mean(axis=0), plant.h[:2], atol=0.005)
     np.testing.assert_allclose(samples.std(axis=0), 0.05, rtol=0.05)
+    np.testing.assert_array_equal(plant.true_output(), plant.h[:2])
     plant.reset()
     first = plant.output()
     plant.reset()
     np.testing.assert_array_equal(plant.output(), first)
     np.testing.assert_array_equal(plant.h, QuadrupleTankPlant().h)
+    assert plant.disturbance_size == 2  # the plant's own attributes
 
 
 def test_bad_inputs_name_the_value() -> None:
@@ -143,7 +146,7 @@ def test_bad_inputs_name_the_value() -> None:
     with pytest.raises(InvalidValueError, match="u_phi_min"):
         QuadrupleTankPlant(u_phi_min=4.0, u_phi_max=1.0)
     with pytest.raises(InvalidValueError, match="noise_std"):
-        QuadrupleTankPlant(noise_std=-1.0)
+        NoisyMeasurement(QuadrupleTankPlant(), noise_std=-1.0)
     with pytest.raises(DimensionError, match="h0"):
         simulate_quadtank_batch(np.zeros(3), np.zeros((4, 2)))
 

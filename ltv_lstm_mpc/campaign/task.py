@@ -45,16 +45,16 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from ltv_lstm_mpc import __version__
 from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.loop.schedules import equal_segments
 from ltv_lstm_mpc.mpc.config import InfeasibilityPolicy
+from ltv_lstm_mpc.plants.measurement import NoisyMeasurement
 
 __all__ = [
     "METRIC_COLUMNS",
-    "MeasuredPlant",
     "Task",
     "TaskFunction",
     "TaskOutcome",
@@ -191,53 +191,6 @@ def setting_column(name: str, value: Any) -> Any:
     return value
 
 
-class MeasuredPlant:
-    """A plant whose measurement carries Gaussian noise; records the true outputs.
-
-    ``output()`` and ``step()`` return the true output plus
-    :math:`\\sigma \\varepsilon_k`, :math:`\\varepsilon_k \\sim \\mathcal N(0, I)` drawn from
-    ``numpy.random.default_rng(seed)``; ``true_outputs`` holds every true output returned.
-    The same seed gives the same noise sequence whatever ``noise_std`` is (common random
-    numbers across noise levels).
-
-    Parameters
-    ----------
-    plant : Plant
-        The plant (pH process or LSTM plant), already at its initial condition.
-    noise_std : float
-        Standard deviation, output units (0: exact measurements).
-    seed : int
-        Seed of the noise.
-    """
-
-    def __init__(self, plant: Any, noise_std: float, seed: int) -> None:
-        self.plant = plant
-        self.noise_std = float(noise_std)
-        self._rng = np.random.default_rng(seed)
-        if hasattr(plant, "disturbance_size"):
-            self.disturbance_size = plant.disturbance_size
-        self.true_outputs: list[FloatArray] = []
-
-    def _measure(self, y: ArrayLike) -> FloatArray:
-        true = np.atleast_1d(np.asarray(y, dtype=np.float64)).copy()
-        self.true_outputs.append(true)
-        noise = self._rng.standard_normal(true.shape)
-        return true + self.noise_std * noise if self.noise_std > 0 else true.copy()
-
-    def reset(self) -> Any:
-        """Reset the plant (the noise sequence continues)."""
-        self.true_outputs = []
-        return self.plant.reset()
-
-    def output(self) -> FloatArray:
-        """Noisy measurement of the current output."""
-        return self._measure(self.plant.output())
-
-    def step(self, u_phi: ArrayLike, d_phi: ArrayLike | None = None) -> FloatArray:
-        """Step the plant and return the noisy measurement of its new output."""
-        return self._measure(self.plant.step(u_phi, d_phi))
-
-
 @dataclass(frozen=True)
 class _Loop:
     """Everything one closed loop needs, built from a task's settings."""
@@ -314,7 +267,7 @@ def _build_loop(task: Task, model: Any, steps_limit: int | None) -> _Loop:
         "rate_limit": 0.0 if rate_limit is None else float(rate_limit),
     }
     return _Loop(
-        plant=MeasuredPlant(inner, s["noise_std"], s["seed"]),
+        plant=NoisyMeasurement(inner, s["noise_std"], s["seed"]),
         controller=controller,
         setpoints=setpoints,
         disturbances=disturbances,
@@ -333,16 +286,12 @@ def _base_row(task: Task) -> dict[str, Any]:
 
 def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatArray]:
     done = int(sim.y_phi.shape[0])
-    y_true = np.array(loop.plant.true_outputs[:done]).reshape(done, -1)
+    y_true = sim.y_phi_true.reshape(done, -1)  # without the measurement noise
     y0 = np.asarray(sim.y0_phi, dtype=np.float64).reshape(done, -1)
     error = np.abs(y_true - y0).max(axis=1) if done else np.zeros(0)
     offsets = [float(error[end - 1]) for _, end in loop.segments if 0 < end <= done]
     constraint = model.y_phi_constraint
-    if constraint is None:
-        violation = np.full(done, np.nan)
-    else:
-        low, high = constraint
-        violation = np.maximum(np.maximum(low - y_true, y_true - high).max(axis=1), 0.0)
+    violation = sim.plant_violation  # of the true plant output (simulate)
     statuses = Counter(str(v) for v in sim.status)
     counts = sim.summary_counts()
     times = np.asarray(sim.time_total, dtype=np.float64)
@@ -384,7 +333,7 @@ def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatAr
 
 def _trace(loop: _Loop, sim: Any, model: Any, violation: FloatArray) -> dict[str, list[Any]]:
     done = int(sim.y_phi.shape[0])
-    y_true = np.array(loop.plant.true_outputs[:done]).reshape(done, -1)
+    y_true = sim.y_phi_true.reshape(done, -1)
     y0_used = model.denormalize_y(np.asarray(sim.y0).reshape(done, -1)) if done else sim.y0
     columns: dict[str, Any] = {
         "k": np.arange(done),

@@ -63,8 +63,12 @@ class SimulationResult:
         :math:`|\hat d_k| = d_{max}` per output.
     plant_violation : (steps,)
         Violation (>= 0, physical units) of the model's stored output constraint
-        (``y_phi_constraint``) by the measured plant output; NaN when the model has none.
-        Unlike ``output_violation`` (the plan on the model) this is the true plant.
+        (``y_phi_constraint``) by the true plant output ``y_phi_true``; NaN when the model
+        has none. Unlike ``output_violation`` (the plan on the model) this is the true plant.
+    y_phi_true : (steps, p)
+        True plant output at sample k: ``y_phi`` without the measurement noise of a
+        :class:`~ltv_lstm_mpc.plants.measurement.NoisyMeasurement` (equal to ``y_phi``
+        for a plant measured exactly).
     """
 
     y_phi: FloatArray
@@ -90,6 +94,7 @@ class SimulationResult:
     setpoint_status: NDArray[np.str_] | None = None
     d_hat_saturated: NDArray[np.bool_] | None = None
     plant_violation: FloatArray | None = None
+    y_phi_true: FloatArray | None = None
 
     def summary_counts(self) -> dict[str, int]:
         """Steps per set-point status, d_hat-saturated steps, infeasible steps."""
@@ -225,7 +230,8 @@ def simulate(
     )
     controller.reset()
     y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
-    ys, us, y0s, ds = [], [], [], []
+    true_output = getattr(plant, "true_output", None)  # noisy measurements: the truth
+    ys, ys_true, us, y0s, ds = [], [], [], [], []
     start = time.perf_counter()
     # The step's small matrix products on one BLAS thread: a threaded BLAS makes their
     # tail latency depend on whatever else runs on the machine.
@@ -233,6 +239,7 @@ def simulate(
         for k in tqdm(range(steps), disable=not progress, desc=description, leave=False):
             u_phi = controller.step(y_phi, y0_schedule[k])
             ys.append(y_phi)
+            ys_true.append(y_phi if true_output is None else true_output())
             us.append(u_phi)
             y0s.append(y0_schedule[k])
             d = d_schedule[k]
@@ -241,7 +248,7 @@ def simulate(
             if max_seconds is not None and time.perf_counter() - start > max_seconds:
                 break
     records = controller.records
-    y_array = np.array(ys)
+    y_array = np.array(ys_true)
     constraint = controller.model.y_phi_constraint
     if constraint is None or not len(ys):
         plant_violation = np.full(len(ys), np.nan)
@@ -280,4 +287,5 @@ def simulate(
             dtype=bool,
         ).reshape(len(records), controller.model.p),
         plant_violation=plant_violation,
+        y_phi_true=y_array,
     )

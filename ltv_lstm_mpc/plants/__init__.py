@@ -10,9 +10,12 @@ quadtank
     :class:`QuadrupleTankPlant`, Johansson's quadruple-tank process (two pumps, two levels).
 lstm_plant
     :class:`LSTMPlant`, the LSTM model with an additive output disturbance (Fig. 2).
+measurement
+    :class:`NoisyMeasurement`, Gaussian measurement noise on any of them.
 """
 
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
+from ltv_lstm_mpc.plants.measurement import NoisyMeasurement
 from ltv_lstm_mpc.plants.ph import (
     PHNeutralizationPlant,
     PHParameters,
@@ -28,6 +31,7 @@ from ltv_lstm_mpc.plants.quadtank import (
 
 __all__ = [
     "LSTMPlant",
+    "NoisyMeasurement",
     "PHNeutralizationPlant",
     "PHParameters",
     "Plant",

@@ -42,9 +42,9 @@ error is about 3e-9 cm (max 2.6e-9 over 10 random steps with and without leaks; 
 < 1e-8). One :meth:`QuadrupleTankPlant.step` (plain Python floats) takes about 0.1 ms on
 the 2-core development VM.
 
-*Measurement noise* (optional): zero-mean Gaussian noise of standard deviation
-``noise_std`` (cm) added to each measured level by :meth:`QuadrupleTankPlant.output`, drawn
-from ``numpy.random.default_rng(noise_seed)``; the state is never affected.
+*Measurement noise*: wrap the plant, ``NoisyMeasurement(QuadrupleTankPlant(), noise_std,
+seed)`` (:class:`~ltv_lstm_mpc.plants.measurement.NoisyMeasurement`, cm; the state is never
+affected and ``simulate`` judges the constraint on the true levels).
 """
 
 from __future__ import annotations
@@ -235,10 +235,6 @@ class QuadrupleTankPlant:
         Pump saturation, V (default :data:`QUADTANK_U_RANGE`).
     v_nominal : (float, float)
         Pump voltages of the initial steady state, V (Johansson's 3.0, 3.0).
-    noise_std : float
-        Standard deviation of the measurement noise, cm (0: none).
-    noise_seed : int, optional
-        Seed of the noise generator (reset by :meth:`reset`).
     """
 
     #: Entries of ``d_phi`` in :meth:`step` (the leak areas of tanks 1 and 2, cm^2).
@@ -253,8 +249,6 @@ class QuadrupleTankPlant:
         u_phi_min: float = QUADTANK_U_RANGE[0],
         u_phi_max: float = QUADTANK_U_RANGE[1],
         v_nominal: tuple[float, float] = (3.0, 3.0),
-        noise_std: float = 0.0,
-        noise_seed: int | None = None,
     ) -> None:
         if not (math.isfinite(Ts) and Ts > 0):
             raise InvalidValueError(f"Ts must be positive and finite, got {Ts}")
@@ -266,17 +260,12 @@ class QuadrupleTankPlant:
             raise InvalidValueError(
                 f"need 0 <= u_phi_min < u_phi_max (pump voltages, V), got {u_phi_min}, {u_phi_max}"
             )
-        if not (math.isfinite(noise_std) and noise_std >= 0):
-            raise InvalidValueError(f"noise_std must be >= 0 (cm), got {noise_std}")
         self.params = params if params is not None else QuadrupleTankParameters()
         self.Ts = float(Ts)
         self.substeps = int(substeps)
         self.u_phi_min = float(u_phi_min)
         self.u_phi_max = float(u_phi_max)
         self.v_nominal = real_vector("v_nominal (V)", v_nominal, 2)
-        self.noise_std = float(noise_std)
-        self.noise_seed = noise_seed
-        self._rng = np.random.default_rng(noise_seed)
         self.h: FloatArray = self.steady_state(self.v_nominal)
 
     # ------------------------------------------------------------- steady state
@@ -323,19 +312,15 @@ class QuadrupleTankPlant:
         return np.clip(np.asarray(u_phi, dtype=np.float64), self.u_phi_min, self.u_phi_max)
 
     def reset(self, v_phi: ArrayLike | None = None) -> FloatArray:
-        """Put the plant at the steady state of ``v_phi`` (default ``v_nominal``), no leak,
-        and restart the noise generator; returns the levels (h1, h2, h3, h4) in cm."""
+        """Put the plant at the steady state of ``v_phi`` (default ``v_nominal``), no leak;
+        returns the levels (h1, h2, h3, h4) in cm."""
         v = self.v_nominal if v_phi is None else real_vector("v_phi (V)", v_phi, 2)
         self.h = self.steady_state(v)
-        self._rng = np.random.default_rng(self.noise_seed)
         return self.h.copy()
 
     def output(self) -> FloatArray:
-        """Measured lower levels (h1, h2) in cm, with the optional noise; shape (2,)."""
-        y = self.h[:2].copy()
-        if self.noise_std > 0:
-            y = y + self.noise_std * self._rng.standard_normal(2)
-        return y
+        """Measured lower levels (h1, h2) in cm; shape (2,)."""
+        return self.h[:2].copy()
 
     def step(self, u_phi: ArrayLike, d_phi: ArrayLike | None = None) -> FloatArray:
         """Apply the pump voltages ``u_phi`` (V, saturated) with the leak areas ``d_phi``
