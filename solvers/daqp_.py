@@ -217,6 +217,11 @@ class DaqpDense(DenseBackend):
         check_settings("daqp", settings, known_settings("daqp"))
         super().__init__(name, "daqp", solver_options("daqp", tolerance, settings))
         self._daqp_solve = daqp.solve
+        #: DAQP's C entry point for compiled callers (None: ``daqp.solve`` only; the reason
+        #: is ``daqp_native.unavailable_reason``).
+        from . import daqp_native
+
+        self.native = daqp_native.native(self.options)
 
     def setup(self, qp: DenseQP) -> None:
         """Allocate the bound and sense buffers and store the data."""
@@ -274,7 +279,7 @@ class DaqpDense(DenseBackend):
             self._H, self._f, self._A, self._bu, self._bl, sense, **self.options
         )
         flag = int(exitflag)
-        status, notes = _status(flag)
+        status, notes = dense_status(flag)
         z = duals = None
         if status.has_solution:
             z = np.asarray(x, dtype=np.float64)
@@ -294,18 +299,25 @@ class DaqpDense(DenseBackend):
         )
 
     def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
-        """One cold ``daqp.solve`` call; the status mapped as in :meth:`solve`."""
-        x, _fval, exitflag, info = self._daqp_solve(
-            self._H, self._f, self._A, self._bu, self._bl, self._cold, **self.options
-        )
-        flag = int(exitflag)
-        status, notes = _status(flag)
+        """One cold solve (DAQP's C entry point where bound, else ``daqp.solve``); the status
+        mapped as in :meth:`solve`."""
+        native = self.native
+        if native is not None:
+            x, _lam, flag, iterations = native.solve(
+                self._H, self._f, self._A, self._bu, self._bl, self._cold
+            )
+        else:
+            x, _fval, exitflag, info = self._daqp_solve(
+                self._H, self._f, self._A, self._bu, self._bl, self._cold, **self.options
+            )
+            flag, iterations = int(exitflag), int(info["iterations"])
+        status, notes = dense_status(flag)
         z = x if status.has_solution else None
-        return status, z, int(info["iterations"]), "; ".join((f"exitflag {flag}", *notes))
+        return status, z, iterations, "; ".join((f"exitflag {flag}", *notes))
 
 
-def _status(flag: int) -> tuple[SolverStatus, tuple[str, ...]]:
-    """The dense backend's status of a DAQP exit flag, and a note for an unknown one."""
+def dense_status(flag: int) -> tuple[SolverStatus, tuple[str, ...]]:
+    """The dense backends' status of a DAQP exit flag, and a note for an unknown one."""
     status = STATUS_MAP.get(flag)
     if status is not None:
         return status, ()

@@ -366,6 +366,8 @@ class DenseBackend(abc.ABC):
     supports_warm_start: ClassVar[bool] = False
     #: Whether second-order cones (:attr:`DenseQP.cones`) are solved exactly.
     supports_cones: ClassVar[bool] = False
+    #: Entry point for compiled callers (see :attr:`DenseSession.native`); none by default.
+    native: Any = None
 
     def __init__(self, name: str, solver: str, options: Mapping[str, Any]) -> None:
         """Store the registry name, the native solver name and the merged options."""
@@ -464,6 +466,15 @@ class DenseSession:
     def backend(self) -> str:
         """Backend family of the workspace (``"daqp"``, ``"osqp"``, ``"cvxpy"``, ...)."""
         return self._backend_name
+
+    @property
+    def native(self) -> Any:
+        """The backend's entry point for compiled callers (``None`` where it has none).
+
+        Only DAQP has one: a :class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative` with this
+        session's settings, for :func:`~ltv_lstm_mpc.solvers.daqp_native.quadprog`.
+        """
+        return self._backend.native
 
     @property
     def structure_key(self) -> tuple[int, ...] | None:

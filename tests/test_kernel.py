@@ -134,7 +134,7 @@ def test_compiled_condensing_matches_the_numpy_build(
     for mpc in (fast, reference):
         mpc.prepare(x_bar, u_bar, y0, 0.3, x_pred=x_hat, warm=warm)
     a, b = fast._problem, reference._problem
-    for name in ("_H", "_g0", "_A", "_lo0", "_up0", "_lb", "_ub", "_scale"):
+    for name in ("_H", "_g0", "_A", "_lo0", "_up0", "_lb", "_ub", "scale"):
         np.testing.assert_allclose(
             getattr(a, name), getattr(b, name), rtol=0, atol=1e-12, err_msg=name
         )

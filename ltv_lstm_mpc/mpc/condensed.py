@@ -182,6 +182,20 @@ class CondensedTranscription(TranscriptionBase):
             kind: DenseSession(config.solver, tolerance=config.tolerance, **settings)
             for kind in kinds
         }
+        # The nominal feedback as one compiled call in the core where DAQP's C entry point is
+        # bound (mpc/native_feedback.py); otherwise, and for the other problems, the session.
+        # nominal_feedback's arguments from Lt to settings, in its order (None: no native path)
+        self._native_buffers: tuple[Any, ...] | None = None
+        native = self._sessions["nominal"].native if "nominal" in self._sessions else None
+        if self.compiled and not self.exact_cones and native is not None:
+            self._native_buffers = (
+                self._Lt_all, self._Maug, self._g0, self._lo0, self._up0, self._dX, self._f,
+                self._low, self._high, self._diag_Q, self._H, self._A, self._M,
+                np.zeros(nu + self._mA, dtype=np.intc),  # cold working set
+                np.empty(nu),  # z
+                np.empty(nu + self._mA),  # multipliers
+                native.problem, native.result, native.settings,
+            )  # fmt: skip
         empty = np.zeros(0)
         self._qp = {
             kind: DenseQP(
@@ -269,6 +283,12 @@ class CondensedTranscription(TranscriptionBase):
             qp.cones[2].f = float(self._alpha)
         return qp
 
+    @property
+    def native_buffers(self) -> tuple[Any, ...] | None:
+        """:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`'s arguments from ``Lt``
+        to ``settings`` (None without DAQP bound natively or with the numpy condensing)."""
+        return self._native_buffers if self.compiled else None
+
     def reset(self) -> None:
         """Drop the solver workspaces' warm starts."""
         for session in self._sessions.values():
@@ -291,7 +311,7 @@ class CondensedTranscription(TranscriptionBase):
         self._traj = traj
         self._alpha = alpha
         if self.compiled:
-            self._scale = _compiled.condense(
+            self.scale = _compiled.condense(
                 J, S, M, self._Maug, self._Lt_all, x_bar, u_bar, self._R, self._W_y,
                 self._b_y, lower, upper, self._unit_half, float(alpha), float(self.config.u_max),
                 self._H, self._g0, self._A, self._lo0, self._up0, self._lb, self._ub,
@@ -338,7 +358,7 @@ class CondensedTranscription(TranscriptionBase):
         u_max = self.config.u_max
         np.subtract(-u_max, flat_cand, out=self._lb)
         np.subtract(u_max, flat_cand, out=self._ub)
-        self._scale = 1.0 + max(u_max, float(np.abs(self._rows0).max()))
+        self.scale = 1.0 + max(u_max, float(np.abs(self._rows0).max()))
 
     # --------------------------------------------------------------------- feedback
     def _data(self, kind: str, f: FloatArray, lo: FloatArray, up: FloatArray) -> DenseQP:
@@ -448,16 +468,16 @@ class CondensedTranscription(TranscriptionBase):
                 status=status,
                 u=u,
                 x_linear=x_linear,
-                violation=max(violation, 0.0) / self._scale,
+                violation=max(violation, 0.0) / self.scale,
                 tolerance=self.tolerance,
                 solver_time=elapsed,
                 iterations=iterations,
                 info=info,
             )
         if exact:
-            violation = qp.max_violation(z) / self._scale
+            violation = qp.max_violation(z) / self.scale
         else:
-            violation = self._violation(kind, qp, z) / self._scale
+            violation = self._violation(kind, qp, z) / self.scale
         dxu = self._dxu
         dxu[:n2] = dx0
         dxu[n2:] = z[:nu]

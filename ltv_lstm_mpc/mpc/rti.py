@@ -43,7 +43,7 @@ from ltv_lstm_mpc.mpc.fhocp import (
     shifted_candidate,
 )
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
-from ltv_lstm_mpc.solvers import SolverStatus
+from ltv_lstm_mpc.solvers import SolverStatus, feasibility_tolerance
 from ltv_lstm_mpc.validation import real_vector
 
 __all__ = [
@@ -123,6 +123,11 @@ class RobustMPC:
         When the linearization start is within this distance (inf-norm) of the previous
         plan's predicted :math:`x_{1|k-1}`, the previous re-simulation is shifted instead
         of simulated again (the prediction *is* that trajectory).
+    native_feedback : bool
+        Run the nominal feedback as one compiled call where it exists (condensed QP with
+        DAQP bound natively, compiled kernel, one SQP iteration; see
+        :mod:`~ltv_lstm_mpc.mpc.native_feedback`); it accepts only points the general path
+        accepts and hands everything else to it. ``False``: always the general path.
     **transcription_options
         Extra options of the transcription (the nonlinear one takes ``smoothing``).
 
@@ -143,6 +148,7 @@ class RobustMPC:
         *,
         certification: Certification | None = None,
         reuse_tol: float = 1e-9,
+        native_feedback: bool = True,
         **transcription_options: Any,
     ) -> None:
         model.require_square()
@@ -214,6 +220,18 @@ class RobustMPC:
         self._bounds_e: float | None = None
         self._previous_u: FloatArray | None = None
         self._prepared = False
+        # One compiled call for the nominal feedback where the transcription offers it
+        # (condensed QP, DAQP bound natively, compiled kernel; one SQP iteration).
+        self._native_feedback: Any = None
+        if (
+            self._problem.native_buffers is not None
+            and config.sqp_iterations == 1
+            and native_feedback
+        ):
+            from ltv_lstm_mpc.mpc.native_feedback import nominal_feedback
+
+            self._native_feedback = nominal_feedback
+            self._tolerance = feasibility_tolerance(config.solver, config.tolerance)
         self.prepare_time = self.feedback_time = self.solver_time = 0.0
         self.qp_iterations = 0
 
@@ -365,8 +383,12 @@ class RobustMPC:
         model, config, N = self.model, self.config, self.N
         n, m = model.n, model.m
         n2 = 2 * n
-        x_hat_a = np.asarray(x_hat, dtype=np.float64)
+        x_hat_a = np.ascontiguousarray(x_hat, dtype=np.float64)
         alpha = self._alpha
+        if self._native_feedback is not None:
+            solution = self._feedback_native(x_hat_a, start)
+            if solution is not None:
+                return solution
         y_first = (self._W_y_T.T @ x_hat_a[n:] + model.b_y).tolist()
         status = precheck_status(y_first, *self._row0, alpha)
         reason = status
@@ -467,6 +489,58 @@ class RobustMPC:
             prepare_time=self.prepare_time,
             feedback_time=self.feedback_time,
             reason=reason if not feasible else "",
+        )
+
+    def _feedback_native(self, x_hat: FloatArray, start: float) -> MPCSolution | None:
+        """The nominal feedback in one compiled call (mpc/native_feedback.py); ``None`` when
+        it does not accept the point (the general path of :meth:`feedback` then runs)."""
+        N, n2, m = self.N, 2 * self.model.n, self.model.m
+        problem, plan, traj, alpha = self._problem, self._plan, self._traj, self._alpha
+        buffers = problem.native_buffers
+        if buffers is None:
+            return None
+        u = np.empty((N, m))
+        x_linear = np.empty((N + 1, n2))
+        x_plan = np.empty((N + 1, n2))
+        metrics = self._metrics
+        code, iterations, step, solver_time = self._native_feedback(
+            x_hat, self._W_y, self._b_y, self._lower, self._upper, alpha, problem.scale,
+            traj.S, traj.J, *buffers, self._tolerance, self.config.u_max,
+            self._kernel.WU, plan.S, plan.T, plan.TC, self._x_bar, self._u_bar, self._Q,
+            self._R, self._P_terms, self._Q_diagonal, x_linear, u, x_plan, metrics,
+        )  # fmt: skip
+        if not code:
+            return None
+        self._plan_valid = True
+        self._previous_u = u
+        self.solver_time = solver_time
+        self.qp_iterations = iterations
+        self.feedback_time = feedback_time = time.perf_counter() - start
+        prepare_time = self.prepare_time
+        return MPCSolution(
+            u=u,
+            x=x_plan,
+            x_linear=x_linear,
+            status="optimal" if code == 1 else "optimal_inaccurate",
+            feasible=True,
+            policy="nominal",
+            solve_time=prepare_time + feedback_time,
+            solver_time=solver_time,
+            iterations=1,
+            sqp_step=step,
+            alpha=alpha,
+            cost=float(metrics[0]),
+            residuals={
+                "output_violation": float(metrics[2]),
+                "terminal_residual": float(metrics[1]) - alpha,
+                "linearization_gap": float(metrics[3]),
+            },
+            reformulation=self.reformulation,
+            solver_iterations=iterations,
+            transcription=self.transcription,
+            prepare_time=prepare_time,
+            feedback_time=feedback_time,
+            reason="",
         )
 
     def _relinearize(self, x_hat: FloatArray, u_lin: FloatArray) -> None:

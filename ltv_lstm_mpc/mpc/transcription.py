@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -87,6 +87,8 @@ class TranscriptionBase(abc.ABC):
     name: ClassVar[str]
     #: Name of the conservative cone reformulation applied, or None (exact cones).
     reformulation: str | None = None
+    #: Scale of the row violations of the last build (used with :attr:`native_buffers`).
+    scale: float = 1.0
 
     @abc.abstractmethod
     def build(
@@ -104,6 +106,13 @@ class TranscriptionBase(abc.ABC):
         and ``traj.J`` the Jacobians :math:`[A_i\; B_i]`; ``lower``/``upper`` (N, p) are the
         tightened output bounds and ``alpha`` is :math:`\alpha_k`.
         """
+
+    @property
+    def native_buffers(self) -> tuple[Any, ...] | None:
+        """Buffers of the core's one-call nominal feedback
+        (:mod:`~ltv_lstm_mpc.mpc.native_feedback`) where the transcription has one (the
+        condensed QP with DAQP bound natively), else None."""
+        return None
 
     @abc.abstractmethod
     def solve(self, kind: str, x_hat: FloatArray) -> StepResult:

@@ -1,0 +1,303 @@
+"""DAQP's C entry point ``daqp_quadprog`` called from numba-compiled code (no Python per solve).
+
+``daqp.solve`` (the Python package's one-shot call) builds three C structs and calls
+``daqp_quadprog(DAQPResult*, DAQPProblem*, DAQPSettings*)``; this module makes the same call
+from inside ``@njit`` functions, so that a compiled controller step can set up, solve and
+read a condensed QP without returning to Python. Same C function, same settings: the same
+iterates and results as ``daqp.solve``, bit for bit (``tests/test_daqp_native.py``).
+
+How it is bound
+    The DAQP symbols are exported by the extension module of the ``daqp`` package; the
+    library is loaded into LLVM's symbol table (``llvmlite.binding.load_library_permanently``)
+    and ``daqp_quadprog`` declared as a numba ``ExternalFunction``, so compiled callers link
+    against it by name and stay cacheable on disk. The three structs are plain byte buffers
+    written through integer/float views at the field offsets of :class:`_Problem`,
+    :class:`_Settings` and :class:`_Result` (ctypes computes them from the field lists, which
+    follow ``csrc/include/types.h`` and ``api.h`` of the DAQP release in
+    :data:`BOUND_VERSIONS`, as shipped in its source distribution).
+
+Safety
+    The structs change between DAQP releases, so the binding is used only for a release in
+    :data:`BOUND_VERSIONS` *and* after a self-test at first use (a small QP solved both ways
+    must agree exactly, exit flag and iterations included). Otherwise :func:`native` returns
+    ``None`` and :attr:`unavailable_reason` says why; callers then keep ``daqp.solve``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.metadata
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numba import njit, types
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "BOUND_VERSIONS",
+    "DaqpNative",
+    "native",
+    "quadprog",
+    "solver_seconds",
+    "unavailable_reason",
+]
+
+#: DAQP releases whose struct layouts the field lists below were written from.
+BOUND_VERSIONS = ("0.11.0",)
+
+
+class _Problem(ctypes.Structure):
+    """``DAQPProblem`` (types.h): min 1/2 x'Hx + f'x, blower <= [x_(ms); A x] <= bupper."""
+
+    _fields_ = [
+        ("n", ctypes.c_int),
+        ("m", ctypes.c_int),
+        ("ms", ctypes.c_int),
+        ("H", ctypes.c_void_p),
+        ("f", ctypes.c_void_p),
+        ("A", ctypes.c_void_p),
+        ("bupper", ctypes.c_void_p),
+        ("blower", ctypes.c_void_p),
+        ("sense", ctypes.c_void_p),
+        ("break_points", ctypes.c_void_p),
+        ("nh", ctypes.c_int),
+        ("problem_type", ctypes.c_int),
+    ]
+
+
+_DOUBLE, _INT = ctypes.c_double, ctypes.c_int
+
+
+class _Settings(ctypes.Structure):
+    """``DAQPSettings`` (types.h); field names are the ``daqp.solve`` keyword names."""
+
+    _fields_ = [
+        ("primal_tol", _DOUBLE),
+        ("dual_tol", _DOUBLE),
+        ("zero_tol", _DOUBLE),
+        ("pivot_tol", _DOUBLE),
+        ("progress_tol", _DOUBLE),
+        ("cycle_tol", _INT),
+        ("iter_limit", _INT),
+        ("fval_bound", _DOUBLE),
+        ("eps_prox", _DOUBLE),
+        ("eta_prox", _DOUBLE),
+        ("rho_soft", _DOUBLE),
+        ("rel_subopt", _DOUBLE),
+        ("abs_subopt", _DOUBLE),
+        ("sing_tol", _DOUBLE),
+        ("refactor_tol", _DOUBLE),
+        ("time_limit", _DOUBLE),
+        ("w_soft", _DOUBLE),
+        ("eq_reduction", _INT),
+        ("presolve", _INT),
+    ]
+
+
+class _Result(ctypes.Structure):
+    """``DAQPResult`` (api.h)."""
+
+    _fields_ = [
+        ("x", ctypes.c_void_p),
+        ("lam", ctypes.c_void_p),
+        ("fval", _DOUBLE),
+        ("soft_slack", _DOUBLE),
+        ("exitflag", _INT),
+        ("iter", _INT),
+        ("nodes", _INT),
+        ("solve_time", _DOUBLE),
+        ("setup_time", _DOUBLE),
+    ]
+
+
+def _slot(struct: type[ctypes.Structure], field: str, width: int) -> int:
+    """Index of ``field`` in a view of ``width``-byte items of the struct's buffer."""
+    offset = getattr(struct, field).offset
+    assert offset % width == 0
+    return int(offset // width)
+
+
+# Field slots as compile-time constants of the compiled call (8-byte and 4-byte views).
+_P_N, _P_M, _P_MS = (_slot(_Problem, f, 4) for f in ("n", "m", "ms"))
+_P_H, _P_F, _P_A, _P_BU, _P_BL, _P_SENSE, _P_BP = (
+    _slot(_Problem, f, 8) for f in ("H", "f", "A", "bupper", "blower", "sense", "break_points")
+)
+_P_NH, _P_TYPE = _slot(_Problem, "nh", 4), _slot(_Problem, "problem_type", 4)
+_R_X, _R_LAM = _slot(_Result, "x", 8), _slot(_Result, "lam", 8)
+_R_FLAG, _R_ITER = _slot(_Result, "exitflag", 4), _slot(_Result, "iter", 4)
+_R_SOLVE, _R_SETUP = _slot(_Result, "solve_time", 8), _slot(_Result, "setup_time", 8)
+
+unavailable_reason = ""
+_LOADED = False
+_daqp_quadprog: Any = None
+try:
+    import daqp as _daqp
+    import llvmlite.binding as _llvm
+
+    _VERSION = importlib.metadata.version("daqp")
+    if _VERSION not in BOUND_VERSIONS:
+        unavailable_reason = (
+            f"daqp {_VERSION} is installed; its C structs are bound for {BOUND_VERSIONS} only"
+        )
+    else:
+        _llvm.load_library_permanently(_daqp.__file__)
+        _library = ctypes.CDLL(_daqp.__file__)
+        _daqp_quadprog = types.ExternalFunction(
+            "daqp_quadprog", types.void(types.voidptr, types.voidptr, types.voidptr)
+        )
+        _LOADED = True
+except Exception as error:  # pragma: no cover - depends on the installation
+    unavailable_reason = f"DAQP's C library could not be bound: {type(error).__name__}: {error}"
+
+
+@njit(cache=True)
+def quadprog(
+    H: Any,
+    f: Any,
+    A: Any,
+    bupper: Any,
+    blower: Any,
+    sense: Any,
+    x: Any,
+    lam: Any,
+    problem: Any,
+    result: Any,
+    settings: Any,
+) -> tuple[int, int]:
+    """``daqp_quadprog`` on C-contiguous arrays: ``(exit flag, iterations)``.
+
+    ``bupper``/``blower``/``sense`` have ``ms + rows(A)`` entries, the first ``ms`` the
+    simple bounds of ``x``; ``x`` (n) and ``lam`` (ms + rows) receive the solution;
+    ``problem``/``result``/``settings`` are :class:`DaqpNative`'s struct buffers.
+    """
+    p32 = problem.view(np.int32)
+    p64 = problem.view(np.int64)
+    m = bupper.shape[0]
+    p32[_P_N] = H.shape[0]
+    p32[_P_M] = m
+    p32[_P_MS] = m - A.shape[0]
+    p64[_P_H] = H.ctypes.data
+    p64[_P_F] = f.ctypes.data
+    p64[_P_A] = A.ctypes.data if A.shape[0] > 0 else 0
+    p64[_P_BU] = bupper.ctypes.data
+    p64[_P_BL] = blower.ctypes.data
+    p64[_P_SENSE] = sense.ctypes.data
+    p64[_P_BP] = 0
+    p32[_P_NH] = 0
+    p32[_P_TYPE] = 0
+    r64 = result.view(np.int64)
+    r64[_R_X] = x.ctypes.data
+    r64[_R_LAM] = lam.ctypes.data
+    _daqp_quadprog(result.ctypes.data, problem.ctypes.data, settings.ctypes.data)
+    r32 = result.view(np.int32)
+    return int(r32[_R_FLAG]), int(r32[_R_ITER])
+
+
+@njit(cache=True)
+def solver_seconds(result: Any) -> float:
+    """Setup + solve time of the last :func:`quadprog` call, by DAQP's own clock (s)."""
+    r = result.view(np.float64)
+    return float(r[_R_SETUP] + r[_R_SOLVE])
+
+
+class DaqpNative:
+    """Struct buffers for :func:`quadprog` with fixed settings (one per solver session).
+
+    Parameters
+    ----------
+    options : mapping
+        ``daqp.solve`` keyword settings (DAQP's defaults for the others).
+    """
+
+    def __init__(self, options: Mapping[str, Any]) -> None:
+        settings = _Settings()
+        _library.daqp_default_settings(ctypes.byref(settings))
+        names = {field[0] for field in _Settings._fields_}
+        for key, value in options.items():
+            if key not in names:
+                raise KeyError(f"{key!r} is not a DAQPSettings field ({sorted(names)})")
+            setattr(settings, key, value)
+        #: The three C structs as byte buffers (8-byte aligned).
+        self.settings = _buffer(ctypes.string_at(ctypes.byref(settings), ctypes.sizeof(settings)))
+        self.problem = _buffer(bytes(ctypes.sizeof(_Problem)))
+        self.result = _buffer(bytes(ctypes.sizeof(_Result)))
+
+    def solve(
+        self,
+        H: FloatArray,
+        f: FloatArray,
+        A: FloatArray,
+        bupper: FloatArray,
+        blower: FloatArray,
+        sense: NDArray[np.intc],
+    ) -> tuple[FloatArray, FloatArray, int, int]:
+        """One cold solve from Python: ``(x, lam, exit flag, iterations)`` (fresh arrays)."""
+        x = np.empty(H.shape[0])
+        lam = np.empty(bupper.shape[0])
+        flag, iterations = quadprog(
+            H, f, A, bupper, blower, sense, x, lam, self.problem, self.result, self.settings
+        )
+        return x, lam, flag, iterations
+
+
+def _buffer(data: bytes) -> NDArray[np.uint8]:
+    """A writable, 8-byte aligned uint8 copy of ``data``."""
+    words = np.zeros((len(data) + 7) // 8, dtype=np.int64)
+    raw = words.view(np.uint8)[: len(data)]
+    raw[:] = np.frombuffer(data, dtype=np.uint8)
+    return raw
+
+
+_CHECKED: bool | None = None
+
+
+def _self_test() -> bool:
+    """The binding and ``daqp.solve`` agree exactly on a small QP (layout check)."""
+    rng = np.random.default_rng(7)
+    n, rows = 4, 6
+    M = rng.standard_normal((n, n))
+    H = M @ M.T + np.eye(n)
+    f = rng.standard_normal(n)
+    A = rng.standard_normal((rows, n))
+    bupper = np.concatenate([np.full(n, 0.3), rng.random(rows) * 0.2])
+    blower = -bupper
+    sense = np.zeros(n + rows, dtype=np.intc)
+    x, lam, flag, iterations = DaqpNative({"primal_tol": 1e-9}).solve(
+        H, f, A, bupper, blower, sense
+    )
+    x_ref, _, flag_ref, info = _daqp.solve(H, f, A, bupper, blower, sense, primal_tol=1e-9)
+    return bool(
+        flag == flag_ref
+        and iterations == info["iterations"]
+        and np.array_equal(x, x_ref)
+        and np.array_equal(lam, info["lam"])
+    )
+
+
+def native(options: Mapping[str, Any]) -> DaqpNative | None:
+    """A :class:`DaqpNative` for ``options``, or ``None`` (then see :data:`unavailable_reason`).
+
+    The first call runs the layout self-test; a failure disables the binding for the process.
+    """
+    global _CHECKED, unavailable_reason
+    if not _LOADED:
+        return None
+    if _CHECKED is None:
+        try:
+            _CHECKED = _self_test()
+        except Exception as error:  # pragma: no cover - a broken binding
+            _CHECKED = False
+            unavailable_reason = f"DAQP binding self-test raised {type(error).__name__}: {error}"
+        else:
+            if not _CHECKED:  # pragma: no cover
+                unavailable_reason = "DAQP binding self-test: results differ from daqp.solve"
+    if not _CHECKED:
+        return None
+    try:
+        return DaqpNative(options)
+    except KeyError as error:
+        unavailable_reason = str(error)
+        return None
