@@ -106,14 +106,16 @@ def test_environment_variable_selects_the_reference(monkeypatch: pytest.MonkeyPa
     assert model.kernel.compiled
 
 
+@pytest.mark.parametrize("backward", [False, True])
 @pytest.mark.parametrize(
     ("n", "m", "N", "diagonal_Q"),
-    [(5, 1, 5, True), (4, 2, 7, True), (3, 2, 4, False), (6, 3, 12, True)],
+    [(5, 1, 5, True), (4, 2, 7, True), (3, 2, 4, False), (6, 3, 12, True), (2, 1, 30, False)],
 )
 def test_compiled_condensing_matches_the_numpy_build(
-    n: int, m: int, N: int, diagonal_Q: bool
+    n: int, m: int, N: int, diagonal_Q: bool, backward: bool
 ) -> None:
-    """CondensedTranscription.build: numba version vs numpy reference, every QP array."""
+    """CondensedTranscription.build: numba version vs numpy reference, every QP array, with
+    H and g0 from the Gram matrix and from the backward recursion."""
     from lstm_factories import random_delta_iss_lstm
 
     from ltv_lstm_mpc import MPCConfig, RobustMPC
@@ -124,6 +126,7 @@ def test_compiled_condensing_matches_the_numpy_build(
     fast = RobustMPC(model, config)
     reference = RobustMPC(model, config, certification=fast.certification)
     assert fast._problem.compiled
+    fast._problem.backward_condensing = backward
     reference._problem.compiled = False
     rng = np.random.default_rng(1)
     u_bar = rng.uniform(-0.3, 0.3, m)

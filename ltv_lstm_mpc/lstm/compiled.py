@@ -182,6 +182,7 @@ def condense(
     M: Any,
     Maug: Any,
     Lt: Any,
+    Qs: Any,
     x_bar: Any,
     u_bar: Any,
     R: Any,
@@ -200,22 +201,25 @@ def condense(
     lb: Any,
     ub: Any,
     diagonal: bool,
+    backward: bool,
 ) -> float:
     r"""The input part of the condensed QP (``CondensedTranscription.build``), in place.
 
     Input-to-state matrices by the recursion :math:`\Gamma_{i+1} = A_i \Gamma_i + B_i e_i`
-    (only the causal columns; ``M[i][:, 2n:]``), the weighted stack ``Maug`` (stage weights
-    ``Lt[i]``, last column the weighted deviation from :math:`\bar x`), its Gram matrix
-    (one BLAS product) giving ``H`` and ``g0``, the tightened output rows i = 1..N-1 and the
-    terminal box rows in :math:`\delta u`, and the input bounds around the candidate. The
-    part in :math:`\delta x_0` (``F`` and ``E`` of the numpy build, :math:`O(N n^3)`) is not
-    formed: :func:`insert_state` propagates :math:`\delta x_0` at feedback time
-    (:math:`O(N n^2)`). Returns the violation scale :math:`1 + \max(u_{max}, |lo_0|, |up_0|)`.
+    (only the causal columns; ``M[i][:, 2n:]``), then the Hessian ``H`` and gradient ``g0``
+    :math:`H = \sum_i \Gamma_i^\top Q_i \Gamma_i + \mathrm{blkdiag}(R)`,
+    :math:`g_0 = \sum_i \Gamma_i^\top Q_i (\tilde x_i - \bar x) + R(\tilde u - \bar u)`
+    (``Qs[i]`` weighs :math:`x_{i+1}`, ``Lt[i]`` is its factor) in one of two ways with the
+    same result (see :func:`_hessian_gram`, :func:`_hessian_backward`), the tightened output
+    rows i = 1..N-1 and the terminal box rows in :math:`\delta u`, and the input bounds
+    around the candidate. The part in :math:`\delta x_0` (``F`` and ``E`` of the numpy
+    build) is not formed: :func:`insert_state` propagates :math:`\delta x_0` at feedback
+    time. Returns the violation scale :math:`1 + \max(u_{max}, |lo_0|, |up_0|)`.
 
     The state Jacobian of eq. (lstm) has diagonal :math:`\partial c^+/\partial c` and
     :math:`\partial h^+/\partial c` blocks (the gates do not depend on c), so the recursion
     takes two n x n products per stage instead of one 2n x 2n product (half the flops);
-    ``diagonal`` says the stage weights ``Lt`` are diagonal (diagonal Q).
+    ``diagonal`` says the stage weights are diagonal (diagonal Q).
     """
     N = J.shape[0]
     n2 = J.shape[1]
@@ -245,36 +249,10 @@ def condense(
                 M[i + 1, r, live + j] = J[i, r, n2 + j]
             for c in range(live + m, cols):
                 M[i + 1, r, c] = 0.0
-    for i in range(N):
-        live = n2 + (i + 1) * m
-        if diagonal:
-            for r in range(n2):
-                w = Lt[i, r, r]
-                target = Maug[i, r]
-                source = M[i + 1, r]
-                for c in range(n2, live):
-                    target[c] = w * source[c]
-                for c in range(live, cols):
-                    target[c] = 0.0
-                target[cols] = w * (S[i + 1, r] - x_bar[r])
-        else:
-            weighted = np.ascontiguousarray(Lt[i]) @ np.ascontiguousarray(M[i + 1, :, n2:live])
-            for r in range(n2):
-                target = Maug[i, r]
-                for c in range(live - n2):
-                    target[n2 + c] = weighted[r, c]
-                for c in range(live, cols):
-                    target[c] = 0.0
-                acc = 0.0
-                for q in range(n2):
-                    acc += Lt[i, r, q] * (S[i + 1, q] - x_bar[q])
-                target[cols] = acc
-    flat = np.ascontiguousarray(Maug.reshape(N * n2, cols + 1)[:, n2:])  # BLAS wants contiguous
-    gram = flat.T @ flat
-    for a in range(nu):
-        for b in range(nu):
-            H[a, b] = gram[a, b]
-        g0[a] = gram[a, nu]
+    if backward:
+        _hessian_backward(J, S, M, Qs, x_bar, H, g0, diagonal)
+    else:
+        _hessian_gram(S, M, Maug, Lt, x_bar, H, g0, diagonal)
     for i in range(N):
         for a in range(m):
             acc = 0.0
@@ -322,12 +300,161 @@ def condense(
 
 
 @njit(cache=True)
+def _hessian_gram(S: Any, M: Any, Maug: Any, Lt: Any, x_bar: Any, H: Any, g0: Any,
+                  diagonal: bool) -> None:  # fmt: skip
+    r"""``H`` and ``g0`` (without R) as one Gram matrix: the weighted stack
+    ``Maug[i] = [Lt_i \Gamma_{i+1}, Lt_i (\tilde x_{i+1} - \bar x)]`` (N, 2n, Nm + 1) and one
+    BLAS product :math:`O(N^3 n m^2)`, the cheaper way for short horizons."""
+    N, n2 = Maug.shape[0], Maug.shape[1]
+    nu = Maug.shape[2] - 1
+    m = nu // N
+    for i in range(N):
+        live = (i + 1) * m
+        if diagonal:
+            for r in range(n2):
+                w = Lt[i, r, r]
+                target = Maug[i, r]
+                source = M[i + 1, r]
+                for c in range(live):
+                    target[c] = w * source[n2 + c]
+                for c in range(live, nu):
+                    target[c] = 0.0
+                target[nu] = w * (S[i + 1, r] - x_bar[r])
+        else:
+            weighted = np.ascontiguousarray(Lt[i]) @ np.ascontiguousarray(
+                M[i + 1, :, n2 : n2 + live]
+            )
+            for r in range(n2):
+                target = Maug[i, r]
+                for c in range(live):
+                    target[c] = weighted[r, c]
+                for c in range(live, nu):
+                    target[c] = 0.0
+                acc = 0.0
+                for q in range(n2):
+                    acc += Lt[i, r, q] * (S[i + 1, q] - x_bar[q])
+                target[nu] = acc
+    flat = Maug.reshape(N * n2, nu + 1)
+    gram = flat.T @ flat
+    for a in range(nu):
+        for b in range(nu):
+            H[a, b] = gram[a, b]
+        g0[a] = gram[a, nu]
+
+
+@njit(cache=True)
+def _transpose_times(J: Any, i: int, s: Any, out: Any) -> None:
+    r"""``out = A_i^T s`` for the state Jacobian :math:`A_i` (its diagonal c-column blocks)."""
+    n2 = s.shape[0]
+    n = n2 // 2
+    for r in range(n):
+        out[r] = J[i, r, r] * s[r] + J[i, n + r, r] * s[n + r]
+    for q in range(n):
+        acc = 0.0
+        for row in range(n2):
+            acc += J[i, row, n + q] * s[row]
+        out[n + q] = acc
+
+
+@njit(cache=True)
+def _weight_times(Qs: Any, i: int, v: Any, out: Any, diagonal: bool) -> None:
+    """``out = Qs[i] v``."""
+    n2 = v.shape[0]
+    for r in range(n2):
+        if diagonal:
+            out[r] = Qs[i, r, r] * v[r]
+            continue
+        acc = 0.0
+        for q in range(n2):
+            acc += Qs[i, r, q] * v[q]
+        out[r] = acc
+
+
+@njit(cache=True)
+def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: Any,
+                      diagonal: bool) -> None:  # fmt: skip
+    r"""``H`` and ``g0`` (without R) by the backward recursion of the cost-to-go weights,
+    :math:`O(N n^3 + N^2 n m^2)`, the cheaper way for long horizons.
+
+    With :math:`W_N = Q_N`, :math:`W_i = Q_i + A_i^\top W_{i+1} A_i` and
+    :math:`V_i = W_{i+1} B_i`: :math:`H_{ji} = \Gamma_{i+1}[:, j]^\top V_i` (j <= i; the
+    causal column blocks of ``M``) and :math:`g_{0,i} = B_i^\top s_{i+1}` with
+    :math:`s_N = Q_N (\tilde x_N - \bar x)`, :math:`s_i = Q_i (\tilde x_i - \bar x) +
+    A_i^\top s_{i+1}`: the same sums as the Gram matrix, grouped by stage.
+    """
+    N, n2 = J.shape[0], J.shape[1]
+    m = J.shape[2] - n2
+    n = n2 // 2
+    W = np.empty((n2, n2))
+    WA = np.empty((n2, n2))
+    V = np.empty((n2, m))
+    for r in range(n2):
+        for q in range(n2):
+            W[r, q] = Qs[N - 1, r, q]
+    s = np.empty(n2)
+    dev = np.empty(n2)
+    As = np.empty(n2)
+    for q in range(n2):
+        dev[q] = S[N, q] - x_bar[q]
+    _weight_times(Qs, N - 1, dev, s, diagonal)
+    for i in range(N - 1, -1, -1):
+        # V_i = W_{i+1} B_i and the H blocks of input i against inputs j <= i
+        for r in range(n2):
+            for b in range(m):
+                acc = 0.0
+                for q in range(n2):
+                    acc += W[r, q] * J[i, q, n2 + b]
+                V[r, b] = acc
+        for j in range(i + 1):
+            for a in range(m):
+                for b in range(m):
+                    acc = 0.0
+                    for r in range(n2):
+                        acc += M[i + 1, r, n2 + j * m + a] * V[r, b]
+                    H[j * m + a, i * m + b] = acc
+                    H[i * m + b, j * m + a] = acc
+        for b in range(m):
+            acc = 0.0
+            for r in range(n2):
+                acc += J[i, r, n2 + b] * s[r]
+            g0[i * m + b] = acc
+        if i == 0:
+            break
+        # W_i = Q_i + A_i^T W_{i+1} A_i (A_i's c-columns are diagonal blocks); inner loops
+        # run along rows (contiguous)
+        for r in range(n2):
+            for q in range(n):
+                WA[r, q] = W[r, q] * J[i, q, q] + W[r, n + q] * J[i, n + q, q]
+                WA[r, n + q] = 0.0
+            for t in range(n2):
+                w = W[r, t]
+                for q in range(n):
+                    WA[r, n + q] += w * J[i, t, n + q]
+        for r in range(n):
+            d_cc, d_hc = J[i, r, r], J[i, n + r, r]
+            for q in range(n2):
+                W[r, q] = d_cc * WA[r, q] + d_hc * WA[n + r, q] + Qs[i - 1, r, q]
+                W[n + r, q] = Qs[i - 1, n + r, q]
+        for t in range(n2):
+            for r in range(n):
+                j_tr = J[i, t, n + r]
+                for q in range(n2):
+                    W[n + r, q] += j_tr * WA[t, q]
+        # s_i = Q_i (x_i - x_bar) + A_i^T s_{i+1}
+        _transpose_times(J, i, s, As)
+        for q in range(n2):
+            dev[q] = S[i, q] - x_bar[q]
+        _weight_times(Qs, i - 1, dev, s, diagonal)
+        for q in range(n2):
+            s[q] += As[q]
+
+
+@njit(cache=True)
 def insert_state(
     x_hat: Any,
     S: Any,
     J: Any,
-    Lt: Any,
-    Maug: Any,
+    Qs: Any,
     W_y: Any,
     g0: Any,
     lo0: Any,
@@ -341,17 +468,19 @@ def insert_state(
     r"""Feedback data of the condensed QP for :math:`\delta x_0 = \hat x - \tilde x_0`.
 
     Propagates :math:`\delta x^0_{i+1} = A_i \delta x^0_i` into ``dX`` (N + 1, 2n), then
-    :math:`f = g_0 + \sum_i (L_i \Gamma_{i+1})^\top L_i \delta x^0_{i+1}` and the rows
+    :math:`f = g_0 + \sum_i \Gamma_i^\top Q_i \delta x^0_i` by the backward recursion
+    :math:`s_N = Q_N \delta x^0_N`, :math:`s_i = Q_i \delta x^0_i + A_i^\top s_{i+1}`,
+    :math:`f_i = g_{0,i} + B_i^\top s_{i+1}` (:math:`O(N n^2)`), and the rows
     :math:`lo_0 - W_y \delta h^0_i`, :math:`up_0 - W_y \delta h^0_i` (i = 1..N-1) and
-    :math:`lo_0 - \delta x^0_N`, :math:`up_0 - \delta x^0_N` (terminal box). The
-    propagation uses the diagonal blocks of the state Jacobian (see :func:`condense`);
-    ``diagonal``: the stage weights ``Lt`` are diagonal.
+    :math:`lo_0 - \delta x^0_N`, :math:`up_0 - \delta x^0_N` (terminal box). Both
+    recursions use the diagonal blocks of the state Jacobian (see :func:`condense`);
+    ``Qs[i]`` weighs :math:`x_{i+1}`, ``diagonal``: they are diagonal.
     """
     N = J.shape[0]
     n2 = J.shape[1]
+    m = J.shape[2] - n2
     n = n2 // 2
     p = W_y.shape[0]
-    nu = f.shape[0]
     for q in range(n2):
         dX[0, q] = x_hat[q] - S[0, q]
     for i in range(N):
@@ -363,23 +492,21 @@ def insert_state(
                 acc_h += J[i, n + r, n + q] * dX[i, n + q]
             dX[i + 1, r] = acc_c
             dX[i + 1, n + r] = acc_h
-    for a in range(nu):
-        f[a] = g0[a]
-    weighted = np.empty(n2)
-    for i in range(N):
-        for r in range(n2):
-            if diagonal:
-                weighted[r] = Lt[i, r, r] * dX[i + 1, r]
-                continue
-            acc = 0.0
-            for q in range(n2):
-                acc += Lt[i, r, q] * dX[i + 1, q]
-            weighted[r] = acc
-        for r in range(n2):
-            w = weighted[r]
-            row = Maug[i, r]
-            for a in range(nu):
-                f[a] += row[n2 + a] * w
+    s = np.empty(n2)
+    As = np.empty(n2)
+    _weight_times(Qs, N - 1, dX[N], s, diagonal)
+    for i in range(N - 1, -1, -1):
+        for b in range(m):
+            acc = g0[i * m + b]
+            for r in range(n2):
+                acc += J[i, r, n2 + b] * s[r]
+            f[i * m + b] = acc
+        if i == 0:
+            break
+        _transpose_times(J, i, s, As)
+        _weight_times(Qs, i - 1, dX[i], s, diagonal)
+        for q in range(n2):
+            s[q] += As[q]
     n_out = (N - 1) * p
     for i in range(1, N):
         for j in range(p):

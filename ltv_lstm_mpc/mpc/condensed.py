@@ -66,7 +66,14 @@ from ltv_lstm_mpc.solvers import (
     solver_info,
 )
 
-__all__ = ["CondensedTranscription"]
+__all__ = ["BACKWARD_CONDENSING_RATIO", "CondensedTranscription"]
+
+#: The compiled condensing forms H and g0 by the backward recursion when N m exceeds this
+#: multiple of the state dimension 2n (else by the Gram matrix); see ``lstm/compiled.py``.
+#: Measured (``experiments/condensing_speed.py``, backward / Gram time): n = 5, m = 1:
+#: 1.62 / 1.32 / 1.12 / 0.80 at N = 20 / 30 / 40 / 50; n = 10: 1.06 at N = 50, 0.68 at 80;
+#: n = 20, m = 2: 2.04 at N = 20, 0.80 at 50.
+BACKWARD_CONDENSING_RATIO = 3.5
 
 FloatArray = NDArray[np.float64]
 
@@ -166,6 +173,13 @@ class CondensedTranscription(TranscriptionBase):
                 np.stack([np.diag(row) for row in self._sw[:, :, 0]]) if self._diag_Q else self._Lt
             )
             self._Lt_all = np.ascontiguousarray(Lt_all)
+            #: Q_i = Lt_i' Lt_i, the weight of x_{i+1} (the backward recursions' form).
+            self._Qs = np.ascontiguousarray(np.matmul(self._Lt_all.transpose(0, 2, 1), Lt_all))
+            self._Maug_inputs = np.empty((N, n2, nu + 1))  # Gram stack, input columns only
+            #: H and g0 by the backward recursion (O(N n^3 + N^2 n m^2)) rather than the Gram
+            #: matrix (O(N^3 n m^2)) when the horizon is long for the state size (measured:
+            #: experiments/condensing_speed.py).
+            self.backward_condensing = N * m > BACKWARD_CONDENSING_RATIO * n2
             self._R = np.ascontiguousarray(R, dtype=np.float64)
             self._H = np.zeros((nu, nu))  # no F, E: delta x_0 enters at feedback time
             self._g0 = np.zeros(nu)
@@ -189,7 +203,7 @@ class CondensedTranscription(TranscriptionBase):
         native = self._sessions["nominal"].native if "nominal" in self._sessions else None
         if self.compiled and not self.exact_cones and native is not None:
             self._native_buffers = (
-                self._Lt_all, self._Maug, self._g0, self._lo0, self._up0, self._dX, self._f,
+                self._Qs, self._g0, self._lo0, self._up0, self._dX, self._f,
                 self._low, self._high, self._diag_Q, self._H, self._A, self._M,
                 np.zeros(nu + self._mA, dtype=np.intc),  # cold working set
                 np.empty(nu),  # z
@@ -312,10 +326,10 @@ class CondensedTranscription(TranscriptionBase):
         self._alpha = alpha
         if self.compiled:
             self.scale = _compiled.condense(
-                J, S, M, self._Maug, self._Lt_all, x_bar, u_bar, self._R, self._W_y,
-                self._b_y, lower, upper, self._unit_half, float(alpha), float(self.config.u_max),
-                self._H, self._g0, self._A, self._lo0, self._up0, self._lb, self._ub,
-                self._diag_Q,
+                J, S, M, self._Maug_inputs, self._Lt_all, self._Qs, x_bar, u_bar, self._R,
+                self._W_y, self._b_y, lower, upper, self._unit_half, float(alpha),
+                float(self.config.u_max), self._H, self._g0, self._A, self._lo0, self._up0,
+                self._lb, self._ub, self._diag_Q, self.backward_condensing,
             )  # fmt: skip
             return
         matmul = np.matmul
@@ -428,7 +442,7 @@ class CondensedTranscription(TranscriptionBase):
         if compiled:  # delta x_0 propagated here, not condensed in prepare (compiled.py)
             f, lo, up = self._f, self._lo, self._up
             _compiled.insert_state(
-                x_hat, S, traj.J, self._Lt_all, self._Maug, self._W_y, self._g0,
+                x_hat, S, traj.J, self._Qs, self._W_y, self._g0,
                 self._lo0, self._up0, self._dX, f, lo, up, self._diag_Q,
             )  # fmt: skip
         else:

@@ -47,8 +47,7 @@ def nominal_feedback(
     scale: float,
     S: Any,
     J: Any,
-    Lt: Any,
-    Maug: Any,
+    Qs: Any,
     g0: Any,
     lo0: Any,
     up0: Any,
@@ -108,7 +107,7 @@ def nominal_feedback(
         return 0, 0, 0.0, 0.0
     # ---- insert, solve, expand (CondensedTranscription.solve)
     nu = f.shape[0]
-    insert_state(x_hat, S, J, Lt, Maug, W_y, g0, lo0, up0, dX, f, low[nu:], high[nu:], diagonal)
+    insert_state(x_hat, S, J, Qs, W_y, g0, lo0, up0, dX, f, low[nu:], high[nu:], diagonal)
     flag, iterations = quadprog(H, f, A, high, low, sense, z, lam, problem, result, settings)
     seconds = solver_seconds(result)
     if flag != 1 and flag != 2:
