@@ -64,12 +64,12 @@ def test_stale_reference_is_recorded_and_consistent(model) -> None:
     controller.step([7.0], [7.2])
     good = controller.records[-1]
     assert good.reference_ok and not good.stale_reference
-    original = controller.reference.solve
+    original = controller.reference.solve_arrays  # the controller's (checked-input) call
 
-    def failing(y0, d_hat, **kwargs):  # type: ignore[no-untyped-def]
-        return replace(original(y0, d_hat, **kwargs), converged=False)
+    def failing(y0, d_hat, *args):  # type: ignore[no-untyped-def]
+        return replace(original(y0, d_hat, *args), converged=False)
 
-    controller.reference.solve = failing  # type: ignore[method-assign]
+    controller.reference.solve_arrays = failing  # type: ignore[method-assign]
     with pytest.warns(RuntimeWarning, match=r"set-point \[7.5\] \(physical units\) at step 1"):
         controller.step([7.05], [7.5])
     stale = controller.records[-1]

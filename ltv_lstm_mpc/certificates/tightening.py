@@ -12,9 +12,11 @@ All values are in normalized units (SPEC 1).
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -182,20 +184,21 @@ class TighteningCertificate:
             if y0_arr.shape != self.y_min.shape:
                 raise DimensionError(f"y0 has shape {y0_arr.shape}, expected {self.y_min.shape}")
             y0_list = y0_arr.tolist()
-        e_tilde = self.e_tilde(e_hat)
-        two_d = 2.0 * self.d_max
+        cache = self._alpha_margins  # [e_hat, 2 d_max + a_N e_tilde + b_N] of the last call
+        if cache[0] != e_hat:
+            e_tilde = self.e_tilde(e_hat)
+            two_d = 2.0 * self.d_max
+            cache[:] = [e_hat, [two_d + a * e_tilde + b for a, b in zip(a_N, b_N, strict=True)]]
         # Scalar loop over the p outputs (hot path: no temporary arrays).
         return min(
             min((hi - y - margin) / k, (y - lo - margin) / k)
-            for y, hi, lo, k, margin in zip(
-                y0_list,
-                y_max,
-                y_min,
-                kappa,
-                [two_d + a * e_tilde + b for a, b in zip(a_N, b_N, strict=True)],
-                strict=True,
-            )
+            for y, hi, lo, k, margin in zip(y0_list, y_max, y_min, kappa, cache[1], strict=True)
         )
+
+    @cached_property
+    def _alpha_margins(self) -> list[Any]:
+        """Mutable cache of :meth:`alpha`'s margins: ``[e_hat, margins per output]``."""
+        return [math.nan, []]
 
     @cached_property
     def _alpha_terms(self) -> tuple[list[float], ...]:

@@ -164,13 +164,15 @@ class OffsetFreeController:
         self.reference.reset()
         self.records = []
         self._warned_saturation = self._warned_setpoint = False
-        self._interval: tuple[float, FloatArray, FloatArray] = (math.nan, np.zeros(0), np.zeros(0))
+        self._interval: tuple[float, list[float], list[float]] = (math.nan, [], [])
 
     def _limit(self, y0_target: FloatArray) -> FloatArray:
         if self._y0 is None or self.setpoint_rate_limit is None:
             return y0_target
-        change = np.clip(y0_target - self._y0, -self.setpoint_rate_limit, self.setpoint_rate_limit)
-        return np.asarray(self._y0 + change, dtype=np.float64)
+        limit = self.setpoint_rate_limit
+        change = np.minimum(np.maximum(y0_target - self._y0, -limit), limit)  # np.clip, faster
+        change += self._y0
+        return change
 
     def _reference(
         self, reference: ReferenceSolution, y0: FloatArray, d_hat: FloatArray
@@ -203,9 +205,11 @@ class OffsetFreeController:
     ) -> tuple[str, NDArray[np.bool_]]:
         """Set-point status and saturated outputs of this step; warns once per run."""
         ti = self.certification.tightening
-        saturated = np.abs(d_hat) >= self.config.d_max * (1.0 - 1e-12)
+        limit = self.config.d_max * (1.0 - 1e-12)
+        flags = [abs(d) >= limit for d in d_hat.tolist()]  # p scalars: lists beat numpy here
+        saturated = np.array(flags)
         k = len(self.records)
-        if saturated.any() and not self._warned_saturation:
+        if any(flags) and not self._warned_saturation:
             self._warned_saturation = True
             j = int(np.flatnonzero(saturated)[0])
             scale = float(self._y_scale[j])
@@ -224,9 +228,11 @@ class OffsetFreeController:
             status = "unreachable_stale" if stale else "unreachable"
         else:
             if self._interval[0] != self.e_hat:
-                self._interval = (self.e_hat, *ti.setpoint_interval(self.e_hat))
-            _, low, high = self._interval
-            status = "ok" if bool(np.all((low < y0) & (y0 < high))) else "outside_admissible"
+                low, high = ti.setpoint_interval(self.e_hat)
+                self._interval = (self.e_hat, low.tolist(), high.tolist())
+            _, lows, highs = self._interval
+            inside = all(a < y < b for a, y, b in zip(lows, y0.tolist(), highs, strict=True))
+            status = "ok" if inside else "outside_admissible"
         if status != "ok" and not self._warned_setpoint:
             self._warned_setpoint = True
             low, high = ti.setpoint_interval(self.e_hat)
@@ -257,7 +263,7 @@ class OffsetFreeController:
 
     def _solve_reference(self, y0: FloatArray, d_hat: FloatArray) -> ReferenceSolution:
         """eq. (reference_calculation) at this step."""
-        return self.reference.solve(y0, d_hat)
+        return self.reference.solve_arrays(y0, d_hat)  # both checked float64 (p,) arrays
 
     def _solve_mpc(
         self, x_hat: FloatArray, reference: ReferenceSolution, y0: FloatArray
@@ -298,7 +304,7 @@ class OffsetFreeController:
         t2 = time.perf_counter()
         solution = self._solve_mpc(x_hat, reference, y0_mpc)
         u = solution.u[0].copy()
-        if not math.isfinite(float(u.sum())):  # pragma: no cover - the MPC validates its plans
+        if not math.isfinite(sum(u.tolist())):  # pragma: no cover - the MPC validates its plans
             raise LtvMpcError(f"the MPC returned a non-finite input {u} (status {solution.status})")
         t3 = time.perf_counter()
         self._update_observer(y, u)

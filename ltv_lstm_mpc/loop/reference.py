@@ -306,27 +306,36 @@ class ReferenceCalculator:
         UnreachableSetpointError
             In strict mode, when no admissible equilibrium is found.
         """
+        p = self.model.p
+        return self.solve_arrays(real_vector("y0", y0, p), real_vector("d_hat", d_hat, p), warm)
+
+    def solve_arrays(
+        self,
+        y0_arr: FloatArray,
+        d_arr: FloatArray,
+        warm: tuple[ArrayLike, ArrayLike] | None = None,
+    ) -> ReferenceSolution:
+        """:meth:`solve` for arguments already checked: float64 arrays of shape (p,) with
+        finite entries (the controller's hot path; nothing is checked here)."""
         model = self.model
-        p = model.p
-        y0_arr = real_vector("y0", y0, p)
-        d_arr = real_vector("d_hat", d_hat, p)
         target = y0_arr - d_arr  # g(x_bar) must equal y0 - d_hat
         n2 = 2 * model.n
         chord: tuple[FloatArray, float] | None = None
         if warm is None and self._last_z is not None:
             z, norm, iterations, ok = self._chord(target)
             u_bar = z[n2:]
-            admissible = ok and float(np.abs(u_bar).max()) <= self.u_max * (1 + 1e-12)
+            admissible = ok and max(map(abs, u_bar.tolist())) <= self.u_max * (1 + 1e-12)
             if admissible and model.m > 1 and float(np.abs(z - self._last_z).max()) > self.jump:
                 # A MIMO equilibrium map can fold: a large jump may be another branch. Keep
                 # it as a candidate and let the restarts find the closest admissible one.
                 chord, admissible = (z, norm), False
             if admissible:
+                z.flags.writeable = False  # shared by the solution's views and the next start
                 self._last_z = z
                 self._last_target = target
                 return ReferenceSolution(
-                    x_bar=z[:n2].copy(),
-                    u_bar=u_bar.copy(),
+                    x_bar=z[:n2],
+                    u_bar=u_bar,
                     residual=norm,
                     jacobian_condition=float("nan"),
                     u_admissible=True,

@@ -312,7 +312,8 @@ class RobustMPC:
         else:
             x0 = np.asarray(x_pred, dtype=np.float64)
             if warm is None and self._plan_valid:
-                reuse = float(np.abs(x0 - plan.S[1, :n2]).max()) <= self.reuse_tol
+                gap = (x0 - plan.S[1, :n2]).tolist()  # 2n scalars: faster than numpy's max
+                reuse = max(map(abs, gap)) <= self.reuse_tol
         if reuse:
             # The shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one.
             S[:N] = plan.S[1:]
