@@ -61,6 +61,16 @@ def real_vector(name: str, value: Any, size: int) -> FloatArray:
     DimensionError
         Any other shape (e.g. ``[[7.0]]`` or two entries for one output).
     """
+    # Fast paths for the common hot-loop inputs (same checks, fewer numpy calls).
+    if isinstance(value, float) and size == 1:  # float and numpy.float64
+        if not math.isfinite(value):
+            raise InvalidValueError(f"{name} contains NaN or inf: {_describe(value)}")
+        return np.array([value], dtype=np.float64)
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (size,):
+        # the sum of a few scalars in Python; non-finite (or overflowing): the exact test
+        if not math.isfinite(sum(value.tolist())) and not bool(np.isfinite(value).all()):
+            raise InvalidValueError(f"{name} contains NaN or inf: {_describe(value)}")
+        return value
     if isinstance(value, (bool, np.bool_, str, bytes)):
         raise InvalidValueError(
             f"{name} must be real numbers, got {type(value).__name__} {_describe(value)}"
