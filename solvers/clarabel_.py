@@ -54,6 +54,7 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
+from ._compiled import clarabel_cone_rows, clarabel_fill
 from .dense import DenseBackend, DenseQP
 from .problem import SolverStatus
 from .tolerances import known_settings, solver_options
@@ -171,6 +172,17 @@ class ClarabelDense(DenseBackend):
         self._r_lb = unit_block(lo_vars, -1.0)
         self._r_cones = [dense_block(dim) for dim in cone_dims]
         self._A_take: IntArray = np.flatnonzero(mask.ravel(order="F"))
+        # (kind, source, row) per bound / row entry, for the compiled fill (_compiled.py)
+        entries = [
+            (4, eq_rows, self._r_eq_rows), (5, eq_vars, self._r_eq_vars),
+            (0, up_rows, self._r_up), (1, lo_rows, self._r_lo),
+            (2, ub_vars, self._r_ub), (3, lo_vars, self._r_lb),
+        ]  # fmt: skip
+        self._blocks = np.array(
+            [(kind, i, rows.start + k) for kind, src, rows in entries for k, i in enumerate(src)],
+            dtype=np.int64,
+        ).reshape(-1, 3)
+        self._cone_start = np.array([rows.start for rows in self._r_cones], dtype=np.int64)
         _, cols = np.nonzero(mask.T)  # column-major: CSC order
         self._A_pattern = (cols.astype(np.int64), np.concatenate([[0], np.cumsum(mask.sum(0))]))
         # upper triangle of H, column by column (CSC order)
@@ -178,6 +190,8 @@ class ClarabelDense(DenseBackend):
         order = np.lexsort((iu_r, iu_c))
         self._P_rows, self._P_cols = iu_r[order], iu_c[order]
         self._P_indptr = np.concatenate([[0], np.cumsum(np.arange(1, n + 1))]).astype(np.int64)
+        self._A_data = np.empty(self._A_take.size)
+        self._P_data = np.empty(self._P_rows.size)
         self._fill(qp)
         cones: list[Any] = []
         if n_zero:
@@ -196,27 +210,15 @@ class ClarabelDense(DenseBackend):
         self._n_zero, self._n_nonneg = n_zero, n_nonneg
 
     def _fill(self, qp: DenseQP) -> None:
-        """Write the values of ``qp`` into the dense image, ``b`` and the data vectors."""
+        """Write the values of ``qp`` into the dense image, ``b`` and the data vectors
+        (one compiled call, ``solvers/_compiled.clarabel_fill``)."""
         M, b = self._M, self._b
-        A = qp.A
-        if self._has_eq:
-            M[self._r_eq_rows] = A[self._eq_rows]
-            b[self._r_eq_rows] = qp.up[self._eq_rows]
-            b[self._r_eq_vars] = qp.ub[self._eq_vars]
-        M[self._r_up] = A[self._up_rows]
-        b[self._r_up] = qp.up[self._up_rows]
-        np.negative(A[self._lo_rows], out=M[self._r_lo])
-        b[self._r_lo] = -qp.lo[self._lo_rows]
-        b[self._r_ub] = qp.ub[self._ub_vars]
-        b[self._r_lb] = -qp.lb[self._lo_vars]
-        for rows, cone in zip(self._r_cones, qp.cones, strict=True):
-            start = rows.start
-            np.negative(cone.e, out=M[start])
-            np.negative(cone.F, out=M[start + 1 : rows.stop])
-            b[start] = cone.f
-            b[start + 1 : rows.stop] = cone.g
-        self._A_data = M.ravel(order="F")[self._A_take]
-        self._P_data = qp.H[self._P_rows, self._P_cols]
+        for start, cone in zip(self._cone_start.tolist(), qp.cones, strict=True):
+            clarabel_cone_rows(cone.F, cone.g, cone.e, cone.f, start, M, b)
+        clarabel_fill(
+            qp.H, qp.A, qp.lo, qp.up, qp.lb, qp.ub, self._blocks, M, b, self._A_take,
+            self._A_data, self._P_rows, self._P_cols, self._P_data,
+        )  # fmt: skip
 
     def update(self, qp: DenseQP) -> None:
         """New values through CLARABEL's data update; a new finite pattern sets up afresh."""

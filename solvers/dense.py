@@ -50,6 +50,7 @@ import scipy.sparse as sp
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, SolverError
 
 from ._base import FloatArray, RawResult, WarmStart
+from ._compiled import bounds_rows_violation, cone_violation
 from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, _check_bounds
 
 __all__ = ["DenseBackend", "DenseBackendFactory", "DenseCone", "DenseQP", "DenseSession"]
@@ -257,15 +258,11 @@ class DenseQP:
             raise DimensionError(f"x must have shape {self.f.shape}, got {xx.shape}")
         if not math.isfinite(float(xx.sum())) and not np.all(np.isfinite(xx)):
             return float("inf")
-        viol = 0.0
-        if xx.shape[0]:
-            viol = max(viol, float((self.lb - xx).max()), float((xx - self.ub).max()))
-        if self.A.shape[0]:
-            Ax = self.A @ xx
-            viol = max(viol, float((self.lo - Ax).max()), float((Ax - self.up).max()))
+        # compiled loops (solvers/_compiled.py); DenseCone.violation is the numpy reference
+        viol = bounds_rows_violation(xx, self.lb, self.ub, self.A, self.lo, self.up)
         for cone in self.cones:
-            viol = max(viol, cone.violation(xx))
-        return viol
+            viol = max(viol, cone_violation(cone.F, cone.g, cone.e, cone.f, xx))
+        return float(viol)
 
     def to_convex_problem(self) -> ConvexProblem:
         """The same QP as a :class:`ConvexProblem` (rows in ``G``, ``l = lo``, ``u = up``).

@@ -1,0 +1,112 @@
+"""Compiled (numba) helpers of the dense layer's hot calls; the numpy code is the reference.
+
+:meth:`~ltv_lstm_mpc.solvers.dense.DenseQP.max_violation` checks every solver point of the
+controller loop; on the small QPs of MPC its dozen numpy reductions cost more than the
+arithmetic. These loops give the same values (sums in another order: a few ulps) and are
+tested against the numpy expressions in ``tests/solvers/test_dense_compiled.py``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from numba import njit
+
+__all__ = [
+    "bounds_rows_violation",
+    "clarabel_cone_rows",
+    "clarabel_fill",
+    "cone_violation",
+]
+
+
+@njit(cache=True)
+def bounds_rows_violation(x: Any, lb: Any, ub: Any, A: Any, lo: Any, up: Any) -> float:
+    """Largest violation (>= 0) of ``lb <= x <= ub`` and ``lo <= A x <= up``."""
+    violation = 0.0
+    for j in range(x.shape[0]):
+        violation = max(violation, lb[j] - x[j], x[j] - ub[j])
+    for i in range(A.shape[0]):
+        acc = 0.0
+        for j in range(x.shape[0]):
+            acc += A[i, j] * x[j]
+        violation = max(violation, lo[i] - acc, acc - up[i])
+    return violation
+
+
+@njit(cache=True)
+def cone_violation(F: Any, g: Any, e: Any, f: float, x: Any) -> float:
+    r""":math:`\|F x + g\| - e^\top x - f` (positive where the cone is violated)."""
+    square = 0.0
+    for i in range(F.shape[0]):
+        acc = g[i]
+        for j in range(x.shape[0]):
+            acc += F[i, j] * x[j]
+        square += acc * acc
+    level = f
+    for j in range(x.shape[0]):
+        level += e[j] * x[j]
+    return math.sqrt(square) - level
+
+
+@njit(cache=True)
+def clarabel_fill(
+    H: Any,
+    A: Any,
+    lo: Any,
+    up: Any,
+    lb: Any,
+    ub: Any,
+    blocks: Any,
+    M: Any,
+    b: Any,
+    take: Any,
+    A_data: Any,
+    P_rows: Any,
+    P_cols: Any,
+    P_data: Any,
+) -> None:
+    """The values of a dense QP in CLARABEL's data (``ClarabelDense._fill``, same layout).
+
+    ``blocks``: (kind, source index, target row) per bound / row entry of the CLARABEL
+    matrix, kind 0: ``A`` row ``i`` with right-hand side ``up[i]``; 1: ``-A`` row, ``-lo``;
+    2: unit row of variable ``j`` (``+1``) with ``ub[j]``; 3: unit row (``-1``) with
+    ``-lb[j]``; 4: equality row of ``A`` with ``up[i]``; 5: fixed variable ``j``, ``ub[j]``.
+    Unit rows keep their constant matrix entries (written at setup); the cones' rows are
+    written before, by :func:`clarabel_cone_rows`.
+    """
+    n = A.shape[1]
+    for k in range(blocks.shape[0]):
+        kind, i, row = blocks[k, 0], blocks[k, 1], blocks[k, 2]
+        if kind == 0 or kind == 4:
+            for j in range(n):
+                M[row, j] = A[i, j]
+            b[row] = up[i]
+        elif kind == 1:
+            for j in range(n):
+                M[row, j] = -A[i, j]
+            b[row] = -lo[i]
+        elif kind == 2 or kind == 5:
+            b[row] = ub[i]
+        else:
+            b[row] = -lb[i]
+    rows = M.shape[0]
+    for k in range(take.shape[0]):  # M in Fortran order: entry k is M[k % rows, k // rows]
+        index = take[k]
+        A_data[k] = M[index % rows, index // rows]
+    for k in range(P_rows.shape[0]):
+        P_data[k] = H[P_rows[k], P_cols[k]]
+
+
+@njit(cache=True)
+def clarabel_cone_rows(F: Any, g: Any, e: Any, f: float, start: int, M: Any, b: Any) -> None:
+    """The rows ``[-e'; -F]`` of one second-order cone from row ``start``, with ``[f; g]``."""
+    n = F.shape[1]
+    for j in range(n):
+        M[start, j] = -e[j]
+    b[start] = f
+    for r in range(F.shape[0]):
+        for j in range(n):
+            M[start + 1 + r, j] = -F[r, j]
+        b[start + 1 + r] = g[r]
