@@ -109,7 +109,14 @@ def test_environment_variable_selects_the_reference(monkeypatch: pytest.MonkeyPa
 @pytest.mark.parametrize("backward", [False, True])
 @pytest.mark.parametrize(
     ("n", "m", "N", "diagonal_Q"),
-    [(5, 1, 5, True), (4, 2, 7, True), (3, 2, 4, False), (6, 3, 12, True), (2, 1, 30, False)],
+    [
+        (5, 1, 5, True),
+        (4, 2, 7, True),
+        (3, 2, 4, False),
+        (6, 3, 12, True),
+        (2, 1, 30, False),
+        (11, 2, 6, False),
+    ],  # n >= 10: the BLAS branch of the recursion
 )
 def test_compiled_condensing_matches_the_numpy_build(
     n: int, m: int, N: int, diagonal_Q: bool, backward: bool

@@ -39,7 +39,7 @@ __all__ = ["ControllerStep", "OffsetFreeController"]
 FloatArray = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # one per control step: not frozen (2 us less to build)
 class ControllerStep:
     """Everything one :meth:`OffsetFreeController.step` computed (normalized unless ``_phi``).
 

@@ -29,7 +29,7 @@ __all__ = ["KBarEstimate", "ReferenceCalculator", "ReferenceSolution", "estimate
 FloatArray = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # one per control step: not frozen (2 us less to build)
 class ReferenceSolution:
     r"""Result of eq. (reference_calculation).
 

@@ -31,7 +31,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # one per control step: not frozen (2 us less to build)
 class MPCSolution:
     """Result of one :meth:`RobustMPC.solve` call (normalized units throughout).
 
