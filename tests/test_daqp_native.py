@@ -91,15 +91,20 @@ def test_dense_backend_solves_the_same_with_and_without_the_binding() -> None:
 
 
 def _same_solutions(a, b) -> None:
-    """Every field of two MPCSolutions equal (timings excepted)."""
+    """Every field of two MPCSolutions equal, numbers within 1e-12 (the compiled loops may
+    sum in another order where they are inlined; timings excepted)."""
     for field in dataclasses.fields(a):
         if field.name.endswith("time"):
             continue
         x, y = getattr(a, field.name), getattr(b, field.name)
         if isinstance(x, np.ndarray):
-            np.testing.assert_array_equal(x, y, err_msg=field.name)
-        elif isinstance(x, float) and np.isnan(x):
-            assert np.isnan(y), field.name
+            np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-12, err_msg=field.name)
+        elif isinstance(x, dict):
+            assert x.keys() == y.keys(), field.name
+            for key in x:
+                assert x[key] == pytest.approx(y[key], rel=1e-9, abs=1e-12, nan_ok=True), key
+        elif isinstance(x, float):
+            assert x == pytest.approx(y, rel=1e-9, abs=1e-12, nan_ok=True), field.name
         else:
             assert x == y, field.name
 
@@ -121,8 +126,8 @@ def _closed_loop(model, config, scenario, native: bool, steps: int):
 @needs_binding
 @pytest.mark.parametrize("index", [0, 2])  # set-point steps; an unreachable set-point (infeasible)
 def test_one_call_feedback_equals_the_general_path_in_closed_loop(index: int) -> None:
-    """Bench scenarios on the shipped pH model: the same MPCSolution at every step, bit for
-    bit (scenario 3 includes infeasible steps, which the general path handles)."""
+    """Bench scenarios on the shipped pH model: the same MPCSolution at every step (scenario
+    3 includes infeasible steps, which the general path handles)."""
     from ltv_lstm_mpc.bench.harness import bench_scenarios
 
     model = load_model("ph_lstm_n5.npz")

@@ -15,9 +15,10 @@ default; ``compiled=False`` or ``LTV_LSTM_MPC_KERNEL=numpy`` select the numpy re
   ``PlanCost`` and ``plan_residuals`` in ``mpc/fhocp.py``).
 
 The Jacobians follow the reference's order of operations (bit for bit on the same
-activations); elsewhere sums run in another order and the exponentials come from another
-library than numpy's, so the results agree to a few ulps (every function is tested against
-its reference to 1e-12 in ``tests/test_kernel.py``).
+activations); elsewhere sums run in another order (the LSTM cell, the feedback insertion,
+the backward recursions and the plan checks may vectorize theirs: :data:`_REDUCTIONS`) and
+the exponentials come from another library than numpy's, so the results agree to a few ulps
+(every function is tested against its reference to 1e-12 in ``tests/test_kernel.py``).
 
 :data:`AVAILABLE` is False when numba cannot be imported; the numpy reference then runs.
 """
@@ -45,6 +46,11 @@ except ImportError:  # pragma: no cover
         return wrap
 
 
+#: LLVM flags of the loops whose sums may run in any order (vectorized reductions, fused
+#: multiply-adds): results within a few ulps of the sequential sums. No "fast" flags that
+#: assume finite values: NaN and inf still propagate and are caught by the callers' checks.
+_REDUCTIONS = {"reassoc", "contract"}
+
 __all__ = [
     "AVAILABLE",
     "chord_newton",
@@ -59,7 +65,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=_REDUCTIONS)
 def _cell(WU: Any, z: Any, t: Any, c: Any, c_next: Any, h_next: Any, tc: Any, extra: Any) -> None:
     """One step of eq. (lstm): gates ``t`` from ``z = [h; u; 1]``, next state, tanh(c+)."""
     rows, cols = WU.shape
@@ -240,15 +246,14 @@ def condense(
         live = n2 + i * m  # columns of M[i] that can be nonzero
         if n >= _BLAS_RECURSION_N and live > n2:
             Gamma_h = np.ascontiguousarray(M[i, n:n2, n2:live])
-            c_part = np.ascontiguousarray(J[i, :n, n:n2]) @ Gamma_h
-            h_part = np.ascontiguousarray(J[i, n:n2, n:n2]) @ Gamma_h
+            by_h = np.ascontiguousarray(J[i, :, n:n2]) @ Gamma_h  # [J_ch; J_hh] Gamma_h
             for r in range(n):
                 d_cc = J[i, r, r]
                 d_hc = J[i, n + r, r]
                 for c in range(live - n2):
                     gamma_c = M[i, r, n2 + c]
-                    M[i + 1, r, n2 + c] = c_part[r, c] + d_cc * gamma_c
-                    M[i + 1, n + r, n2 + c] = h_part[r, c] + d_hc * gamma_c
+                    M[i + 1, r, n2 + c] = by_h[r, c] + d_cc * gamma_c
+                    M[i + 1, n + r, n2 + c] = by_h[n + r, c] + d_hc * gamma_c
         for r in range(n if n < _BLAS_RECURSION_N else 0):
             d_cc = J[i, r, r]
             d_hc = J[i, n + r, r]
@@ -356,28 +361,28 @@ def _hessian_gram(S: Any, M: Any, Maug: Any, Lt: Any, x_bar: Any, H: Any, g0: An
                     acc += Lt[i, r, q] * (S[i + 1, q] - x_bar[q])
                 target[nu] = acc
     flat = Maug.reshape(N * n2, nu + 1)
-    gram = flat.T @ flat
+    gram = flat.T @ flat  # one BLAS product (faster than loops over the causal blocks)
     for a in range(nu):
         for b in range(nu):
             H[a, b] = gram[a, b]
         g0[a] = gram[a, nu]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_REDUCTIONS)
 def _transpose_times(J: Any, i: int, s: Any, out: Any) -> None:
     r"""``out = A_i^T s`` for the state Jacobian :math:`A_i` (its diagonal c-column blocks)."""
     n2 = s.shape[0]
     n = n2 // 2
     for r in range(n):
         out[r] = J[i, r, r] * s[r] + J[i, n + r, r] * s[n + r]
-    for q in range(n):
-        acc = 0.0
-        for row in range(n2):
-            acc += J[i, row, n + q] * s[row]
-        out[n + q] = acc
+        out[n + r] = 0.0
+    for row in range(n2):  # along the rows of J (contiguous)
+        weight = s[row]
+        for q in range(n):
+            out[n + q] += J[i, row, n + q] * weight
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_REDUCTIONS)
 def _weight_times(Qs: Any, i: int, v: Any, out: Any, diagonal: bool) -> None:
     """``out = Qs[i] v``."""
     n2 = v.shape[0]
@@ -391,7 +396,7 @@ def _weight_times(Qs: Any, i: int, v: Any, out: Any, diagonal: bool) -> None:
         out[r] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_REDUCTIONS)
 def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: Any,
                       diagonal: bool) -> None:  # fmt: skip
     r"""``H`` and ``g0`` (without R) by the backward recursion of the cost-to-go weights,
@@ -470,7 +475,7 @@ def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: A
             s[q] += As[q]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_REDUCTIONS)
 def insert_state(
     x_hat: Any,
     S: Any,
@@ -510,6 +515,7 @@ def insert_state(
             acc_h = J[i, n + r, r] * dX[i, r]
             for q in range(n):
                 acc_c += J[i, r, n + q] * dX[i, n + q]
+            for q in range(n):
                 acc_h += J[i, n + r, n + q] * dX[i, n + q]
             dX[i + 1, r] = acc_c
             dX[i + 1, n + r] = acc_h
@@ -542,7 +548,7 @@ def insert_state(
         up[n_out + r] = up0[n_out + r] - dX[N, r]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_REDUCTIONS)
 def expand_point(
     z: Any, A: Any, low: Any, high: Any, rows: int, M: Any, S: Any, dX: Any, x_linear: Any, u: Any
 ) -> float:
@@ -697,7 +703,7 @@ def chord_newton(
     return norm
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_REDUCTIONS)
 def plan_metrics(
     WU: Any,
     S: Any,

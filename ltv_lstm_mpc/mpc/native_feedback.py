@@ -9,7 +9,8 @@ inputs in U within tolerance, rows within tolerance; clipping onto U), and the r
 of the plan with its cost and residuals (:func:`~ltv_lstm_mpc.lstm.compiled.plan_metrics`).
 With DAQP bound natively (:mod:`ltv_lstm_mpc.solvers.daqp_native`), :func:`nominal_feedback`
 does all of it without returning to Python: the same compiled functions and the same C call
-as ``daqp.solve`` with the same settings, so the same numbers as the general path.
+as ``daqp.solve`` with the same settings, so the same numbers as the general path (to a few
+ulps: inlined here, the vectorized sums may group differently).
 
 It only *accepts*: whenever a test is not passed with a margin (pre-check within
 :data:`PRECHECK_MARGIN` of its tolerance, exit flag other than optimal, a non-finite or huge
