@@ -277,3 +277,51 @@ def test_compiled_plan_checks_match_the_numpy_ones(diagonal_Q: bool) -> None:
         assert a.cost == pytest.approx(b.cost, rel=1e-10, abs=1e-12)
         for key, value in b.residuals.items():
             assert a.residuals[key] == pytest.approx(value, rel=1e-9, abs=1e-11, nan_ok=True), key
+
+
+@pytest.mark.parametrize("solver", ["daqp", "clarabel"])
+def test_one_call_prepare_matches_the_python_prepare(solver: str) -> None:
+    """RobustMPC.prepare on the compiled condensing (compiled_prepare.prepare_condensed)
+    against the Python steps with the numpy build: candidate from u_bar, then shifted, the
+    re-simulation reused (x_pred = x_1 of the plan, or no x_pred) or not (x_pred moved)."""
+    from lstm_factories import random_delta_iss_lstm
+    from ltv_lstm_mpc.solvers import available_solvers
+
+    from ltv_lstm_mpc import MPCConfig, RobustMPC
+
+    if solver not in available_solvers():
+        pytest.skip(f"{solver} not installed")
+    model = random_delta_iss_lstm(np.random.default_rng(3), 4, 2, 2)
+    config = MPCConfig(solver=solver, N=6)
+    fast = RobustMPC(model, config)
+    reference = RobustMPC(model, config, certification=fast.certification)
+    reference._problem.compiled = False
+    assert fast._problem.condense_buffers is not None
+    assert reference._problem.condense_buffers is None
+    rng = np.random.default_rng(5)
+    u_bar = rng.uniform(-0.3, 0.3, 2)
+    x_bar = model.equilibrium(u_bar)
+    y0 = model.output(x_bar)
+    x_hat = x_bar + rng.normal(scale=0.05, size=8)
+    for step in range(6):
+        for mpc in (fast, reference):
+            if step == 3:  # no x_pred: linearize from the plan's x_1 (reused)
+                mpc.prepare(x_bar, u_bar, y0, 0.3)
+            else:
+                mpc.prepare(x_bar, u_bar, y0, 0.3, x_pred=x_hat)
+        np.testing.assert_allclose(fast._traj.S, reference._traj.S, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast._traj.J, reference._traj.J, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast._cand, reference._cand, rtol=0, atol=1e-12)
+        a, b = fast._problem, reference._problem
+        np.testing.assert_allclose(a._H, b._H, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a._g0, b._g0, rtol=0, atol=1e-12)
+        assert a.scale == pytest.approx(b.scale, abs=1e-12)
+        if step == 3:
+            x_hat = fast._plan.S[1, :8].copy()
+        else:
+            solution_a, solution_b = fast.feedback(x_hat), reference.feedback(x_hat)
+            np.testing.assert_allclose(solution_a.u, solution_b.u, rtol=0, atol=1e-9)
+            # next start: the plan's prediction (reused) or a moved estimate (rolled out)
+            x_hat = fast._plan.S[1, :8].copy()
+            if step % 2:
+                x_hat += 1e-3

@@ -298,6 +298,22 @@ class CondensedTranscription(TranscriptionBase):
         return qp
 
     @property
+    def condense_buffers(self) -> tuple[Any, ...] | None:
+        """:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`'s arguments from ``M``
+        (None with the numpy condensing: then :meth:`build` runs)."""
+        if not self.compiled:
+            return None
+        return (
+            self._M, self._Maug_inputs, self._Lt_all, self._Qs, self._R, self._W_y, self._b_y,
+            self._unit_half, float(self.config.u_max), self._H, self._g0, self._A, self._lo0,
+            self._up0, self._lb, self._ub, self._diag_Q, self.backward_condensing,
+        )  # fmt: skip
+
+    def adopt_build(self, traj: Trajectory, alpha: float, scale: float) -> None:
+        """Record the build that ``prepare_condensed`` wrote into this transcription."""
+        self._traj, self._alpha, self.scale = traj, alpha, scale
+
+    @property
     def native_buffers(self) -> tuple[Any, ...] | None:
         """:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`'s arguments from ``Lt``
         to ``settings`` (None without DAQP bound natively or with the numpy condensing)."""

@@ -33,6 +33,12 @@ from ltv_lstm_mpc.certificates.certify import Certification, certify
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.compiled_prepare import (
+    CANDIDATE_GIVEN,
+    CANDIDATE_SHIFT,
+    CANDIDATE_U_BAR,
+    prepare_condensed,
+)
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.fhocp import (
     MPCSolution,
@@ -293,6 +299,12 @@ class RobustMPC:
         self._x_bar = x_bar_a = np.asarray(x_bar, dtype=np.float64)
         self._u_bar = u_bar_a = np.asarray(u_bar, dtype=np.float64).reshape(m)
         self._bounds(np.asarray(y0, dtype=np.float64).reshape(model.p), float(e_hat))
+        buffers = self._problem.condense_buffers
+        if buffers is not None:  # the steps below in one compiled call (compiled_prepare.py)
+            self._prepare_compiled(x_bar_a, u_bar_a, x_pred, warm, buffers)
+            self._prepared = True
+            self.prepare_time = time.perf_counter() - start
+            return
         cand = self._cand
         if warm is not None:
             cand[:] = np.asarray(warm, dtype=np.float64).reshape(N, m)
@@ -312,8 +324,7 @@ class RobustMPC:
         else:
             x0 = np.asarray(x_pred, dtype=np.float64)
             if warm is None and self._plan_valid:
-                gap = (x0 - plan.S[1, :n2]).tolist()  # 2n scalars: faster than numpy's max
-                reuse = max(map(abs, gap)) <= self.reuse_tol
+                reuse = float(np.abs(x0 - plan.S[1, :n2]).max()) <= self.reuse_tol
         if reuse:
             # The shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one.
             S[:N] = plan.S[1:]
@@ -329,6 +340,40 @@ class RobustMPC:
         self._problem.build(traj, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha)
         self._prepared = True
         self.prepare_time = time.perf_counter() - start
+
+    def _prepare_compiled(
+        self,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        x_pred: ArrayLike | None,
+        warm: ArrayLike | None,
+        buffers: tuple[Any, ...],
+    ) -> None:
+        """:meth:`prepare`'s candidate, rollout, linearization and build in one compiled
+        call (``mpc/compiled_prepare.py``; the Python code of :meth:`prepare` is its
+        reference)."""
+        cand, plan, traj, kernel = self._cand, self._plan, self._traj, self._kernel
+        if warm is not None:
+            cand[:] = np.asarray(warm, dtype=np.float64).reshape(self.N, self.model.m)
+            candidate = CANDIDATE_GIVEN
+        elif self._previous_u is None:
+            candidate = CANDIDATE_U_BAR
+        else:
+            candidate = CANDIDATE_SHIFT
+        previous_u = cand if self._previous_u is None else self._previous_u
+        if x_pred is None:
+            if not self._plan_valid:
+                raise InvalidValueError("the first prepare() needs x_pred (no previous plan)")
+            x0, reuse_allowed = plan.S[1, : 2 * self.model.n], warm is None
+        else:
+            x0 = np.ascontiguousarray(x_pred, dtype=np.float64)
+            reuse_allowed = warm is None and self._plan_valid
+        scale, _ = prepare_condensed(
+            kernel.WU, kernel.WU_raw, traj.S, traj.T, traj.TC, traj.J, plan.S, plan.T, plan.TC,
+            cand, previous_u, candidate, x0, reuse_allowed, self.reuse_tol, x_bar, u_bar,
+            self._lower, self._upper, self._alpha, *buffers,
+        )  # fmt: skip
+        self._problem.adopt_build(traj, self._alpha, scale)
 
     # ------------------------------------------------------------------------- feedback
     def _checked_solve(self, kind: str, x_hat: FloatArray) -> tuple[StepResult, str, str]:

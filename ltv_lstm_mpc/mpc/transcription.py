@@ -108,6 +108,17 @@ class TranscriptionBase(abc.ABC):
         """
 
     @property
+    def condense_buffers(self) -> tuple[Any, ...] | None:
+        """The fixed arguments of the core's one-call preparation
+        (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`, from ``M``) where the
+        transcription has one (the condensed QP on the compiled kernel), else None."""
+        return None
+
+    def adopt_build(self, traj: Trajectory, alpha: float, scale: float) -> None:
+        """Record a build made by the core's one-call preparation (see :attr:`condense_buffers`)."""
+        raise NotImplementedError(f"the {self.name} transcription has no one-call preparation")
+
+    @property
     def native_buffers(self) -> tuple[Any, ...] | None:
         """Buffers of the core's one-call nominal feedback
         (:mod:`~ltv_lstm_mpc.mpc.native_feedback`) where the transcription has one (the
