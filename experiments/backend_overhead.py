@@ -10,6 +10,10 @@ backend with a dense session the script times, on the same QP, side by side:
   (for DAQP, which reports none here, the bare ``daqp.solve`` call),
 
 and prints the medians (microseconds) and the Python overhead ``solve_point - reported``.
+A second table times DAQP's entry points on the same QPs: ``daqp.solve`` (the package's
+Python call), ``DaqpNative.solve`` (numba dispatch + DAQP's C ``daqp_quadprog``, the call
+the controller's compiled feedback makes without the dispatch) and DAQP's own clock
+(setup + solve) of that C call.
 
     python experiments/backend_overhead.py
 """
@@ -26,7 +30,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 from ltv_lstm_mpc.solvers import DenseQP, DenseSession, available_solvers, solver_info  # noqa: E402
 
-from ltv_lstm_mpc import OffsetFreeController, load_model  # noqa: E402
+from ltv_lstm_mpc import OffsetFreeController, RobustMPC, load_model  # noqa: E402
 from ltv_lstm_mpc.bench.harness import bench_scenarios  # noqa: E402
 
 
@@ -34,9 +38,10 @@ def captured_qps(N: int, count: int = 5) -> list[DenseQP]:
     """Nominal condensed QPs of scenario 1 at ``count`` states of its closed loop."""
     model = load_model("ph_lstm_n5.npz")
     scenario = bench_scenarios(model)[0]
-    controller = OffsetFreeController(
-        model, replace(scenario.config, N=N, solver="daqp"), setpoint_rate_limit=0.01
-    )
+    config = replace(scenario.config, N=N, solver="daqp")
+    # the general feedback path fills the session's DenseQP (the one-call path does not)
+    mpc = RobustMPC(model, config, native_feedback=False)
+    controller = OffsetFreeController(model, config, setpoint_rate_limit=0.01, mpc=mpc)
     plant = scenario.make_plant(model)
     y = plant.output()
     qps = []
@@ -57,6 +62,27 @@ def _raw_daqp(qp: DenseQP):  # type: ignore[no-untyped-def]
     lower = np.concatenate([qp.lb, qp.lo])
     sense = np.zeros(upper.shape[0], dtype=np.intc)
     return lambda: daqp.solve(H, f, A, upper, lower, sense, primal_tol=1e-8, dual_tol=1e-8)
+
+
+def daqp_entry_points(qps: list[DenseQP]) -> tuple[float, float, float]:
+    """Medians (us) of ``daqp.solve``, ``DaqpNative.solve`` and DAQP's own clock."""
+    from ltv_lstm_mpc.solvers import daqp_native
+
+    native = daqp_native.native({"primal_tol": 1e-8, "dual_tol": 1e-8})
+    if native is None:
+        raise SystemExit(f"DAQP not bound natively: {daqp_native.unavailable_reason}")
+    python_call, numba_call, clock = [], [], []
+    for qp in qps:
+        H, f, A = np.ascontiguousarray(qp.H), qp.f, np.ascontiguousarray(qp.A)
+        upper = np.concatenate([qp.ub, qp.up])
+        lower = np.concatenate([qp.lb, qp.lo])
+        sense = np.zeros(upper.shape[0], dtype=np.intc)
+        python_call.append(median_us(_raw_daqp(qp), 300))
+        numba_call.append(
+            median_us(lambda: native.solve(H, f, A, upper, lower, sense), 300)  # noqa: B023
+        )
+        clock.append(1e6 * daqp_native.solver_seconds(native.result))
+    return tuple(float(np.median(v)) for v in (python_call, numba_call, clock))  # type: ignore[return-value]
 
 
 def median_us(function, repeats: int) -> float:  # type: ignore[no-untyped-def]
@@ -87,6 +113,10 @@ def main() -> None:
             p, f, r = (float(np.median(v)) for v in (point, full, reported))
             overhead = f"{p - r:9.1f}" if r > 0 else f"{'-':>9}"
             print(f"{name:>20} {N:>3} | {p:11.1f} {f:8.1f} {r:9.1f} {overhead}", flush=True)
+    print(f"\n{'DAQP entry point':>20} {'N':>3} | {'daqp.solve':>10} {'numba+C':>8} {'C clock':>8}")
+    for N in (5, 20):
+        python_call, numba_call, clock = daqp_entry_points(captured_qps(N))
+        print(f"{'':>20} {N:>3} | {python_call:10.1f} {numba_call:8.1f} {clock:8.1f}", flush=True)
 
 
 if __name__ == "__main__":

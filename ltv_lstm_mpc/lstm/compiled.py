@@ -347,15 +347,15 @@ def _hessian_gram(S: Any, M: Any, Maug: Any, Lt: Any, x_bar: Any, H: Any, g0: An
                     target[c] = 0.0
                 target[nu] = w * (S[i + 1, r] - x_bar[r])
         else:
-            weighted = np.ascontiguousarray(Lt[i]) @ np.ascontiguousarray(
-                M[i + 1, :, n2 : n2 + live]
-            )
-            for r in range(n2):
+            for r in range(n2):  # Lt_i Gamma_{i+1} as row updates (a full Q is rare)
                 target = Maug[i, r]
-                for c in range(live):
-                    target[c] = weighted[r, c]
-                for c in range(live, nu):
+                for c in range(nu):
                     target[c] = 0.0
+                for q in range(n2):
+                    w = Lt[i, r, q]
+                    source = M[i + 1, q]
+                    for c in range(live):
+                        target[c] += w * source[n2 + c]
                 acc = 0.0
                 for q in range(n2):
                     acc += Lt[i, r, q] * (S[i + 1, q] - x_bar[q])

@@ -96,9 +96,14 @@ def prepare_condensed(
                 reuse = False
                 break
     if reuse:  # the shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one
-        S[:N] = PS[1:]
-        T[: N - 1] = PT[1:]
-        TC[: N - 1] = PTC[1:]
+        for i in range(N):  # explicit loops: slice assignments cost seconds of compile time
+            for q in range(S.shape[1]):
+                S[i, q] = PS[i + 1, q]
+        for i in range(N - 1):
+            for q in range(T.shape[1]):
+                T[i, q] = PT[i + 1, q]
+            for q in range(TC.shape[1]):
+                TC[i, q] = PTC[i + 1, q]
         for a in range(m):
             S[N - 1, n2 + a] = cand[N - 1, a]
         rollout(WU, S, T, TC, N - 1, N, np.empty(0))
