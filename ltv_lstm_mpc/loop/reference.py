@@ -330,12 +330,11 @@ class ReferenceCalculator:
                 # it as a candidate and let the restarts find the closest admissible one.
                 chord, admissible = (z, norm), False
             if admissible:
-                z.flags.writeable = False  # shared by the solution's views and the next start
                 self._last_z = z
                 self._last_target = target
                 return ReferenceSolution(
-                    x_bar=z[:n2],
-                    u_bar=u_bar,
+                    x_bar=z[:n2].copy(),  # copies: z is the next start (kept writeable, so
+                    u_bar=u_bar.copy(),  # that the compiled code sees one array type)
                     residual=norm,
                     jacobian_condition=float("nan"),
                     u_admissible=True,
