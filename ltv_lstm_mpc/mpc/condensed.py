@@ -196,6 +196,7 @@ class CondensedTranscription(TranscriptionBase):
             kind: DenseSession(config.solver, tolerance=config.tolerance, **settings)
             for kind in kinds
         }
+        self._condense_buffers: tuple[Any, ...] | None = None
         # The nominal feedback as one compiled call in the core where DAQP's C entry point is
         # bound (mpc/native_feedback.py); otherwise, and for the other problems, the session.
         # nominal_feedback's arguments from Lt to settings, in its order (None: no native path)
@@ -303,11 +304,15 @@ class CondensedTranscription(TranscriptionBase):
         (None with the numpy condensing: then :meth:`build` runs)."""
         if not self.compiled:
             return None
-        return (
-            self._M, self._Maug_inputs, self._Lt_all, self._Qs, self._R, self._W_y, self._b_y,
-            self._unit_half, float(self.config.u_max), self._H, self._g0, self._A, self._lo0,
-            self._up0, self._lb, self._ub, self._diag_Q, self.backward_condensing,
-        )  # fmt: skip
+        buffers = self._condense_buffers
+        if buffers is None or buffers[-1] != self.backward_condensing:  # built once
+            buffers = self._condense_buffers = (
+                self._M, self._Maug_inputs, self._Lt_all, self._Qs, self._R, self._W_y,
+                self._b_y, self._unit_half, float(self.config.u_max), self._H, self._g0,
+                self._A, self._lo0, self._up0, self._lb, self._ub, self._diag_Q,
+                self.backward_condensing,
+            )  # fmt: skip
+        return buffers
 
     def adopt_build(self, traj: Trajectory, alpha: float, scale: float) -> None:
         """Record the build that ``prepare_condensed`` wrote into this transcription."""
