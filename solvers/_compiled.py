@@ -11,7 +11,18 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from numba import njit
+try:  # pragma: no cover - numba is a core dependency; without it the loops run as Python
+    from numba import njit
+except ImportError:  # pragma: no cover
+
+    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
+        """Stand-in: returns the Python function unchanged."""
+
+        def wrap(function: Any) -> Any:
+            return function
+
+        return wrap
+
 
 __all__ = [
     "bounds_rows_violation",

@@ -31,8 +31,21 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from numba import njit, types
 from numpy.typing import NDArray
+
+try:  # pragma: no cover - numba is a core dependency
+    from numba import njit, types
+except ImportError:  # pragma: no cover - then native() returns None (see below)
+    types = None  # type: ignore[assignment]
+
+    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
+        """Stand-in: returns the Python function unchanged."""
+
+        def wrap(function: Any) -> Any:
+            return function
+
+        return wrap
+
 
 FloatArray = NDArray[np.float64]
 
@@ -136,6 +149,9 @@ _daqp_quadprog: Any = None
 try:
     import daqp as _daqp
     import llvmlite.binding as _llvm
+
+    if types is None:
+        raise ImportError("numba is not installed")
 
     _VERSION = importlib.metadata.version("daqp")
     if _VERSION not in BOUND_VERSIONS:
