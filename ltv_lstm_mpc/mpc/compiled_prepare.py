@@ -16,9 +16,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from numba import njit
 
-from ltv_lstm_mpc.lstm.compiled import condense, jacobians, rollout
+from ltv_lstm_mpc.lstm.compiled import condense, jacobians, njit, rollout
 
 __all__ = ["CANDIDATE_GIVEN", "CANDIDATE_SHIFT", "CANDIDATE_U_BAR", "prepare_condensed"]
 
