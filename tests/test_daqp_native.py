@@ -172,3 +172,26 @@ def test_one_call_feedback_is_taken_and_equals_the_general_path_mimo() -> None:
         accepted += solutions[0].feasible
     assert accepted >= 4
     assert len(calls) == 6 - accepted
+
+
+def test_without_numba_the_numpy_path_and_daqp_solve_run() -> None:
+    """numba missing: the package imports, the kernel is numpy, DAQP runs through daqp.solve
+    (the binding says why it is off) and the controller still solves."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.modules['numba'] = None\n"
+        "import numpy as np\n"
+        "from ltv_lstm_mpc import MPCConfig, RobustMPC, load_model\n"
+        "from ltv_lstm_mpc.solvers import daqp_native\n"
+        "model = load_model('ph_lstm_n5.npz')\n"
+        "mpc = RobustMPC(model, MPCConfig(solver='daqp'))\n"
+        "u = np.array([0.1]); x = model.equilibrium(u)\n"
+        "solution = mpc.solve(x, x, u, model.output(x), 0.01)\n"
+        "print(solution.status, model.kernel.compiled, daqp_native.native({}) is None,\n"
+        "      'numba' in daqp_native.unavailable_reason, abs(solution.u[0, 0] - 0.1) < 1e-6)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.split() == ["optimal", "False", "True", "True", "True"]
