@@ -16,7 +16,11 @@ Dense backend (:class:`DaqpDense`, for :class:`~ltv_lstm_mpc.solvers.DenseSessio
     (n = 5/20/50, m_A = 10/40/60; all of H, f, A change every MPC step) the
     one-shot call was as fast or faster (7.1/37/386 µs vs 7.5/46/401 µs cold;
     4.2/13.6/93 µs vs 4.3/13.0/95 µs warm), so the model buys nothing here.
-    A warm start sets the initial working set through ``sense`` as below.
+    A warm start sets the initial working set through ``sense`` as below. The cold hot-loop
+    call (:meth:`DaqpDense.solve_point`) goes to the same C function, ``daqp_quadprog``,
+    through :mod:`~ltv_lstm_mpc.solvers.daqp_native` where DAQP is bound natively (same
+    results; no Python call of the ``daqp`` package); :attr:`DaqpDense.native` is also what
+    compiled callers use.
 
 Warm start
     ``warm_start=None`` resets the working set (a cold start). A warm start sets
@@ -199,7 +203,7 @@ def make(name: str, tolerance: float, settings: Mapping[str, Any]) -> Backend:
 
 
 class DaqpDense(DenseBackend):
-    """Dense DAQP backend: one-shot ``daqp.solve`` on preallocated buffers (fastest per call).
+    """Dense DAQP backend: one-shot ``daqp_quadprog`` on preallocated buffers (fastest per call).
 
     Simple bounds are the first ``n`` entries of ``bupper``/``blower``. The
     values are read at :meth:`update`/:meth:`setup` (bounds copied into the
