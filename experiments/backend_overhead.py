@@ -53,15 +53,20 @@ def captured_qps(N: int, count: int = 5) -> list[DenseQP]:
     return qps
 
 
-def _raw_daqp(qp: DenseQP):  # type: ignore[no-untyped-def]
-    """The bare ``daqp.solve`` call on ``qp`` (bounds stacked as DAQP wants them)."""
-    import daqp
-
-    H, f, A = np.ascontiguousarray(qp.H), qp.f, np.ascontiguousarray(qp.A)
+def _daqp_data(qp: DenseQP) -> tuple[np.ndarray, ...]:
+    """``(H, f, A, bupper, blower, sense)`` of ``qp`` as DAQP wants them (bounds stacked)."""
     upper = np.concatenate([qp.ub, qp.up])
     lower = np.concatenate([qp.lb, qp.lo])
     sense = np.zeros(upper.shape[0], dtype=np.intc)
-    return lambda: daqp.solve(H, f, A, upper, lower, sense, primal_tol=1e-8, dual_tol=1e-8)
+    return np.ascontiguousarray(qp.H), qp.f, np.ascontiguousarray(qp.A), upper, lower, sense
+
+
+def _raw_daqp(qp: DenseQP):  # type: ignore[no-untyped-def]
+    """The bare ``daqp.solve`` call on ``qp``."""
+    import daqp
+
+    data = _daqp_data(qp)
+    return lambda: daqp.solve(*data, primal_tol=1e-8, dual_tol=1e-8)
 
 
 def daqp_entry_points(qps: list[DenseQP]) -> tuple[float, float, float]:
@@ -73,14 +78,9 @@ def daqp_entry_points(qps: list[DenseQP]) -> tuple[float, float, float]:
         raise SystemExit(f"DAQP not bound natively: {daqp_native.unavailable_reason}")
     python_call, numba_call, clock = [], [], []
     for qp in qps:
-        H, f, A = np.ascontiguousarray(qp.H), qp.f, np.ascontiguousarray(qp.A)
-        upper = np.concatenate([qp.ub, qp.up])
-        lower = np.concatenate([qp.lb, qp.lo])
-        sense = np.zeros(upper.shape[0], dtype=np.intc)
+        data = _daqp_data(qp)
         python_call.append(median_us(_raw_daqp(qp), 300))
-        numba_call.append(
-            median_us(lambda: native.solve(H, f, A, upper, lower, sense), 300)  # noqa: B023
-        )
+        numba_call.append(median_us(lambda: native.solve(*data), 300))  # noqa: B023
         clock.append(1e6 * daqp_native.solver_seconds(native.result))
     return tuple(float(np.median(v)) for v in (python_call, numba_call, clock))  # type: ignore[return-value]
 

@@ -280,8 +280,8 @@ def test_compiled_plan_checks_match_the_numpy_ones(diagonal_Q: bool) -> None:
 
 
 @pytest.mark.parametrize("solver", ["daqp", "clarabel"])
-def test_one_call_prepare_matches_the_python_prepare(solver: str) -> None:
-    """RobustMPC.prepare on the compiled condensing (compiled_prepare.prepare_condensed)
+def test_one_call_prepare_matches_the_python_prepare(solver: str, monkeypatch) -> None:
+    """RobustMPC.prepare on the compiled condensing (linearize_and_build: one compiled call)
     against the Python steps with the numpy build: candidate from u_bar, then shifted, the
     re-simulation reused (x_pred = x_1 of the plan, or no x_pred) or not (x_pred moved)."""
     from lstm_factories import random_delta_iss_lstm
@@ -296,8 +296,14 @@ def test_one_call_prepare_matches_the_python_prepare(solver: str) -> None:
     fast = RobustMPC(model, config)
     reference = RobustMPC(model, config, certification=fast.certification)
     reference._problem.compiled = False
-    assert fast._problem.condense_buffers is not None
-    assert reference._problem.condense_buffers is None
+    assert fast._problem.compiled and not reference._problem.compiled  # one call / Python
+    import ltv_lstm_mpc.mpc.condensed as condensed_module
+
+    calls = []
+    one_call = condensed_module.prepare_condensed
+    monkeypatch.setattr(
+        condensed_module, "prepare_condensed", lambda *args: calls.append(1) or one_call(*args)
+    )
     rng = np.random.default_rng(5)
     u_bar = rng.uniform(-0.3, 0.3, 2)
     x_bar = model.equilibrium(u_bar)
@@ -325,3 +331,4 @@ def test_one_call_prepare_matches_the_python_prepare(solver: str) -> None:
             x_hat = fast._plan.S[1, :8].copy()
             if step % 2:
                 x_hat += 1e-3
+    assert len(calls) == 6  # every prepare of `fast` was the one compiled call

@@ -328,7 +328,8 @@ def condense(
 @njit(cache=True)
 def _hessian_gram(S: Any, M: Any, Maug: Any, Lt: Any, x_bar: Any, H: Any, g0: Any,
                   diagonal: bool) -> None:  # fmt: skip
-    r"""``H`` and ``g0`` (without R) as one Gram matrix: the weighted stack
+    r"""``H`` and ``g0`` (without R) of the condensed stage cost of eq. (optimization_cost)
+    as one Gram matrix: the weighted stack
     ``Maug[i] = [Lt_i \Gamma_{i+1}, Lt_i (\tilde x_{i+1} - \bar x)]`` (N, 2n, Nm + 1) and one
     BLAS product :math:`O(N^3 n m^2)`, the cheaper way for short horizons."""
     N, n2 = Maug.shape[0], Maug.shape[1]
@@ -399,8 +400,9 @@ def _weight_times(Qs: Any, i: int, v: Any, out: Any, diagonal: bool) -> None:
 @njit(cache=True, fastmath=_REDUCTIONS)
 def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: Any,
                       diagonal: bool) -> None:  # fmt: skip
-    r"""``H`` and ``g0`` (without R) by the backward recursion of the cost-to-go weights,
-    :math:`O(N n^3 + N^2 n m^2)`, the cheaper way for long horizons.
+    r"""``H`` and ``g0`` (without R) of the condensed stage cost of eq. (optimization_cost)
+    (stage N: the terminal weight of the transcription) by the backward recursion of the
+    cost-to-go weights, :math:`O(N n^3 + N^2 n m^2)`, the cheaper way for long horizons.
 
     With :math:`W_N = Q_N`, :math:`W_i = Q_i + A_i^\top W_{i+1} A_i` and
     :math:`V_i = W_{i+1} B_i`: :math:`H_{ji} = \Gamma_{i+1}[:, j]^\top V_i` (j <= i; the

@@ -53,8 +53,9 @@ from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
 from ltv_lstm_mpc.lstm import compiled as _compiled
-from ltv_lstm_mpc.lstm.kernel import Trajectory
+from ltv_lstm_mpc.lstm.kernel import LSTMKernel, Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc.compiled_prepare import prepare_condensed
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.sparse import TerminalBoxReformulation, terminal_box_data
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
@@ -151,8 +152,6 @@ class CondensedTranscription(TranscriptionBase):
         # [lb; lo] and [ub; up] of the nominal QP in one vector each (one violation test)
         self._low = np.empty(nu + self._mA)
         self._high = np.empty(nu + self._mA)
-        self._point = np.empty(nu + self._mA)  # [du; A du]
-        self._gap = np.empty(nu + self._mA)
         self._lb, self._lo = self._low[:nu], self._low[nu:]
         self._ub, self._up = self._high[:nu], self._high[nu:]
         self._A_out_view = self._A_all[:n_out].reshape(N - 1, p, cols)
@@ -196,10 +195,9 @@ class CondensedTranscription(TranscriptionBase):
             kind: DenseSession(config.solver, tolerance=config.tolerance, **settings)
             for kind in kinds
         }
-        self._condense_buffers: tuple[Any, ...] | None = None
         # The nominal feedback as one compiled call in the core where DAQP's C entry point is
         # bound (mpc/native_feedback.py); otherwise, and for the other problems, the session.
-        # nominal_feedback's arguments from Lt to settings, in its order (None: no native path)
+        # nominal_feedback's arguments from Qs to settings, in its order (None: no native path)
         self._native_buffers: tuple[Any, ...] | None = None
         native = self._sessions["nominal"].native if "nominal" in self._sessions else None
         if self.compiled and not self.exact_cones and native is not None:
@@ -298,29 +296,42 @@ class CondensedTranscription(TranscriptionBase):
             qp.cones[2].f = float(self._alpha)
         return qp
 
-    @property
-    def condense_buffers(self) -> tuple[Any, ...] | None:
-        """:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`'s arguments from ``M``
-        (None with the numpy condensing: then :meth:`build` runs)."""
+    def linearize_and_build(
+        self,
+        kernel: LSTMKernel,
+        traj: Trajectory,
+        plan: Trajectory,
+        cand: FloatArray,
+        previous_u: FloatArray,
+        candidate: int,
+        x0: FloatArray,
+        reuse_allowed: bool,
+        reuse_tol: float,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        lower: FloatArray,
+        upper: FloatArray,
+        alpha: float,
+    ) -> bool:
+        """The core's preparation in one compiled call on the compiled kernel
+        (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`); False with the
+        numpy condensing (the core then runs the steps and :meth:`build`)."""
         if not self.compiled:
-            return None
-        buffers = self._condense_buffers
-        if buffers is None or buffers[-1] != self.backward_condensing:  # built once
-            buffers = self._condense_buffers = (
-                self._M, self._Maug_inputs, self._Lt_all, self._Qs, self._R, self._W_y,
-                self._b_y, self._unit_half, float(self.config.u_max), self._H, self._g0,
-                self._A, self._lo0, self._up0, self._lb, self._ub, self._diag_Q,
-                self.backward_condensing,
-            )  # fmt: skip
-        return buffers
-
-    def adopt_build(self, traj: Trajectory, alpha: float, scale: float) -> None:
-        """Record the build that ``prepare_condensed`` wrote into this transcription."""
-        self._traj, self._alpha, self.scale = traj, alpha, scale
+            return False
+        self.scale, _ = prepare_condensed(
+            kernel.WU, kernel.WU_raw, traj.S, traj.T, traj.TC, traj.J, plan.S, plan.T, plan.TC,
+            cand, previous_u, candidate, x0, reuse_allowed, reuse_tol, x_bar, u_bar, lower,
+            upper, float(alpha), self._M, self._Maug_inputs, self._Lt_all, self._Qs, self._R,
+            self._W_y, self._b_y, self._unit_half, float(self.config.u_max), self._H,
+            self._g0, self._A, self._lo0, self._up0, self._lb, self._ub, self._diag_Q,
+            self.backward_condensing,
+        )  # fmt: skip
+        self._traj, self._alpha = traj, alpha
+        return True
 
     @property
     def native_buffers(self) -> tuple[Any, ...] | None:
-        """:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`'s arguments from ``Lt``
+        """:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`'s arguments from ``Qs``
         to ``settings`` (None without DAQP bound natively or with the numpy condensing)."""
         return self._native_buffers if self.compiled else None
 
@@ -438,19 +449,6 @@ class CondensedTranscription(TranscriptionBase):
         qp.ub = np.concatenate([self._ub, np.full(ns + 1, np.inf)])
         return qp
 
-    def _violation(self, kind: str, qp: DenseQP, z: FloatArray) -> float:
-        """Largest violation of the QP's rows and bounds at ``z`` (absolute)."""
-        if kind == "soft":
-            return qp.max_violation(z)
-        nu = z.shape[0]
-        rows = nu + qp.A.shape[0]  # "paper": no rows
-        point, gap = self._point[:rows], self._gap[:rows]
-        point[:nu] = z
-        if rows > nu:
-            np.dot(qp.A, z, out=point[nu:])
-        violation = float(np.subtract(self._low[:rows], point, out=gap).max())
-        return max(violation, float(np.subtract(point, self._high[:rows], out=gap).max()), 0.0)
-
     def solve(self, kind: str, x_hat: FloatArray) -> StepResult:
         r"""Insert :math:`\delta x_0 = \hat x_k - \tilde x_0` and solve the QP ``kind``."""
         traj = self._traj
@@ -509,10 +507,7 @@ class CondensedTranscription(TranscriptionBase):
                 iterations=iterations,
                 info=info,
             )
-        if exact:
-            violation = qp.max_violation(z) / self.scale
-        else:
-            violation = self._violation(kind, qp, z) / self.scale
+        violation = qp.max_violation(z) / self.scale
         dxu = self._dxu
         dxu[:n2] = dx0
         dxu[n2:] = z[:nu]

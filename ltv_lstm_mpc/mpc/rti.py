@@ -33,12 +33,7 @@ from ltv_lstm_mpc.certificates.certify import Certification, certify
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.compiled_prepare import (
-    CANDIDATE_GIVEN,
-    CANDIDATE_SHIFT,
-    CANDIDATE_U_BAR,
-    prepare_condensed,
-)
+from ltv_lstm_mpc.mpc.compiled_prepare import CANDIDATE_GIVEN, CANDIDATE_SHIFT, CANDIDATE_U_BAR
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.fhocp import (
     MPCSolution,
@@ -299,81 +294,50 @@ class RobustMPC:
         self._x_bar = x_bar_a = np.asarray(x_bar, dtype=np.float64)
         self._u_bar = u_bar_a = np.asarray(u_bar, dtype=np.float64).reshape(m)
         self._bounds(np.asarray(y0, dtype=np.float64).reshape(model.p), float(e_hat))
-        buffers = self._problem.condense_buffers
-        if buffers is not None:  # the steps below in one compiled call (compiled_prepare.py)
-            self._prepare_compiled(x_bar_a, u_bar_a, x_pred, warm, buffers)
-            self._prepared = True
-            self.prepare_time = time.perf_counter() - start
-            return
-        cand = self._cand
+        cand, traj, plan, kernel = self._cand, self._traj, self._plan, self._kernel
+        # the candidate (SPEC 4) and the start of the linearization
         if warm is not None:
             cand[:] = np.asarray(warm, dtype=np.float64).reshape(N, m)
-        elif self._previous_u is None:
-            cand[:] = u_bar_a
-        else:
-            cand[:-1] = self._previous_u[1:]
-            cand[-1] = u_bar_a
-        traj, plan, kernel = self._traj, self._plan, self._kernel
-        S = traj.S
-        reuse = False
-        if x_pred is None:
-            if not self._plan_valid:
-                raise InvalidValueError("the first prepare() needs x_pred (no previous plan)")
-            reuse = warm is None
-            x0 = plan.S[1, :n2]
-        else:
-            x0 = np.asarray(x_pred, dtype=np.float64)
-            if warm is None and self._plan_valid:
-                reuse = float(np.abs(x0 - plan.S[1, :n2]).max()) <= self.reuse_tol
-        if reuse:
-            # The shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one.
-            S[:N] = plan.S[1:]
-            traj.T[: N - 1] = plan.T[1:]
-            traj.TC[: N - 1] = plan.TC[1:]
-            S[N - 1, n2 : n2 + m] = cand[N - 1]
-            kernel.rollout(traj, N - 1, N)
-        else:
-            S[0, :n2] = x0
-            S[:N, n2 : n2 + m] = cand
-            kernel.rollout(traj, 0, N)
-        kernel.jacobians(traj)
-        self._problem.build(traj, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha)
-        self._prepared = True
-        self.prepare_time = time.perf_counter() - start
-
-    def _prepare_compiled(
-        self,
-        x_bar: FloatArray,
-        u_bar: FloatArray,
-        x_pred: ArrayLike | None,
-        warm: ArrayLike | None,
-        buffers: tuple[Any, ...],
-    ) -> None:
-        """:meth:`prepare`'s candidate, rollout, linearization and build in one compiled
-        call (``mpc/compiled_prepare.py``; the Python code of :meth:`prepare` is its
-        reference)."""
-        cand, plan, traj, kernel = self._cand, self._plan, self._traj, self._kernel
-        if warm is not None:
-            cand[:] = np.asarray(warm, dtype=np.float64).reshape(self.N, self.model.m)
             candidate = CANDIDATE_GIVEN
         elif self._previous_u is None:
             candidate = CANDIDATE_U_BAR
         else:
             candidate = CANDIDATE_SHIFT
-        previous_u = cand if self._previous_u is None else self._previous_u
         if x_pred is None:
             if not self._plan_valid:
                 raise InvalidValueError("the first prepare() needs x_pred (no previous plan)")
-            x0, reuse_allowed = plan.S[1, : 2 * self.model.n], warm is None
+            x0 = plan.S[1, :n2]
         else:
             x0 = np.ascontiguousarray(x_pred, dtype=np.float64)
-            reuse_allowed = warm is None and self._plan_valid
-        scale, _ = prepare_condensed(
-            kernel.WU, kernel.WU_raw, traj.S, traj.T, traj.TC, traj.J, plan.S, plan.T, plan.TC,
-            cand, previous_u, candidate, x0, reuse_allowed, self.reuse_tol, x_bar, u_bar,
-            self._lower, self._upper, self._alpha, *buffers,
-        )  # fmt: skip
-        self._problem.adopt_build(traj, self._alpha, scale)
+        # the re-simulation of the previous plan may replace the rollout (x0 at its x_1)
+        reuse_allowed = warm is None and self._plan_valid
+        previous_u = cand if self._previous_u is None else self._previous_u
+        if not self._problem.linearize_and_build(
+            kernel, traj, plan, cand, previous_u, candidate, x0, reuse_allowed, self.reuse_tol,
+            x_bar_a, u_bar_a, self._lower, self._upper, self._alpha,
+        ):  # fmt: skip
+            # the same steps in Python (the reference of compiled_prepare.prepare_condensed)
+            if candidate == CANDIDATE_U_BAR:
+                cand[:] = u_bar_a
+            elif candidate == CANDIDATE_SHIFT:
+                cand[:-1] = previous_u[1:]
+                cand[-1] = u_bar_a
+            S = traj.S
+            if reuse_allowed and float(np.abs(x0 - plan.S[1, :n2]).max()) <= self.reuse_tol:
+                # The shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one.
+                S[:N] = plan.S[1:]
+                traj.T[: N - 1] = plan.T[1:]
+                traj.TC[: N - 1] = plan.TC[1:]
+                S[N - 1, n2 : n2 + m] = cand[N - 1]
+                kernel.rollout(traj, N - 1, N)
+            else:
+                S[0, :n2] = x0
+                S[:N, n2 : n2 + m] = cand
+                kernel.rollout(traj, 0, N)
+            kernel.jacobians(traj)
+            self._problem.build(traj, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha)
+        self._prepared = True
+        self.prepare_time = time.perf_counter() - start
 
     # ------------------------------------------------------------------------- feedback
     def _checked_solve(self, kind: str, x_hat: FloatArray) -> tuple[StepResult, str, str]:

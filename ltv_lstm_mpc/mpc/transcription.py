@@ -33,7 +33,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ltv_lstm_mpc.lstm.kernel import Trajectory
+from ltv_lstm_mpc.lstm.kernel import LSTMKernel, Trajectory
 from ltv_lstm_mpc.solvers import SolverStatus
 
 __all__ = ["KINDS", "StepResult", "TranscriptionBase"]
@@ -107,16 +107,28 @@ class TranscriptionBase(abc.ABC):
         tightened output bounds and ``alpha`` is :math:`\alpha_k`.
         """
 
-    @property
-    def condense_buffers(self) -> tuple[Any, ...] | None:
-        """The fixed arguments of the core's one-call preparation
-        (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`, from ``M``) where the
-        transcription has one (the condensed QP on the compiled kernel), else None."""
-        return None
-
-    def adopt_build(self, traj: Trajectory, alpha: float, scale: float) -> None:
-        """Record a build made by the core's one-call preparation (see :attr:`condense_buffers`)."""
-        raise NotImplementedError(f"the {self.name} transcription has no one-call preparation")
+    def linearize_and_build(
+        self,
+        kernel: LSTMKernel,
+        traj: Trajectory,
+        plan: Trajectory,
+        cand: FloatArray,
+        previous_u: FloatArray,
+        candidate: int,
+        x0: FloatArray,
+        reuse_allowed: bool,
+        reuse_tol: float,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        lower: FloatArray,
+        upper: FloatArray,
+        alpha: float,
+    ) -> bool:
+        """The core's preparation (candidate, reuse of the plan's re-simulation, rollout,
+        Jacobians, :meth:`build`) in one compiled call, where the transcription has one
+        (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`). Returns whether it
+        did; by default it has none and the core runs these steps in Python."""
+        return False
 
     @property
     def native_buffers(self) -> tuple[Any, ...] | None:
