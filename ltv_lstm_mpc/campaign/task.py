@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 from ltv_lstm_mpc import __version__
 from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.loop.schedules import equal_segments
+from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
 from ltv_lstm_mpc.mpc.config import InfeasibilityPolicy
 from ltv_lstm_mpc.plants.measurement import NoisyMeasurement
 
@@ -68,7 +69,6 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 _POLICIES: tuple[str, ...] = typing.get_args(InfeasibilityPolicy)
-_SETPOINT_STATUSES = ("ok", "outside_admissible", "unreachable_stale", "unreachable")
 
 #: Metric columns of a row, in order (after the key and the settings).
 METRIC_COLUMNS: tuple[str, ...] = (
@@ -88,7 +88,9 @@ METRIC_COLUMNS: tuple[str, ...] = (
     *(f"fallback_{policy}+shift_steps" for policy in _POLICIES if policy != "shift"),
     "truncated",
     "d_hat_saturated_steps",
-    *(f"setpoint_{name}_steps" for name in _SETPOINT_STATUSES),
+    *(f"setpoint_{name}_steps" for name in SETPOINT_STATUSES),
+    "input_clipped_steps",
+    *(f"measurement_{name}_steps" for name in MEASUREMENT_STATUSES[1:]),
     "optimal_steps",
     "failed_steps",
     "solver_error_steps",
@@ -316,7 +318,12 @@ def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatAr
         "d_hat_saturated_steps": counts.get("d_hat_saturated_steps", 0),
         **{
             f"setpoint_{name}_steps": counts.get(f"setpoint_{name}_steps", 0)
-            for name in _SETPOINT_STATUSES
+            for name in SETPOINT_STATUSES
+        },
+        "input_clipped_steps": counts.get("input_clipped_steps", 0),
+        **{
+            f"measurement_{name}_steps": counts.get(f"measurement_{name}_steps", 0)
+            for name in MEASUREMENT_STATUSES[1:]
         },
         "optimal_steps": sum(n for k, n in statuses.items() if k.startswith("optimal")),
         "failed_steps": statuses.get("failed", 0),

@@ -43,6 +43,7 @@ from ltv_lstm_mpc.cli.arguments import (
 )
 from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
+from ltv_lstm_mpc.loop.statuses import SETPOINT_STATUSES
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.lstm.shipped import shipped_path
 
@@ -564,13 +565,12 @@ def _run_simulate(args: argparse.Namespace) -> int:
     counts = sim.summary_counts()
     print(
         "set-points: "
-        + ", ".join(
-            f"{name} {counts[f'setpoint_{name}_steps']}"
-            for name in ("ok", "outside_admissible", "unreachable_stale", "unreachable")
-        )
+        + ", ".join(f"{name} {counts[f'setpoint_{name}_steps']}" for name in SETPOINT_STATUSES)
         + f" steps; d_hat saturated {counts['d_hat_saturated_steps']} steps; infeasible "
         f"{counts['infeasible_steps']} steps; plant outside the output constraint "
-        f"{counts.get('plant_violation_steps', '-')} steps"
+        f"{counts.get('plant_violation_steps', '-')} steps; input clipped into U "
+        f"{counts['input_clipped_steps']} steps; implausible measurements "
+        f"{counts['measurement_implausible_steps']} steps"
     )
     return _offset_status([summary["final_offset"]], args.max_offset)
 

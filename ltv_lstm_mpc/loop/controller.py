@@ -19,15 +19,16 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.caller_warnings import RunWarnings
+from ltv_lstm_mpc.exceptions import InvalidValueError, UnreachableSetpointError
 from ltv_lstm_mpc.loop.observer import Observer
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator, ReferenceSolution
+from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
@@ -70,11 +71,23 @@ class ControllerStep:
         interval of Assumption 5 at this :math:`\\hat e_{o,k}`: no terminal set);
         ``"unreachable_stale"`` (no equilibrium with :math:`\bar u \\in \\mathcal U` for it:
         the previous target is kept, see ``stale_reference``); ``"unreachable"`` (the same
-        at the first step: the inadmissible equilibrium found is used).
+        at the first step: the inadmissible equilibrium found is used);
+        ``"target_outside_admissible"`` (the rate-limited set-point used is admissible, but
+        the requested one it moves towards is not: the limiter will carry it outside).
     d_hat_saturated : ndarray of bool (p,)
         :math:`|\\hat d_k| = d_{max}` per output (the saturation of eq. d_lstm_observer is
         active): the plant-model mismatch has reached the bound of
         :math:`\\mathcal D = \\{\\|d\\|_\\infty \\le d_{max}\\}` the guarantees assume.
+    input_clipped : float
+        How far (normalized, inf-norm) the MPC's first input had to be moved to lie in
+        :math:`\\mathcal U = \\{\\|u\\|_\\infty \\le u_{max}\\}` at the controller's exit gate;
+        0 when it was inside, ``inf`` when it was not finite and was replaced by the last
+        applied input (the projection of :math:`\\bar u` onto U at the first step).
+    measurement_status : str
+        ``"ok"`` (the normalized measurement lies in [-1, 1], the training range);
+        ``"outside_training_range"`` (up to one range width beyond it: the model
+        extrapolates); ``"implausible"`` (further: |y| > ``IMPLAUSIBLE_MEASUREMENT_LIMIT``,
+        most likely a sensor fault or wrong units).
     """
 
     y: FloatArray
@@ -94,6 +107,8 @@ class ControllerStep:
     stale_reference: bool = False
     setpoint_status: str = "ok"
     d_hat_saturated: NDArray[np.bool_] | None = None
+    input_clipped: float = 0.0
+    measurement_status: str = "ok"
 
     @property
     def time_total(self) -> float:
@@ -117,6 +132,21 @@ class OffsetFreeController:
         ``config.solver`` and ``config.transcription``). Anything with ``prepare`` /
         ``feedback`` (or only ``solve(x_hat, x_bar, u_bar, y0, e_hat) -> MPCSolution``),
         ``reset()`` and ``certification`` fits.
+    implausible_measurements : {"flag", "raise"}
+        What :meth:`step` does with a measurement more than one range width outside the
+        model's normalization range (``measurement_status == "implausible"``): ``"flag"``
+        (default) records it, warns once per run and uses it; ``"raise"`` refuses it with
+        :class:`~ltv_lstm_mpc.exceptions.InvalidValueError` before anything is updated.
+
+    Notes
+    -----
+    Whatever produced it (the nominal plan, a policy, the ``+shift`` fallback, an SQP
+    iterate, a custom ``mpc``), the input :meth:`step` returns lies in
+    :math:`\mathcal U`: an input outside it is projected onto it (a non-finite one is
+    replaced by the last applied input) and the step records the amount in
+    ``input_clipped``. Warnings about the run (input clipped, implausible measurement,
+    set-point status, :math:`\hat d` saturation) point at the caller's line, are shown once
+    per run and counted in ``warning_counts``.
     """
 
     def __init__(
@@ -126,6 +156,7 @@ class OffsetFreeController:
         *,
         setpoint_rate_limit: float | None = None,
         mpc: MPCSolver | None = None,
+        implausible_measurements: str = "flag",
     ) -> None:
         if model.normalization is None:
             raise InvalidValueError(
@@ -136,6 +167,12 @@ class OffsetFreeController:
             raise InvalidValueError(
                 f"setpoint_rate_limit must be positive, got {setpoint_rate_limit}"
             )
+        if implausible_measurements not in ("flag", "raise"):
+            raise InvalidValueError(
+                f"implausible_measurements must be 'flag' or 'raise', got "
+                f"{implausible_measurements!r}"
+            )
+        self.implausible_measurements = implausible_measurements
         self.model = model
         self.config = config = config or MPCConfig()
         self.mpc: MPCSolver = mpc if mpc is not None else RobustMPC(model, config)
@@ -150,20 +187,42 @@ class OffsetFreeController:
         assert norm is not None  # checked above
         self._y_min, self._y_scale = norm.y_phi_min, norm.y_scale
         self._u_min, self._u_scale = norm.u_phi_min, norm.u_scale
+        # U in physical units: the de-normalized [-u_max, u_max], never beyond the stored
+        # range where u_max = 1 (the de-normalization of 1 may round one ulp above it).
+        u_max = self._u_max = float(config.u_max)
+        self._u_phi_low = self._denormalize_u(np.full(model.m, -u_max))
+        self._u_phi_high = self._denormalize_u(np.full(model.m, u_max))
+        if u_max <= 1.0:
+            np.maximum(self._u_phi_low, norm.u_phi_min, out=self._u_phi_low)
+            np.minimum(self._u_phi_high, norm.u_phi_max, out=self._u_phi_high)
+        self.warnings = RunWarnings()
         self.records: list[ControllerStep] = []
         self.reset()
+
+    @property
+    def warning_counts(self) -> dict[str, int]:
+        """Steps of this run on which each warned condition held (shown once per run):
+        ``"input_clipped"``, ``"measurement_implausible"``, ``"setpoint"``,
+        ``"d_hat_saturated"``."""
+        return dict(self.warnings.counts)
+
+    @property
+    def input_bounds_phi(self) -> tuple[FloatArray, FloatArray]:
+        """U in physical units: (low, high), each (m,)."""
+        return self._u_phi_low.copy(), self._u_phi_high.copy()
 
     def reset(self) -> None:
         """Back to the uninitialized state (the next step initializes the observer)."""
         self._initialized = False
         self._y0: FloatArray | None = None
-        self._last_reference: ReferenceSolution | None = None
+        self._last_reference: ReferenceSolution | None = None  # the last admissible one
+        self._last_converged: ReferenceSolution | None = None  # before any admissible one
         tightening = self.certification.tightening
         self.e_hat = tightening.e_inf if self.config.e_hat0 is None else float(self.config.e_hat0)
         self.mpc.reset()
         self.reference.reset()
         self.records = []
-        self._warned_saturation = self._warned_setpoint = False
+        self.warnings.reset()
         self._interval: tuple[float, list[float], list[float]] = (math.nan, [], [])
 
     def _limit(self, y0_target: FloatArray) -> FloatArray:
@@ -186,22 +245,32 @@ class OffsetFreeController:
         if reference.ok:
             self._last_reference = reference
             return reference, y0, False
-        if self._last_reference is None:
-            if reference.converged:  # first step: nothing better to keep
+        last = self._last_reference
+        if last is None:  # no admissible equilibrium yet
+            if reference.converged:  # nothing better to keep
+                self._last_converged = reference
                 return reference, y0, False
-            raise LtvMpcError(
+            last = self._last_converged  # Newton failed: keep the last equilibrium found
+        if last is None:
+            raise UnreachableSetpointError(
                 f"the reference calculator found no equilibrium for the set-point "
                 f"{self._physical_y(y0)} (physical; {y0.tolist()} normalized), d_hat = "
-                f"{d_hat.tolist()} at the first step (residual {reference.residual:.2e})"
+                f"{d_hat.tolist()} at step {len(self.records)}, nor any before (residual {reference.residual:.2e}): "
+                "start from a set-point the model can reach (certify's y0_interval), or "
+                "let setpoint_rate_limit move it there from the measured output"
             )
-        last = self._last_reference
         return last, np.asarray(self.model.output(last.x_bar) + d_hat, dtype=np.float64), True
 
     def _physical_y(self, y: FloatArray) -> list[float]:
         return [float(v) for v in self.model.denormalize_y(y)]
 
     def _diagnose(
-        self, y0: FloatArray, d_hat: FloatArray, reference: ReferenceSolution, stale: bool
+        self,
+        y0: FloatArray,
+        y0_target: FloatArray,
+        d_hat: FloatArray,
+        reference: ReferenceSolution,
+        stale: bool,
     ) -> tuple[str, NDArray[np.bool_]]:
         """Set-point status and saturated outputs of this step; warns once per run."""
         ti = self.certification.tightening
@@ -209,20 +278,17 @@ class OffsetFreeController:
         flags = [abs(d) >= limit for d in d_hat.tolist()]  # p scalars: lists beat numpy here
         saturated = np.array(flags)
         k = len(self.records)
-        if any(flags) and not self._warned_saturation:
-            self._warned_saturation = True
+        if any(flags) and self.warnings.first("d_hat_saturated"):
             j = int(np.flatnonzero(saturated)[0])
             scale = float(self._y_scale[j])
-            warnings.warn(
+            self.warnings.warn(
                 f"d_hat reached its bound d_max = {self.config.d_max} (normalized; "
                 f"{self.config.d_max * scale:.4g} in physical output units) on output {j} at "
                 f"step {k}: the plant-model mismatch exceeds the disturbance bound the "
                 "guarantees assume (|d| <= d_max), and offsets may remain. Raise d_max "
                 "(MPCConfig d_max; estimate_d_max(model, data) measures the mismatch), which "
                 "shrinks the admissible set-point interval, or use a model that fits this "
-                "operating point better",
-                RuntimeWarning,
-                stacklevel=3,
+                "operating point better"
             )
         if stale or not reference.u_admissible:
             status = "unreachable_stale" if stale else "unreachable"
@@ -233,23 +299,91 @@ class OffsetFreeController:
             _, lows, highs = self._interval
             inside = all(a < y < b for a, y, b in zip(lows, y0.tolist(), highs, strict=True))
             status = "ok" if inside else "outside_admissible"
-        if status != "ok" and not self._warned_setpoint:
-            self._warned_setpoint = True
+            if inside and y0_target is not y0:  # the rate limiter is moving the set-point
+                target = y0_target.tolist()
+                if not all(a < y < b for a, y, b in zip(lows, target, highs, strict=True)):
+                    status = "target_outside_admissible"
+        if status != "ok" and self.warnings.first("setpoint"):
             low, high = ti.setpoint_interval(self.e_hat)
-            where = (
-                f"outside the admissible interval [{self._physical_y(low)}, "
-                f"{self._physical_y(high)}] of Assumption 5 (no terminal set: the MPC is "
-                "infeasible and its policy applies)"
-                if status == "outside_admissible"
-                else "not reachable: no equilibrium with the input inside its bounds"
-                + (" (the previous target is kept)" if stale else "")
+            interval = (
+                f"the admissible interval [{self._physical_y(low)}, "
+                f"{self._physical_y(high)}] of Assumption 5"
             )
-            warnings.warn(
-                f"set-point {self._physical_y(y0)} (physical units) at step {k} is {where}",
-                RuntimeWarning,
-                stacklevel=3,
+            if status == "outside_admissible":
+                where = (
+                    f"outside {interval} (no terminal set: the MPC is infeasible and its "
+                    "policy applies)"
+                )
+            elif status == "target_outside_admissible":
+                where = (
+                    f"outside {interval}; the rate-limited set-point "
+                    f"{self._physical_y(y0)} is still inside and will leave it"
+                )
+            else:
+                where = "not reachable: no equilibrium with the input inside its bounds" + (
+                    " (the previous target is kept)" if stale else ""
+                )
+            requested = y0_target if status == "target_outside_admissible" else y0
+            self.warnings.warn(
+                f"set-point {self._physical_y(requested)} (physical units) at step {k} is {where}"
             )
         return status, saturated
+
+    def _measurement_status(self, y: FloatArray, y_phi: ArrayLike) -> str:
+        """``"ok"``, ``"outside_training_range"`` or ``"implausible"`` (see
+        :class:`ControllerStep`); warns once per run, or raises, on an implausible one."""
+        largest = max(abs(v) for v in y.tolist())
+        if largest <= 1.0:
+            return "ok"
+        if largest <= IMPLAUSIBLE_MEASUREMENT_LIMIT:
+            return "outside_training_range"
+        norm = self.model.normalization
+        assert norm is not None  # checked at construction
+        message = (
+            f"measurement y_phi = {np.asarray(y_phi, dtype=np.float64).tolist()} at step "
+            f"{len(self.records)} lies more than one range width outside the model's "
+            f"normalization range [{norm.y_phi_min.tolist()}, {norm.y_phi_max.tolist()}] "
+            f"(normalized {y.tolist()}, limit +-{IMPLAUSIBLE_MEASUREMENT_LIMIT}): a sensor "
+            "fault or wrong units?"
+        )
+        if self.implausible_measurements == "raise":
+            raise InvalidValueError(
+                message + " Refused (implausible_measurements='raise'); pass "
+                "implausible_measurements='flag' to record it and use it anyway"
+            )
+        if self.warnings.first("measurement_implausible"):
+            self.warnings.warn(message + " It is used as it is and flagged per step.")
+        return "implausible"
+
+    def _gate_input(self, u: FloatArray, u_bar: FloatArray) -> tuple[FloatArray, float]:
+        """The exit gate: ``u`` projected onto U, and how far it moved (inf-norm; inf when
+        it was not finite and the last applied input, or the projection of u_bar at the
+        first step, replaces it)."""
+        u_max = self._u_max
+        if all(-u_max <= v <= u_max for v in u.tolist()):  # NaN fails the test
+            return u, 0.0
+        if np.isfinite(u).all():
+            gated = np.clip(u, -u_max, u_max)
+            moved = float(np.abs(gated - u).max())
+        else:
+            if self.records:
+                gated = self.records[-1].u.copy()
+            else:
+                gated = np.clip(u_bar, -u_max, u_max)
+            moved = math.inf
+        if self.warnings.first("input_clipped"):
+            what = (
+                f"was projected onto U (moved by {moved:.3e}, normalized)"
+                if math.isfinite(moved)
+                else "was not finite and was replaced by "
+                + ("the last applied input" if self.records else "u_bar projected onto U")
+            )
+            self.warnings.warn(
+                f"the MPC's input {u.tolist()} (normalized) at step {len(self.records)} "
+                f"{what}: U = [{self._u_phi_low.tolist()}, {self._u_phi_high.tolist()}] in "
+                "physical units. Every such step is recorded in ControllerStep.input_clipped"
+            )
+        return gated, moved
 
     # Parts of one step; a faster controller overrides these, not the loop in ``step``.
     def _normalize(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -287,6 +421,7 @@ class OffsetFreeController:
     def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
         """One sample: measured physical output and set-point in, physical input out."""
         y, y0_target = self._normalize(y_phi, y0_phi)
+        measurement_status = self._measurement_status(y, y_phi)
         t0 = time.perf_counter()
         if not self._initialized:
             self.observer.initialize(y, reference=self.reference)
@@ -300,18 +435,18 @@ class OffsetFreeController:
         x_hat, d_hat = self.observer.x_hat, self.observer.d_hat
         t1 = time.perf_counter()
         reference, y0_mpc, stale = self._reference(self._solve_reference(y0, d_hat), y0, d_hat)
-        setpoint_status, saturated = self._diagnose(y0, d_hat, reference, stale)
+        setpoint_status, saturated = self._diagnose(y0, y0_target, d_hat, reference, stale)
         t2 = time.perf_counter()
         solution = self._solve_mpc(x_hat, reference, y0_mpc)
-        u = solution.u[0].copy()
-        if not math.isfinite(sum(u.tolist())):  # pragma: no cover - the MPC validates its plans
-            raise LtvMpcError(f"the MPC returned a non-finite input {u} (status {solution.status})")
+        u, input_clipped = self._gate_input(solution.u[0].copy(), reference.u_bar)
         t3 = time.perf_counter()
         self._update_observer(y, u)
         e_hat_used = self.e_hat
         self.e_hat = self.certification.tightening.next_e_hat(self.e_hat)
         t4 = time.perf_counter()
         u_phi = self._denormalize_u(u)
+        if input_clipped or max(abs(v) for v in u.tolist()) >= self._u_max:  # on U's boundary
+            np.clip(u_phi, self._u_phi_low, self._u_phi_high, out=u_phi)
         self.records.append(
             ControllerStep(
                 y=y,
@@ -331,6 +466,8 @@ class OffsetFreeController:
                 stale_reference=stale,
                 setpoint_status=setpoint_status,
                 d_hat_saturated=saturated,
+                input_clipped=input_clipped,
+                measurement_status=measurement_status,
             )
         )
         return u_phi

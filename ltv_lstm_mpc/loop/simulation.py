@@ -13,6 +13,7 @@ from tqdm.auto import tqdm
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
 from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.validation import real_vector
 
@@ -57,7 +58,7 @@ class SimulationResult:
     transcription : str
         The MPC's transcription (``"condensed"``, ``"sparse"``, ``"nonlinear"``).
     setpoint_status : (steps,) str
-        ``"ok"``, ``"outside_admissible"``, ``"unreachable_stale"`` or ``"unreachable"``
+        One of :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES`
         (see :class:`~ltv_lstm_mpc.loop.controller.ControllerStep`).
     d_hat_saturated : (steps, p) bool
         :math:`|\hat d_k| = d_{max}` per output.
@@ -69,6 +70,16 @@ class SimulationResult:
         True plant output at sample k: ``y_phi`` without the measurement noise of a
         :class:`~ltv_lstm_mpc.plants.measurement.NoisyMeasurement` (equal to ``y_phi``
         for a plant measured exactly).
+    input_clipped : (steps,)
+        How far the controller's exit gate moved the MPC's input into U (normalized
+        inf-norm; 0 inside, inf where a non-finite input was replaced).
+    measurement_status : (steps,) str
+        ``"ok"``, ``"outside_training_range"`` or ``"implausible"`` (see
+        :class:`~ltv_lstm_mpc.loop.controller.ControllerStep`).
+    warning_counts : dict of str to int
+        The controller's :attr:`~ltv_lstm_mpc.loop.controller.OffsetFreeController.warning_counts`
+        for this run: steps on which each warned condition held (each warning is shown once
+        per run).
     """
 
     y_phi: FloatArray
@@ -95,18 +106,27 @@ class SimulationResult:
     d_hat_saturated: NDArray[np.bool_] | None = None
     plant_violation: FloatArray | None = None
     y_phi_true: FloatArray | None = None
+    input_clipped: FloatArray | None = None
+    measurement_status: NDArray[np.str_] | None = None
+    warning_counts: dict[str, int] | None = None
 
     def summary_counts(self) -> dict[str, int]:
-        """Steps per set-point status, d_hat-saturated steps, infeasible steps."""
+        """Steps per set-point status, d_hat-saturated steps, infeasible steps, steps with
+        the input clipped, steps per measurement status."""
         counts: dict[str, int] = {}
         if self.setpoint_status is not None:
-            for name in ("ok", "outside_admissible", "unreachable_stale", "unreachable"):
+            for name in SETPOINT_STATUSES:
                 counts[f"setpoint_{name}_steps"] = int(np.sum(self.setpoint_status == name))
         if self.d_hat_saturated is not None:
             counts["d_hat_saturated_steps"] = int(np.sum(self.d_hat_saturated.any(axis=1)))
         counts["infeasible_steps"] = int(np.sum(~self.feasible))
         if self.plant_violation is not None and not np.all(np.isnan(self.plant_violation)):
             counts["plant_violation_steps"] = int(np.sum(self.plant_violation > 1e-9))
+        if self.input_clipped is not None:
+            counts["input_clipped_steps"] = int(np.sum(self.input_clipped > 0.0))
+        if self.measurement_status is not None:
+            for name in MEASUREMENT_STATUSES[1:]:
+                counts[f"measurement_{name}_steps"] = int(np.sum(self.measurement_status == name))
         return counts
 
 
@@ -288,4 +308,7 @@ def simulate(
         ).reshape(len(records), controller.model.p),
         plant_violation=plant_violation,
         y_phi_true=y_array,
+        input_clipped=np.array([r.input_clipped for r in records], dtype=np.float64),
+        measurement_status=np.array([r.measurement_status for r in records], dtype=str),
+        warning_counts=controller.warning_counts,
     )

@@ -221,6 +221,7 @@ class RobustMPC:
         self._bounds_e: float | None = None
         self._previous_u: FloatArray | None = None
         self._prepared = False
+        self._u_bar_projected = False  # the last candidate appends u_bar projected onto U
         # One compiled call for the nominal feedback where the transcription offers it
         # (condensed QP, DAQP bound natively, compiled kernel; one SQP iteration).
         self._native_feedback: Any = None
@@ -245,8 +246,11 @@ class RobustMPC:
         self._problem.reset()
 
     def candidate(self, u_bar: FloatArray) -> FloatArray:
-        """Proof candidate: previous plan shifted by one with u_bar appended (SPEC 4)."""
-        return shifted_candidate(self._previous_u, u_bar, self.N)
+        """Proof candidate (Theorem 3, Part 2b): the previous plan shifted by one with
+        :math:`\\bar u` appended, projected onto U where :math:`\\bar u` lies outside it
+        (an inadmissible equilibrium), as :meth:`prepare` builds it."""
+        u_max = self.config.u_max
+        return shifted_candidate(self._previous_u, np.clip(u_bar, -u_max, u_max), self.N)
 
     def _bounds(self, y0: FloatArray, e_hat: float) -> None:
         """Tightened bounds and alpha_k from :class:`TighteningCertificate`, when they change."""
@@ -295,9 +299,23 @@ class RobustMPC:
         self._u_bar = u_bar_a = np.asarray(u_bar, dtype=np.float64).reshape(m)
         self._bounds(np.asarray(y0, dtype=np.float64).reshape(model.p), float(e_hat))
         cand, traj, plan, kernel = self._cand, self._traj, self._plan, self._kernel
-        # the candidate (SPEC 4) and the start of the linearization
+        # the candidate (Theorem 3, Part 2b) and the start of the linearization
+        u_max = self.config.u_max
+        self._u_bar_projected = False
         if warm is not None:
             cand[:] = np.asarray(warm, dtype=np.float64).reshape(N, m)
+            candidate = CANDIDATE_GIVEN
+        elif any(not -u_max <= v <= u_max for v in u_bar_a.tolist()):
+            # An inadmissible equilibrium (unreachable set-point, or a failed reference):
+            # the candidate appends u_bar's projection onto U, so that no plan built on it
+            # (the "shift" policy and every "+shift" fallback apply it) leaves U.
+            u_projected = np.clip(u_bar_a, -u_max, u_max)
+            self._u_bar_projected = True
+            if self._previous_u is None:
+                cand[:] = u_projected
+            else:
+                cand[:-1] = self._previous_u[1:]
+                cand[-1] = u_projected
             candidate = CANDIDATE_GIVEN
         elif self._previous_u is None:
             candidate = CANDIDATE_U_BAR
@@ -444,6 +462,8 @@ class RobustMPC:
         if u_plan is None:
             u_plan = self._cand.copy()
             step = 0.0
+            if self._u_bar_projected:
+                reason += "; the candidate applied appends u_bar projected onto U"
         # ---- re-simulate the plan on the true LSTM (nonlinear residuals)
         P = self._plan.S
         P[0, :n2] = x_hat_a
