@@ -11,9 +11,10 @@ infeasibility), to test a caller's failure handling.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -399,11 +400,13 @@ def _fault_result(fault: str, n: int, call: int) -> RawResult:
 
 
 class _FaultyBackend(Backend):
-    """ConvexProblem backend wrapper that injects a fault on the triggered calls."""
+    """ConvexProblem backend wrapper that injects a fault on the triggered calls.
+
+    :func:`_mirror` makes the subclass actually used, with the capabilities (cones,
+    in-place update, warm start) of the wrapped backend.
+    """
 
     backend: ClassVar[str] = "faulty"
-    supports_update: ClassVar[bool] = True
-    supports_warm_start: ClassVar[bool] = True
 
     def __init__(self, inner: Backend, fault: str, trigger: _Trigger) -> None:
         super().__init__(inner.name, inner.solver, inner.options)
@@ -418,10 +421,7 @@ class _FaultyBackend(Backend):
         self._inner.setup(problem)
 
     def update(self, problem: ConvexProblem) -> None:
-        if self._inner.supports_update:
-            self._inner.update(problem)
-        else:
-            self._inner.setup(problem)
+        self._inner.update(problem)  # called only when the inner backend supports it
 
     def solve(self, warm_start: WarmStart | None) -> RawResult:
         call = self._trigger.count
@@ -431,32 +431,65 @@ class _FaultyBackend(Backend):
 
 
 class _FaultyDense(DenseBackend):
-    """Dense backend wrapper that injects a fault on the triggered calls."""
+    """Dense backend wrapper that injects a fault on the triggered calls.
+
+    Like :class:`_FaultyBackend`, used through its :func:`_mirror` subclass. It has no
+    ``native`` entry point even where the wrapped backend has one: a compiled caller
+    would bypass the injected faults, so the faulty name always takes the general path.
+    """
 
     backend: ClassVar[str] = "faulty"
-    supports_update: ClassVar[bool] = True
-    supports_warm_start: ClassVar[bool] = True
 
     def __init__(self, inner: DenseBackend, fault: str, trigger: _Trigger) -> None:
         super().__init__(inner.name, inner.solver, inner.options)
         self._inner, self._fault, self._trigger = inner, fault, trigger
         self._n = 0
 
+    def handles_cones(self) -> bool:
+        return self._inner.handles_cones()
+
     def setup(self, qp: DenseQP) -> None:
         self._n = qp.n_variables
         self._inner.setup(qp)
 
     def update(self, qp: DenseQP) -> None:
-        if self._inner.supports_update:
-            self._inner.update(qp)
-        else:
-            self._inner.setup(qp)
+        self._inner.update(qp)  # called only when the inner backend supports it
 
     def solve(self, warm_start: WarmStart | None) -> RawResult:
         call = self._trigger.count
         if self._trigger():
             return _fault_result(self._fault, self._n, call)
         return self._inner.solve(warm_start)
+
+
+_Wrapper = TypeVar("_Wrapper", _FaultyBackend, _FaultyDense)
+
+
+@functools.cache
+def _mirror_class(
+    wrapper: type[_Wrapper], supports_cones: bool, supports_update: bool, supports_warm_start: bool
+) -> type[_Wrapper]:
+    attrs = {
+        "supports_cones": supports_cones,
+        "supports_update": supports_update,
+        "supports_warm_start": supports_warm_start,
+    }
+    return type(wrapper.__name__, (wrapper,), attrs)
+
+
+def _mirror(
+    wrapper: type[_Wrapper], inner: Backend | DenseBackend, fault: str, trigger: _Trigger
+) -> _Wrapper:
+    """A ``wrapper`` around ``inner`` with ``inner``'s capabilities: the sessions then treat
+    the faulty name exactly as the backend it wraps (exact cones, in-place update, warm
+    start), so every path of the base solver can be exercised with faults."""
+    cls = _mirror_class(
+        wrapper,
+        bool(inner.supports_cones),
+        bool(inner.supports_update),
+        bool(inner.supports_warm_start),
+    )
+    return cls(inner, fault, trigger)
 
 
 def faulty(base_name: str, fault: str, calls: int | Iterable[int] | None = None) -> str:
@@ -483,7 +516,11 @@ def faulty(base_name: str, fault: str, calls: int | Iterable[int] | None = None)
     -------
     str
         E.g. ``"faulty:nan@0,2:daqp"`` (``@all`` for ``calls=None``); its
-        :func:`~ltv_lstm_mpc.solvers.solver_info` copies the base's capabilities.
+        :func:`~ltv_lstm_mpc.solvers.solver_info` copies the base's capabilities, and
+        its sessions keep the wrapped backend's (exact second-order cones, in-place
+        update, warm start), so a faulty native cone solver (``faulty("clarabel",
+        ...)``) runs the exact-cone path. A compiled entry point (DAQP's ``native``)
+        is not passed on: the faults would bypass it.
 
     Raises
     ------
@@ -511,10 +548,10 @@ def faulty(base_name: str, fault: str, calls: int | Iterable[int] | None = None)
     dense = get_dense_backend(base_name)
 
     def factory(_name: str, tolerance: float, settings: Mapping[str, Any]) -> Backend:
-        return _FaultyBackend(sparse(base_name, tolerance, settings), fault, trigger)
+        return _mirror(_FaultyBackend, sparse(base_name, tolerance, settings), fault, trigger)
 
     def dense_factory(_name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
-        return _FaultyDense(dense(base_name, tolerance, settings), fault, trigger)
+        return _mirror(_FaultyDense, dense(base_name, tolerance, settings), fault, trigger)
 
     info = type(base)(
         name=name,

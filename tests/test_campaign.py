@@ -579,3 +579,57 @@ def test_fallback_columns_by_policy_add_up(tmp_path) -> None:
     assert row["fallback_steps"] > 0
     assert sum(row[c] for c in columns) == row["fallback_steps"]
     assert row["truncated"] is False
+
+
+@pytest.mark.parametrize("where", [["--workers", "2"], ["--serial"]], ids=["dask", "serial"])
+def test_ctrl_c_prints_one_line_and_no_worker_traceback(tmp_path, where) -> None:
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) once the first task
+    is stored: one line saying what is stored and how to resume, no traceback from any
+    process (the LocalCluster's workers included), exit code 130."""
+    import os
+    import re
+    import signal
+    import time
+
+    if where[0] == "--workers":
+        pytest.importorskip("distributed")
+    spec = tmp_path / "spec.toml"
+    spec.write_text(
+        '[campaign]\nsteps = 200\nsetpoints = [7.4, 7.2]\nsolver = "daqp"\n'
+        "[factors]\nseed = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]\n"
+    )
+    out = tmp_path / "out"
+    script = "import sys; from ltv_lstm_mpc.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    command = ["campaign", str(spec), "--out", str(out), *where, "--no-progress", "--no-report"]
+    process = subprocess.Popen(
+        [sys.executable, "-c", script, *command],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, signalled like a terminal's
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not list(out.glob("tasks/*.json")) and time.monotonic() < deadline:
+            assert process.poll() is None, process.communicate()
+            time.sleep(0.05)
+        os.killpg(process.pid, signal.SIGINT)
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert process.returncode == 130, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert "leaked" not in stderr, stderr  # no resource-tracker warning from a killed worker
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert sum("interrupted" in line for line in lines) == 1, stderr
+    match = re.fullmatch(
+        r"ltv-lstm-mpc campaign: interrupted; (\d+) of 12 tasks stored in (.+); "
+        r"resume with: ltv-lstm-mpc campaign (.+)",
+        lines[-1],
+    )
+    assert match, stderr
+    stored = [json.loads(p.read_text()) for p in out.glob("tasks/*.json")]
+    assert int(match[1]) == len(stored) >= 1
+    assert all(row["status"] == "ok" for row in stored)
+    assert f"--out {out}" in match[3] and where[0] in match[3]

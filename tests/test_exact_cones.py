@@ -247,3 +247,34 @@ def test_policies_on_the_states_of_scenario_3_with_exact_cones(model, policy) ->
     assert {s.policy for s in infeasible} == {policy}
     assert {s.reformulation for s in infeasible} == {None}
     assert result.summary()["max_output_violation"] == 0.0
+
+
+# ------------------------------------------------------------------- fault injection
+@pytest.mark.parametrize("fault", ["nan", "raise"])
+def test_faults_on_native_clarabel_keep_the_exact_cones_in_closed_loop(model, fault) -> None:
+    """``faulty("clarabel", ...)`` runs the exact-cone path: the faulted calls become
+    recorded failures handled by the fallback policy, every other call solves the cones."""
+    from ltv_lstm_mpc.solvers.testing import faulty
+
+    from ltv_lstm_mpc.loop.simulation import simulate
+    from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
+
+    name = faulty("clarabel", fault, calls=[5])
+    runs = {}
+    for solver in ("clarabel", name):
+        controller = OffsetFreeController(
+            model, MPCConfig(solver=solver, infeasibility_policy="paper")
+        )
+        runs[solver] = simulate(
+            LSTMPlant(model, y0_phi=7.0), controller, 7.3, steps=10, progress=False
+        )
+        assert controller.mpc._problem.exact_cones
+        assert {r.mpc.reformulation for r in controller.records} == {None}
+    clean, faulted = runs["clarabel"], runs[name]
+    assert set(clean.status) == {"optimal"}
+    expected = "failed" if fault == "nan" else "solver_error"
+    # one nominal solve per step while it succeeds: call 5 is the nominal solve of step 5
+    assert list(faulted.status) == ["optimal"] * 5 + [expected] + ["optimal"] * 4
+    assert list(faulted.policy) == ["nominal"] * 5 + ["paper"] + ["nominal"] * 4
+    np.testing.assert_array_equal(faulted.u_phi[:5], clean.u_phi[:5])
+    assert np.all(np.isfinite(faulted.u_phi))

@@ -3,13 +3,16 @@
 ``ltv-lstm-mpc campaign SPEC.toml --out DIR [--scheduler ADDRESS] [--workers N] [--serial]
 [--dry-run] [--retry-errors]``. A bad spec is a usage error (exit code 2, the message names
 the entry); a library error is exit code 1; tasks that fail are recorded, not fatal (exit
-code 0, their count on stderr). Dask is imported only when the tasks run on it.
+code 0, their count on stderr). Dask is imported only when the tasks run on it. Ctrl-C
+prints one line (``interrupted; N of M tasks stored in DIR; resume with: ...``, exit code
+130) and no worker traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -84,9 +87,21 @@ def _scheduler_workers(address: str) -> int:
         return max(sum(int(w.get("nthreads", 1)) for w in workers.values()), 1)
 
 
+def _resume_command(args: argparse.Namespace) -> str:
+    """The command line that resumes this run (the same spec, folder and cluster options)."""
+    words = ["ltv-lstm-mpc", "campaign", str(args.spec), "--out", str(args.out)]
+    if args.scheduler is not None:
+        words += ["--scheduler", args.scheduler]
+    if args.workers is not None:
+        words += ["--workers", str(args.workers)]
+    flags = ("serial", "retry_errors", "no_report", "no_progress")
+    words += [f"--{flag.replace('_', '-')}" for flag in flags if getattr(args, flag)]
+    return shlex.join(words)
+
+
 def campaign_command(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc campaign``: run (or estimate) a campaign; returns the exit status."""
-    from ltv_lstm_mpc.campaign.runner import estimate_campaign, run_campaign
+    from ltv_lstm_mpc.campaign.runner import CampaignInterrupted, estimate_campaign, run_campaign
     from ltv_lstm_mpc.campaign.spec import load_spec
 
     if args.serial and (args.scheduler is not None or args.workers is not None):
@@ -118,17 +133,24 @@ def campaign_command(args: argparse.Namespace) -> int:
             f"{'s' if workers != 1 else ''} (plus starting the cluster)"
         )
         return 0
-    run = run_campaign(
-        spec,
-        args.out,
-        scheduler=args.scheduler,
-        workers=args.workers,
-        serial=args.serial,
-        retry_errors=args.retry_errors,
-        progress=not args.no_progress,
-        report=not args.no_report,
-        log=lambda message: print(message, file=sys.stderr),
-    )
+    try:
+        run = run_campaign(
+            spec,
+            args.out,
+            scheduler=args.scheduler,
+            workers=args.workers,
+            serial=args.serial,
+            retry_errors=args.retry_errors,
+            progress=not args.no_progress,
+            report=not args.no_report,
+            log=lambda message: print(message, file=sys.stderr),
+        )
+    except CampaignInterrupted as interrupted:
+        # one line, printed by the command line's KeyboardInterrupt handler
+        raise KeyboardInterrupt(
+            f"interrupted; {interrupted.stored} of {interrupted.total} tasks stored in "
+            f"{args.out}; resume with: {_resume_command(args)}"
+        ) from None
     print(
         f"campaign {spec.name}: {len(run.rows)} tasks ({run.executed} run now, {run.skipped} "
         f"already finished), {run.errors} errors; {run.wall_s:.1f} s"

@@ -7,6 +7,11 @@ On Dask every task is one future: a worker that dies mid-task has its task resch
 by the scheduler (up to ``distributed.scheduler.allowed-failures`` times, then the task is
 recorded as an error), and everything already finished is on disk. The client writes
 the files, so remote workers need no access to the output folder.
+
+Ctrl-C stops a run quietly: the worker processes of the LocalCluster never see the
+interrupt (it is blocked in the threads that start them, so only this process gets it);
+:func:`run_campaign` closes the cluster and raises :class:`CampaignInterrupted`, which
+says how many tasks are stored and how to resume.
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ import contextlib
 import logging
 import math
 import os
+import signal
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -38,6 +45,7 @@ from ltv_lstm_mpc.exceptions import LtvMpcError
 
 __all__ = [
     "CampaignError",
+    "CampaignInterrupted",
     "CampaignRun",
     "Estimate",
     "dask_client",
@@ -51,6 +59,57 @@ INSTALL_HINT = "install the extra: python -m pip install 'ltv_lstm_mpc[campaign]
 
 class CampaignError(LtvMpcError, RuntimeError):
     """A campaign cannot run (Dask missing, workers on another library version, ...)."""
+
+
+class CampaignInterrupted(KeyboardInterrupt):
+    """A campaign stopped by Ctrl-C; everything finished before it is stored.
+
+    A :class:`KeyboardInterrupt` (so ``except Exception`` does not swallow it). Running the
+    same spec into the same folder resumes: the stored tasks are skipped.
+
+    Attributes
+    ----------
+    stored, total : int
+        Tasks stored in the output folder (the ones a resume skips); tasks of the spec.
+    out : Path
+        The output folder.
+    """
+
+    def __init__(self, stored: int, total: int, out: Path) -> None:
+        super().__init__(
+            f"interrupted; {stored} of {total} tasks stored in {out}; run the same spec "
+            "into the same folder to resume"
+        )
+        self.stored, self.total, self.out = stored, total, out
+
+
+@contextlib.contextmanager
+def _interrupt_only_this_thread() -> Iterator[None]:
+    """Block SIGINT in the threads (and so the processes) started inside the block.
+
+    Ctrl-C in a terminal sends SIGINT to every process of the foreground group, the Dask
+    worker processes included, each of which would print its own KeyboardInterrupt
+    traceback. A thread inherits the signal mask of the thread that starts it, and a
+    process that of the thread that spawns it, so with SIGINT blocked here while the
+    cluster starts, its threads (which later restart dead workers too) and its worker
+    processes never receive it. This thread unblocks it at the end: a Ctrl-C during the
+    start is delivered then, not lost. No-op where threads cannot mask signals.
+    """
+    if not hasattr(signal, "pthread_sigmask") or (
+        threading.current_thread() is not threading.main_thread()
+    ):
+        yield
+        return
+    # multiprocessing starts its resource tracker on first use, blocking and then
+    # *unblocking* SIGINT in the calling thread: start it now, before the mask is set
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 @dataclass(frozen=True)
@@ -113,16 +172,19 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             client.close()
         return
     count = workers if workers is not None else (os.cpu_count() or 1)
-    with (
-        LocalCluster(
-            n_workers=count,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",  # a free port: several clusters may run at once
-            silence_logs=logging.ERROR,
-        ) as cluster,
-        Client(cluster) as client,
-    ):
+    with contextlib.ExitStack() as stack:
+        # the cluster's threads and worker processes never see Ctrl-C (this thread does)
+        with _interrupt_only_this_thread():
+            cluster = stack.enter_context(
+                LocalCluster(
+                    n_workers=count,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=":0",  # a free port: several clusters may run at once
+                    silence_logs=logging.ERROR,
+                )
+            )
+            client = stack.enter_context(Client(cluster))
         yield client
 
 
@@ -147,11 +209,26 @@ def _run_serial(tasks: Sequence[Task], function: TaskFunction) -> Iterator[TaskO
         yield execute(task, function)
 
 
+def _execute_on_worker(task: Task, function: TaskFunction) -> TaskOutcome:
+    """:func:`execute` on a Dask worker, whose tqdm bars (the closed loop's, disabled) take
+    a thread lock instead of a multiprocessing one: a worker killed mid-task (the cluster
+    closed on Ctrl-C) then leaves no semaphore for the resource tracker to warn about."""
+    import threading
+
+    from tqdm.auto import tqdm as auto_tqdm
+
+    if not isinstance(getattr(auto_tqdm, "_lock", None), type(threading.RLock())):
+        auto_tqdm.set_lock(threading.RLock())
+    return execute(task, function)
+
+
 def _run_dask(client: Any, tasks: Sequence[Task], function: TaskFunction) -> Iterator[TaskOutcome]:
     from distributed import as_completed
 
     futures = {
-        client.submit(execute, task, function, key=f"ltv-campaign-{task.key}", pure=False): task
+        client.submit(
+            _execute_on_worker, task, function, key=f"ltv-campaign-{task.key}", pure=False
+        ): task
         for task in tasks
     }
     for future in as_completed(futures):
@@ -203,6 +280,12 @@ def run_campaign(
         must be picklable for Dask (see :mod:`ltv_lstm_mpc.campaign.testing`).
     log : callable, optional
         Receives one-line progress messages.
+
+    Raises
+    ------
+    CampaignInterrupted
+        On Ctrl-C (a :class:`KeyboardInterrupt`), after closing the cluster; the tasks
+        finished before it are stored and a rerun skips them.
     """
     if serial and scheduler is not None:
         raise CampaignError("serial runs in this process: give serial=True or a scheduler")
@@ -221,23 +304,30 @@ def run_campaign(
             f"{len(pending)} to run in {where}"
         )
     executed = 0
-    with contextlib.ExitStack() as stack:
-        if not pending:
-            outcomes: Iterator[TaskOutcome] = iter(())
-        elif serial:
-            outcomes = _run_serial(pending, task_function)
-        else:
-            client = stack.enter_context(dask_client(scheduler, workers))
-            outcomes = _run_dask(client, pending, task_function)
-        bar = stack.enter_context(
-            tqdm(total=len(pending), desc=spec.name, unit="task", disable=not progress)
-        )
-        for outcome in outcomes:
-            store.write(outcome)
-            executed += 1
-            bar.update(1)
-            if outcome.row.get("status") in ("error", "lost"):
-                bar.set_postfix_str(f"last error: {outcome.row['key']}", refresh=False)
+    try:
+        with contextlib.ExitStack() as stack:
+            if not pending:
+                outcomes: Iterator[TaskOutcome] = iter(())
+            elif serial:
+                outcomes = _run_serial(pending, task_function)
+            else:
+                client = stack.enter_context(dask_client(scheduler, workers))
+                outcomes = _run_dask(client, pending, task_function)
+            bar = stack.enter_context(
+                tqdm(total=len(pending), desc=spec.name, unit="task", disable=not progress)
+            )
+            for outcome in outcomes:
+                store.write(outcome)
+                executed += 1
+                bar.update(1)
+                if outcome.row.get("status") in ("error", "lost"):
+                    bar.set_postfix_str(f"last error: {outcome.row['key']}", refresh=False)
+    except KeyboardInterrupt:
+        # the cluster is closed; what finished is on disk (each row written atomically)
+        left, _ = pending_tasks(spec, store)
+        raise CampaignInterrupted(
+            len(spec.tasks) - len(left), len(spec.tasks), store.root
+        ) from None
     stored = store.finished(task.key for task in spec.tasks)
     rows = [stored[task.key] for task in spec.tasks if task.key in stored]
     columns = ordered_columns(rows)

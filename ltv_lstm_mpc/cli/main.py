@@ -626,8 +626,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (LtvMpcError, OSError, ValueError) as error:
         print(f"ltv-lstm-mpc {args.command}: error: {error}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"ltv-lstm-mpc {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as interrupt:
+        # one line; a command may say what was kept and how to resume (campaign)
+        print(f"ltv-lstm-mpc {args.command}: {interrupt or 'interrupted'}", file=sys.stderr)
         return 130
 
 

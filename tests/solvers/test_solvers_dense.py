@@ -25,6 +25,7 @@ from ltv_lstm_mpc.solvers import (
     solver_info,
     unregister_backend,
 )
+from ltv_lstm_mpc.solvers._adapters import dense_qp_of
 from ltv_lstm_mpc.solvers._base import RawResult, WarmStart
 from ltv_lstm_mpc.solvers.testing import (
     GARBAGE,
@@ -491,3 +492,43 @@ def test_solve_point_sees_faults(fault: str, cleanup: list[str]) -> None:
         assert status is SolverStatus.OPTIMAL and z is not None and np.all(z == GARBAGE)
     else:
         assert status is SolverStatus.INFEASIBLE and z is None
+
+
+#: Every installed backend the registry lists as solving cones exactly (no faulty names).
+CONE_BASES = [s for s in SOLVERS if solver_info(s).supports_cones and not s.startswith("faulty:")]
+
+
+@pytest.mark.parametrize("base", CONE_BASES)
+def test_faulty_keeps_the_capabilities_of_a_cone_backend(base: str, cleanup: list[str]) -> None:
+    """A faulty cone backend solves the cones on the calls it does not fault, on the dense
+    and on the sparse session, with the wrapped backend's in-place update and warm start."""
+    name = faulty(base, "nan", calls=[1, 4])
+    cleanup.append(name)
+    assert solver_info(name).supports_cones
+    for make in (DenseSession, Session):
+        wrapped, plain = make(name), make(base)
+        for attribute in ("supports_cones", "supports_update", "supports_warm_start"):
+            assert getattr(wrapped._backend, attribute) == getattr(plain._backend, attribute)
+        assert wrapped._backend.handles_cones() == plain._backend.handles_cones()
+    socp = problem("socp")
+    qp = dense_qp_of(socp)
+    assert qp.cones and socp.cones
+    expected_dense = DenseSession(base).solve(qp)
+    expected_sparse = solve(socp, base)
+    dense_session = DenseSession(name)
+    sparse_session = Session(name)
+    sparse_session.setup(socp)
+    # calls 0, 2: dense; 1, 3: sparse; 4: dense; 5: sparse (0-based, one shared counter)
+    for call in range(6):
+        if call % 2 == 0:
+            sol = dense_session.solve(qp)
+            expected = expected_dense
+        else:
+            sol = sparse_session.solve()
+            expected = expected_sparse
+        if call in (1, 4):
+            assert sol.status is SolverStatus.FAILED and "injected fault" in sol.info
+            continue
+        assert sol.status is SolverStatus.OPTIMAL, sol.info
+        assert sol.z is not None and expected.z is not None
+        np.testing.assert_allclose(sol.z, expected.z, atol=10 * tol(base).z)
