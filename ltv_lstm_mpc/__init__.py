@@ -29,6 +29,7 @@ from ltv_lstm_mpc.certificates.tightening import (
     tightening_certificate,
 )
 from ltv_lstm_mpc.exceptions import (
+    ArgumentTypeError,
     DimensionError,
     EmptySetpointIntervalError,
     InvalidValueError,
@@ -60,6 +61,7 @@ from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.quadtank import QuadrupleTankPlant
 
 __all__ = [
+    "ArgumentTypeError",
     "Certification",
     "CertificationSettings",
     "ControllerStep",

@@ -1,14 +1,15 @@
 """Exception tree of :mod:`ltv_lstm_mpc`.
 
 Every exception subclasses :class:`LtvMpcError` and, where it makes sense, the
-built-in exception a user would expect (``ValueError`` for bad input,
-``ImportError`` for a missing solver), so both ``except LtvMpcError`` and
-``except ValueError`` work.
+built-in exception a user would expect (``TypeError`` for an argument of the wrong type,
+``ValueError`` for bad values, ``ImportError`` for a missing solver), so both
+``except LtvMpcError`` and ``except ValueError`` (or ``TypeError``) work.
 """
 
 from __future__ import annotations
 
 __all__ = [
+    "ArgumentTypeError",
     "CampaignSpecError",
     "DimensionError",
     "InvalidValueError",
@@ -23,6 +24,12 @@ __all__ = [
 
 class LtvMpcError(Exception):
     """Base class of every error raised by ltv_lstm_mpc."""
+
+
+class ArgumentTypeError(LtvMpcError, TypeError):
+    """An argument has the wrong type (a file name where a model is expected, a dict for a
+    configuration, a string for a number, ...); the message names the argument, the type
+    given and what is expected."""
 
 
 class DimensionError(LtvMpcError, ValueError):

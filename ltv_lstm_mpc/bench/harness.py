@@ -51,9 +51,10 @@ from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.simulation import simulate
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
-from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.rti import RobustMPC, resolve_transcription
+from ltv_lstm_mpc.validation import expect_int, expect_path, expect_real
 
 __all__ = [
     "CSV_COLUMNS",
@@ -341,6 +342,10 @@ def run_bench(
         Also run every backend on a twin of the model with the numpy reference kernel
         (``LSTMKernel(compiled=False)``) right after it, and report ``ratio_to_numpy``.
     """
+    model = require_model(model)
+    expect_real("time_cap", time_cap, low=0.0, low_open=True, hint="a wall time per run, s")
+    expect_int("steps", steps, minimum=1)
+    expect_int("slow_steps", slow_steps, minimum=1)
     chosen = resolve_backends(backends)
     twin: LSTMModel | None = None
     if numpy_kernel:
@@ -632,7 +637,20 @@ def replay(directory: str | Path, *, solvers: Sequence[str] | None = None) -> li
     from ltv_lstm_mpc.solvers import ConvexProblem
     from ltv_lstm_mpc.solvers import solve as solve_problem
 
-    directory = Path(directory)
+    directory = expect_path("directory", directory)
+    if not directory.is_dir():
+        raise FileNotFoundError(
+            f"{directory} is not a folder; give the folder written by "
+            "`ltv-lstm-mpc bench --save-subproblems DIR`"
+        )
+    missing = [
+        n for n in ("replay_meta.json", "replay_reference.csv") if not (directory / n).is_file()
+    ]
+    if missing:
+        raise InvalidValueError(
+            f"{directory} is not a folder of saved subproblems (no {' or '.join(missing)}); "
+            "write one with `ltv-lstm-mpc bench --save-subproblems DIR`, then replay DIR"
+        )
     meta = json.loads((directory / "replay_meta.json").read_text())
     with open(directory / "replay_reference.csv", newline="") as handle:
         saved = list(csv.DictReader(handle))

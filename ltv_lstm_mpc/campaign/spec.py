@@ -398,6 +398,15 @@ def _factor_values(name: str, values: Any) -> list[Any]:
             checked.append(SETTINGS[name].check(value))
         except _Bad as error:
             raise CampaignSpecError(f"{where}[{index}]", str(error)) from None
+        # The same value written twice (values that only mean the same, like a mismatch
+        # scale of 1 and none, stay one task: see the task keys).
+        for earlier, value_before in enumerate(values[:index]):
+            if type(value_before) is type(value) and value_before == value:
+                raise CampaignSpecError(
+                    f"{where}[{index}]",
+                    f"{values[index]!r} is listed twice ({name}[{earlier}] and {name}[{index}]); "
+                    "every value of a factor is one level: remove the repeat",
+                )
     return checked
 
 
@@ -428,6 +437,8 @@ def _resolve_model(name: str, base_dir: Path | None, field_name: str) -> str:
 
     path = Path(name)
     candidates = [path] if path.is_absolute() else [(base_dir or Path.cwd()) / path, path]
+    # one entry per place (relative to the spec's folder and to the working folder)
+    candidates = list({str(c.resolve()): c for c in candidates}.values())
     for candidate in candidates:
         if candidate.is_file():
             return str(candidate.resolve())
@@ -435,8 +446,8 @@ def _resolve_model(name: str, base_dir: Path | None, field_name: str) -> str:
         return name
     raise CampaignSpecError(
         field_name,
-        f"no model file {name!r} (looked in {[str(c) for c in candidates]}) and no shipped "
-        f"model of that name; shipped models: {shipped_models()}",
+        f"no model file {name!r} (looked in {[str(c.resolve()) for c in candidates]}) and no "
+        f"shipped model of that name; shipped models: {shipped_models()}",
     )
 
 

@@ -35,9 +35,16 @@ from ltv_lstm_mpc.certificates.tightening import (
 )
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.reference import KBarEstimate, estimate_K_bar
-from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.validation import (
+    expect_bool,
+    expect_instance,
+    expect_int,
+    expect_pair,
+    expect_real,
+)
 
-__all__ = ["Certification", "CertificationSettings", "certify"]
+__all__ = ["Certification", "CertificationSettings", "certify", "u_max_extrapolation"]
 
 FloatArray = NDArray[np.float64]
 
@@ -111,13 +118,23 @@ class CertificationSettings:
 
     def __post_init__(self) -> None:
         for name in ("u_max", "Q_s", "Q_o", "d_max", "w_bar", "Q", "epsilon", "e_y_bar"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0:
-                raise InvalidValueError(f"{name} must be positive and finite, got {value}")
-        if not 0.0 < self.l_d < 2.0:
-            raise InvalidValueError(f"l_d must lie in (0, 2) (Remark 3), got {self.l_d}")
-        if int(self.N) != self.N or self.N < 1:
-            raise InvalidValueError(f"N must be a positive integer, got {self.N}")
+            expect_real(name, getattr(self, name), low=0.0, low_open=True)
+        expect_real("l_d", self.l_d, low=0.0, high=2.0, low_open=True, high_open=True)
+        for name in ("L_f", "L_i", "L_o"):
+            expect_real(name, getattr(self, name))
+        expect_bool("design_gains", self.design_gains)
+        expect_int("N", self.N, minimum=1, hint="N is the prediction horizon, e.g. N=5")
+        expect_int("K_bar_grid_points", self.K_bar_grid_points, minimum=2)
+        expect_real("epsilon", self.epsilon, low=0.0, high=1.0, low_open=True, high_open=True)
+        for name in ("y_min", "y_max"):
+            if getattr(self, name) is not None:
+                expect_real(name, getattr(self, name), hint="normalized units, or None")
+        if self.y_min is not None and self.y_max is not None and not self.y_min < self.y_max:
+            raise InvalidValueError(
+                f"y_min must be below y_max, got y_min={self.y_min!r}, y_max={self.y_max!r}"
+            )
+        if self.y0_operating_range is not None:
+            expect_pair("y0_operating_range", self.y0_operating_range)
 
     def output_bounds(self, model: LSTMModel) -> tuple[FloatArray, FloatArray]:
         """Normalized output bounds (p,) resolved against the model's normalization."""
@@ -257,7 +274,16 @@ def certify(
     ObserverGainError
         If the observer gains violate Assumption 3.
     """
-    settings = settings or CertificationSettings()
+    model = require_model(model)
+    settings = expect_instance(
+        "settings",
+        CertificationSettings() if settings is None else settings,
+        CertificationSettings,
+        "build them with CertificationSettings(u_max=1.0, ...), or pass None for the defaults",
+        expected="a CertificationSettings or None",
+    )
+    if model_info is not None:
+        expect_instance("model_info", model_info, dict, expected="a dict or None")
     model.require_square()
     delta_iss = delta_iss_certificate(model, settings.u_max, require=True)
     lyapunov = incremental_lyapunov_certificate(model, delta_iss, settings.Q_s)
@@ -330,4 +356,23 @@ def certify(
         y0_interval_phi=interval_phi,
         rate_bound_y0_range=operating,
         model_info=info,
+    )
+
+
+def u_max_extrapolation(model: LSTMModel, u_max: float) -> str | None:
+    """Why ``u_max > 1`` is a risk for ``model``, or ``None`` (``u_max <= 1`` or no
+    normalization): the normalization maps the training data's input range onto [-1, 1],
+    so a larger bound lets the input leave the range the model was trained on. The
+    controller warns with this text, and so does ``ltv-lstm-mpc certify``."""
+    if model.normalization is None or not u_max > 1.0:
+        return None
+    low = model.denormalize_u(np.full(model.m, -u_max))
+    high = model.denormalize_u(np.full(model.m, u_max))
+    norm = model.normalization
+    return (
+        f"u_max = {u_max} (normalized) lets the input reach "
+        f"[{low.tolist()}, {high.tolist()}] in physical units, beyond the range the "
+        f"model was trained on [{norm.u_phi_min.tolist()}, {norm.u_phi_max.tolist()}]: "
+        "its predictions there are extrapolations; keep u_max <= 1 or retrain on "
+        "a wider input range"
     )

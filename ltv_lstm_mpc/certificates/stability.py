@@ -35,7 +35,14 @@ from ltv_lstm_mpc.exceptions import (
     NotDeltaISSError,
     ObserverGainError,
 )
-from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.validation import (
+    expect_bool,
+    expect_instance,
+    expect_int,
+    expect_real,
+    finite_array,
+)
 
 __all__ = [
     "DeltaISSCertificate",
@@ -115,10 +122,7 @@ def _require_nonnegative(name: str, P: FloatArray, weight: str) -> None:
 
 
 def _positive(name: str, value: float) -> float:
-    value = float(value)
-    if not np.isfinite(value) or value <= 0:
-        raise InvalidValueError(f"{name} must be a positive finite number, got {value}")
-    return value
+    return expect_real(name, value, low=0.0, low_open=True)
 
 
 # --------------------------------------------------------------------------- delta-ISS
@@ -205,6 +209,18 @@ class DeltaISSCertificate:
         return self
 
 
+def _model_and_delta_iss(
+    model: LSTMModel, delta_iss: DeltaISSCertificate
+) -> tuple[LSTMModel, DeltaISSCertificate]:
+    """The model and its delta-ISS certificate, type-checked (the certificates' inputs)."""
+    hint = "compute it with delta_iss_certificate(model, u_max)"
+    expected = "a DeltaISSCertificate"
+    delta_iss = expect_instance(
+        "delta_iss", delta_iss, DeltaISSCertificate, hint, expected=expected
+    )
+    return require_model(model), delta_iss
+
+
 def delta_iss_certificate(
     model: LSTMModel,
     u_max: float = 1.0,
@@ -236,6 +252,8 @@ def delta_iss_certificate(
     require : bool
         Raise :class:`NotDeltaISSError` when :math:`\rho(A_\delta) \ge 1`.
     """
+    model = require_model(model)
+    expect_bool("require", require)
     u_max = _positive("u_max", u_max)
     if alpha_variant not in ("corrected", "literal"):
         raise InvalidValueError(
@@ -357,6 +375,7 @@ def incremental_lyapunov_certificate(
     Q_s : float or array_like, shape (2, 2)
         Symmetric positive definite weight; a scalar q means q I_2 (paper: 1000 I).
     """
+    model, delta_iss = _model_and_delta_iss(model, delta_iss)
     delta_iss.require()
     Q = _as_spd("Q_s", Q_s, 2)
     P_s = solve_lyapunov(delta_iss.A_delta, Q)
@@ -397,7 +416,7 @@ class ObserverGains:
 
     def __post_init__(self) -> None:
         for name in ("L_f", "L_i", "L_o", "L_d"):
-            value = np.array(getattr(self, name), dtype=np.float64)
+            value = np.array(finite_array(name, getattr(self, name)))
             if value.ndim == 0:
                 value = value.reshape(1, 1)
             if value.ndim != 2:
@@ -604,6 +623,8 @@ def observer_certificate(
     ObserverGainError
         If :math:`\rho(A_d) \ge 1` (Assumption 3 violated).
     """
+    model, delta_iss = _model_and_delta_iss(model, delta_iss)
+    expect_instance("gains", gains, ObserverGains, expected="ObserverGains")
     delta_iss.require()
     gains.check_model(model)
     d_max = _positive("d_max", d_max)
@@ -700,6 +721,9 @@ def design_observer_gains(
     """
     if not 0.0 < l_d < 2.0:
         raise InvalidValueError(f"l_d must lie in (0, 2) for the certified fallback, got {l_d}")
+    model, delta_iss = _model_and_delta_iss(model, delta_iss)
+    expect_real("l_d", l_d, low=0.0, high=2.0, low_open=True, high_open=True)
+    expect_int("max_evaluations", max_evaluations, minimum=1)
     delta_iss.require()
     fallback = ObserverGains.disturbance_only(model, l_d)
     best_gains = fallback

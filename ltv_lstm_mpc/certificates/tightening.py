@@ -34,7 +34,8 @@ from ltv_lstm_mpc.exceptions import (
     InvalidValueError,
     LtvMpcError,
 )
-from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.validation import expect_instance, expect_int, expect_real, finite_array
 
 __all__ = ["SetpointRateBound", "TighteningCertificate", "tightening_certificate"]
 
@@ -348,9 +349,21 @@ def tightening_certificate(
     epsilon : float
         Margin of SPEC 2.6 for :math:`P_f`.
     """
-    if int(N) != N or N < 1:
-        raise InvalidValueError(f"N must be a positive integer, got {N}")
-    N = int(N)
+    model = require_model(model)
+    expect_instance("delta_iss", delta_iss, DeltaISSCertificate, expected="a DeltaISSCertificate")
+    expect_instance(
+        "lyapunov", lyapunov, IncrementalLyapunovCertificate,
+        expected="an IncrementalLyapunovCertificate",
+    )  # fmt: skip
+    expect_instance("observer", observer, ObserverCertificate, expected="an ObserverCertificate")
+    N = expect_int("N", N, minimum=1, hint="N is the prediction horizon, e.g. N=5")
+    expect_real("epsilon", epsilon, low=0.0, high=1.0, low_open=True, high_open=True)
+    for name, bound in (("y_min", y_min), ("y_max", y_max)):
+        if finite_array(name, bound).shape not in ((), (1,), (model.p,)):
+            raise DimensionError(
+                f"{name} has shape {np.shape(bound)}, expected a number or ({model.p},)"
+            )
+    finite_array("Q", Q)
     delta_iss.require()
     p = model.p
     y_min_arr = np.broadcast_to(np.asarray(y_min, dtype=np.float64), (p,)).copy()

@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from ltv_lstm_mpc.exceptions import LtvMpcError
 
 __all__ = [
+    "OrderedPair",
     "UsageError",
+    "check_order",
     "fraction_open",
     "nonnegative_float",
     "output_folder",
@@ -90,3 +93,43 @@ def output_folder(text: str) -> Path:
     if not parent.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r}: {parent} is not a folder")
     return path
+
+
+def check_order(option: str, low: float | None, high: float | None) -> None:
+    """The one check of every (low, high) pair of the command line: ``low < high``.
+
+    ``option`` names the pair in the message (``"--y0-range"`` or ``"--y-min/--y-max"``);
+    a pair with a missing side (``None``) is left to the command. Raises
+    :class:`UsageError` (exit code 2) showing both values.
+    """
+    if low is None or high is None or low < high:
+        return
+    swap = f"; swap them ({option} {high:g} {low:g})" if low > high else ""
+    raise UsageError(f"{option}: LOW must be below HIGH, got LOW = {low:g}, HIGH = {high:g}{swap}")
+
+
+class OrderedPair(argparse.Action):
+    """``nargs=2`` action for a ``LOW HIGH`` option: each a finite number (:func:`real`)
+    and ``LOW < HIGH`` (:func:`check_order`), else a usage error naming the option."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        kwargs.setdefault("nargs", 2)
+        kwargs.setdefault("type", real)
+        kwargs.setdefault("metavar", ("LOW", "HIGH"))
+        if kwargs["nargs"] != 2:
+            raise ValueError("OrderedPair takes exactly two values (nargs=2)")
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        low, high = values
+        try:
+            check_order(option_string or self.dest, low, high)
+        except UsageError as error:
+            parser.error(str(error))
+        setattr(namespace, self.dest, [low, high])

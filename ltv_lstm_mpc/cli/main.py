@@ -31,9 +31,12 @@ from ltv_lstm_mpc.certificates.certify import (
     Certification,
     CertificationSettings,
     certify,
+    u_max_extrapolation,
 )
 from ltv_lstm_mpc.cli.arguments import (
+    OrderedPair,
     UsageError,
+    check_order,
     fraction_open,
     nonnegative_float,
     output_folder,
@@ -121,7 +124,7 @@ def _add_certify(subparsers: Any) -> None:
     parser.add_argument("--N", type=positive_int, default=5, help="prediction horizon (default 5)")
     parser.add_argument(
         "--y-min",
-        type=float,
+        type=real,
         default=None,
         help=(
             "normalized output lower bound (default: the model's stored output constraint, "
@@ -130,7 +133,7 @@ def _add_certify(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--y-max",
-        type=float,
+        type=real,
         default=None,
         help=(
             "normalized output upper bound (default: the model's stored output constraint, "
@@ -142,10 +145,8 @@ def _add_certify(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--y0-range",
-        type=float,
-        nargs=2,
+        action=OrderedPair,
         default=None,
-        metavar=("LOW", "HIGH"),
         help=(
             "normalized set-point range for Theorem 3's rate bound (default: the middle half "
             "of the admissible interval)"
@@ -191,8 +192,14 @@ def _format_table(certification: Certification) -> str:
 
 
 def _run_certify(args: argparse.Namespace) -> int:
+    check_order("--y-min/--y-max", args.y_min, args.y_max)
+    if (args.y_min is None) != (args.y_max is None):
+        raise UsageError("give both --y-min and --y-max, or neither (the model's constraint)")
     path = _resolve_model_path(args.model)
     model = LSTMModel.load(path)
+    extrapolation = u_max_extrapolation(model, args.u_max)
+    if extrapolation is not None:
+        print(f"ltv-lstm-mpc certify: warning: {extrapolation}", file=sys.stderr)
     if args.d_max_from is not None:
         from ltv_lstm_mpc.certificates.disturbance import estimate_d_max
 

@@ -33,8 +33,13 @@ __all__ = ["parse_vectors", "run_mimo"]
 FloatArray = NDArray[np.float64]
 
 
-def parse_vectors(name: str, tokens: list[str], size: int) -> FloatArray:
-    """``["a,b", "c,d"]`` -> array (segments, size); one number is repeated on every output."""
+def parse_vectors(name: str, tokens: list[str], size: int, *, repeat: bool = True) -> FloatArray:
+    """``["a,b", "c,d"]`` -> array (segments, size).
+
+    With ``repeat`` one number stands for the same value on every entry (a disturbance
+    of 0 on every output); without it every token needs ``size`` values (set-points:
+    one per output, ``--setpoints 14`` for two levels is refused, not guessed).
+    """
     rows = []
     for token in tokens:
         parts = [part for part in str(token).split(",") if part.strip()]
@@ -44,7 +49,7 @@ def parse_vectors(name: str, tokens: list[str], size: int) -> FloatArray:
             raise UsageError(
                 f"{name}: {token!r} is not a comma-separated list of numbers"
             ) from None
-        if len(values) == 1:
+        if len(values) == 1 and repeat:
             values = values * size
         if len(values) != size or not np.all(np.isfinite(values)):
             raise UsageError(
@@ -75,7 +80,7 @@ def run_mimo(
     p = model.p
     size = None if plant is None else getattr(plant, "disturbance_size", None)
     q = p if size is None else int(size)
-    setpoints = parse_vectors("--setpoints", setpoint_tokens, p)
+    setpoints = parse_vectors("--setpoints", setpoint_tokens, p, repeat=False)
     segments = setpoints.shape[0]
     if disturbance_tokens:
         disturbances = parse_vectors("--disturbances", disturbance_tokens, q)

@@ -25,15 +25,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.caller_warnings import RunWarnings
-from ltv_lstm_mpc.exceptions import InvalidValueError, UnreachableSetpointError
+from ltv_lstm_mpc.exceptions import (
+    ArgumentTypeError,
+    InvalidValueError,
+    UnreachableSetpointError,
+)
 from ltv_lstm_mpc.loop.observer import Observer
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator, ReferenceSolution
 from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT
-from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
 from ltv_lstm_mpc.mpc.rti import RobustMPC
-from ltv_lstm_mpc.validation import real_vector
+from ltv_lstm_mpc.validation import expect_methods, expect_real, real_vector
 
 __all__ = ["ControllerStep", "OffsetFreeController"]
 
@@ -158,6 +162,11 @@ class OffsetFreeController:
         mpc: MPCSolver | None = None,
         implausible_measurements: str = "flag",
     ) -> None:
+        model, config = require_model(model), require_config(config)
+        if mpc is not None:
+            _check_mpc(mpc)
+        if setpoint_rate_limit is not None:
+            expect_real("setpoint_rate_limit", setpoint_rate_limit, hint="or None: no limiter")
         if model.normalization is None:
             raise InvalidValueError(
                 "OffsetFreeController works with physical signals and needs a model with a "
@@ -255,7 +264,8 @@ class OffsetFreeController:
             raise UnreachableSetpointError(
                 f"the reference calculator found no equilibrium for the set-point "
                 f"{self._physical_y(y0)} (physical; {y0.tolist()} normalized), d_hat = "
-                f"{d_hat.tolist()} at step {len(self.records)}, nor any before (residual {reference.residual:.2e}): "
+                f"{d_hat.tolist()} at step {len(self.records)}, nor any before (residual "
+                f"{reference.residual:.2e}): "
                 "start from a set-point the model can reach (certify's y0_interval), or "
                 "let setpoint_rate_limit move it there from the measured output"
             )
@@ -471,3 +481,15 @@ class OffsetFreeController:
             )
         )
         return u_phi
+
+
+def _check_mpc(mpc: object) -> None:
+    """An MPC given to the controller fills the role of :class:`RobustMPC`."""
+    phases = ("prepare", "feedback") if hasattr(mpc, "prepare") else ("solve",)
+    hint = "or None for RobustMPC(model, config)"
+    expect_methods("mpc", mpc, (*phases, "reset"), "an MPC like RobustMPC", hint)
+    if not hasattr(mpc, "certification"):
+        raise ArgumentTypeError(
+            f"mpc must be an MPC like RobustMPC, with a certification attribute; got "
+            f"{type(mpc).__name__}; {hint}"
+        )

@@ -25,7 +25,8 @@ from ltv_lstm_mpc.certificates.stability import ObserverGains
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
 from ltv_lstm_mpc.lstm import compiled as _compiled
-from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.validation import expect_instance, expect_real, finite_array
 
 __all__ = ["Observer"]
 
@@ -57,9 +58,17 @@ class Observer:
         x_hat0: ArrayLike | None = None,
         d_hat0: ArrayLike | None = None,
     ) -> None:
+        model = require_model(model)
+        gains = expect_instance(
+            "gains",
+            gains,
+            ObserverGains,
+            "build them with ObserverGains(L_f, L_i, L_o, L_d) or take "
+            "certify(model).observer.gains",
+            expected="ObserverGains",
+        )
         gains.check_model(model)
-        if not d_max > 0:
-            raise InvalidValueError(f"d_max must be positive, got {d_max}")
+        expect_real("d_max", d_max, low=0.0, low_open=True)
         self.model = model
         self.gains = gains
         self.d_max = float(d_max)
@@ -91,8 +100,8 @@ class Observer:
 
     def reset(self, x_hat: ArrayLike, d_hat: ArrayLike) -> None:
         """Set the estimate :math:`(\\hat x, \\hat d)` (d_hat is saturated to d_max)."""
-        x_arr = np.array(x_hat, dtype=np.float64)
-        d_arr = np.atleast_1d(np.array(d_hat, dtype=np.float64))
+        x_arr = np.array(finite_array("x_hat", x_hat))
+        d_arr = np.atleast_1d(np.array(finite_array("d_hat", d_hat)))
         if x_arr.shape != (2 * self.model.n,):
             raise DimensionError(f"x_hat has shape {x_arr.shape}, expected ({2 * self.model.n},)")
         if d_arr.shape != (self.model.p,):

@@ -21,8 +21,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import InvalidValueError, UnreachableSetpointError
 from ltv_lstm_mpc.lstm import compiled as _compiled
-from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.validation import real_vector
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.validation import (
+    expect_bool,
+    expect_int,
+    expect_real,
+    finite_array,
+    real_vector,
+)
 
 __all__ = ["KBarEstimate", "ReferenceCalculator", "ReferenceSolution", "estimate_K_bar"]
 
@@ -111,9 +117,14 @@ class ReferenceCalculator:
         grid_points: int = 21,
         restarts: int = 4,
     ) -> None:
+        model = require_model(model)
         model.require_square()
-        if not u_max > 0:
-            raise InvalidValueError(f"u_max must be positive, got {u_max}")
+        expect_real("u_max", u_max, low=0.0, low_open=True)
+        expect_real("tol", tol, low=0.0, low_open=True)
+        expect_int("max_iter", max_iter, minimum=1)
+        expect_bool("strict", strict)
+        expect_int("grid_points", grid_points, minimum=1)
+        expect_int("restarts", restarts, minimum=0)
         self.model = model
         self.u_max = float(u_max)
         self.tol = float(tol)
@@ -248,7 +259,7 @@ class ReferenceCalculator:
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         n2 = 2 * self.model.n
         x, u = z[:n2], z[n2:]
-        x_next, A, B = self.model.step_and_jacobians(x, u)
+        x_next, A, B = self.model._step_and_jacobians(x, u)
         F = np.concatenate([x_next - x, self.model.output(x) - target])
         return F, A, B
 
@@ -450,6 +461,15 @@ def estimate_K_bar(
     :math:`g(\bar x) = y^0 - \hat d` can occur for :math:`y^0` in the range and
     :math:`\|\hat d\|_\infty \le d_{max}` are kept.
     """
+    model = require_model(model)
+    expect_real("u_max", u_max, low=0.0, low_open=True)
+    expect_real("d_max", d_max, low=0.0)
+    expect_int("grid_points", grid_points, minimum=2)
+    if y0_range is not None:
+        if isinstance(y0_range, (str, bytes)) or len(y0_range) != 2:
+            raise InvalidValueError(f"y0_range must be a pair (low, high), got {y0_range!r}")
+        finite_array("y0_range[0]", y0_range[0])
+        finite_array("y0_range[1]", y0_range[1])
     model.require_square()
     n2, m, p = 2 * model.n, model.m, model.p
     per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points

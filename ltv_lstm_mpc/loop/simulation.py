@@ -15,7 +15,14 @@ from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
 from ltv_lstm_mpc.plants.protocol import Plant
-from ltv_lstm_mpc.validation import real_vector
+from ltv_lstm_mpc.validation import (
+    expect_bool,
+    expect_instance,
+    expect_int,
+    expect_methods,
+    expect_real,
+    real_vector,
+)
 
 __all__ = ["SimulationResult", "simulate", "single_threaded_blas"]
 
@@ -231,6 +238,7 @@ def simulate(
         BLAS threads during the loop (default 1, see :func:`single_threaded_blas`;
         None leaves the BLAS as it is).
     """
+    _check_arguments(plant, controller, progress, description, max_seconds, blas_threads)
     p = controller.model.p
     if steps is None:
         if callable(setpoints) or (
@@ -312,3 +320,28 @@ def simulate(
         measurement_status=np.array([r.measurement_status for r in records], dtype=str),
         warning_counts=controller.warning_counts,
     )
+
+
+def _check_arguments(
+    plant: object,
+    controller: object,
+    progress: object,
+    description: object,
+    max_seconds: object,
+    blas_threads: object,
+) -> None:
+    """The types and ranges of :func:`simulate`'s arguments (signals are checked per step)."""
+    expect_methods("plant", plant, ("output", "step"), "a plant", "e.g. PHNeutralizationPlant()")
+    expect_instance(
+        "controller",
+        controller,
+        OffsetFreeController,
+        "build one with OffsetFreeController(model, MPCConfig(...))",
+        expected="an OffsetFreeController",
+    )
+    expect_bool("progress", progress)
+    expect_instance("description", description, str, expected="a string")
+    if max_seconds is not None:
+        expect_real("max_seconds", max_seconds, low=0.0, low_open=True, hint="or None: no limit")
+    if blas_threads is not None:
+        expect_int("blas_threads", blas_threads, minimum=1, hint="or None: leave the BLAS as it is")

@@ -27,7 +27,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
-from ltv_lstm_mpc.validation import real_array
+from ltv_lstm_mpc.validation import (
+    expect_instance,
+    expect_int,
+    expect_real,
+    finite_array,
+    real_array,
+)
 
 __all__ = ["WEIGHT_NAMES", "LSTMModel", "ModelFormatError", "Normalization"]
 
@@ -348,7 +354,8 @@ class LSTMModel:
         return x_arr[..., : self.n], x_arr[..., self.n :]
 
     def _check_state(self, x: ArrayLike, name: str = "x") -> FloatArray:
-        x_arr = np.asarray(x, dtype=np.float64)
+        """A state (or batch) given to a public method: real, finite, last axis 2n."""
+        x_arr = finite_array(name, x)
         if x_arr.ndim == 0 or x_arr.shape[-1] != 2 * self.n:
             raise DimensionError(
                 f"{name} has shape {x_arr.shape}, expected (..., {2 * self.n}) = [c; h] "
@@ -357,7 +364,8 @@ class LSTMModel:
         return x_arr
 
     def _check_input(self, u: ArrayLike, name: str = "u") -> FloatArray:
-        u_arr = np.asarray(u, dtype=np.float64)
+        """An input (or batch) given to a public method: real, finite, last axis m."""
+        u_arr = finite_array(name, u)
         if u_arr.ndim == 0 and self.m == 1:
             u_arr = u_arr.reshape(1)
         if u_arr.ndim == 0 or u_arr.shape[-1] != self.m:
@@ -367,7 +375,14 @@ class LSTMModel:
     # ---------------------------------------------------------------- dynamics
     def _pairs(self, x_arr: FloatArray, u_arr: FloatArray) -> tuple[tuple[int, ...], Any, Any]:
         """Broadcast (x, u) batches to flat (K, 2n), (K, m) arrays."""
-        batch = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1])
+        try:
+            batch = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1])
+        except ValueError:
+            raise DimensionError(
+                f"x has shape {x_arr.shape} and u has shape {u_arr.shape}: their batch shapes "
+                f"{x_arr.shape[:-1]} and {u_arr.shape[:-1]} do not broadcast; give one u per "
+                "x (or one u for every x)"
+            ) from None
         xs = np.broadcast_to(x_arr, (*batch, 2 * self.n)).reshape(-1, 2 * self.n)
         us = np.broadcast_to(u_arr, (*batch, self.m)).reshape(-1, self.m)
         return batch, xs, us
@@ -412,13 +427,11 @@ class LSTMModel:
         x_current = self._check_state(x0, "x0")
         if x_current.shape != (2 * self.n,):
             raise DimensionError(f"x0 has shape {x_current.shape}, expected ({2 * self.n},)")
-        u_arr = np.asarray(u_seq, dtype=np.float64)
+        u_arr = finite_array("u_seq", u_seq)
         if u_arr.ndim == 1 and self.m == 1:
             u_arr = u_arr[:, None]
         if u_arr.ndim != 2 or u_arr.shape[1] != self.m:
             raise DimensionError(f"u_seq has shape {u_arr.shape}, expected (T, {self.m})")
-        if not np.all(np.isfinite(u_arr)):
-            raise InvalidValueError("u_seq contains NaN or inf")
         states = self.kernel.simulate(x_current, u_arr)
         return states, self.output(states)
 
@@ -449,8 +462,12 @@ class LSTMModel:
         A : ndarray, shape (..., 2n, 2n)
         B : ndarray, shape (..., 2n, m)
         """
-        x_arr = self._check_state(x)
-        u_arr = self._check_input(u)
+        return self._step_and_jacobians(self._check_state(x), self._check_input(u))
+
+    def _step_and_jacobians(
+        self, x_arr: FloatArray, u_arr: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """:meth:`step_and_jacobians` of checked float arrays (the library's own loops)."""
         batch, xs, us = self._pairs(x_arr, u_arr)
         traj = self.kernel.pairs(xs, us, jacobians=True)
         n2, K = 2 * self.n, xs.shape[0]
@@ -487,9 +504,13 @@ class LSTMModel:
         if u_arr.shape != (self.m,):
             raise DimensionError(f"u has shape {u_arr.shape}, expected ({self.m},)")
         x = np.zeros(2 * self.n) if x0 is None else self._check_state(x0, "x0").copy()
+        if x.shape != (2 * self.n,):
+            raise DimensionError(f"x0 has shape {x.shape}, expected ({2 * self.n},)")
+        expect_real("tol", tol, low=0.0, low_open=True)
+        max_iter = expect_int("max_iter", max_iter, minimum=1)
         eye = np.eye(2 * self.n)
         for _ in range(max_iter):
-            x_next, A, _ = self.step_and_jacobians(x, u_arr)
+            x_next, A, _ = self._step_and_jacobians(x, u_arr)
             residual = x_next - x
             if np.max(np.abs(residual)) < tol:
                 return x_next
@@ -498,7 +519,7 @@ class LSTMModel:
                 newton = x - np.linalg.solve(A - eye, residual)
             except np.linalg.LinAlgError:
                 newton = x_next
-            if np.max(np.abs(self.step(newton, u_arr) - newton)) < np.max(np.abs(residual)):
+            if np.max(np.abs(self.kernel.step(newton, u_arr) - newton)) < np.max(np.abs(residual)):
                 x = newton
             else:
                 x = x_next
@@ -702,3 +723,17 @@ class LSTMModel:
     def __repr__(self) -> str:
         norm = "with" if self.normalization is not None else "without"
         return f"LSTMModel(n={self.n}, m={self.m}, p={self.p}, {norm} normalization)"
+
+
+#: How to get a model, appended to the error when something else is given.
+MODEL_HINT = (
+    "load one with ltv_lstm_mpc.load_model(name_or_path), e.g. load_model('ph_lstm_n5.npz'), "
+    "or build it with LSTMModel(...)"
+)
+
+
+def require_model(value: Any, name: str = "model") -> LSTMModel:
+    """``value`` when it is an :class:`LSTMModel`, else
+    :class:`~ltv_lstm_mpc.exceptions.ArgumentTypeError` saying how to get one (a file name
+    given where the model is expected is the usual slip)."""
+    return expect_instance(name, value, LSTMModel, MODEL_HINT, expected="an LSTMModel")

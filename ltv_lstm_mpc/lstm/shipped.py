@@ -6,6 +6,7 @@ from importlib import resources
 from pathlib import Path
 
 from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.validation import expect_instance, expect_path
 
 __all__ = ["load_model", "shipped_models", "shipped_path"]
 
@@ -18,6 +19,7 @@ def shipped_models() -> list[str]:
 
 def shipped_path(name: str) -> Path:
     """Path of a file shipped in ``ltv_lstm_mpc/data`` (e.g. ``"example_delta_iss_n3.npz"``)."""
+    expect_instance("name", name, str, f"one of {shipped_models()}", expected="a file name")
     candidate = resources.files("ltv_lstm_mpc") / "data" / name
     if not candidate.is_file():
         raise FileNotFoundError(f"no shipped file {name!r}; shipped models: {shipped_models()}")
@@ -25,8 +27,22 @@ def shipped_path(name: str) -> Path:
 
 
 def load_model(name_or_path: str | Path) -> LSTMModel:
-    """Load a model from a path, or by the name of a shipped model."""
-    path = Path(name_or_path)
+    """Load a model from a path, or by the name of a shipped model.
+
+    Raises
+    ------
+    ArgumentTypeError
+        ``name_or_path`` is not a ``str`` or ``os.PathLike``.
+    FileNotFoundError
+        No such file and no shipped model of that name (the message lists them).
+    """
+    path = expect_path("name_or_path", name_or_path, f"a .npz file or one of {shipped_models()}")
     if path.exists():
         return LSTMModel.load(path)
-    return LSTMModel.load(shipped_path(str(name_or_path)))
+    candidate = resources.files("ltv_lstm_mpc") / "data" / str(name_or_path)
+    if not candidate.is_file():
+        raise FileNotFoundError(
+            f"no model file {str(path)!r} and no shipped model of that name; shipped models: "
+            f"{shipped_models()}"
+        )
+    return LSTMModel.load(Path(str(candidate)))

@@ -7,17 +7,19 @@ Every field is honoured by every transcription, or rejected with an error naming
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.certify import CertificationSettings
-from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.exceptions import ArgumentTypeError, DimensionError, InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.validation import expect_bool, expect_int, expect_real, finite_array
 
-__all__ = ["TRANSCRIPTIONS", "InfeasibilityPolicy", "MPCConfig", "Transcription"]
+__all__ = ["TRANSCRIPTIONS", "InfeasibilityPolicy", "MPCConfig", "Transcription", "require_config"]
 
 FloatArray = NDArray[np.float64]
 InfeasibilityPolicy = Literal["paper", "soft", "shift"]
@@ -103,21 +105,54 @@ class MPCConfig:
     solver_settings: dict[str, object] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        # Types and ranges of every field, once, here: a bad value never reaches a solver.
+        expect_int("N", self.N, minimum=1, hint="N is the prediction horizon, e.g. N=5")
+        for name in ("Q", "R"):
+            weight = finite_array(name, getattr(self, name))
+            if weight.ndim not in (0, 2):
+                raise DimensionError(
+                    f"{name} must be a number or a square matrix, got shape {weight.shape}"
+                )
+        for name in ("u_max", "d_max", "w_bar", "Q_s", "Q_o", "tolerance", "soft_penalty"):
+            expect_real(name, getattr(self, name), low=0.0, low_open=True)
+        expect_real("L_d", self.L_d, low=0.0, high=2.0, low_open=True, high_open=True)
+        for name in ("L_f", "L_i", "L_o"):
+            expect_real(name, getattr(self, name))
+        expect_real("sqp_tolerance", self.sqp_tolerance, low=0.0)
+        expect_real(
+            "epsilon",
+            self.epsilon,
+            low=0.0,
+            high=1.0,
+            low_open=True,
+            high_open=True,
+            hint="epsilon is the P_f margin, e.g. 0.01",
+        )
+        for name in ("y_min", "y_max"):
+            if getattr(self, name) is not None:
+                expect_real(name, getattr(self, name), hint="normalized units, or None")
+        if self.y_min is not None and self.y_max is not None and not self.y_min < self.y_max:
+            raise InvalidValueError(
+                f"y_min must be below y_max, got y_min={self.y_min!r}, y_max={self.y_max!r}"
+            )
+        expect_bool("design_gains", self.design_gains)
+        if not isinstance(self.solver_settings, Mapping):
+            raise ArgumentTypeError(
+                f"solver_settings must be a dict of solver options, got "
+                f"{type(self.solver_settings).__name__} {self.solver_settings!r}"
+            )
         if self.infeasibility_policy not in _POLICIES:
             raise InvalidValueError(
                 f"infeasibility_policy must be one of {_POLICIES}, "
                 f"got {self.infeasibility_policy!r}"
             )
-        if int(self.sqp_iterations) != self.sqp_iterations or self.sqp_iterations < 1:
-            raise InvalidValueError(f"sqp_iterations must be >= 1, got {self.sqp_iterations}")
+        expect_int("sqp_iterations", self.sqp_iterations, minimum=1)
         if self.transcription not in TRANSCRIPTIONS:
             raise InvalidValueError(
                 f"transcription must be one of {TRANSCRIPTIONS}, got {self.transcription!r}"
             )
         if not isinstance(self.solver, str) or not self.solver:
             raise InvalidValueError(f"solver must be a solver name, got {self.solver!r}")
-        if not self.soft_penalty > 0:
-            raise InvalidValueError(f"soft_penalty must be positive, got {self.soft_penalty}")
         if self.e_hat0 is not None and (
             isinstance(self.e_hat0, bool) or not (math.isfinite(self.e_hat0) and self.e_hat0 >= 0)
         ):
@@ -160,3 +195,24 @@ class MPCConfig:
             y_max=self.y_max,
             epsilon=self.epsilon,
         )
+
+
+def require_config(value: Any, name: str = "config") -> MPCConfig:
+    """``value`` when it is an :class:`MPCConfig` (``None``: the defaults), else
+    :class:`~ltv_lstm_mpc.exceptions.ArgumentTypeError` (a dict of settings is the usual
+    slip: the message says to write ``MPCConfig(**settings)``)."""
+    if value is None:
+        return MPCConfig()
+    if isinstance(value, MPCConfig):
+        return value
+    hint = "build one with MPCConfig(solver='daqp', N=5, ...)"
+    if isinstance(value, Mapping):
+        hint = f"write MPCConfig(**{_short(value)}) instead of the dict"
+    raise ArgumentTypeError(
+        f"{name} must be an MPCConfig or None, got {type(value).__name__} {_short(value)}; {hint}"
+    )
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."

@@ -38,10 +38,11 @@ from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.rti import RobustMPC
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus
+from ltv_lstm_mpc.validation import expect_instance, expect_real
 
 __all__ = ["ExactNMPC", "NonlinearTranscription"]
 
@@ -294,7 +295,10 @@ class ExactNMPC(RobustMPC):
         smoothing: float = 1e-8,
         ipopt_options: dict[str, Any] | None = None,
     ) -> None:
-        config = config or MPCConfig()
+        config = require_config(config)
+        if ipopt_options is not None:
+            expect_instance("ipopt_options", ipopt_options, dict, expected="a dict or None")
+        expect_real("smoothing", smoothing, low=0.0, low_open=True)
         config = replace(
             config,
             solver="ipopt",

@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ltv_lstm_mpc.certificates.certify import Certification, certify
+from ltv_lstm_mpc.certificates.certify import Certification, certify, u_max_extrapolation
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm import compiled as _compiled
-from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.compiled_prepare import CANDIDATE_GIVEN, CANDIDATE_SHIFT, CANDIDATE_U_BAR
-from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import (
     MPCSolution,
     MPCSolver,
@@ -45,7 +45,7 @@ from ltv_lstm_mpc.mpc.fhocp import (
 )
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus, feasibility_tolerance
-from ltv_lstm_mpc.validation import real_vector
+from ltv_lstm_mpc.validation import expect_bool, expect_instance, expect_real, real_vector
 
 __all__ = [
     "NLP_SOLVERS",
@@ -78,6 +78,9 @@ def resolve_transcription(config: MPCConfig) -> str:
     """
     from ltv_lstm_mpc.solvers import solver_info
 
+    config = expect_instance(
+        "config", config, MPCConfig, "build one with MPCConfig(...)", expected="an MPCConfig"
+    )
     chosen = config.transcription
     if config.solver in NLP_SOLVERS:
         if chosen not in ("auto", "nonlinear"):
@@ -152,6 +155,17 @@ class RobustMPC:
         native_feedback: bool = True,
         **transcription_options: Any,
     ) -> None:
+        model, config = require_model(model), require_config(config)
+        if certification is not None:
+            expect_instance(
+                "certification",
+                certification,
+                Certification,
+                "compute one with certify(model, config.certification_settings(model))",
+                expected="a Certification or None",
+            )
+        expect_real("reuse_tol", reuse_tol, low=0.0)
+        expect_bool("native_feedback", native_feedback)
         model.require_square()
         self.model = model
         self.config = config = config or MPCConfig()
@@ -159,20 +173,9 @@ class RobustMPC:
         self.certification = certification or certify(model, config.certification_settings(model))
         self.tightening = ti = self.certification.tightening
         ti.require_setpoint_interval(model.denormalize_y if model.normalization else None)
-        if model.normalization is not None and config.u_max > 1.0:
-            # The normalization maps the training data's input range onto [-1, 1].
-            low = model.denormalize_u(np.full(model.m, -config.u_max))
-            high = model.denormalize_u(np.full(model.m, config.u_max))
-            norm = model.normalization
-            warnings.warn(
-                f"u_max = {config.u_max} (normalized) lets the input reach "
-                f"[{low.tolist()}, {high.tolist()}] in physical units, beyond the range the "
-                f"model was trained on [{norm.u_phi_min.tolist()}, {norm.u_phi_max.tolist()}]: "
-                "its predictions there are extrapolations; keep u_max <= 1 or retrain on "
-                "a wider input range",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+        extrapolation = u_max_extrapolation(model, config.u_max)
+        if extrapolation is not None:
+            warnings.warn(extrapolation, RuntimeWarning, stacklevel=2)
         Q, R = config.weights(model)
         self.N = N = config.N
         kinds: tuple[str, ...] = ("nominal",)

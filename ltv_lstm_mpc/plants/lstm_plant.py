@@ -6,8 +6,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
-from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.validation import real_vector
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.validation import expect_real, finite_array, real_vector
 
 __all__ = ["LSTMPlant"]
 
@@ -48,12 +48,17 @@ class LSTMPlant:
         u0_phi: ArrayLike | None = None,
         y0_phi: float | None = None,
     ) -> None:
+        model = require_model(model)
         if model.normalization is None:
             raise InvalidValueError("LSTMPlant needs a model with a normalization")
+        if u0_phi is not None:
+            u0_phi = real_vector("u0_phi", u0_phi, model.m)
+        if y0_phi is not None:
+            y0_phi = expect_real("y0_phi", y0_phi)
         self.model = model
         #: Entries of ``d_phi`` in :meth:`step` (the output disturbance, one per output).
         self.disturbance_size = model.p
-        self._x0_arg = None if x0 is None else np.asarray(x0, dtype=np.float64)
+        self._x0_arg = None if x0 is None else finite_array("x0", x0)
         self._u0_phi = u0_phi
         self._y0_phi = y0_phi
         self.x: FloatArray = np.zeros(2 * model.n)
@@ -123,5 +128,5 @@ class LSTMPlant:
                 model.denormalize_y(np.ones(model.p)) - model.denormalize_y(-np.ones(model.p))
             )
             self.d = real_vector("d_phi", d_phi, model.p) / scale
-        self.x = model.step(self.x, u)
+        self.x = model.kernel.step(self.x, u)  # x and u checked: no second check
         return self.output()

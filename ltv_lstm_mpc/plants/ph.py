@@ -61,7 +61,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
-from ltv_lstm_mpc.validation import real_vector
+from ltv_lstm_mpc.validation import expect_instance, expect_real, real_vector
 
 __all__ = ["PHNeutralizationPlant", "PHParameters", "ph_from_state", "simulate_ph_batch"]
 
@@ -363,6 +363,11 @@ class PHNeutralizationPlant:
             raise InvalidValueError(f"Ts must be positive, got {Ts}")
         if int(substeps) != substeps or substeps < 1:
             raise InvalidValueError(f"substeps must be a positive integer, got {substeps}")
+        for name, flow in (("q1", q1), ("q2_nominal", q2_nominal), ("q3_nominal", q3_nominal)):
+            expect_real(name, flow, low=0.0, hint="a flow in mL/s")
+        if params is not None:
+            expect_instance("params", params, PHParameters, expected="PHParameters or None")
+
         base = params if params is not None else PHParameters()
         self.params = PHParameters(**{**base.__dict__, "q1": float(q1)})
         self.Ts = float(Ts)

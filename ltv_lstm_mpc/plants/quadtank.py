@@ -56,7 +56,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
-from ltv_lstm_mpc.validation import real_vector
+from ltv_lstm_mpc.validation import expect_instance, expect_real, real_vector
 
 __all__ = [
     "QUADTANK_LEVEL_CONSTRAINT",
@@ -254,6 +254,16 @@ class QuadrupleTankPlant:
             raise InvalidValueError(f"Ts must be positive and finite, got {Ts}")
         if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
             raise InvalidValueError(f"substeps must be a positive integer, got {substeps!r}")
+        expect_real("u_phi_min", u_phi_min, hint="a pump voltage in V")
+        expect_real("u_phi_max", u_phi_max, hint="a pump voltage in V")
+        if params is not None:
+            expect_instance(
+                "params",
+                params,
+                QuadrupleTankParameters,
+                expected="QuadrupleTankParameters or None",
+            )
+
         if not (
             math.isfinite(u_phi_min) and math.isfinite(u_phi_max) and 0 <= u_phi_min < u_phi_max
         ):

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import json
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,6 +56,7 @@ from ltv_lstm_mpc.plants.quadtank import (
     QuadrupleTankPlant,
     simulate_quadtank_batch,
 )
+from ltv_lstm_mpc.validation import expect_path
 
 __all__ = [
     "SPLITS",
@@ -318,10 +320,22 @@ class IdentificationDataset:
     @classmethod
     def load(cls, path: str | Path) -> IdentificationDataset:
         """Load a dataset written by :meth:`save`."""
-        path = Path(path)
+        path = expect_path("path", path)
         if not path.exists():
             raise FileNotFoundError(f"dataset file {path} does not exist")
-        with np.load(path, allow_pickle=False) as data:
+        if path.is_dir():
+            raise InvalidValueError(f"{path} is a folder, not identification data (.npz)")
+        not_data = (
+            f"{path} is not identification data: expected the .npz written by "
+            "`ltv-lstm-mpc generate-data` (arrays u_phi_train, y_phi_train, ...)"
+        )
+        try:
+            archive = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile):
+            raise InvalidValueError(not_data) from None
+        if not isinstance(archive, np.lib.npyio.NpzFile):  # a bare .npy array
+            raise InvalidValueError(not_data)
+        with archive as data:
             missing = [
                 f"{kind}_{name}"
                 for name in SPLITS
