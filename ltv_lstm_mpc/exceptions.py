@@ -16,6 +16,7 @@ __all__ = [
     "LtvMpcError",
     "NotDeltaISSError",
     "ObserverGainError",
+    "SamplingTimeError",
     "SolverError",
     "SolverNotFound",
     "UnreachableSetpointError",
@@ -72,6 +73,10 @@ class UnreachableSetpointError(LtvMpcError, ValueError):
 
 class EmptySetpointIntervalError(LtvMpcError, ValueError):
     """The admissible set-point interval of Assumption 5 is empty: no set-point is allowed."""
+
+
+class SamplingTimeError(LtvMpcError, ValueError):
+    """The model was identified at another sampling time than the plant runs at."""
 
 
 class SolverNotFound(LtvMpcError, ImportError):

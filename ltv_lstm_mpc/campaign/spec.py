@@ -537,6 +537,7 @@ class _ModelFile:
 
     sha256: str
     data: bytes | None
+    Ts: float | None = None  # the model's sampling time, s
 
 
 def _model_file(location: str, field_name: str, cache: dict[str, _ModelFile]) -> _ModelFile:
@@ -554,8 +555,22 @@ def _model_file(location: str, field_name: str, cache: dict[str, _ModelFile]) ->
             f"{location!r} has p = {model.p} outputs; campaigns run single-output models "
             "(the pH loop and its LSTM plant)",
         )
-    cache[location] = _ModelFile(hashlib.sha256(data).hexdigest(), None if shipped else data)
+    cache[location] = _ModelFile(
+        hashlib.sha256(data).hexdigest(), None if shipped else data, model.Ts
+    )
     return cache[location]
+
+
+def _check_ph_sampling_time(model_file: _ModelFile, field_name: str) -> None:
+    """The pH plant runs at its benchmark Ts; a model identified at another one is refused."""
+    from ltv_lstm_mpc.exceptions import SamplingTimeError
+    from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
+    from ltv_lstm_mpc.plants.protocol import check_sampling_time
+
+    try:
+        check_sampling_time(model_file.Ts, PHNeutralizationPlant().Ts, "pH plant")
+    except SamplingTimeError as error:
+        raise CampaignSpecError(field_name, str(error)) from None
 
 
 def parse_spec(
@@ -634,6 +649,8 @@ def parse_spec(
             origin.update({name: f"[factors].{name}" for name in names})
             settings, model = _resolve_task(given, origin, base_dir)
             model_file = _model_file(model, origin.get("model", "[campaign].model"), models)
+            if settings["plant"] == "ph":  # the LSTM plant runs at the model's own Ts
+                _check_ph_sampling_time(model_file, origin.get("model", "[campaign].model"))
             key = task_key(settings, model_sha256=model_file.sha256)
             if key in seen:
                 continue

@@ -15,6 +15,7 @@ from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
 from ltv_lstm_mpc.plants.protocol import Plant
+from ltv_lstm_mpc.plants.protocol import check_sampling_time as sampling_time_contract
 from ltv_lstm_mpc.validation import (
     expect_bool,
     expect_instance,
@@ -213,6 +214,7 @@ def simulate(
     description: str = "closed loop",
     max_seconds: float | None = None,
     blas_threads: int | None = 1,
+    check_sampling_time: bool = True,
 ) -> SimulationResult:
     """Run plant and controller in closed loop.
 
@@ -237,8 +239,20 @@ def simulate(
     blas_threads : int or None
         BLAS threads during the loop (default 1, see :func:`single_threaded_blas`;
         None leaves the BLAS as it is).
+    check_sampling_time : bool
+        Refuse a plant whose ``Ts`` differs from the model's
+        (:class:`~ltv_lstm_mpc.exceptions.SamplingTimeError`; a model without ``Ts`` warns,
+        a plant without ``Ts`` is not checked). ``False``: the model's Ts is unknown or
+        knowingly ignored.
     """
     _check_arguments(plant, controller, progress, description, max_seconds, blas_threads)
+    if check_sampling_time:
+        plant_Ts = getattr(plant, "Ts", None)
+        sampling_time_contract(
+            controller.model.Ts,
+            None if plant_Ts is None else float(plant_Ts),
+            type(plant).__name__,
+        )
     p = controller.model.p
     if steps is None:
         if callable(setpoints) or (

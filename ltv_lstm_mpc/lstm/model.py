@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
 from ltv_lstm_mpc.validation import (
@@ -599,7 +600,7 @@ class LSTMModel:
         )
 
     @classmethod
-    def load(cls, path: str | Path) -> LSTMModel:
+    def load(cls, path: str | Path, *, Ts: float | None = None) -> LSTMModel:
         r"""Load a model from an ``.npz`` file.
 
         The file holds float arrays named exactly ``W_f, U_f, b_f, W_i, U_i, b_i, W_o,
@@ -610,6 +611,15 @@ class LSTMModel:
         :math:`\mathcal Y_\phi` in physical units, used by the MPC when its config gives
         no ``y_min/y_max``) and the scalar ``Ts`` (sampling time, s). Files without the
         optional arrays load as before.
+
+        Parameters
+        ----------
+        path : str or Path
+        Ts : float, optional
+            Sampling time (s) for a file that states none (a file that states another one
+            is refused). A file without ``Ts`` and no ``Ts`` given loads with a warning:
+            ``simulate`` can then not compare the model's sampling time with the plant's.
+            Add it once with ``model = LSTMModel.load(path, Ts=10.0); model.save(path)``.
         """
         path = Path(path)
         if not path.exists():
@@ -617,10 +627,27 @@ class LSTMModel:
         if path.is_dir():
             raise ModelFormatError(f"{path} is a folder, not a model file (.npz)")
         arrays = _read_npz(path)
+        if Ts is not None:
+            stated = arrays.get(_TS_NAME)
+            if stated is not None and not np.allclose(stated, Ts, rtol=1e-9, atol=0.0):
+                raise ModelFormatError(
+                    f"{path} states Ts = {float(np.asarray(stated).reshape(-1)[0])} s, but "
+                    f"Ts = {Ts} was given: drop the argument, or re-save the model with the "
+                    "sampling time it was identified at"
+                )
+            arrays[_TS_NAME] = Ts
         try:
-            return cls.from_arrays(arrays)
+            model = cls.from_arrays(arrays)
         except (ModelFormatError, DimensionError, InvalidValueError) as error:
             raise ModelFormatError(f"{path}: {error}") from None
+        if model.Ts is None:
+            warn_at_caller(
+                f"model file {path} states no sampling time Ts: the closed loop cannot check "
+                "it against the plant's. Add it once with "
+                f"LSTMModel.load({str(path)!r}, Ts=<seconds>).save({str(path)!r})",
+                UserWarning,
+            )
+        return model
 
     def to_arrays(self) -> dict[str, FloatArray]:
         """All arrays of the file format (weights and, if present, normalization, output

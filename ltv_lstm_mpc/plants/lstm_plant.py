@@ -58,6 +58,8 @@ class LSTMPlant:
         self.model = model
         #: Entries of ``d_phi`` in :meth:`step` (the output disturbance, one per output).
         self.disturbance_size = model.p
+        #: Sampling period, s: the model's (None if it states none).
+        self.Ts = model.Ts
         self._x0_arg = None if x0 is None else finite_array("x0", x0)
         self._u0_phi = u0_phi
         self._y0_phi = y0_phi
