@@ -649,7 +649,9 @@ def parse_spec(
             origin.update({name: f"[factors].{name}" for name in names})
             settings, model = _resolve_task(given, origin, base_dir)
             model_file = _model_file(model, origin.get("model", "[campaign].model"), models)
-            if settings["plant"] == "ph":  # the LSTM plant runs at the model's own Ts
+            scenario = settings.get("scenario")
+            plant = SCENARIO_NAMES[scenario] if scenario is not None else settings["plant"]
+            if plant == "ph":  # the LSTM plant runs at the model's own Ts
                 _check_ph_sampling_time(model_file, origin.get("model", "[campaign].model"))
             key = task_key(settings, model_sha256=model_file.sha256)
             if key in seen:

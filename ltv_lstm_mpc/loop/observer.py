@@ -16,11 +16,10 @@ input :math:`u_k` is chosen, ``step(y_k, u_k)`` returns :math:`(\hat x_{k+1}, \h
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.stability import ObserverGains
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
@@ -122,19 +121,17 @@ class Observer:
         y_arr = np.atleast_1d(np.asarray(y, dtype=np.float64))
         solution = calculator.solve(y_arr, np.zeros(self.model.p))
         if not solution.converged:
-            warnings.warn(
+            warn_at_caller(
                 f"no LSTM equilibrium has output {y_arr.tolist()}; the observer starts at the "
                 f"closest one found (residual {solution.residual:.3e})",
                 RuntimeWarning,
-                stacklevel=2,
             )
         elif not solution.u_admissible:
-            warnings.warn(
+            warn_at_caller(
                 f"the LSTM equilibrium with output {y_arr.tolist()} needs u = "
                 f"{solution.u_bar.tolist()} outside U: the initial estimate may lie outside "
                 "the invariant set of Lemma 4 assumed by Theorem 2",
                 RuntimeWarning,
-                stacklevel=2,
             )
         self.reset(solution.x_bar, np.zeros(self.model.p))
 

@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.certify import Certification, certify, u_max_extrapolation
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm import compiled as _compiled
@@ -175,7 +175,7 @@ class RobustMPC:
         ti.require_setpoint_interval(model.denormalize_y if model.normalization else None)
         extrapolation = u_max_extrapolation(model, config.u_max)
         if extrapolation is not None:
-            warnings.warn(extrapolation, RuntimeWarning, stacklevel=2)
+            warn_at_caller(extrapolation, RuntimeWarning)
         Q, R = config.weights(model)
         self.N = N = config.N
         kinds: tuple[str, ...] = ("nominal",)
