@@ -448,14 +448,19 @@ class OffsetFreeController:
         setpoint_status, saturated = self._diagnose(y0, y0_target, d_hat, reference, stale)
         t2 = time.perf_counter()
         solution = self._solve_mpc(x_hat, reference, y0_mpc)
-        u, input_clipped = self._gate_input(solution.u[0].copy(), reference.u_bar)
+        u = solution.u[0].copy()
+        u_max = self._u_max
+        inside = all(-u_max < v < u_max for v in u.tolist())  # strictly; NaN fails
+        input_clipped = 0.0
+        if not inside:  # outside U, non-finite, or on its boundary
+            u, input_clipped = self._gate_input(u, reference.u_bar)
         t3 = time.perf_counter()
         self._update_observer(y, u)
         e_hat_used = self.e_hat
         self.e_hat = self.certification.tightening.next_e_hat(self.e_hat)
         t4 = time.perf_counter()
         u_phi = self._denormalize_u(u)
-        if input_clipped or max(abs(v) for v in u.tolist()) >= self._u_max:  # on U's boundary
+        if not inside:  # never beyond the physical bounds (rounding of the de-normalization)
             np.clip(u_phi, self._u_phi_low, self._u_phi_high, out=u_phi)
         self.records.append(
             ControllerStep(
