@@ -35,6 +35,7 @@ __all__ = [
     "expect_instance",
     "expect_int",
     "expect_methods",
+    "expect_output_bounds",
     "expect_pair",
     "expect_path",
     "expect_real",
@@ -250,6 +251,16 @@ def finite_array(name: str, value: Any) -> FloatArray:
     if not bool(np.isfinite(array).all()):
         raise InvalidValueError(f"{name} contains NaN or inf: {_describe(value)}")
     return array
+
+
+def expect_output_bounds(y_min: Any, y_max: Any) -> None:
+    """Optional normalized output bounds: each None or a finite real number, and
+    ``y_min < y_max`` when both are given (:class:`InvalidValueError` otherwise)."""
+    for name, value in (("y_min", y_min), ("y_max", y_max)):
+        if value is not None:
+            expect_real(name, value, hint="normalized units, or None")
+    if y_min is not None and y_max is not None and not y_min < y_max:
+        raise InvalidValueError(f"y_min must be below y_max, got y_min={y_min!r}, y_max={y_max!r}")
 
 
 def expect_pair(name: str, value: Any) -> tuple[float, float]:

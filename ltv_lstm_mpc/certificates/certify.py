@@ -40,6 +40,7 @@ from ltv_lstm_mpc.validation import (
     expect_bool,
     expect_instance,
     expect_int,
+    expect_output_bounds,
     expect_pair,
     expect_real,
 )
@@ -126,13 +127,7 @@ class CertificationSettings:
         expect_int("N", self.N, minimum=1, hint="N is the prediction horizon, e.g. N=5")
         expect_int("K_bar_grid_points", self.K_bar_grid_points, minimum=2)
         expect_real("epsilon", self.epsilon, low=0.0, high=1.0, low_open=True, high_open=True)
-        for name in ("y_min", "y_max"):
-            if getattr(self, name) is not None:
-                expect_real(name, getattr(self, name), hint="normalized units, or None")
-        if self.y_min is not None and self.y_max is not None and not self.y_min < self.y_max:
-            raise InvalidValueError(
-                f"y_min must be below y_max, got y_min={self.y_min!r}, y_max={self.y_max!r}"
-            )
+        expect_output_bounds(self.y_min, self.y_max)
         if self.y0_operating_range is not None:
             expect_pair("y0_operating_range", self.y0_operating_range)
 

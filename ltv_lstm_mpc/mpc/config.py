@@ -17,7 +17,13 @@ from numpy.typing import NDArray
 from ltv_lstm_mpc.certificates.certify import CertificationSettings
 from ltv_lstm_mpc.exceptions import ArgumentTypeError, DimensionError, InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.validation import expect_bool, expect_int, expect_real, finite_array
+from ltv_lstm_mpc.validation import (
+    expect_bool,
+    expect_int,
+    expect_output_bounds,
+    expect_real,
+    finite_array,
+)
 
 __all__ = ["TRANSCRIPTIONS", "InfeasibilityPolicy", "MPCConfig", "Transcription", "require_config"]
 
@@ -128,13 +134,7 @@ class MPCConfig:
             high_open=True,
             hint="epsilon is the P_f margin, e.g. 0.01",
         )
-        for name in ("y_min", "y_max"):
-            if getattr(self, name) is not None:
-                expect_real(name, getattr(self, name), hint="normalized units, or None")
-        if self.y_min is not None and self.y_max is not None and not self.y_min < self.y_max:
-            raise InvalidValueError(
-                f"y_min must be below y_max, got y_min={self.y_min!r}, y_max={self.y_max!r}"
-            )
+        expect_output_bounds(self.y_min, self.y_max)
         expect_bool("design_gains", self.design_gains)
         if not isinstance(self.solver_settings, Mapping):
             raise ArgumentTypeError(
