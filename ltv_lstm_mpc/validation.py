@@ -41,6 +41,7 @@ __all__ = [
     "expect_real",
     "finite_array",
     "real_array",
+    "real_scalar",
     "real_vector",
 ]
 
@@ -72,6 +73,16 @@ def real_array(name: str, value: Any, *, kinds: str = "biuf") -> NDArray[Any]:
             f"{name} must be real numbers, got {what} values {_describe(value)}"
         )
     return array
+
+
+def real_scalar(name: str, value: Any) -> float:
+    """``value`` (a number or a one-element array) as a float, else a library error:
+    strings, objects, complex numbers (:func:`real_array`) or several entries
+    (:class:`DimensionError`). Finiteness is left to the caller."""
+    array = real_array(name, value)
+    if array.size != 1:
+        raise DimensionError(f"{name} must be one number, got shape {array.shape}")
+    return float(array.reshape(-1)[0])
 
 
 def real_vector(name: str, value: Any, size: int) -> FloatArray:

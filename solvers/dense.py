@@ -48,6 +48,7 @@ import numpy.typing as npt
 import scipy.sparse as sp
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, SolverError
+from ltv_lstm_mpc.validation import real_array, real_scalar
 
 from ._base import FloatArray, RawResult, WarmStart
 from ._compiled import bounds_rows_violation, cone_violation
@@ -96,10 +97,10 @@ class DenseCone:
     f: float
 
     def __post_init__(self) -> None:
-        self.F = np.asarray(self.F, dtype=np.float64)
-        self.g = np.asarray(self.g, dtype=np.float64)
-        self.e = np.asarray(self.e, dtype=np.float64)
-        self.f = float(self.f)
+        self.F = real_array("cone F", self.F).astype(np.float64, copy=False)
+        self.g = real_array("cone g", self.g).astype(np.float64, copy=False)
+        self.e = real_array("cone e", self.e).astype(np.float64, copy=False)
+        self.f = real_scalar("cone f", self.f)
 
     @property
     def dim(self) -> int:
@@ -169,7 +170,9 @@ class DenseQP:
 
     def __post_init__(self) -> None:
         for name in _FIELDS:
-            setattr(self, name, np.asarray(getattr(self, name), dtype=np.float64))
+            setattr(
+                self, name, real_array(name, getattr(self, name)).astype(np.float64, copy=False)
+            )
         self.cones = tuple(self.cones)
 
     # ----------------------------------------------------------------------------------

@@ -31,6 +31,7 @@ import numpy.typing as npt
 import scipy.sparse as sp
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.validation import real_array, real_scalar
 
 __all__ = [
     "ConvexProblem",
@@ -90,7 +91,7 @@ def _as_csc(name: str, value: Any, shape: tuple[int, int] | None) -> sp.csc_matr
     if sp.issparse(value):
         mat = sp.csc_matrix(value, dtype=np.float64, copy=True)
     else:
-        arr = np.asarray(value, dtype=np.float64)
+        arr = real_array(name, value).astype(np.float64, copy=False)
         if arr.ndim != 2:
             raise DimensionError(
                 f"{name} must be a 2-D matrix"
@@ -112,7 +113,7 @@ def _as_csc(name: str, value: Any, shape: tuple[int, int] | None) -> sp.csc_matr
 
 def _as_vector(name: str, value: Any, length: int, *, allow_inf: bool = False) -> FloatArray:
     """Return a read-only float64 copy of ``value`` with shape ``(length,)``."""
-    arr = np.array(value, dtype=np.float64, copy=True)
+    arr = np.array(real_array(name, value), dtype=np.float64, copy=True)
     if arr.ndim == 0 and length == 1:
         arr = arr.reshape(1)
     if arr.shape != (length,):
@@ -196,7 +197,7 @@ class SecondOrderCone:
         object.__setattr__(self, "F", F)
         object.__setattr__(self, "g", _as_vector("cone g", self.g, k))
         object.__setattr__(self, "e", _as_vector("cone e", self.e, n))
-        f = float(self.f)
+        f = real_scalar("cone f", self.f)
         if not math.isfinite(f):
             raise InvalidValueError(f"cone f must be finite, got {f!r}")
         object.__setattr__(self, "f", f)
@@ -452,7 +453,7 @@ class ConvexProblem:
         kwargs: dict[str, Any] = {f.name: getattr(self, f.name) for f in fields(self) if f.init}
         for name, value in values.items():
             if name in _MATRIX_FIELDS and value is not None and not sp.issparse(value):
-                arr = np.asarray(value, dtype=np.float64)
+                arr = real_array(name, value).astype(np.float64, copy=False)
                 old = getattr(self, name)
                 if arr.ndim == 1 and old is not None:
                     if arr.shape != (old.nnz,):

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ltv_lstm_mpc.exceptions import InvalidValueError, SolverError, SolverNotFound
+from ltv_lstm_mpc.validation import expect_bool, real_scalar
 
 from ._adapters import convex_from_dense, dense_from_convex
 from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart
@@ -361,9 +362,9 @@ class Session:
                 f"got {type(reformulation).__name__}"
             )
         self.solver = solver
-        self.tolerance = float(tolerance)
+        self.tolerance = real_scalar("tolerance", tolerance)
         self.reformulation = reformulation
-        self.raise_on_failure = bool(raise_on_failure)
+        self.raise_on_failure = expect_bool("raise_on_failure", raise_on_failure)
         self.settings: Mapping[str, Any] = dict(settings)
         # Build one backend now: validates tolerance and settings early.
         self._backend: Backend = self._factory(solver, self.tolerance, self.settings)

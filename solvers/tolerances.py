@@ -49,6 +49,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.validation import real_scalar
 
 __all__ = ["TOLERANCE_OPTIONS", "feasibility_tolerance", "known_settings", "solver_options"]
 
@@ -129,7 +130,7 @@ def solver_options(solver: str, tolerance: float, settings: Mapping[str, Any]) -
     InvalidValueError
         If ``tolerance`` is not a positive finite number.
     """
-    tol = float(tolerance)
+    tol = real_scalar("tolerance", tolerance)
     if not (tol > 0.0 and tol < float("inf")):
         raise InvalidValueError(f"tolerance must be a positive finite float, got {tolerance!r}")
     names = TOLERANCE_OPTIONS.get(solver.lower(), ())
@@ -152,7 +153,7 @@ def feasibility_tolerance(solver: str, tolerance: float) -> float:
     InvalidValueError
         If ``tolerance`` is not a positive finite number.
     """
-    tol = float(tolerance)
+    tol = real_scalar("tolerance", tolerance)
     if not (tol > 0.0 and tol < float("inf")):
         raise InvalidValueError(f"tolerance must be a positive finite float, got {tolerance!r}")
     from .registry import FIRST_ORDER, _registry

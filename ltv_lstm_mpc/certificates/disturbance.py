@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 
 if TYPE_CHECKING:  # pragma: no cover
     from ltv_lstm_mpc.training.datasets import IdentificationDataset
@@ -91,6 +91,7 @@ def estimate_d_max(
     -------
     DMaxEstimate
     """
+    model = require_model(model)
     from ltv_lstm_mpc.training.datasets import IdentificationDataset
     from ltv_lstm_mpc.training.train import simulate_sequences
 

@@ -431,8 +431,10 @@ class LSTMModel:
         u_arr = finite_array("u_seq", u_seq)
         if u_arr.ndim == 1 and self.m == 1:
             u_arr = u_arr[:, None]
-        if u_arr.ndim != 2 or u_arr.shape[1] != self.m:
-            raise DimensionError(f"u_seq has shape {u_arr.shape}, expected (T, {self.m})")
+        if u_arr.ndim != 2 or u_arr.shape[1] != self.m or u_arr.shape[0] == 0:
+            raise DimensionError(
+                f"u_seq has shape {u_arr.shape}, expected (T, {self.m}) with T >= 1"
+            )
         states = self.kernel.simulate(x_current, u_arr)
         return states, self.output(states)
 

@@ -61,7 +61,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
-from ltv_lstm_mpc.validation import expect_instance, expect_real, real_vector
+from ltv_lstm_mpc.validation import expect_instance, expect_int, expect_real, real_vector
 
 __all__ = ["PHNeutralizationPlant", "PHParameters", "ph_from_state", "simulate_ph_batch"]
 
@@ -359,10 +359,8 @@ class PHNeutralizationPlant:
         q3_nominal: float = 15.6,
         params: PHParameters | None = None,
     ) -> None:
-        if not (np.isfinite(Ts) and Ts > 0):
-            raise InvalidValueError(f"Ts must be positive, got {Ts}")
-        if int(substeps) != substeps or substeps < 1:
-            raise InvalidValueError(f"substeps must be a positive integer, got {substeps}")
+        Ts = expect_real("Ts", Ts, low=0.0, low_open=True, hint="the sampling time, s")
+        substeps = expect_int("substeps", substeps, minimum=1)
         for name, flow in (("q1", q1), ("q2_nominal", q2_nominal), ("q3_nominal", q3_nominal)):
             expect_real(name, flow, low=0.0, hint="a flow in mL/s")
         if params is not None:

@@ -56,7 +56,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
-from ltv_lstm_mpc.validation import expect_instance, expect_real, real_vector
+from ltv_lstm_mpc.validation import expect_instance, expect_int, expect_real, real_vector
 
 __all__ = [
     "QUADTANK_LEVEL_CONSTRAINT",
@@ -250,10 +250,8 @@ class QuadrupleTankPlant:
         u_phi_max: float = QUADTANK_U_RANGE[1],
         v_nominal: tuple[float, float] = (3.0, 3.0),
     ) -> None:
-        if not (math.isfinite(Ts) and Ts > 0):
-            raise InvalidValueError(f"Ts must be positive and finite, got {Ts}")
-        if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
-            raise InvalidValueError(f"substeps must be a positive integer, got {substeps!r}")
+        Ts = expect_real("Ts", Ts, low=0.0, low_open=True, hint="the sampling time, s")
+        substeps = expect_int("substeps", substeps, minimum=1)
         expect_real("u_phi_min", u_phi_min, hint="a pump voltage in V")
         expect_real("u_phi_max", u_phi_max, hint="a pump voltage in V")
         if params is not None:
