@@ -95,10 +95,16 @@ class DenseFromConvex(DenseBackend):
             duals.setdefault("eq", np.zeros(0))
             warm_start = dataclasses.replace(warm_start, duals=duals)
         raw = self._inner.solve(warm_start)
-        duals_out = raw.duals
-        if duals_out is not None:
-            duals_out = {k: v for k, v in duals_out.items() if k != "eq"}
-        return dataclasses.replace(raw, duals=duals_out, notes=(*self._notes, *raw.notes))
+
+        def without_eq(rows: Mapping[str, FloatArray] | None) -> Mapping[str, FloatArray] | None:
+            return None if rows is None else {k: v for k, v in rows.items() if k != "eq"}
+
+        return dataclasses.replace(
+            raw,
+            duals=without_eq(raw.duals),
+            certificate=without_eq(raw.certificate),
+            notes=(*self._notes, *raw.notes),
+        )
 
 
 @functools.cache
@@ -209,11 +215,19 @@ class ConvexFromDense(Backend):
                 duals_in["ineq"] = np.concatenate([d["eq"], d["ineq"]])
                 warm_start = dataclasses.replace(warm_start, duals=duals_in)
         raw = self._inner.solve(warm_start)
-        duals = raw.duals
-        if duals is not None and "ineq" in duals:
-            y = np.asarray(duals["ineq"])
-            duals = {**duals, "eq": y[:p].copy(), "ineq": y[p:].copy()}
-        return dataclasses.replace(raw, duals=duals, notes=(*self._notes, *raw.notes))
+
+        def split(rows: Mapping[str, FloatArray] | None) -> Mapping[str, FloatArray] | None:
+            if rows is None or "ineq" not in rows:
+                return rows
+            y = np.asarray(rows["ineq"])
+            return {**rows, "eq": y[:p].copy(), "ineq": y[p:].copy()}
+
+        return dataclasses.replace(
+            raw,
+            duals=split(raw.duals),
+            certificate=split(raw.certificate),
+            notes=(*self._notes, *raw.notes),
+        )
 
 
 @functools.cache

@@ -5,13 +5,13 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NoReturn
 
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 
-from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError, SolverError
 
 from .problem import ConvexProblem, Solution, SolverStatus
 
@@ -36,6 +36,22 @@ class RawResult:
     #: The solver's own objective value at ``z`` (dense sessions use it instead of
     #: re-evaluating it); ``None`` where the solver reports none.
     objective: float | None = None
+    #: A certificate of the status where the backend returns one (checked by the layer,
+    #: :mod:`~ltv_lstm_mpc.solvers.acceptance`): for ``INFEASIBLE`` a Farkas vector keyed
+    #: like ``duals``; for ``UNBOUNDED`` ``{"direction": d}``.
+    certificate: Mapping[str, FloatArray] | None = None
+
+
+def raise_backend_error(solver: str, phase: str, exc: Exception) -> NoReturn:
+    """Raise the error for an exception out of a backend's ``phase`` (call in ``except``).
+
+    An error of the library's own (bad input the backend found, a :class:`SolverError`)
+    is raised as it is; any other exception becomes a :class:`SolverError` that names the
+    solver, the phase and the cause (chained).
+    """
+    if isinstance(exc, LtvMpcError):
+        raise exc
+    raise SolverError(f"{solver}: {phase} raised {type(exc).__name__}: {exc}") from exc
 
 
 def map_status(table: Mapping[Any, SolverStatus], code: Any) -> tuple[SolverStatus, str | None]:

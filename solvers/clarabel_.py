@@ -253,9 +253,22 @@ class ClarabelDense(DenseBackend):
                 solve_time=wall,
                 iterations=int(solution.iterations),
                 notes=notes,
+                certificate=self._certificate(status, solution),
             )
         z = np.asarray(solution.x, dtype=np.float64)
-        y = np.asarray(solution.z, dtype=np.float64)
+        return RawResult(
+            status=status,
+            native_status=native,
+            z=z,
+            duals=self._split(np.asarray(solution.z, dtype=np.float64)),
+            solve_time=wall,
+            iterations=int(solution.iterations),
+            notes=notes,
+            objective=float(solution.obj_val),
+        )
+
+    def _split(self, y: FloatArray) -> dict[str, FloatArray]:
+        """CLARABEL's conic multipliers (or Farkas vector) in the layer's convention."""
         ineq = np.zeros(self._m)
         bounds = np.zeros(self._n)  # (index sets are disjoint within ineq and within bounds)
         ineq[self._eq_rows] += y[self._r_eq_rows]
@@ -265,17 +278,16 @@ class ClarabelDense(DenseBackend):
         bounds[self._ub_vars] += y[self._r_ub]
         bounds[self._lo_vars] -= y[self._r_lb]
         start = self._n_zero + self._n_nonneg
-        duals = {"ineq": ineq, "bounds": bounds, "cones": y[start:].copy()}
-        return RawResult(
-            status=status,
-            native_status=native,
-            z=z,
-            duals=duals,
-            solve_time=wall,
-            iterations=int(solution.iterations),
-            notes=notes,
-            objective=float(solution.obj_val),
-        )
+        return {"ineq": ineq, "bounds": bounds, "cones": y[start:].copy()}
+
+    def _certificate(self, status: SolverStatus, solution: Any) -> dict[str, FloatArray] | None:
+        """CLARABEL's certificate: ``z`` for infeasibility, ``x`` (a direction) for
+        unboundedness (its documented meaning of the iterates at those statuses)."""
+        if status is SolverStatus.INFEASIBLE:
+            return self._split(np.asarray(solution.z, dtype=np.float64))
+        if status is SolverStatus.UNBOUNDED:
+            return {"direction": np.array(solution.x, dtype=np.float64)}
+        return None
 
     def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
         """One CLARABEL solve without multipliers; the status mapped as in :meth:`solve`."""

@@ -42,7 +42,8 @@ Warm start
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import dataclasses
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -61,6 +62,7 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
+from .dense import DenseBackend, DenseQP
 from .problem import ConvexProblem, SolverStatus
 from .tolerances import known_settings, solver_options
 
@@ -288,51 +290,8 @@ class CvxpyBackend(Backend):
 
     def solve(self, warm_start: WarmStart | None) -> RawResult:
         """Solve the DPP problem with the current parameter values."""
-        import cvxpy as cp
-
         z0, _ = warm_start_vectors(warm_start, self._n)
-        notes: list[str] = []
-        use_warm = z0 is not None
-        if use_warm and self.solver in _NO_WARM_START:
-            notes.append(
-                f"warm start ignored: cvxpy:{self.solver} fails on warm start "
-                "(cvxpy 1.9.3 + proxsuite 0.8 TypeError in update())"
-            )
-            use_warm = False
-        if use_warm:
-            self._z.value = z0
-        options = {"verbose": False, **self.options}
-        try:
-            self._problem.solve(solver=self.solver, warm_start=use_warm, **options)
-        except cp.error.SolverError as exc:
-            return RawResult(
-                status=SolverStatus.FAILED,
-                native_status=f"cvxpy SolverError: {exc}",
-                z=None,
-                duals=None,
-                solve_time=0.0,
-                iterations=None,
-                notes=tuple(notes),
-            )
-        stats = self._problem.solver_stats
-        status, note = map_status(STATUS_MAP, self._problem.status)
-        if note:
-            notes.append(note)
-        z = duals = None
-        if status.has_solution and self._z.value is not None:
-            z = np.array(self._z.value, dtype=np.float64)
-            duals = self._duals()
-        solve_time = stats.solve_time if stats.solve_time is not None else 0.0
-        return RawResult(
-            status=status,
-            native_status=str(self._problem.status),
-            z=z,
-            duals=duals,
-            solve_time=float(solve_time),
-            iterations=None if stats.num_iters is None else int(stats.num_iters),
-            extra_setup_time=float(stats.setup_time or 0.0),
-            notes=tuple(notes),
-        )
+        return _run(self._problem, self._z, self.solver, self.options, z0, self._duals)
 
     def _dual(self, key: str) -> FloatArray | None:
         con = self._con.get(key)
@@ -360,9 +319,246 @@ class CvxpyBackend(Backend):
         return {"eq": np.zeros(0) if eq is None else eq, "ineq": ineq, "bounds": bounds}
 
 
+def _run(
+    problem: Any,
+    z: Any,
+    solver: str,
+    options: Mapping[str, Any],
+    z0: FloatArray | None,
+    duals: Callable[[], dict[str, FloatArray] | None],
+) -> RawResult:
+    """Solve a DPP ``problem`` in variable ``z`` (warm from ``z0``) and map the result."""
+    import cvxpy as cp
+
+    notes: list[str] = []
+    use_warm = z0 is not None
+    if use_warm and solver in _NO_WARM_START:
+        notes.append(
+            f"warm start ignored: cvxpy:{solver} fails on warm start "
+            "(cvxpy 1.9.3 + proxsuite 0.8 TypeError in update())"
+        )
+        use_warm = False
+    if use_warm:
+        z.value = z0
+    try:
+        problem.solve(solver=solver, warm_start=use_warm, **{"verbose": False, **options})
+    except cp.error.SolverError as exc:
+        return RawResult(
+            status=SolverStatus.FAILED,
+            native_status=f"cvxpy SolverError: {exc}",
+            z=None,
+            duals=None,
+            solve_time=0.0,
+            iterations=None,
+            notes=tuple(notes),
+        )
+    stats = problem.solver_stats
+    status, note = map_status(STATUS_MAP, problem.status)
+    if note:
+        notes.append(note)
+    point = multipliers = None
+    if status.has_solution and z.value is not None:
+        point = np.array(z.value, dtype=np.float64)
+        multipliers = duals()
+    solve_time = stats.solve_time if stats.solve_time is not None else 0.0
+    return RawResult(
+        status=status,
+        native_status=str(problem.status),
+        z=point,
+        duals=multipliers,
+        solve_time=float(solve_time),
+        iterations=None if stats.num_iters is None else int(stats.num_iters),
+        extra_setup_time=float(stats.setup_time or 0.0),
+        notes=tuple(notes),
+    )
+
+
+def _dual_of(constraint: Any) -> FloatArray | None:
+    if constraint is None or constraint.dual_value is None:
+        return None
+    return np.atleast_1d(np.asarray(constraint.dual_value, dtype=np.float64))
+
+
+def _hessian_factor(H: FloatArray) -> FloatArray:
+    """``L`` with ``L'L = H`` (Cholesky; eigenvalues clipped at 0 where H is semidefinite)."""
+    try:
+        return np.ascontiguousarray(np.linalg.cholesky(H).T)
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(0.5 * (H + H.T))
+        return np.ascontiguousarray(np.sqrt(np.maximum(w, 0.0))[:, None] * V.T)
+
+
+class CvxpyDense(DenseBackend):
+    """Dense QPs (and cones) as one DPP problem with dense parameters, re-solved per call.
+
+    ``min 1/2 ||L x||^2 + f'x`` with ``L'L = H`` (a dense ``(n, n)`` parameter, Cholesky
+    or clipped eigenvalues), the rows as ``A[eq] x == up[eq]``, ``A[i] x <= up[i]``,
+    ``A[j] x >= lo[j]`` over the rows where those bounds are finite (one ``(m_A, n)``
+    parameter ``A``), the finite variable bounds, and each cone as
+    ``SOC(e'x + f, F x + g)``. Dense parameters keep cvxpy's canonicalization and its
+    parameter map at O(n^2 + n m_A) entries; the generic adapter (a :class:`ConvexProblem`
+    with a parameter per nonzero) grows like the square of the nonzeros (0.8 GB at
+    n = 80). Which rows are equalities and which bounds are finite is fixed at setup; a
+    QP with another pattern sets the problem up afresh (noted in ``info``).
+    """
+
+    backend: ClassVar[str] = "cvxpy"
+    supports_update: ClassVar[bool] = True
+    supports_warm_start: ClassVar[bool] = True
+
+    def __init__(
+        self, name: str, solver: str, tolerance: float, settings: Mapping[str, Any]
+    ) -> None:
+        """``solver`` is the cvxpy solver name (``"CLARABEL"``, ``"OSQP"``, ...)."""
+        known = known_settings(solver)
+        if known is not None:
+            extra = ("backend",) if solver == "PIQP" else ()
+            known = (*known, *_INTERFACE_SETTINGS, *extra)
+        check_settings(f"cvxpy:{solver}", settings, known)
+        super().__init__(name, solver, solver_options(solver, tolerance, settings))
+        self._notes: tuple[str, ...] = ()
+
+    def handles_cones(self) -> bool:
+        """Cones are solved exactly by CLARABEL, ECOS and SCS."""
+        return self.solver in CONE_SOLVERS
+
+    @staticmethod
+    def _pattern(qp: DenseQP) -> tuple[bytes, ...]:
+        eq = qp.lo == qp.up
+        return (
+            np.packbits(eq).tobytes(),
+            np.packbits(np.isfinite(qp.up) & ~eq).tobytes(),
+            np.packbits(np.isfinite(qp.lo) & ~eq).tobytes(),
+            np.packbits(np.isfinite(qp.ub)).tobytes(),
+            np.packbits(np.isfinite(qp.lb)).tobytes(),
+        )
+
+    def setup(self, qp: DenseQP) -> None:
+        """Build the DPP problem for the pattern of ``qp`` and assign its values."""
+        import cvxpy as cp
+
+        n, m = qp.n_variables, qp.n_rows
+        self._n, self._m = n, m
+        self._key = self._pattern(qp)
+        eq = qp.lo == qp.up
+        self._ieq = np.flatnonzero(eq)
+        self._iu = np.flatnonzero(np.isfinite(qp.up) & ~eq)
+        self._il = np.flatnonzero(np.isfinite(qp.lo) & ~eq)
+        self._iub = np.flatnonzero(np.isfinite(qp.ub))
+        self._ilb = np.flatnonzero(np.isfinite(qp.lb))
+        x = cp.Variable(n, name="x")
+        self._x = x
+        self._L = cp.Parameter((n, n), name="L")
+        self._f = cp.Parameter(n, name="f")
+        constraints: list[Any] = []
+        self._con: dict[str, Any] = {}
+        self._vec: dict[str, tuple[Any, FloatArray]] = {}
+        if m:
+            self._A = cp.Parameter((m, n), name="A")
+            Ax = self._A @ x
+        for key, idx, kind in (
+            ("eq", self._ieq, "=="),
+            ("up", self._iu, "<="),
+            ("lo", self._il, ">="),
+        ):
+            if idx.size:
+                b = cp.Parameter(idx.size, name=key)
+                rows = Ax if idx.size == m else Ax[idx]
+                con = rows == b if kind == "==" else (rows <= b if kind == "<=" else rows >= b)
+                self._con[key] = con
+                self._vec[key] = (b, idx)
+                constraints.append(con)
+        for key, idx, upper in (("ub", self._iub, True), ("lb", self._ilb, False)):
+            if idx.size:
+                b = cp.Parameter(idx.size, name=key)
+                xs = x if idx.size == n else x[idx]
+                con = xs <= b if upper else xs >= b
+                self._con[key] = con
+                self._vec[key] = (b, idx)
+                constraints.append(con)
+        self._cones: list[tuple[Any, Any, Any, Any, Any]] = []
+        for index, cone in enumerate(qp.cones):
+            F = cp.Parameter(cone.F.shape, name=f"F{index}")
+            g = cp.Parameter(cone.dim, name=f"g{index}")
+            e = cp.Parameter(n, name=f"e{index}")
+            f = cp.Parameter(name=f"f{index}")
+            con = cp.SOC(e @ x + f, F @ x + g)
+            constraints.append(con)
+            self._cones.append((F, g, e, f, con))
+        objective = 0.5 * cp.sum_squares(self._L @ x) + self._f @ x
+        self._problem = cp.Problem(cp.Minimize(objective), constraints)
+        self._assign(qp)
+        self._notes = ()
+
+    def _assign(self, qp: DenseQP) -> None:
+        self._L.value = _hessian_factor(np.asarray(qp.H, dtype=np.float64))
+        self._f.value = np.asarray(qp.f)
+        if self._m:
+            self._A.value = np.asarray(qp.A)
+        sources = {"eq": qp.up, "up": qp.up, "lo": qp.lo, "ub": qp.ub, "lb": qp.lb}
+        for key, (param, idx) in self._vec.items():
+            param.value = np.asarray(sources[key])[idx]
+        for (F, g, e, f, _), cone in zip(self._cones, qp.cones, strict=True):
+            F.value, g.value, e.value, f.value = cone.F, cone.g, cone.e, cone.f
+
+    def update(self, qp: DenseQP) -> None:
+        """Assign the new values; a new equality / finite-bound pattern sets up afresh."""
+        if self._pattern(qp) != self._key:
+            self.setup(qp)
+            self._notes = ("fresh setup (equality or finite-bound pattern changed)",)
+            return
+        self._assign(qp)
+        self._notes = ()
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        """Solve the DPP problem with the current values."""
+        z0, _ = warm_start_vectors(warm_start, self._n)
+        raw = _run(self._problem, self._x, self.solver, self.options, z0, self._duals)
+        if self._notes:
+            raw = dataclasses.replace(raw, notes=(*self._notes, *raw.notes))
+        return raw
+
+    def _duals(self) -> dict[str, FloatArray] | None:
+        ineq = np.zeros(self._m)
+        bounds = np.zeros(self._n)
+        for key, sign, out in (
+            ("eq", 1.0, ineq),
+            ("up", 1.0, ineq),
+            ("lo", -1.0, ineq),
+            ("ub", 1.0, bounds),
+            ("lb", -1.0, bounds),
+        ):
+            con = self._con.get(key)
+            if con is None:
+                continue
+            d = _dual_of(con)
+            if d is None:
+                return None
+            np.add.at(out, self._vec[key][1], sign * d)
+        duals = {"ineq": ineq, "bounds": bounds}
+        if self._cones:
+            parts = []
+            for *_, con in self._cones:
+                values = con.dual_value
+                if values is None:
+                    return duals
+                parts.append(np.concatenate([np.atleast_1d(np.asarray(v, dtype=np.float64)).ravel() for v in values]))
+            duals["cones"] = np.concatenate(parts)
+        return duals
+
+
 def supported_solvers(installed: Sequence[str]) -> list[str]:
     """The cvxpy solvers of ``installed`` this backend offers, in :data:`SUPPORTED` order."""
     return [s for s in SUPPORTED if s in installed]
+
+
+def dense_factory(solver: str) -> Any:
+    """Registry dense factory for ``"cvxpy:<solver>"``."""
+
+    def make(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
+        return CvxpyDense(name, solver, tolerance, settings)
+
+    return make
 
 
 def factory(solver: str) -> Any:

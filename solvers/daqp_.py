@@ -6,6 +6,9 @@ present, equality rows get ``sense = 5`` (active and immutable). It is the
 fastest path for small *condensed* problems (PERF-NOTES: 7 µs at N = 5); on a
 sparse (state + input) problem it pays for dense linear algebra.
 
+Simple bounds are always passed (``-inf``/``+inf`` where the problem has none), so a
+problem without constraints is a model with ``n`` inactive bound rows.
+
 The Hessian must be positive definite: DAQP's default ``eps_prox < 0``
 regularizes a singular one automatically.
 
@@ -88,9 +91,10 @@ class DaqpBackend(Backend):
         A = np.vstack(rows) if rows else np.zeros((0, n))
         up: list[FloatArray] = []
         lo: list[FloatArray] = []
-        if problem.lb is not None and problem.ub is not None:
-            up.append(np.asarray(problem.ub))
-            lo.append(np.asarray(problem.lb))
+        # Simple bounds always (infinite where absent): DAQP's Model needs at least one
+        # constraint row, and a problem without any must still solve.
+        up.append(np.full(n, np.inf) if problem.ub is None else np.asarray(problem.ub))
+        lo.append(np.full(n, -np.inf) if problem.lb is None else np.asarray(problem.lb))
         if problem.b_eq is not None:
             up.append(np.asarray(problem.b_eq))
             lo.append(np.asarray(problem.b_eq))
@@ -112,7 +116,7 @@ class DaqpBackend(Backend):
         self._n = problem.n_variables
         self._p = problem.n_eq
         self._m = problem.n_ineq
-        self._ms = self._n if problem.lb is not None else 0
+        self._ms = self._n  # simple bounds are always the first n rows (see _data)
         data = self._data(problem)
         self._sense = np.zeros(data["bupper"].shape[0], dtype=np.int32)
         self._sense[self._ms : self._ms + self._p] = _EQUALITY

@@ -35,6 +35,7 @@ is), ``"bounds"`` has shape ``(n,)``.
 from __future__ import annotations
 
 import abc
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -50,9 +51,11 @@ import scipy.sparse as sp
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, SolverError
 from ltv_lstm_mpc.validation import real_array, real_scalar
 
-from ._base import FloatArray, RawResult, WarmStart
+from ._base import FloatArray, RawResult, WarmStart, raise_backend_error
 from ._compiled import bounds_rows_violation, cone_violation
+from .acceptance import ProblemView, accept
 from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, _check_bounds
+from .tolerances import feasibility_tolerance, optimality_tolerance
 
 __all__ = ["DenseBackend", "DenseBackendFactory", "DenseCone", "DenseQP", "DenseSession"]
 
@@ -503,7 +506,11 @@ class DenseSession:
         if not self._fresh:
             self._backend = self._factory(self.solver, self.tolerance, self.settings)
         self._fresh = False
-        self._backend.setup(qp)
+        self._key = None
+        try:
+            self._backend.setup(qp)
+        except Exception as exc:
+            raise_backend_error(self.solver, "setup", exc)
         self.n_setups += 1
         self.last_update = "setup"
         self._key = qp.structure_key()
@@ -513,14 +520,18 @@ class DenseSession:
         """Write the values of ``qp`` (same structure key as the workspace; not checked)."""
         if self._key is None:
             raise SolverError("DenseSession.update() called before setup()")
-        if self._in_place:
-            self._backend.update(qp)
-            self.last_update = "in_place"
-        else:
-            self._backend = self._factory(self.solver, self.tolerance, self.settings)
-            self._backend.setup(qp)
-            self.n_setups += 1
-            self.last_update = "fresh_setup"
+        try:
+            if self._in_place:
+                self._backend.update(qp)
+                self.last_update = "in_place"
+            else:
+                self._backend = self._factory(self.solver, self.tolerance, self.settings)
+                self._backend.setup(qp)
+                self.n_setups += 1
+                self.last_update = "fresh_setup"
+        except Exception as exc:
+            self._key = None
+            raise_backend_error(self.solver, "update", exc)
         self._qp = qp
 
     def solve(self, qp: DenseQP, warm_start: WarmStart | None = None) -> Solution:
@@ -541,7 +552,10 @@ class DenseSession:
         else:
             self.update(qp)
         mid = time.perf_counter()
-        raw = self._backend.solve(warm_start)
+        try:
+            raw = self._backend.solve(warm_start)
+        except Exception as exc:
+            raise_backend_error(self.solver, "solve", exc)
         end = time.perf_counter()
         return self._to_solution(qp, raw, mid - start, end - mid)
 
@@ -557,7 +571,10 @@ class DenseSession:
             self.setup(qp)
         else:
             self.update(qp)
-        status, z, iterations, info = self._backend.solve_point()
+        try:
+            status, z, iterations, info = self._backend.solve_point()
+        except Exception as exc:
+            raise_backend_error(self.solver, "solve", exc)
         if z is not None:
             if not _usable_point(z, qp):
                 return (
@@ -590,6 +607,21 @@ class DenseSession:
                 notes = (*notes, "solver returned a malformed or non-finite z")
                 duals = None
                 objective = float("nan")
+        elif status.has_solution:
+            status = SolverStatus.FAILED
+            notes = (*notes, "solver returned no point")
+        residuals = None
+        certificate = raw.certificate
+        if z is not None or certificate is not None:
+            checked, residuals = accept(
+                ProblemView.of_dense(qp),
+                dataclasses.replace(raw, status=status, z=z, duals=duals, notes=notes),
+                feasibility_tolerance(self.solver, self.tolerance),
+                optimality_tolerance(self.solver, self.tolerance),
+            )
+            status, notes, certificate = checked.status, checked.notes, checked.certificate
+            if checked.z is None:
+                z, duals, objective = None, None, float("nan")
         last = self.last_update
         if last == "fresh_setup":
             notes = ("fresh setup (backend cannot update in place)", *notes)
@@ -610,4 +642,6 @@ class DenseSession:
             solver=self.solver,
             reformulation=None,
             info=info,
+            residuals=residuals,
+            certificate=certificate,
         )

@@ -14,7 +14,7 @@ point, an array from that primal point.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -136,14 +136,7 @@ class OsqpBackend(Backend):
         z = np.array(res.x, dtype=np.float64) if status.has_solution else None
         duals = None
         if status.has_solution:
-            y = np.asarray(res.y, dtype=np.float64)
-            bnd = np.zeros(self._n)
-            bnd[self._bidx] = y[self._p + self._m :]
-            duals = {
-                "eq": y[: self._p].copy(),
-                "ineq": y[self._p : self._p + self._m].copy(),
-                "bounds": bnd,
-            }
+            duals = self._split(np.asarray(res.y, dtype=np.float64))
         return RawResult(
             status=status,
             native_status=f"{info.status} ({info.status_val})",
@@ -152,7 +145,30 @@ class OsqpBackend(Backend):
             solve_time=float(info.solve_time) + float(info.polish_time),
             iterations=int(info.iter),
             notes=() if note is None else (note,),
+            certificate=_certificate(status, res, self._split),
         )
+
+    def _split(self, y: FloatArray) -> dict[str, FloatArray]:
+        """Row multipliers (or a Farkas vector) split into ``eq``, ``ineq``, ``bounds``."""
+        bnd = np.zeros(self._n)
+        bnd[self._bidx] = y[self._p + self._m :]
+        return {
+            "eq": y[: self._p].copy(),
+            "ineq": y[self._p : self._p + self._m].copy(),
+            "bounds": bnd,
+        }
+
+
+def _certificate(
+    status: SolverStatus, res: Any, split: Callable[[FloatArray], dict[str, FloatArray]]
+) -> dict[str, FloatArray] | None:
+    """OSQP's certificate of infeasibility (``prim_inf_cert``, split like the multipliers)
+    or of unboundedness (``dual_inf_cert``, a direction); ``None`` for other statuses."""
+    if status is SolverStatus.INFEASIBLE and res.prim_inf_cert is not None:
+        return split(np.array(res.prim_inf_cert, dtype=np.float64))
+    if status is SolverStatus.UNBOUNDED and res.dual_inf_cert is not None:
+        return {"direction": np.array(res.dual_inf_cert, dtype=np.float64)}
+    return None
 
 
 def make(name: str, tolerance: float, settings: Mapping[str, Any]) -> Backend:
@@ -247,6 +263,9 @@ class OsqpDense(DenseBackend):
             solve_time=float(info.solve_time) + float(info.polish_time),
             iterations=int(info.iter),
             notes=() if note is None else (note,),
+            certificate=_certificate(
+                status, res, lambda y: {"ineq": y[n:].copy(), "bounds": y[:n].copy()}
+            ),
         )
 
 

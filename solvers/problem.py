@@ -24,7 +24,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +32,9 @@ import scipy.sparse as sp
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.validation import real_array, real_scalar
+
+if TYPE_CHECKING:
+    from .acceptance import Residuals
 
 __all__ = [
     "ConvexProblem",
@@ -600,7 +603,15 @@ class Solution:
         Name of the cone reformulation applied, ``None`` if the cones were
         solved exactly (or there were none).
     info : str
-        Native status and notes (warm start ignored, fresh setup, ...).
+        Native status and notes (warm start ignored, fresh setup, the acceptance check's
+        verdict where it changed the status, ...).
+    residuals : Residuals or None
+        The acceptance check's relative residuals of the returned point (primal,
+        stationarity, complementarity; :mod:`~ltv_lstm_mpc.solvers.acceptance`), ``None``
+        where the backend returned no point.
+    certificate : dict or None
+        For ``INFEASIBLE``, a Farkas vector keyed like ``duals``; for ``UNBOUNDED``,
+        ``{"direction": d}``: only where the backend returned one and it checked.
     """
 
     status: SolverStatus
@@ -615,6 +626,8 @@ class Solution:
     solver: str
     reformulation: str | None = None
     info: str = ""
+    residuals: Residuals | None = None
+    certificate: Mapping[str, FloatArray] | None = None
 
     @property
     def total_time(self) -> float:

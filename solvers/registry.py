@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib
 import importlib.util
@@ -17,10 +18,12 @@ from ltv_lstm_mpc.exceptions import InvalidValueError, SolverError, SolverNotFou
 from ltv_lstm_mpc.validation import expect_bool, real_scalar
 
 from ._adapters import convex_from_dense, dense_from_convex
-from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart
+from .acceptance import ProblemView, accept
+from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart, raise_backend_error
 from .dense import DenseBackendFactory
 from .problem import ConvexProblem, Solution, SolverStatus
 from .reformulation import ConeReformulation
+from .tolerances import feasibility_tolerance, optimality_tolerance
 
 __all__ = [
     "DEFAULT_SOLVER",
@@ -120,9 +123,9 @@ def _registry() -> dict[str, _Entry]:
         for s in cvxpy_.supported_solvers(cp.installed_solvers()):
             name = f"cvxpy:{s}"
             info = SolverInfo(
-                name, "cvxpy", s in cvxpy_.CONE_SOLVERS, False, s.lower() in FIRST_ORDER
+                name, "cvxpy", s in cvxpy_.CONE_SOLVERS, True, s.lower() in FIRST_ORDER
             )
-            reg[name] = _Entry(info, cvxpy_.factory(s), None)
+            reg[name] = _Entry(info, cvxpy_.factory(s), cvxpy_.dense_factory(s))
     except ImportError:
         pass
     try:
@@ -433,9 +436,9 @@ class Session:
             self._backend = self._factory(self.solver, self.tolerance, self.settings)
         try:
             self._backend.setup(solved)
-        except (ValueError, TypeError, RuntimeError) as exc:
+        except Exception as exc:
             self._ready = False
-            raise SolverError(f"{self.solver}: setup failed: {exc}") from exc
+            raise_backend_error(self.solver, "setup", exc)
         self._pending_setup = time.perf_counter() - start
         self._pending_notes = []
         self.n_setups += 1
@@ -466,13 +469,17 @@ class Session:
         if in_place:
             try:
                 self._backend.update(solved)
-            except (ValueError, TypeError, RuntimeError) as exc:
-                raise SolverError(f"{self.solver}: update failed: {exc}") from exc
+            except Exception as exc:
+                raise_backend_error(self.solver, "update", exc)
             self.last_update = "in_place"
             notes: list[str] = []
         else:
             self._backend = self._factory(self.solver, self.tolerance, self.settings)
-            self._backend.setup(solved)
+            try:
+                self._backend.setup(solved)
+            except Exception as exc:
+                self._ready = False
+                raise_backend_error(self.solver, "setup", exc)
             self.n_setups += 1
             self.last_update = "fresh_setup"
             why = (
@@ -504,7 +511,10 @@ class Session:
             z0 = ws.z if isinstance(ws, Solution) else np.asarray(ws, dtype=np.float64)
             ws = None if z0 is None else np.concatenate([z0, np.zeros(n_solved - n)])
         start = time.perf_counter()
-        raw = self._backend.solve(ws)
+        try:
+            raw = self._backend.solve(ws)
+        except Exception as exc:
+            raise_backend_error(self.solver, "solve", exc)
         wall = time.perf_counter() - start
         solution = self._to_solution(raw, wall)
         self._pending_setup = 0.0
@@ -532,7 +542,20 @@ class Session:
                     extra_setup_time=raw.extra_setup_time,
                     notes=raw.notes + extra,
                 )
-            else:
+        elif raw.status.has_solution:
+            raw = dataclasses.replace(
+                raw, status=SolverStatus.FAILED, notes=(*raw.notes, "solver returned no point")
+            )
+        residuals = None
+        if raw.z is not None or raw.certificate is not None:
+            raw, residuals = accept(
+                ProblemView.of_convex(self._solved),
+                raw,
+                feasibility_tolerance(self.solver, self.tolerance),
+                optimality_tolerance(self.solver, self.tolerance),
+            )
+            raw_z = raw.z
+            if raw_z is not None:
                 objective = self._solved.objective(raw_z)
                 z = raw_z[:n].copy()
                 z.setflags(write=False)
@@ -551,6 +574,8 @@ class Session:
             solver=self.solver,
             reformulation=self._applied,
             info=info,
+            residuals=residuals,
+            certificate=raw.certificate,
         )
 
 
