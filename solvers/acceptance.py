@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -379,7 +379,9 @@ def accept(
         if res.primal <= INACCURATE_FACTOR * feasibility and dual <= (
             INACCURATE_FACTOR * optimality
         ):
-            note = f"acceptance: {status.name} -> OPTIMAL_INACCURATE ({res.describe()}; {tolerances})"
+            note = (
+                f"acceptance: {status.name} -> OPTIMAL_INACCURATE ({res.describe()}; {tolerances})"
+            )
             return dataclasses.replace(
                 raw, status=SolverStatus.OPTIMAL_INACCURATE, notes=(*raw.notes, note)
             ), res
@@ -398,7 +400,9 @@ def accept(
                 certificate={"direction": raw.z / _inf_norm(raw.z)},
                 notes=(*raw.notes, note),
             ), res
-        note = f"acceptance: {status.name} -> FAILED, not a solution ({res.describe()}; {tolerances})"
+        note = (
+            f"acceptance: {status.name} -> FAILED, not a solution ({res.describe()}; {tolerances})"
+        )
         return dataclasses.replace(
             raw,
             status=SolverStatus.FAILED,

@@ -452,7 +452,7 @@ class CvxpyDense(DenseBackend):
         self._f = cp.Parameter(n, name="f")
         constraints: list[Any] = []
         self._con: dict[str, Any] = {}
-        self._vec: dict[str, tuple[Any, FloatArray]] = {}
+        self._vec: dict[str, tuple[Any, IntArray]] = {}
         if m:
             self._A = cp.Parameter((m, n), name="A")
             Ax = self._A @ x
@@ -542,7 +542,9 @@ class CvxpyDense(DenseBackend):
                 values = con.dual_value
                 if values is None:
                     return duals
-                parts.append(np.concatenate([np.atleast_1d(np.asarray(v, dtype=np.float64)).ravel() for v in values]))
+                parts.append(
+                    np.concatenate([np.asarray(v, dtype=np.float64).ravel() for v in values])
+                )
             duals["cones"] = np.concatenate(parts)
         return duals
 

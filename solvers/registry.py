@@ -18,8 +18,8 @@ from ltv_lstm_mpc.exceptions import InvalidValueError, SolverError, SolverNotFou
 from ltv_lstm_mpc.validation import expect_bool, real_scalar
 
 from ._adapters import convex_from_dense, dense_from_convex
-from .acceptance import ProblemView, accept
 from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart, raise_backend_error
+from .acceptance import ProblemView, accept
 from .dense import DenseBackendFactory
 from .problem import ConvexProblem, Solution, SolverStatus
 from .reformulation import ConeReformulation

@@ -539,3 +539,27 @@ def test_faulty_keeps_the_capabilities_of_a_cone_backend(base: str, cleanup: lis
         assert sol.status is SolverStatus.OPTIMAL, sol.info
         assert sol.z is not None and expected.z is not None
         np.testing.assert_allclose(sol.z, expected.z, atol=10 * tol(base).z)
+
+
+# --------------------------------------------------------------------------------------
+# cvxpy dense sessions scale (issue 20, defect 4)
+# --------------------------------------------------------------------------------------
+@pytest.mark.skipif("cvxpy:OSQP" not in SOLVERS, reason="cvxpy with OSQP not installed")
+def test_cvxpy_dense_session_memory_is_quadratic_in_n() -> None:
+    """A dense QP with n = 60 variables and 60 rows through ``DenseSession("cvxpy:OSQP")``
+    allocates a few MB, not the ~250 MB of a parameter per nonzero (which grows like n^4:
+    0.8 GB at n = 80); the answer equals quadprog's."""
+    import tracemalloc
+
+    qp = random_dense_qp(60, 60, seed=4)
+    session = DenseSession("cvxpy:OSQP")
+    tracemalloc.start()
+    try:
+        sol = session.solve(qp)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 40e6, f"peak {peak / 1e6:.0f} MB"
+    ref = DenseSession("quadprog" if "quadprog" in SOLVERS else "cvxpy:CLARABEL").solve(qp)
+    assert sol.status is SolverStatus.OPTIMAL and sol.z is not None and ref.z is not None
+    assert np.max(np.abs(sol.z - ref.z)) <= 1e-4 * (1.0 + np.max(np.abs(ref.z)))
