@@ -26,7 +26,7 @@ backend's ``STATUS_MAP`` table, unknown codes -> FAILED with the code in
 ``info``), ``z``, ``objective`` (computed by us), ``duals``, ``setup_time``,
 ``solve_time`` (the solver's own), ``overhead_time`` (cvxpy canonicalization,
 parameter mapping, conversions), ``iterations``, ``backend``, ``solver``,
-``reformulation``, ``info``.
+``reformulation``, ``info``, ``residuals`` (the acceptance check's), ``certificate``.
 
 Backends (``available_solvers()`` lists the installed ones)
 -----------------------------------------------------------
@@ -35,9 +35,10 @@ name                          what it is
 ============================  ===========================================================
 ``cvxpy:<SOLVER>``            ``cvxpy_.py``: one DPP problem per structure (all matrix
                               nonzeros in one Parameter, all vectors in another), re-solved
-                              with new values. CLARABEL, ECOS, SCS take cones; OSQP, PIQP,
-                              PROXQP, DAQP, HIGHS take QPs. The flexible, exact-cone path
-                              (ms per solve), not the real-time one.
+                              with new values; dense QPs (``CvxpyDense``) with dense
+                              parameters (O(n^2 + n m) canonicalization). CLARABEL, ECOS, SCS
+                              take cones; OSQP, PIQP, PROXQP, DAQP, HIGHS take QPs. The
+                              flexible, exact-cone path (ms per solve), not the real-time one.
 ``qpsolvers:<name>``          ``qpsolvers_.py``: every ``qpsolvers.available_solvers``
                               entry, sparse or dense as the solver prefers. No in-place
                               update (a session re-runs setup, recorded).
@@ -76,7 +77,21 @@ dedicated dense backend, the others through ``DenseQP.to_convex_problem()``.
 
 :func:`feasibility_tolerance` ``(solver, tolerance)`` is the tolerance to which
 a caller should check a returned point (``max(1e-7, 100 tol)``, first-order
-solvers ``max(1e-5, 1e3 tol)``).
+solvers ``max(1e-5, 1e3 tol)``); :func:`optimality_tolerance` the one of its KKT
+residuals (the same; ECOS ``max(1e-4, 1e4 tol)``).
+
+Acceptance
+----------
+Every answer of ``Session.solve``, ``solve()`` and ``DenseSession.solve`` passes one
+check in the layer (``acceptance.py``): ``OPTIMAL`` only for a finite point within
+the feasibility tolerance whose stationarity and complementarity residuals (with the
+backend's multipliers, where it gives them) are within the optimality tolerance;
+``OPTIMAL_INACCURATE`` within 100 times those, ``FAILED`` (no point) beyond, the
+residuals in ``Solution.residuals`` and ``info``. Certificates of infeasibility or
+unboundedness that a backend returns (native OSQP, CLARABEL) are checked and kept in
+``Solution.certificate``. ``DenseSession.solve_point`` (the hot-loop call) is not
+checked: its caller checks the point. An exception out of a backend becomes a
+:class:`~ltv_lstm_mpc.exceptions.SolverError` naming the solver, phase and cause.
 
 ``Session(solver, tolerance=..., reformulation=None, **settings)`` keeps one
 workspace per structure: ``setup(problem)``, then ``update(problem)`` (same
@@ -129,6 +144,7 @@ A missing or unknown solver raises :class:`~ltv_lstm_mpc.exceptions.SolverNotFou
 
 from __future__ import annotations
 
+from .acceptance import Residuals
 from .dense import DenseBackend, DenseCone, DenseQP, DenseSession
 from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, frozen_csc
 from .reformulation import ConeReformulation, PolyhedralInnerApproximation
@@ -145,7 +161,7 @@ from .registry import (
     solver_info,
     unregister_backend,
 )
-from .tolerances import TOLERANCE_OPTIONS, feasibility_tolerance
+from .tolerances import TOLERANCE_OPTIONS, feasibility_tolerance, optimality_tolerance
 
 __all__ = [
     "DEFAULT_SOLVER",
@@ -157,6 +173,7 @@ __all__ = [
     "DenseQP",
     "DenseSession",
     "PolyhedralInnerApproximation",
+    "Residuals",
     "SecondOrderCone",
     "Session",
     "Solution",
@@ -168,6 +185,7 @@ __all__ = [
     "frozen_csc",
     "get_backend",
     "get_dense_backend",
+    "optimality_tolerance",
     "register_backend",
     "solve",
     "solver_info",

@@ -16,8 +16,10 @@ where the upper bound is active, ``y < 0`` where the lower one is, :math:`(\lamb
 ``primal``
     the largest violation of a row or cone, each divided by ``1 + |bound|``;
 ``stationarity``
-    :math:`\|P z + q + \sum M^\top y - \dots\|_\infty` divided by ``1 +`` the largest
-    norm of its terms (multipliers of the wrong sign for an infinite bound count as 0);
+    the largest component of :math:`P z + q + \sum M^\top y - \dots`, each divided by
+    ``1 +`` the largest of its own terms (per variable, so a change of units of one
+    variable does not hide its residual behind another's large terms; multipliers of the
+    wrong sign for an infinite bound count as 0);
 ``complementarity``
     the duality gap :math:`\sum_i y_i^+ (up_i - M_i z) + y_i^- (M_i z - lo_i) + \dots`
     divided by ``1 + max(|z'Pz|, |q'z|, sum |y_i bound_i|)``.
@@ -223,7 +225,8 @@ def residuals(
     primal = _primal(view, z)
     Pz = np.asarray(view.P @ z, dtype=np.float64)
     gradient = Pz + view.q
-    scale = max(_inf_norm(Pz), _inf_norm(view.q))
+    # per variable: the largest term of that component of the gradient (scale-invariant)
+    scale = np.maximum(np.abs(Pz), np.abs(view.q))
     gap = 0.0
     gap_scale = max(abs(float(z @ Pz)), abs(float(view.q @ z)))
     outside = 0.0
@@ -234,7 +237,7 @@ def residuals(
         y = _admissible(y, block)
         term = block.transpose_product(y)
         gradient = gradient + term
-        scale = max(scale, _inf_norm(term))
+        scale = np.maximum(scale, np.abs(term))
         r = block.product(z)
         pos, neg = y > 0, y < 0
         gap += float(np.sum(y[pos] * np.maximum(block.upper[pos] - r[pos], 0.0)))
@@ -257,14 +260,14 @@ def residuals(
             offset += k + 1
             term = l0 * np.asarray(cone.e) + np.asarray(cone.F.T @ l1)
             gradient = gradient - term
-            scale = max(scale, _inf_norm(term))
+            scale = np.maximum(scale, np.abs(term))
             s0 = float(cone.e @ z) + cone.f
             s1 = np.asarray(cone.F @ z) + cone.g
             gap += abs(l0 * s0 + float(l1 @ s1))
             gap_scale = max(gap_scale, abs(l0 * cone.f) + abs(float(l1 @ cone.g)))
             # a multiplier outside the second-order cone is a dual infeasibility
             outside = max(outside, (math.sqrt(float(l1 @ l1)) - l0) / (1.0 + abs(l0)))
-    stationarity = max(_inf_norm(gradient) / (1.0 + scale), outside)
+    stationarity = max(float(np.max(np.abs(gradient) / (1.0 + scale), initial=0.0)), outside)
     complementarity = gap / (1.0 + gap_scale)
     return Residuals(primal, stationarity, complementarity)
 

@@ -435,6 +435,11 @@ class DenseSession:
     tolerance : float
         Mapped to the solver's own options
         (:data:`~ltv_lstm_mpc.solvers.tolerances.TOLERANCE_OPTIONS`).
+    equilibrate : bool
+        Ruiz-equilibrate every QP (variables and rows scaled to unit infinity norms,
+        :mod:`~ltv_lstm_mpc.solvers.equilibration`) before the backend sees it, and map
+        the point and multipliers back; off by default. Meant for the backends that do
+        not scale internally (DAQP, quadprog) on badly scaled QPs.
     **settings
         Native settings; they override the tolerance mapping. Unknown names are
         rejected where the solver's settings can be listed.
@@ -446,12 +451,23 @@ class DenseSession:
     >>> qp.f[:] = new_f; sol = session.solve(qp, warm_start=sol)  # doctest: +SKIP
     """
 
-    def __init__(self, solver: str, *, tolerance: float = 1e-8, **settings: Any) -> None:
+    def __init__(
+        self,
+        solver: str,
+        *,
+        tolerance: float = 1e-8,
+        equilibrate: bool = False,
+        **settings: Any,
+    ) -> None:
+        from ltv_lstm_mpc.validation import expect_bool
+
         from .registry import get_dense_backend
 
         self._factory = get_dense_backend(solver)
         self.solver = solver
         self.tolerance = float(tolerance)
+        #: Ruiz-equilibrate each QP before the backend sees it (:mod:`.equilibration`).
+        self.equilibrate = expect_bool("equilibrate", equilibrate)
         self.settings: Mapping[str, Any] = dict(settings)
         # Built now: validates tolerance and settings early.
         self._backend: DenseBackend = self._factory(solver, self.tolerance, self.settings)
@@ -547,34 +563,64 @@ class DenseSession:
             say so in ``info``.
         """
         start = time.perf_counter()
-        if qp.structure_key() != self._key:
-            self.setup(qp)
+        work, scaling = self._equilibrated(qp)
+        if scaling is not None and warm_start is not None:
+            z0 = warm_start.z if isinstance(warm_start, Solution) else warm_start
+            warm_start = None if z0 is None else np.asarray(z0, dtype=np.float64) / scaling.D
+        if work.structure_key() != self._key:
+            self.setup(work)
         else:
-            self.update(qp)
+            self.update(work)
         mid = time.perf_counter()
         try:
             raw = self._backend.solve(warm_start)
         except Exception as exc:
             raise_backend_error(self.solver, "solve", exc)
         end = time.perf_counter()
+        if scaling is not None:
+            raw = dataclasses.replace(
+                raw,
+                z=None if raw.z is None else scaling.point(raw.z),
+                duals=None if raw.duals is None else scaling.multipliers(raw.duals),
+                certificate=(
+                    None if raw.certificate is None else scaling.multipliers(raw.certificate)
+                ),
+                notes=(*raw.notes, "Ruiz-equilibrated"),
+            )
         return self._to_solution(qp, raw, mid - start, end - mid)
+
+    def _equilibrated(self, qp: DenseQP) -> tuple[DenseQP, Any]:
+        """``qp`` and no scaling, or (with ``equilibrate=True``) the scaled QP and its scaling."""
+        if not self.equilibrate:
+            return qp, None
+        if not isinstance(qp, DenseQP):
+            raise InvalidValueError(f"qp must be a DenseQP, got {type(qp).__name__}")
+        from .equilibration import ruiz
+
+        scaling = ruiz(qp)
+        return scaling.apply(qp), scaling
 
     def solve_point(self, qp: DenseQP) -> tuple[SolverStatus, FloatArray | None, int, str]:
         """The hot-loop call: cold solve, ``(status, z, iterations, info)``.
 
-        The same setup / in-place update and the same check of the point as
-        :meth:`solve` (a malformed or non-finite ``z`` turns the status into
-        ``FAILED`` and ``z`` into ``None``), without building a :class:`Solution`
-        (no duals, objective or timings). ``z`` is the backend's fresh array.
+        The same setup / in-place update as :meth:`solve`, without building a
+        :class:`Solution` (no duals, objective or timings) and without the acceptance
+        check (:mod:`~ltv_lstm_mpc.solvers.acceptance`): only a malformed or non-finite
+        ``z`` turns the status into ``FAILED`` and ``z`` into ``None``; the caller checks
+        the point (the MPC core does, to :func:`feasibility_tolerance`). ``z`` is the
+        backend's fresh array.
         """
-        if qp.structure_key() != self._key:
-            self.setup(qp)
+        work, scaling = self._equilibrated(qp)
+        if work.structure_key() != self._key:
+            self.setup(work)
         else:
-            self.update(qp)
+            self.update(work)
         try:
             status, z, iterations, info = self._backend.solve_point()
         except Exception as exc:
             raise_backend_error(self.solver, "solve", exc)
+        if scaling is not None and z is not None:
+            z = scaling.point(z)
         if z is not None:
             if not _usable_point(z, qp):
                 return (
