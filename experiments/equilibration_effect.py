@@ -7,8 +7,8 @@ native ones) with and without equilibration:
   variables and rows rescaled by factors spread over ``10^-k ... 10^k`` (a change of units:
   the solution is known exactly, it is the rescaled solution of the original QP);
 - ``ill-conditioned``: QPs built from their KKT conditions with cond(H) = 1e8 (known point);
-- ``MPC``: MPC-shaped QPs (``random_mpc_problem``) as dense QPs; the reference is quadprog's
-  solution without equilibration.
+- ``MPC``: MPC-shaped QPs (``random_mpc_problem``, box terminal set) as dense QPs; the
+  reference is quadprog's solution without equilibration.
 
 Printed per (family, solver, equilibrate): how many answers were OPTIMAL /
 OPTIMAL_INACCURATE / other, and the largest relative point error among the OPTIMAL ones
@@ -73,8 +73,7 @@ def _ill_conditioned(count: int) -> Iterator[Case]:
 
 def _mpc(count: int) -> Iterator[Case]:
     for seed in range(count):
-        problem = random_mpc_problem(10, seed=seed)
-        qp = dense_qp_of(problem[0] if isinstance(problem, tuple) else problem)
+        qp = dense_qp_of(random_mpc_problem(10, seed=seed, terminal_cone=False))
         sol = DenseSession("quadprog").solve(qp)
         if sol.z is not None:
             yield qp, np.asarray(sol.z)

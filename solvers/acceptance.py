@@ -287,9 +287,8 @@ def check_infeasibility_certificate(
         y, why = _dual_vector(certificate, block.key, block.size)
         if y is None:
             return False, why
+        y = _admissible(y, block)  # a ray may not use an infinite bound
         pos, neg = y > 0, y < 0
-        if np.any(pos & ~np.isfinite(block.upper)) or np.any(neg & ~np.isfinite(block.lower)):
-            y = _admissible(y, block)
         total += block.transpose_product(y)
         support += float(np.sum(y[pos] * block.upper[pos])) + float(
             np.sum(y[neg] * block.lower[neg])

@@ -563,3 +563,76 @@ def test_cvxpy_dense_session_memory_is_quadratic_in_n() -> None:
     ref = DenseSession("quadprog" if "quadprog" in SOLVERS else "cvxpy:CLARABEL").solve(qp)
     assert sol.status is SolverStatus.OPTIMAL and sol.z is not None and ref.z is not None
     assert np.max(np.abs(sol.z - ref.z)) <= 1e-4 * (1.0 + np.max(np.abs(ref.z)))
+
+
+# --------------------------------------------------------------------------------------
+# optional Ruiz equilibration
+# --------------------------------------------------------------------------------------
+def _rescaled(qp: DenseQP, spread: float, seed: int) -> tuple[DenseQP, np.ndarray, np.ndarray]:
+    """``qp`` in other units: variables x = S x', rows scaled by R (its solution is S^-1 x*)."""
+    rng = np.random.default_rng(seed)
+    S = 10.0 ** rng.uniform(-spread, spread, qp.n_variables)
+    R = 10.0 ** rng.uniform(-spread, spread, qp.n_rows)
+    bad = DenseQP(
+        H=(qp.H * S) * S[:, None], f=qp.f * S, A=(qp.A * S) * R[:, None],
+        lo=qp.lo * R, up=qp.up * R, lb=qp.lb / S, ub=qp.ub / S,
+    )  # fmt: skip
+    return bad, S, R
+
+
+@pytest.mark.parametrize("solver", params([s for s in SOLVERS if solver_info(s).native_dense]))
+def test_equilibrated_session_gives_the_same_answer(solver: str) -> None:
+    """With ``equilibrate=True`` the point, objective and multipliers (mapped back) are
+    those of the plain session, and they pass the acceptance check on the original QP."""
+    qp = dense("small").copy()
+    plain = DenseSession(solver).solve(qp)
+    scaled = DenseSession(solver, equilibrate=True).solve(qp)
+    assert scaled.status is SolverStatus.OPTIMAL, scaled.info
+    assert "Ruiz-equilibrated" in scaled.info
+    assert plain.z is not None and scaled.z is not None
+    t = tol(solver)
+    scale = 1.0 + float(np.max(np.abs(plain.z)))
+    assert np.max(np.abs(scaled.z - plain.z)) <= t.z * scale
+    assert scaled.residuals is not None and scaled.residuals.stationarity is not None
+    status, z, _, _ = DenseSession(solver, equilibrate=True).solve_point(qp)
+    assert status is SolverStatus.OPTIMAL and z is not None
+    assert np.max(np.abs(z - scaled.z)) <= t.z * scale
+
+
+@pytest.mark.parametrize("solver", params([s for s in ("daqp", "osqp") if s in SOLVERS]))
+def test_equilibration_rescues_a_badly_scaled_qp(solver: str) -> None:
+    """A QP whose variables and rows are rescaled by factors spread over 1e-6 ... 1e6:
+    without equilibration daqp / osqp give no OPTIMAL point (an honest status); with it,
+    the point is the rescaled solution of the original QP."""
+    qp = random_dense_qp(12, 24, seed=2)
+    x_star = DenseSession("quadprog" if "quadprog" in SOLVERS else "clarabel").solve(qp).z
+    assert x_star is not None
+    bad, S, _ = _rescaled(qp, 6.0, seed=102)
+    plain = DenseSession(solver).solve(bad.copy())
+    assert plain.status is not SolverStatus.OPTIMAL, plain.info
+    fixed = DenseSession(solver, equilibrate=True).solve(bad.copy())
+    assert fixed.status is SolverStatus.OPTIMAL and fixed.z is not None, fixed.info
+    expected = x_star / S
+    err = np.max(np.abs(fixed.z - expected) / (1.0 + np.abs(expected)))
+    assert err <= 1e3 * tol(solver).z, err
+
+
+def test_acceptance_catches_a_wrong_point_hidden_by_scaling() -> None:
+    """x* = (1, 1) of H = diag(1e12, 1), f = -(1e12, 1); the point (1, 2) is 100 % off in
+    the second variable. A global relative stationarity residual (1 / 1e12) misses it, the
+    layer's per-variable one (1 / 2) does not, and such a point is not passed on."""
+    from ltv_lstm_mpc.solvers.acceptance import ProblemView, accept, residuals
+
+    qp = DenseQP(
+        np.diag([1e12, 1.0]), -np.array([1e12, 1.0]), np.zeros((0, 2)), np.zeros(0),
+        np.zeros(0), np.full(2, -np.inf), np.full(2, np.inf),
+    )  # fmt: skip
+    wrong = np.array([1.0, 2.0])
+    duals = {"ineq": np.zeros(0), "bounds": np.zeros(2)}
+    gradient = qp.H @ wrong + qp.f
+    assert np.max(np.abs(gradient)) / (1.0 + np.max(np.abs(qp.H @ wrong))) < 1e-11
+    res = residuals(ProblemView.of_dense(qp), wrong, duals)
+    assert res.stationarity == pytest.approx(1.0 / 3.0)
+    raw = RawResult(SolverStatus.OPTIMAL, "claimed", wrong, duals, 0.0, 1)
+    checked, _ = accept(ProblemView.of_dense(qp), raw, 1e-6, 1e-6)
+    assert checked.status is SolverStatus.FAILED and checked.z is None
