@@ -181,6 +181,8 @@ class _QpsolversCore:
         n_rows = sum(b.shape[0] for b in blocks)
         G_all = stack(blocks) if n_rows else None
         h = np.concatenate(h_parts) if n_rows else None
+        if A_eq is not None and A_eq.shape[0] == 0:  # zero rows: none (quadprog and SCS
+            A_eq = b_eq = None  # fail on an empty equality block)
         self._qp = qpsolvers.Problem(
             P=mat(P),
             q=np.array(q, dtype=np.float64),

@@ -210,6 +210,15 @@ def peers() -> dict[str, Peer]:
     out["no constraints (n = 3)"] = Peer(
         ConvexProblem(P=np.eye(3), q=np.ones(3)), SolverStatus.OPTIMAL, -np.ones(3)
     )
+    out["empty and infinite rows"] = Peer(
+        ConvexProblem(
+            P=np.eye(3), q=np.ones(3), A_eq=np.zeros((0, 3)), b_eq=np.zeros(0),
+            G=np.eye(3), l=np.full(3, -np.inf), u=np.full(3, np.inf),
+            lb=np.full(3, -np.inf), ub=np.full(3, np.inf),
+        ),
+        SolverStatus.OPTIMAL,
+        -np.ones(3),
+    )  # fmt: skip
     out["ill-conditioned (cond 1e8)"] = _kkt_problem(1e8, seed=3)
     # issue 20's case 3: two equality rows that differ by about 1e-7 fix a point far outside
     # the bounds (infeasible); qpsolvers:daqp used to report OPTIMAL with a row violated by 0.6
