@@ -67,8 +67,9 @@ Dense QPs
 ---------
 :class:`DenseQP` (``dense.py``) holds a condensed QP ``min 1/2 x'Hx + f'x``
 s.t. ``lo <= A x <= up``, ``lb <= x <= ub`` in preallocated, mutable arrays;
-:class:`DenseSession` ``(solver, tolerance=..., **settings)`` solves one per
-call with ``solve(qp, warm_start=None)``: a setup (with :meth:`DenseQP.check`)
+:class:`DenseSession` ``(solver, tolerance=..., equilibrate=False, **settings)``
+solves one per call with ``solve(qp, warm_start=None)`` (``equilibrate=True``: Ruiz
+scaling of variables and rows first, ``equilibration.py``): a setup (with :meth:`DenseQP.check`)
 on the first call or a new ``(n, m_A)``, else an in-place update, then the
 solve, with a few µs of Python around the solver. Every registered solver
 accepts a DenseQP: the ``native_dense`` ones (``daqp``, ``quadprog``,
