@@ -56,6 +56,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._base import FloatArray, RawResult
+from ._compiled import dense_kkt_residuals
 from .problem import SolverStatus
 
 __all__ = [
@@ -113,14 +114,28 @@ class ConeBlock:
     f: float
 
 
-@dataclass(frozen=True)
 class ProblemView:
-    """Either problem form as rows and cones (:meth:`of_convex`, :meth:`of_dense`)."""
+    """Either problem form as rows and cones (:meth:`of_convex`, :meth:`of_dense`).
 
-    P: Any
-    q: FloatArray
-    rows: tuple[RowBlock, ...]
-    cones: tuple[ConeBlock, ...] = ()
+    A DenseQP's rows and cones are built only when asked for: the compiled residuals of a
+    cone-free DenseQP read the QP itself (:attr:`dense`).
+    """
+
+    def __init__(
+        self,
+        P: Any,
+        q: FloatArray,
+        rows: tuple[RowBlock, ...] | None = None,
+        cones: tuple[ConeBlock, ...] | None = None,
+        dense: Any = None,
+    ) -> None:
+        """``rows``/``cones`` may be left out only with ``dense`` (built from it on use)."""
+        self.P = P
+        self.q = q
+        #: the DenseQP viewed (its cone-free residuals run compiled), ``None`` otherwise
+        self.dense = dense
+        self._rows = rows
+        self._cones = cones
 
     @classmethod
     def of_convex(cls, problem: Any) -> ProblemView:
@@ -138,11 +153,25 @@ class ProblemView:
     @classmethod
     def of_dense(cls, qp: Any) -> ProblemView:
         """Rows ``ineq`` (``A``, ``lo``, ``up``) and ``bounds`` of a DenseQP."""
-        rows = [RowBlock("bounds", None, np.asarray(qp.lb), np.asarray(qp.ub))]
-        if qp.A.shape[0]:
-            rows.insert(0, RowBlock("ineq", qp.A, np.asarray(qp.lo), np.asarray(qp.up)))
-        cones = tuple(ConeBlock(c.F, c.g, c.e, float(c.f)) for c in qp.cones)
-        return cls(qp.H, np.asarray(qp.f), tuple(rows), cones)
+        return cls(qp.H, qp.f, dense=qp)
+
+    @property
+    def rows(self) -> tuple[RowBlock, ...]:
+        """The row blocks (a DenseQP's: ``ineq`` where it has rows, then ``bounds``)."""
+        if self._rows is None:
+            qp = self.dense
+            rows = [RowBlock("bounds", None, np.asarray(qp.lb), np.asarray(qp.ub))]
+            if qp.A.shape[0]:
+                rows.insert(0, RowBlock("ineq", qp.A, np.asarray(qp.lo), np.asarray(qp.up)))
+            self._rows = tuple(rows)
+        return self._rows
+
+    @property
+    def cones(self) -> tuple[ConeBlock, ...]:
+        """The second-order cones."""
+        if self._cones is None:
+            self._cones = tuple(ConeBlock(c.F, c.g, c.e, float(c.f)) for c in self.dense.cones)
+        return self._cones
 
     @property
     def n(self) -> int:
@@ -179,17 +208,39 @@ def _inf_norm(v: FloatArray) -> float:
     return float(np.max(np.abs(v), initial=0.0))
 
 
-def _primal(view: ProblemView, z: FloatArray) -> float:
+@dataclass(frozen=True)
+class _Stacked:
+    """Every row block of a view at one point, as flat arrays (few numpy calls per check)."""
+
+    r: FloatArray
+    lower: FloatArray
+    upper: FloatArray
+    finite_lower: Any
+    finite_upper: Any
+    offsets: tuple[int, ...]
+
+    @classmethod
+    def at(cls, view: ProblemView, z: FloatArray) -> _Stacked:
+        blocks = view.rows
+        if len(blocks) == 1:
+            b = blocks[0]
+            r, lower, upper = b.product(z), b.lower, b.upper
+        else:
+            r = np.concatenate([b.product(z) for b in blocks]) if blocks else np.zeros(0)
+            lower = np.concatenate([b.lower for b in blocks]) if blocks else np.zeros(0)
+            upper = np.concatenate([b.upper for b in blocks]) if blocks else np.zeros(0)
+        offsets = tuple(np.cumsum([0, *(b.size for b in blocks)]).tolist())
+        return cls(r, lower, upper, np.isfinite(lower), np.isfinite(upper), offsets)
+
+
+def _primal(view: ProblemView, z: FloatArray, stacked: _Stacked) -> float:
+    r, lower, upper = stacked.r, stacked.lower, stacked.upper
     worst = 0.0
-    for block in view.rows:
-        r = block.product(z)
-        with np.errstate(invalid="ignore"):
-            over = np.where(np.isfinite(block.upper), r - block.upper, -np.inf)
-            under = np.where(np.isfinite(block.lower), block.lower - r, -np.inf)
-        rel_over = over / (1.0 + np.abs(np.where(np.isfinite(block.upper), block.upper, 0.0)))
-        rel_under = under / (1.0 + np.abs(np.where(np.isfinite(block.lower), block.lower, 0.0)))
-        worst = max(worst, float(np.max(rel_over, initial=0.0)))
-        worst = max(worst, float(np.max(rel_under, initial=0.0)))
+    if r.size:
+        # an infinite bound gives 0 / inf = 0 (never NaN: r is finite)
+        over = np.maximum(r - upper, 0.0) / (1.0 + np.abs(upper))
+        under = np.maximum(lower - r, 0.0) / (1.0 + np.abs(lower))
+        worst = max(float(over.max()), float(under.max()))
     for cone in view.cones:
         s0 = float(cone.e @ z) + cone.f
         s1 = np.asarray(cone.F @ z) + cone.g
@@ -206,7 +257,7 @@ def _dual_vector(
     if y is None:
         return None, f"no multipliers for the {key!r} rows"
     y = np.asarray(y, dtype=np.float64)
-    if y.shape != (size,) or not np.all(np.isfinite(y)):
+    if y.shape != (size,) or not math.isfinite(float(np.add.reduce(y))):
         return None, f"multipliers for the {key!r} rows are malformed or non-finite"
     return y, ""
 
@@ -221,53 +272,91 @@ def _admissible(y: FloatArray, block: RowBlock) -> FloatArray:
 def residuals(
     view: ProblemView, z: FloatArray, duals: Mapping[str, FloatArray] | None
 ) -> Residuals:
-    """The :class:`Residuals` of ``z`` with the multipliers ``duals`` (may be ``None``)."""
-    primal = _primal(view, z)
-    Pz = np.asarray(view.P @ z, dtype=np.float64)
-    gradient = Pz + view.q
-    # per variable: the largest term of that component of the gradient (scale-invariant)
-    scale = np.maximum(np.abs(Pz), np.abs(view.q))
-    gap = 0.0
-    gap_scale = max(abs(float(z @ Pz)), abs(float(view.q @ z)))
-    outside = 0.0
+    """The :class:`Residuals` of ``z`` with the multipliers ``duals`` (may be ``None``).
+
+    A cone-free DenseQP with every multiplier runs the same arithmetic compiled
+    (:func:`~ltv_lstm_mpc.solvers._compiled.dense_kkt_residuals`, tested against this code).
+    """
+    qp = view.dense
+    if qp is not None and not qp.cones and duals is not None:
+        m, n = qp.A.shape
+        y_rows, _ = _dual_vector(duals, "ineq", m) if m else (_EMPTY, "")
+        y_bounds, _ = _dual_vector(duals, "bounds", n)
+        if y_rows is not None and y_bounds is not None:
+            out = np.empty(4)
+            dense_kkt_residuals(
+                qp.H, qp.f, qp.A, qp.lo, qp.up, qp.lb, qp.ub, z, y_rows, y_bounds, out
+            )
+            return Residuals(float(out[0]), float(out[1]), float(out[2]))
+    return _residuals(view, z, duals)
+
+
+_EMPTY = np.zeros(0)
+
+
+def _residuals(
+    view: ProblemView, z: FloatArray, duals: Mapping[str, FloatArray] | None
+) -> Residuals:
+    """The numpy residuals (the reference of the compiled kernel; every problem form)."""
+    stacked = _Stacked.at(view, z)
+    primal = _primal(view, z, stacked)
+    parts = []
     for block in view.rows:
         y, why = _dual_vector(duals, block.key, block.size)
         if y is None:
             return Residuals(primal, None, None, why)
-        y = _admissible(y, block)
-        term = block.transpose_product(y)
-        gradient = gradient + term
-        scale = np.maximum(scale, np.abs(term))
-        r = block.product(z)
-        pos, neg = y > 0, y < 0
-        gap += float(np.sum(y[pos] * np.maximum(block.upper[pos] - r[pos], 0.0)))
-        gap += float(np.sum(-y[neg] * np.maximum(r[neg] - block.lower[neg], 0.0)))
-        gap_scale = max(
-            gap_scale,
-            float(np.sum(np.abs(y[pos] * block.upper[pos])))
-            + float(np.sum(np.abs(y[neg] * block.lower[neg]))),
-        )
+        parts.append(y)
+    lam: FloatArray | None = None
     if view.cones:
         size = sum(int(c.g.shape[0]) + 1 for c in view.cones)
         lam, why = _dual_vector(duals, "cones", size)
         if lam is None:
             why = "cone multipliers not reported" if duals is not None else why
             return Residuals(primal, None, None, why)
+    Pz = np.asarray(view.P @ z, dtype=np.float64)
+    gradient = Pz + view.q
+    # per variable: the largest term of that component of the gradient (scale-invariant)
+    scale = np.maximum(np.abs(Pz), np.abs(view.q))
+    gap_scale = max(abs(float(z @ Pz)), abs(float(view.q @ z)))
+    gap = 0.0
+    if parts:
+        y = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        fin_lo, fin_up = stacked.finite_lower, stacked.finite_upper
+        # multipliers of the wrong sign for an infinite bound count as 0
+        y_up = np.where(fin_up, np.maximum(y, 0.0), 0.0)
+        y_lo = np.where(fin_lo, np.minimum(y, 0.0), 0.0)
+        y = y_up + y_lo
+        offsets = stacked.offsets
+        for k, block in enumerate(view.rows):
+            term = block.transpose_product(y[offsets[k] : offsets[k + 1]])
+            gradient += term
+            np.maximum(scale, np.abs(term), out=scale)
+        slack_up = np.where(fin_up, stacked.upper - stacked.r, 0.0)
+        slack_lo = np.where(fin_lo, stacked.r - stacked.lower, 0.0)
+        gap = float(y_up @ np.maximum(slack_up, 0.0)) - float(y_lo @ np.maximum(slack_lo, 0.0))
+        bound_up = np.where(fin_up, stacked.upper, 0.0)
+        bound_lo = np.where(fin_lo, stacked.lower, 0.0)
+        gap_scale = max(
+            gap_scale,
+            float(np.abs(y_up) @ np.abs(bound_up)) + float(np.abs(y_lo) @ np.abs(bound_lo)),
+        )
+    outside = 0.0
+    if lam is not None:
         offset = 0
         for cone in view.cones:
             k = int(cone.g.shape[0])
             l0, l1 = float(lam[offset]), lam[offset + 1 : offset + 1 + k]
             offset += k + 1
             term = l0 * np.asarray(cone.e) + np.asarray(cone.F.T @ l1)
-            gradient = gradient - term
-            scale = np.maximum(scale, np.abs(term))
+            gradient -= term
+            np.maximum(scale, np.abs(term), out=scale)
             s0 = float(cone.e @ z) + cone.f
             s1 = np.asarray(cone.F @ z) + cone.g
             gap += abs(l0 * s0 + float(l1 @ s1))
             gap_scale = max(gap_scale, abs(l0 * cone.f) + abs(float(l1 @ cone.g)))
             # a multiplier outside the second-order cone is a dual infeasibility
             outside = max(outside, (math.sqrt(float(l1 @ l1)) - l0) / (1.0 + abs(l0)))
-    stationarity = max(float(np.max(np.abs(gradient) / (1.0 + scale), initial=0.0)), outside)
+    stationarity = max(float((np.abs(gradient) / (1.0 + scale)).max(initial=0.0)), outside)
     complementarity = gap / (1.0 + gap_scale)
     return Residuals(primal, stationarity, complementarity)
 

@@ -468,6 +468,8 @@ class DenseSession:
         self.tolerance = float(tolerance)
         #: Ruiz-equilibrate each QP before the backend sees it (:mod:`.equilibration`).
         self.equilibrate = expect_bool("equilibrate", equilibrate)
+        self._feasibility = feasibility_tolerance(solver, self.tolerance)
+        self._optimality = optimality_tolerance(solver, self.tolerance)
         self.settings: Mapping[str, Any] = dict(settings)
         # Built now: validates tolerance and settings early.
         self._backend: DenseBackend = self._factory(solver, self.tolerance, self.settings)
@@ -659,11 +661,10 @@ class DenseSession:
         residuals = None
         certificate = raw.certificate
         if z is not None or certificate is not None:
+            if status is not raw.status or z is None or duals is not raw.duals:
+                raw = dataclasses.replace(raw, status=status, z=z, duals=duals, notes=notes)
             checked, residuals = accept(
-                ProblemView.of_dense(qp),
-                dataclasses.replace(raw, status=status, z=z, duals=duals, notes=notes),
-                feasibility_tolerance(self.solver, self.tolerance),
-                optimality_tolerance(self.solver, self.tolerance),
+                ProblemView.of_dense(qp), raw, self._feasibility, self._optimality
             )
             status, notes, certificate = checked.status, checked.notes, checked.certificate
             if checked.z is None:

@@ -368,6 +368,8 @@ class Session:
         self.tolerance = real_scalar("tolerance", tolerance)
         self.reformulation = reformulation
         self.raise_on_failure = expect_bool("raise_on_failure", raise_on_failure)
+        self._feasibility = feasibility_tolerance(solver, self.tolerance)
+        self._optimality = optimality_tolerance(solver, self.tolerance)
         self.settings: Mapping[str, Any] = dict(settings)
         # Build one backend now: validates tolerance and settings early.
         self._backend: Backend = self._factory(solver, self.tolerance, self.settings)
@@ -549,10 +551,7 @@ class Session:
         residuals = None
         if raw.z is not None or raw.certificate is not None:
             raw, residuals = accept(
-                ProblemView.of_convex(self._solved),
-                raw,
-                feasibility_tolerance(self.solver, self.tolerance),
-                optimality_tolerance(self.solver, self.tolerance),
+                ProblemView.of_convex(self._solved), raw, self._feasibility, self._optimality
             )
             raw_z = raw.z
             if raw_z is not None:

@@ -39,3 +39,31 @@ def test_max_violation_equals_the_numpy_expressions(seed: int, rows: int) -> Non
         x = scale * rng.normal(size=n)
         assert qp.max_violation(x) == pytest.approx(numpy_violation(qp, x), rel=1e-13, abs=1e-13)
     assert qp.max_violation(np.full(n, np.nan)) == np.inf
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("rows", [0, 5])
+def test_compiled_kkt_residuals_equal_the_numpy_reference(seed: int, rows: int) -> None:
+    """acceptance.residuals on a cone-free DenseQP (compiled) == acceptance._residuals
+    (numpy), multipliers of both signs at finite and infinite bounds included."""
+    from ltv_lstm_mpc.solvers.acceptance import ProblemView, _residuals, residuals
+
+    rng = np.random.default_rng(seed)
+    n = 6
+    G = rng.normal(size=(n, n))
+    lb, ub = -rng.uniform(0, 1, n), rng.uniform(0, 1, n)
+    lb[0], ub[1] = -np.inf, np.inf
+    lo, up = -rng.uniform(0, 1, rows), rng.uniform(0, 1, rows)
+    if rows:
+        up[0], lo[1] = np.inf, -np.inf
+        lo[2] = up[2]  # an equality row
+    qp = DenseQP(G @ G.T, rng.normal(size=n), rng.normal(size=(rows, n)), lo, up, lb, ub)
+    view = ProblemView.of_dense(qp)
+    for scale in (0.01, 1.0, 10.0):
+        x = scale * rng.normal(size=n)
+        duals = {"ineq": rng.normal(size=rows), "bounds": rng.normal(size=n)}
+        fast = residuals(view, x, duals)
+        slow = _residuals(view, x, duals)
+        for name in ("primal", "stationarity", "complementarity"):
+            assert getattr(fast, name) == pytest.approx(getattr(slow, name), rel=1e-12, abs=1e-15)
+        assert fast.unchecked == slow.unchecked == ""
