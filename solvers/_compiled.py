@@ -155,10 +155,19 @@ def dense_kkt_residuals(
     y_bounds: Any, out: Any,
 ) -> None:  # fmt: skip
     """The acceptance check's residuals of a cone-free DenseQP (``acceptance.residuals`` is
-    the reference): ``out[0]`` primal, ``out[1]`` stationarity, ``out[2]`` complementarity
-    (``out[3]`` is scratch)."""
+    the reference): ``out[0]`` primal, ``out[1]`` stationarity, ``out[2]`` complementarity;
+    ``out[3]`` is 0, or 1 when a multiplier is not finite (the other entries are then
+    meaningless)."""
     n = z.shape[0]
     m = A.shape[0]
+    for i in range(m):
+        if not math.isfinite(y_rows[i]):
+            out[3] = 1.0
+            return
+    for j in range(n):
+        if not math.isfinite(y_bounds[j]):
+            out[3] = 1.0
+            return
     gradient = np.empty(n)
     scale = np.empty(n)
     zHz = 0.0
@@ -197,3 +206,4 @@ def dense_kkt_residuals(
     out[0] = primal
     out[1] = stationarity
     out[2] = out[2] / (1.0 + gap_scale)
+    out[3] = 0.0

@@ -179,7 +179,7 @@ class ProblemView:
         return int(self.q.shape[0])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Residuals:
     """Relative residuals of a returned point (see the module docstring).
 
@@ -280,14 +280,21 @@ def residuals(
     qp = view.dense
     if qp is not None and not qp.cones and duals is not None:
         m, n = qp.A.shape
-        y_rows, _ = _dual_vector(duals, "ineq", m) if m else (_EMPTY, "")
-        y_bounds, _ = _dual_vector(duals, "bounds", n)
-        if y_rows is not None and y_bounds is not None:
+        y_rows = duals.get("ineq") if m else _EMPTY
+        y_bounds = duals.get("bounds")
+        if (
+            isinstance(y_rows, np.ndarray)
+            and isinstance(y_bounds, np.ndarray)
+            and y_rows.shape == (m,)
+            and y_bounds.shape == (n,)
+            and y_rows.dtype == y_bounds.dtype == np.float64
+        ):
             out = np.empty(4)
             dense_kkt_residuals(
                 qp.H, qp.f, qp.A, qp.lo, qp.up, qp.lb, qp.ub, z, y_rows, y_bounds, out
             )
-            return Residuals(float(out[0]), float(out[1]), float(out[2]))
+            if out[3] == 0.0:  # else a multiplier is not finite: the numpy path says which
+                return Residuals(float(out[0]), float(out[1]), float(out[2]))
     return _residuals(view, z, duals)
 
 
