@@ -13,18 +13,7 @@ from typing import Any
 
 import numpy as np
 
-try:  # pragma: no cover - numba is a core dependency; without it the loops run as Python
-    from numba import njit
-except ImportError:  # pragma: no cover
-
-    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
-        """Stand-in: returns the Python function unchanged."""
-
-        def wrap(function: Any) -> Any:
-            return function
-
-        return wrap
-
+from ltv_lstm_mpc.numba_support import njit  # without numba the loops run as Python
 
 __all__ = [
     "bounds_rows_violation",

@@ -33,18 +33,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ltv_lstm_mpc.numba_support import njit
+
 try:  # pragma: no cover - numba is a core dependency
-    from numba import njit, types
+    from numba import types
 except ImportError:  # pragma: no cover - then native() returns None (see below)
     types = None  # type: ignore[assignment]
-
-    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
-        """Stand-in: returns the Python function unchanged."""
-
-        def wrap(function: Any) -> Any:
-            return function
-
-        return wrap
 
 
 FloatArray = NDArray[np.float64]

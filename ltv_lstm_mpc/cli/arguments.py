@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from ltv_lstm_mpc.exceptions import LtvMpcError
+from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
 
 __all__ = [
     "OrderedPair",
@@ -117,7 +117,7 @@ class OrderedPair(argparse.Action):
         kwargs.setdefault("type", real)
         kwargs.setdefault("metavar", ("LOW", "HIGH"))
         if kwargs["nargs"] != 2:
-            raise ValueError("OrderedPair takes exactly two values (nargs=2)")
+            raise InvalidValueError("OrderedPair takes exactly two values (nargs=2)")
         super().__init__(option_strings, dest, **kwargs)
 
     def __call__(

@@ -14,6 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ltv_lstm_mpc.exceptions import InvalidValueError
+
 __all__ = ["equal_segments", "piecewise_constant", "segments"]
 
 FloatArray = NDArray[np.float64]
@@ -24,7 +26,7 @@ def piecewise_constant(levels: Sequence[ArrayLike], lengths: Sequence[int]) -> F
     levels, ``(sum(lengths), p)`` for vectors of length p."""
     arrays = [np.asarray(level, dtype=np.float64) for level in levels]
     if len(arrays) != len(lengths):
-        raise ValueError(f"{len(arrays)} levels for {len(lengths)} lengths")
+        raise InvalidValueError(f"{len(arrays)} levels for {len(lengths)} lengths")
     return np.concatenate(
         [np.repeat(a[None, ...], n, axis=0) for a, n in zip(arrays, lengths, strict=True)]
     )

@@ -30,21 +30,7 @@ from typing import Any
 
 import numpy as np
 
-try:  # pragma: no cover - numba is a core dependency; the guard keeps numpy usable alone
-    from numba import njit
-
-    AVAILABLE = True
-except ImportError:  # pragma: no cover
-    AVAILABLE = False
-
-    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
-        """Stand-in: returns the Python function unchanged."""
-
-        def wrap(function: Any) -> Any:
-            return function
-
-        return wrap
-
+from ltv_lstm_mpc.numba_support import AVAILABLE, njit
 
 #: LLVM flags of the loops whose sums may run in any order (vectorized reductions, fused
 #: multiply-adds): results within a few ulps of the sequential sums. No "fast" flags that

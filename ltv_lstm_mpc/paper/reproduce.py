@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ltv_lstm_mpc.certificates.certify import CertificationSettings, certify
+from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.paper.scenarios import (
     Y_PHI_MAX,
@@ -229,7 +230,7 @@ def reproduce(
     ]
     if not scenarios:
         names = [sc.name for sc in paper_scenarios(model, short=True)]
-        raise ValueError(f"no scenario matches {list(only or [])}; scenarios: {names}")
+        raise InvalidValueError(f"no scenario matches {list(only or [])}; scenarios: {names}")
     summaries = []
     for scenario in scenarios:
         result = run_scenario(scenario, model, solver=solver, progress=progress)

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.certify import certify
+from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.schedules import piecewise_constant
 from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
@@ -199,7 +200,7 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
     )
     slow_cert = certify(model, settings)
     if not slow_cert.rate_bound.holds:
-        raise ValueError("Theorem 3's rate condition cannot hold for this model and range")
+        raise InvalidValueError("Theorem 3's rate condition cannot hold for this model and range")
     rate = slow_cert.rate_bound.delta_y0_max
     y_scale = float(model.normalization.y_scale[0]) if model.normalization is not None else 1.0
     w_max_phi = slow_cert.observer.w_max * y_scale  # pH per step
