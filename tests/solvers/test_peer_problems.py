@@ -9,7 +9,7 @@ Re-created from their published data and solutions (no code copied):
   (https://github.com/qpsolvers/qpsolvers); the test families (unconstrained, bounds only,
   equalities only, infeasible, unbounded below, ill-conditioned, warm-started sessions)
   follow qpbenchmark's "free-for-all" test set (https://github.com/qpsolvers/qpbenchmark).
-- The layer's own cases of issue 20: a QP unbounded below (``P = v v'``, ``q`` outside its
+- The layer's own cases: a QP unbounded below (``P = v v'``, ``q`` outside its
   range), two equalities whose rows differ by ``1e-7`` (with bounds), no constraints at all,
   and an ill-conditioned QP built from its KKT conditions (known solution and multipliers).
 
@@ -220,7 +220,7 @@ def peers() -> dict[str, Peer]:
         -np.ones(3),
     )  # fmt: skip
     out["ill-conditioned (cond 1e8)"] = _kkt_problem(1e8, seed=3)
-    # issue 20's case 3: two equality rows that differ by about 1e-7 fix a point far outside
+    # two equality rows that differ by about 1e-7 fix a point far outside
     # the bounds (infeasible); qpsolvers:daqp used to report OPTIMAL with a row violated by 0.6
     out["near-singular equalities"] = Peer(
         ConvexProblem(

@@ -542,7 +542,7 @@ def test_faulty_keeps_the_capabilities_of_a_cone_backend(base: str, cleanup: lis
 
 
 # --------------------------------------------------------------------------------------
-# cvxpy dense sessions scale (issue 20, defect 4)
+# cvxpy dense sessions scale
 # --------------------------------------------------------------------------------------
 @pytest.mark.skipif("cvxpy:OSQP" not in SOLVERS, reason="cvxpy with OSQP not installed")
 def test_cvxpy_dense_session_memory_is_quadratic_in_n() -> None:
