@@ -2,7 +2,7 @@
 
 It knows nothing about LSTMs: it takes a problem data class (matrices and
 cones) and returns a solution data class. The RTI controller poses one such
-subproblem per step (SPEC section 4).
+subproblem per step (paper notes section 4).
 
 Representation
 --------------
@@ -135,7 +135,7 @@ one (conservative), keeping the original variables first (it may append
 auxiliaries and bound the objective from above). It is applied only when the
 backend needs it, and ``Solution.reformulation`` records its name.
 :class:`PolyhedralInnerApproximation` is the generic one
-(``|F_i z + g_i| <= (e'z + f)/sqrt(k)``); the controller supplies the SPEC 4
+(``|F_i z + g_i| <= (e'z + f)/sqrt(k)``); the controller supplies the paper notes 4
 terminal-set and terminal-cost ones.
 
 A missing or unknown solver raises :class:`~ltv_lstm_mpc.exceptions.SolverNotFound`

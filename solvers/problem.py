@@ -1,6 +1,6 @@
 """Problem and solution data classes of the solver layer.
 
-The convex subproblem (SPEC section 4) is
+The convex subproblem (paper notes section 4) is
 
 .. math::
 
@@ -227,7 +227,7 @@ _VECTOR_FIELDS = ("q", "b_eq", "l", "u", "lb", "ub")
 
 @dataclass(frozen=True, eq=False)
 class ConvexProblem:
-    """Convex quadratic (cone) program, the RTI subproblem of SPEC section 4.
+    """Convex quadratic (cone) program, the RTI subproblem of paper notes section 4.
 
     .. math::
 

@@ -12,7 +12,7 @@ The session applies a reformulation only when the chosen backend cannot take
 cones and the problem has some; a cone solver given the same reformulation
 solves the exact problem (so one reformulation can be passed to every solver of
 a comparison). The controller supplies the terminal-set and terminal-cost ones
-of SPEC section 4; :class:`PolyhedralInnerApproximation` is the generic one.
+of paper notes section 4; :class:`PolyhedralInnerApproximation` is the generic one.
 """
 
 from __future__ import annotations

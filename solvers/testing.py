@@ -156,7 +156,7 @@ class MpcLayout:
 def random_mpc_problem(
     N: int, nx: int = 10, nu: int = 1, *, seed: int = 0, terminal_cone: bool = True
 ) -> ConvexProblem:
-    """MPC-shaped subproblem of SPEC section 4 in the sparse (state + input) form.
+    """MPC-shaped subproblem of paper notes section 4 in the sparse (state + input) form.
 
     Variables ``z = (x_0, ..., x_N, u_0, ..., u_{N-1}, t_c, t_h)``:
 

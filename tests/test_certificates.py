@@ -108,7 +108,7 @@ def test_literal_alpha_typo_violates_theorem1_but_corrected_holds() -> None:
     gap = error_pair(model, x_a, x_b)
     assert lhs[0] > 0.1  # the cell states really do separate
     assert lhs[0] > (literal.A_delta @ gap)[0] + 0.1  # literal paper bound violated
-    assert np.all(lhs <= corrected.A_delta @ gap + TOL)  # SPEC 2.2 bound holds
+    assert np.all(lhs <= corrected.A_delta @ gap + TOL)  # paper notes 2.2 bound holds
 
 
 def test_certificates_by_hand_for_a_one_neuron_model() -> None:
@@ -125,7 +125,7 @@ def test_certificates_by_hand_for_a_one_neuron_model() -> None:
     s_c = math.tanh(0.6 + 0.3 + 0.2)
     c_bound = s_i * s_c / (1 - s_f)
     s_x = math.tanh(c_bound)
-    alpha = 0.25 * 0.4 * c_bound + s_i * 0.3 + 0.25 * 0.2 * s_c  # SPEC 2.2: ||U_i|| last
+    alpha = 0.25 * 0.4 * c_bound + s_i * 0.3 + 0.25 * 0.2 * s_c  # paper notes 2.2: ||U_i|| last
     beta = 0.25 * 0.2 * c_bound + s_i * 0.6 + 0.25 * 0.3 * s_c
     A = np.array([[s_f, alpha], [s_o * s_f, alpha * s_o + 0.25 * s_x * 0.5]])
     cert = delta_iss_certificate(model)
@@ -224,7 +224,7 @@ def test_theorem2_and_lemma4_on_random_observer_trajectories(seed: int, case: in
         y = model.output(x) + d
         x_hat, d_hat = observer.x_hat.copy(), observer.d_hat.copy()
         V_now = obs_cert.V_o(model, x_hat, d_hat, x, d)
-        # eq. (lyap_observer_constraint) (SPEC 2.4: V_o)
+        # eq. (lyap_observer_constraint) (paper notes 2.4: V_o)
         gap = np.abs(model.W_y @ (x[n:] - x_hat[n:]) + (d - d_hat))
         assert np.all(gap <= obs_cert.c_o * V_now + TOL)
         x_hat_next, d_hat_next = observer.step(y, u)

@@ -1,4 +1,4 @@
-"""Identification data generator (paper Section V, SPEC 5)."""
+"""Identification data generator (paper Section V, paper notes 5)."""
 
 from __future__ import annotations
 

@@ -184,7 +184,8 @@ def test_from_torch_state_dict_matches_torch_lstm() -> None:
         h_seq, _ = lstm(u)
         y_torch = linear(h_seq)[0].numpy()
     _, outputs = model.simulate(np.zeros(2 * n), u[0].numpy())
-    # torch's output after reading u_k is h_{k+1}: the model's outputs shifted by one (SPEC 1).
+    # torch's output after reading u_k is h_{k+1}: the model's outputs shifted by one
+    # (paper notes 1).
     np.testing.assert_allclose(outputs[1:], y_torch, rtol=1e-12, atol=1e-12)
 
 

@@ -1,4 +1,4 @@
-"""pH-neutralization plant (paper Section V, SPEC 2.1/2.12/5) and the LSTM plant."""
+"""pH-neutralization plant (paper Section V, paper notes 2.1/2.12/5) and the LSTM plant."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from ltv_lstm_mpc.plants import (
     simulate_ph_batch,
 )
 
-# SPEC 5 cross-check table: steady-state pH vs q3 at q2 = 0.55 mL/s.
+# paper notes 5 cross-check table: steady-state pH vs q3 at q2 = 0.55 mL/s.
 SPEC_TABLE = {
     12.5: 5.948,
     13.5: 6.279,
@@ -32,7 +32,7 @@ SPEC_TABLE = {
 
 def test_parameters_follow_table_i_with_spec_sign_fix() -> None:
     par = PHParameters()
-    assert par.W_a3 == -3.05e-3  # SPEC 2.1
+    assert par.W_a3 == -3.05e-3  # paper notes 2.1
     assert (par.z, par.C_v4, par.n_valve, par.A1, par.q1) == (11.5, 4.59, 0.607, 207.0, 16.6)
 
 
@@ -52,7 +52,7 @@ def test_nominal_steady_state_matches_table_i() -> None:
     assert abs(ph - 7.0) <= 0.05
     assert abs(W_a4 / -4.32e-4 - 1) <= 0.02
     assert abs(W_b4 / 5.28e-4 - 1) <= 0.02
-    # SPEC 2.12: the unrounded values at q3 = 15.6 exactly.
+    # paper notes 2.12: the unrounded values at q3 = 15.6 exactly.
     assert h1 == pytest.approx(13.96, abs=5e-3)
     assert W_a4 == pytest.approx(-4.36e-4, abs=5e-7)
     assert ph == pytest.approx(7.03, abs=5e-3)
@@ -127,7 +127,7 @@ def test_one_step_accuracy_against_radau(q3: float, q2: float) -> None:
         x_ref = _reference_step(x0, q3, q2, plant.Ts)
         y_ref = float(ph_from_state(x_ref[0], x_ref[1]))
         worst = max(worst, abs(y - y_ref))
-    assert worst < 1e-6  # issue requirement; SPEC 5 measured ~5e-10
+    assert worst < 1e-6  # issue requirement; paper notes 5 measured ~5e-10
 
 
 def test_batch_and_single_plant_agree_and_input_is_saturated() -> None:

@@ -1,4 +1,4 @@
-"""RobustMPC: the FHOCP solved by RTI (SPEC 4), every backend, SQP, infeasibility policies."""
+"""RobustMPC: the FHOCP by RTI (paper notes 4), every backend, SQP, infeasibility policies."""
 
 from __future__ import annotations
 
@@ -72,7 +72,7 @@ def test_rti_first_input_close_to_converged_sqp(model) -> None:
 
 @pytest.mark.parametrize("policy", ["paper", "soft", "shift"])
 def test_forced_infeasibility_uses_and_records_the_policy(model, policy) -> None:
-    # A huge initial observer-error bound empties the tightened output set (SPEC 2.10).
+    # A huge initial observer-error bound empties the tightened output set (paper notes 2.10).
     mpc = RobustMPC(model, MPCConfig(infeasibility_policy=policy, solver="cvxpy:CLARABEL"))
     x_hat, ref = fixed_subproblem(model, mpc)
     solution = mpc.solve(x_hat, ref.x_bar, ref.u_bar, [0.3], e_hat=1e3)

@@ -37,11 +37,11 @@ def test_tightening_recursion_and_terminal_weight(seed: int, N: int, l_d: float)
     assert ti.a.shape == (N + 1, 1) and ti.b.shape == (N + 1, 1)
     np.testing.assert_allclose(ti.a[0], ob.c_o)
     np.testing.assert_array_equal(ti.b[0], 0.0)
-    for i in range(N):  # eq. (recursion_a_ji) with SPEC 2.3, eq. (recursion_b_i)
+    for i in range(N):  # eq. (recursion_a_ji) with paper notes 2.3, eq. (recursion_b_i)
         expected = ob.rho_o * ti.a[i] + ly.rho_s**i * ly.c_s_u * ob.L_max * ly.c_s
         np.testing.assert_allclose(ti.a[i + 1], expected, rtol=1e-14)
         np.testing.assert_allclose(ti.b[i + 1], ti.b[i] + ti.a[i] * ob.w_bar, rtol=1e-14)
-    # SPEC 2.6: Lyapunov equation with (1 + eps) q I, P_f >= 0 entrywise
+    # paper notes 2.6: Lyapunov equation with (1 + eps) q I, P_f >= 0 entrywise
     residual = d.A_delta.T @ ti.P_f @ d.A_delta - ti.P_f + (1 + ti.epsilon) * ti.q * np.eye(2)
     np.testing.assert_allclose(residual, 0.0, atol=1e-9 * np.max(ti.P_f))
     assert np.all(ti.P_f >= 0)
@@ -117,7 +117,7 @@ def test_rate_bound_sign_and_void_case() -> None:
 
 
 def test_paper_scaling_invariances() -> None:
-    """SPEC 2.9: rho_s, rho_o, a_i e_hat invariant to scaling Q_s, Q_o; c_o scales 1/sqrt."""
+    """paper notes 2.9: rho_s, rho_o, a_i e_hat invariant to scaling Q_s, Q_o; c_o scales 1/sqrt."""
     model = load_model("example_delta_iss_n3.npz")
     c1 = certify(model, CertificationSettings(Q_s=1000.0, Q_o=1000.0, w_bar=0.01))
     c2 = certify(model, CertificationSettings(Q_s=10.0, Q_o=10.0, w_bar=0.001))

@@ -135,7 +135,7 @@ def test_torch_residuals_from_nn_lstm_are_differentiable_and_match_export() -> N
     cert = delta_iss_certificate(model)
     assert abs(float(r1.detach()) - cert.r1) <= 1e-10
     assert abs(float(r2.detach()) - cert.r2) <= 1e-10
-    # Output alignment (SPEC 1): torch's shifted outputs equal LSTMModel.simulate.
+    # Output alignment (paper notes 1): torch's shifted outputs equal LSTMModel.simulate.
     from ltv_lstm_mpc.training.train import _predict
 
     u = np.linspace(-1, 1, 30)

@@ -4,7 +4,7 @@ Modules
 -------
 stability
     delta-ISS (Assumption 2, Theorem 1, Remark 1), the incremental Lyapunov function
-    (Lemma 2) and the observer (Assumption 3, Lemma 4, Theorem 2, gain design SPEC 2.11).
+    (Lemma 2) and the observer (Assumption 3, Lemma 4, Theorem 2, gain design paper notes 2.11).
 tightening
     The constraint tightening a_i, b_i, e_inf, the terminal weight P_f and level alpha_k,
     the admissible set-point interval (Assumption 5) and Theorem 3's set-point rate bound.

@@ -6,7 +6,7 @@ r"""All certificate numbers of the paper for one model and one tuning, in one ca
 :func:`~ltv_lstm_mpc.certificates.tightening.tightening_certificate`
 (eq. constraint_tightening_parameters,
 terminal set), :func:`~ltv_lstm_mpc.loop.reference.estimate_K_bar` (Lemma 5) and the set-point
-rate bound of Theorem 3 (SPEC 2.10c). :class:`CertificationSettings` defaults are the
+rate bound of Theorem 3 (paper notes 2.10c). :class:`CertificationSettings` defaults are the
 paper's values (Section V).
 """
 
@@ -87,7 +87,7 @@ class CertificationSettings:
         carries (``y_phi_constraint_min/max`` of its file, physical units, normalized
         through its normalization); a model without one needs explicit values.
     epsilon : float
-        :math:`P_f` margin (SPEC 2.6), 0.01.
+        :math:`P_f` margin (paper notes 2.6), 0.01.
     e_y_bar : float
         :math:`\bar e_y` of Lemma 5 for the rate bound, 0.03.
     y0_operating_range : (float, float), optional

@@ -2,7 +2,7 @@ r"""The disturbance bound :math:`d_{max}` estimated from data.
 
 The guarantees of the paper assume the plant-model mismatch, seen by the observer as the
 output disturbance :math:`d`, lies in :math:`\mathcal D = \{\|d\|_\infty \le d_{max}\}`
-(Section III); the tightening uses :math:`\pm d_{max}` (SPEC 2.8). The disturbance
+(Section III); the tightening uses :math:`\pm d_{max}` (paper notes 2.8). The disturbance
 estimate is saturated at :math:`d_{max}` (eq. d_lstm_observer); when the real mismatch is larger,
 :math:`\hat d` sits at the bound and offsets remain (the controller warns and records
 ``d_hat_saturated``). :func:`estimate_d_max` measures the mismatch of the model's

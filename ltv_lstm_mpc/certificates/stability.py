@@ -11,9 +11,9 @@ Pure functions returning frozen dataclasses; every field carries the paper's sym
 * :func:`observer_certificate` — Assumption 3, Lemma 4 and Theorem 2: hat sigmas,
   :math:`\hat\alpha, \hat\beta, \hat\gamma, A_d, P_o, \rho_o, c_{o,l}, c_{o,u}, c_o,
   w_{max}`, the matrix :math:`L` and :math:`L_{max}`.
-* :func:`design_observer_gains` — SPEC 2.11.
+* :func:`design_observer_gains` — paper notes 2.11.
 
-Norms follow SPEC 2.7: :math:`\|\cdot\|` is the vector 2-norm / induced 2-norm,
+Norms follow paper notes 2.7: :math:`\|\cdot\|` is the vector 2-norm / induced 2-norm,
 except inside the :math:`\bar\sigma` and :math:`\hat{\bar\sigma}` definitions, which
 use the induced inf-norm of the concatenated block row.
 """
@@ -142,7 +142,7 @@ class DeltaISSCertificate:
     sigma_x : float
         :math:`\bar\sigma^x = \tanh(\bar\sigma^i \bar\sigma^c / (1 - \bar\sigma^f))`.
     alpha : float
-        :math:`\alpha` of Assumption 2 (with the SPEC 2.2 correction unless
+        :math:`\alpha` of Assumption 2 (with the paper notes 2.2 correction unless
         ``alpha_variant == "literal"``).
     beta : float
         :math:`\beta` of Theorem 1.
@@ -160,7 +160,7 @@ class DeltaISSCertificate:
     h_bound : float
         1: the invariant set :math:`\mathcal{H} = \{\|h\|_\infty \le 1\}`.
     alpha_variant : str
-        ``"corrected"`` (SPEC 2.2: last term :math:`\frac14\|U_i\|\bar\sigma^c`) or
+        ``"corrected"`` (paper notes 2.2: last term :math:`\frac14\|U_i\|\bar\sigma^c`) or
         ``"literal"`` (the paper's printed :math:`\frac14\|U_c\|\bar\sigma^c`, for
         comparison only; it is not a valid bound).
     """
@@ -239,7 +239,7 @@ def delta_iss_certificate(
         \end{bmatrix}
 
         \alpha = \tfrac14 \|U_f\| \frac{\bar\sigma^i\bar\sigma^c}{1-\bar\sigma^f}
-        + \bar\sigma^i \|U_c\| + \tfrac14 \|U_i\| \bar\sigma^c \quad (\text{SPEC 2.2})
+        + \bar\sigma^i \|U_c\| + \tfrac14 \|U_i\| \bar\sigma^c \quad (\text{paper notes 2.2})
 
     Parameters
     ----------
@@ -248,7 +248,7 @@ def delta_iss_certificate(
         Input bound of :math:`\mathcal{U}` (normalized units), default 1.
     alpha_variant : {"corrected", "literal"}
         ``"literal"`` reproduces the paper's printed :math:`\frac14\|U_c\|\bar\sigma^c`
-        typo (SPEC 2.2) for comparison; never use it for a certificate.
+        typo (paper notes 2.2) for comparison; never use it for a certificate.
     require : bool
         Raise :class:`NotDeltaISSError` when :math:`\rho(A_\delta) \ge 1`.
     """
@@ -488,7 +488,7 @@ class ObserverCertificate:
     L : ndarray, shape (3, 3)
         The matrix L of the proof of Theorem 2 (eq. inequality_L_bar).
     alpha_bar, beta_bar, gamma_bar : float
-        Entries of L (with SPEC 2.5: :math:`\hat{\bar\sigma}^i` in the h row).
+        Entries of L (with paper notes 2.5: :math:`\hat{\bar\sigma}^i` in the h row).
     L_max : float
         :math:`L_{max} = \|L P_o^{-1/2}\|`, eq. (lyap_observer_max_gain).
     e_inf : float
@@ -614,7 +614,7 @@ def observer_certificate(
     d_max : float
         :math:`d_{max}` (paper: 0.1).
     w_bar : float
-        :math:`\bar w` (paper: 0.01 with :math:`Q_o = 1000 I`, SPEC 2.9).
+        :math:`\bar w` (paper: 0.01 with :math:`Q_o = 1000 I`, paper notes 2.9).
     Q_o : float or array_like, shape (3, 3)
         Lyapunov weight; a scalar q means q I_3.
 
@@ -706,7 +706,7 @@ def design_observer_gains(
     L_max_weight: float = 1.0,
     max_evaluations: int = 2000,
 ) -> tuple[ObserverGains, ObserverCertificate]:
-    r"""Choose :math:`L_f, L_i, L_o` to minimize :math:`\rho(A_d)` (SPEC 2.11).
+    r"""Choose :math:`L_f, L_i, L_o` to minimize :math:`\rho(A_d)` (paper notes 2.11).
 
     Derivative-free (Nelder-Mead) search started from zero gains, on the objective
     :math:`\rho(A_d) + w \cdot L_{max}` (``w = L_max_weight``; keeps :math:`L_{max}`

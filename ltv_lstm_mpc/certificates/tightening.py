@@ -2,11 +2,11 @@ r"""Constraint tightening and time-varying terminal set of the robust MPC.
 
 Implements eq. (constraint_tightening_parameters) for :math:`a_i, b_i`, eq. (eo_evolution)
 and eq. (eo-limit) for the observer-error bound :math:`\hat e_{o,k}`, the terminal weight
-:math:`P_f` (SPEC 2.6), eq. (terminal_constraint), eq. (def_alpha) and eq. (e_ok_bar) for
+:math:`P_f` (paper notes 2.6), eq. (terminal_constraint), eq. (def_alpha) and eq. (e_ok_bar) for
 :math:`\alpha_k`, the admissible set-point interval of Assumption 5, and the set-point
-rate bound of Theorem 3 (SPEC 2.10c).
+rate bound of Theorem 3 (paper notes 2.10c).
 
-All values are in normalized units (SPEC 1).
+All values are in normalized units (paper notes 1).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class SetpointRateBound:
-    r"""Set-point rate bound :math:`\Delta y^0_{max}` of Theorem 3 (SPEC 2.10c).
+    r"""Set-point rate bound :math:`\Delta y^0_{max}` of Theorem 3 (paper notes 2.10c).
 
     Recursive feasibility of the terminal constraint holds if
 
@@ -90,7 +90,7 @@ class TighteningCertificate:
         Prediction horizon.
     d_max : float
         :math:`d_{max}`; the tightened constraints use the worst case :math:`\pm d_{max}`
-        and :math:`\alpha_k` uses :math:`2 d_{max}` (SPEC 2.8).
+        and :math:`\alpha_k` uses :math:`2 d_{max}` (paper notes 2.8).
     w_bar : float
         :math:`\bar w`.
     rho_o : float
@@ -99,7 +99,7 @@ class TighteningCertificate:
         Output constraint :math:`\mathcal{Y}` (normalized), eq. (output_constraint).
     a : ndarray, shape (N + 1, p)
         :math:`a_0, \dots, a_N`: :math:`a_0 = c_o`,
-        :math:`a_{i+1} = \rho_o a_i + \rho_s^i c_{s,u} L_{max} c_s` (SPEC 2.3).
+        :math:`a_{i+1} = \rho_o a_i + \rho_s^i c_{s,u} L_{max} c_s` (paper notes 2.3).
     b : ndarray, shape (N + 1, p)
         :math:`b_0 = 0`, :math:`b_{i+1} = b_i + a_i \bar w`.
     e_inf : float
@@ -107,7 +107,7 @@ class TighteningCertificate:
     q : float
         :math:`q = \lambda_{max}(Q)`.
     epsilon : float
-        Margin of SPEC 2.6: :math:`A_\delta^\top P_f A_\delta - P_f = -(1+\epsilon) q I_2`.
+        Margin of paper notes 2.6: :math:`A_\delta^\top P_f A_\delta - P_f = -(1+\epsilon) q I_2`.
     P_f : ndarray, shape (2, 2)
         Terminal weight; entrywise nonnegative (asserted).
     rho_f : float
@@ -285,7 +285,7 @@ class TighteningCertificate:
         K_bar: float,
         e_y_bar: float,
     ) -> SetpointRateBound:
-        r"""Largest set-point step :math:`\Delta y^0_{max}` of Theorem 3 (SPEC 2.10c).
+        r"""Largest set-point step :math:`\Delta y^0_{max}` of Theorem 3 (paper notes 2.10c).
 
         Parameters
         ----------
@@ -347,7 +347,7 @@ def tightening_certificate(
     y_min, y_max : float or array_like, shape (p,)
         Output constraint in normalized units.
     epsilon : float
-        Margin of SPEC 2.6 for :math:`P_f`.
+        Margin of paper notes 2.6 for :math:`P_f`.
     """
     model = require_model(model)
     expect_instance("delta_iss", delta_iss, DeltaISSCertificate, expected="a DeltaISSCertificate")
@@ -386,7 +386,7 @@ def tightening_certificate(
     if not epsilon > 0:
         raise InvalidValueError(f"epsilon must be positive, got {epsilon}")
 
-    # eq. (constraint_tightening_parameters) with SPEC 2.3 (c_{o,s} = c_s of Lemma 2).
+    # eq. (constraint_tightening_parameters) with paper notes 2.3 (c_{o,s} = c_s of Lemma 2).
     a = np.empty((N + 1, p))
     b = np.empty((N + 1, p))
     a[0] = observer.c_o
@@ -398,13 +398,13 @@ def tightening_certificate(
         )
         b[i + 1] = b[i] + a[i] * observer.w_bar
 
-    # SPEC 2.6: A_delta' P_f A_delta - P_f = -(1 + eps) q I_2.
+    # paper notes 2.6: A_delta' P_f A_delta - P_f = -(1 + eps) q I_2.
     P_f = solve_lyapunov(delta_iss.A_delta, (1.0 + epsilon) * q * np.eye(2))
     scale = float(np.max(np.abs(P_f)))
     if np.any(P_f < -1e-12 * scale):
         raise LtvMpcError(
-            f"P_f = {P_f.tolist()} has a negative entry; SPEC 4's exact cone relaxation needs "
-            "P_f >= 0 entrywise (it holds in exact arithmetic since A_delta >= 0)"
+            f"P_f = {P_f.tolist()} has a negative entry; paper notes 4's exact cone relaxation "
+            "needs P_f >= 0 entrywise (it holds in exact arithmetic since A_delta >= 0)"
         )
     P_f = np.maximum(P_f, 0.0)
     eig_P_f = np.linalg.eigvalsh(P_f)

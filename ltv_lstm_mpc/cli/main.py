@@ -102,7 +102,9 @@ def _add_certify(subparsers: Any) -> None:
     parser.add_argument(
         "--design-gains",
         action="store_true",
-        help="choose L_f, L_i, L_o minimizing rho(A_d) (SPEC 2.11) instead of the fill values",
+        help=(
+            "choose L_f, L_i, L_o minimizing rho(A_d) (paper notes 2.11) instead of the fill values"
+        ),
     )
     parser.add_argument("--d-max", type=positive_float, default=0.1, help="d_max (default 0.1)")
     parser.add_argument(

@@ -12,7 +12,7 @@ Timing convention: at sample k the controller holds :math:`(\hat x_k, \hat d_k)`
 feeds :math:`(y_k, u_k)` to the observer, which yields :math:`(\hat x_{k+1}, \hat d_{k+1})`,
 and advances :math:`\hat e_{o,k+1} = \rho_o \hat e_{o,k} + \bar w` (eq. eo_evolution).
 At the first call the observer starts at the LSTM equilibrium matching :math:`y_0`
-with :math:`\hat d_0 = 0` (SPEC 10b).
+with :math:`\hat d_0 = 0` (paper notes 2.10b).
 """
 
 from __future__ import annotations
@@ -397,7 +397,7 @@ class OffsetFreeController:
 
     # Parts of one step; a faster controller overrides these, not the loop in ``step``.
     def _normalize(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        """Normalized measurement and set-point, checked (SPEC 1)."""
+        """Normalized measurement and set-point, checked (paper notes 1)."""
         p = self.model.p
         y_arr = real_vector("y_phi", y_phi, p)
         y0_arr = real_vector("y0_phi", y0_phi, p)

@@ -113,7 +113,7 @@ class Observer:
     def initialize(self, y: ArrayLike, *, reference: ReferenceCalculator | None = None) -> None:
         r"""Start at the LSTM equilibrium whose output equals ``y``, with :math:`\hat d_0 = 0`.
 
-        This is the paper's initialization (Section V, SPEC 10b). When ``y`` is outside
+        This is the paper's initialization (Section V, paper notes 2.10b). When ``y`` is outside
         the model's equilibrium output range, the closest equilibrium is used and a
         warning names the mismatch.
         """

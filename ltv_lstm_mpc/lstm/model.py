@@ -9,7 +9,7 @@ r"""Single-layer LSTM state-space model of the paper, eq. (lstm).
 
 The state is :math:`x = [c; h] \in \mathbb{R}^{2n}`, the input
 :math:`u \in \mathbb{R}^m` and the output :math:`\xi \in \mathbb{R}^p`, all in
-*normalized* units (SPEC 1). The output at time k depends on :math:`h_k`, not on
+*normalized* units (paper notes 1). The output at time k depends on :math:`h_k`, not on
 :math:`h_{k+1}`: the model has no direct feed-through.
 
 Everything here is numpy float64; torch is never imported at module level.
@@ -120,7 +120,7 @@ def _sigmoid(z: FloatArray) -> FloatArray:
 
 @dataclass(frozen=True)
 class Normalization:
-    r"""Affine per-channel maps between physical and normalized signals (SPEC 1).
+    r"""Affine per-channel maps between physical and normalized signals (paper notes 1).
 
     A physical signal :math:`v_\phi` in ``[v_phi_min, v_phi_max]`` maps to
     :math:`v = 2 (v_\phi - v_{\phi,min}) / (v_{\phi,max} - v_{\phi,min}) - 1 \in [-1, 1]`.
@@ -206,7 +206,7 @@ class LSTMModel:
     b_y : array_like, shape (p,)
         Output bias.
     normalization : Normalization, optional
-        Physical <-> normalized maps (SPEC 1). Required by the ``*_phi`` helpers.
+        Physical <-> normalized maps (paper notes 1). Required by the ``*_phi`` helpers.
     y_phi_constraint : (low, high), optional
         Output constraint :math:`\mathcal Y_\phi` in physical units, each of shape (p,)
         (the shipped pH models: [6, 9] pH). The MPC uses it when its config gives no
@@ -541,19 +541,19 @@ class LSTMModel:
         return self.normalization
 
     def normalize_u(self, u_phi: ArrayLike) -> FloatArray:
-        """Physical input u_phi -> normalized input u (SPEC 1)."""
+        """Physical input u_phi -> normalized input u (paper notes 1)."""
         return self._require_normalization().normalize_u(u_phi)
 
     def denormalize_u(self, u: ArrayLike) -> FloatArray:
-        """Normalized input u -> physical input u_phi (SPEC 1)."""
+        """Normalized input u -> physical input u_phi (paper notes 1)."""
         return self._require_normalization().denormalize_u(u)
 
     def normalize_y(self, y_phi: ArrayLike) -> FloatArray:
-        """Physical output y_phi -> normalized output y (SPEC 1)."""
+        """Physical output y_phi -> normalized output y (paper notes 1)."""
         return self._require_normalization().normalize_y(y_phi)
 
     def denormalize_y(self, y: ArrayLike) -> FloatArray:
-        """Normalized output y -> physical output y_phi (SPEC 1)."""
+        """Normalized output y -> physical output y_phi (paper notes 1)."""
         return self._require_normalization().denormalize_y(y)
 
     # ----------------------------------------------------------------- file IO
@@ -666,7 +666,7 @@ class LSTMModel:
         return arrays
 
     def output_constraint(self) -> tuple[FloatArray, FloatArray] | None:
-        """The stored output constraint in normalized units (SPEC 1), or None."""
+        """The stored output constraint in normalized units (paper notes 1), or None."""
         if self.y_phi_constraint is None:
             return None
         low, high = self.y_phi_constraint
@@ -700,7 +700,7 @@ class LSTMModel:
         Values may be torch tensors or arrays; torch is not imported here.
 
         Note that a torch LSTM output after reading :math:`u_k` is :math:`h_{k+1}`, so
-        its output sequence is this model's output shifted by one step (SPEC 1).
+        its output sequence is this model's output shifted by one step (paper notes 1).
         """
 
         def to_numpy(value: Any) -> FloatArray:

@@ -25,7 +25,7 @@ The terminal set and cost take one of two forms, chosen by the solver:
   (the relaxation of :class:`~ltv_lstm_mpc.mpc.sparse.FHOCPSubproblem`, exact because
   :math:`P_f \ge 0` entrywise), with :math:`c_N, h_N` affine in :math:`\delta u` by the
   condensing: the same FHOCP as the sparse transcription, in fewer variables;
-- **QP-only** solvers get the conservative replacement of SPEC 4, the math of
+- **QP-only** solvers get the conservative replacement of paper notes 4, the math of
   :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` (box inside
   :math:`\mathcal X_f(k)`, cost bound
   :math:`(P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`); its name

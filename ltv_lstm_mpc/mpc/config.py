@@ -61,7 +61,7 @@ class MPCConfig:
     L_f, L_i, L_o : float
         Fill values of the observer gains (0: the certified fallback of Remark 3).
     design_gains : bool
-        Choose :math:`L_f, L_i, L_o` by SPEC 2.11 instead.
+        Choose :math:`L_f, L_i, L_o` by paper notes 2.11 instead.
     solver : str
         Backend name, e.g. ``"cvxpy:CLARABEL"`` (cones, exact), ``"osqp"``, ``"daqp"``,
         ``"qpsolvers:piqp"`` (QP-only: the terminal cones get the conservative
@@ -77,10 +77,10 @@ class MPCConfig:
     soft_penalty : float
         Exact-penalty weight of the ``"soft"`` policy.
     e_hat0 : float, optional
-        Initial observer-error bound :math:`\hat e_{o,0}` (SPEC 2.10b: default
+        Initial observer-error bound :math:`\hat e_{o,0}` (paper notes 2.10b: default
         :math:`\bar e_\infty`).
     epsilon : float
-        :math:`P_f` margin (SPEC 2.6).
+        :math:`P_f` margin (paper notes 2.6).
     """
 
     N: int = 5

@@ -1,4 +1,4 @@
-r"""The FHOCP front-end shared by every transcription (SPEC section 4).
+r"""The FHOCP front-end shared by every transcription (paper notes section 4).
 
 One definition of: the proof candidate (:func:`shifted_candidate`, Theorem 3 Part 2b),
 the checks no solver can fix (:func:`precheck_status`), the cost eq. (optimization_cost)
@@ -121,7 +121,7 @@ def precheck_status(
     """Checks no solver can fix, made before any solver call.
 
     ``"infeasible_initial"``: the i = 0 tightened output row, which involves only
-    :math:`\\hat h_k` (SPEC 1), fails; ``"alpha_nonpositive"``: :math:`\\alpha_k \\le 0`
+    :math:`\\hat h_k` (paper notes 1), fails; ``"alpha_nonpositive"``: :math:`\\alpha_k \\le 0`
     (Assumption 5 violated, empty terminal set); ``""``: both pass.
     """
     tol = 1e-12

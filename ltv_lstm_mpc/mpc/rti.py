@@ -1,4 +1,4 @@
-r"""Robust MPC of eq. (optimization) solved by real-time iterations (SPEC section 4): the one core.
+r"""Robust MPC of eq. (optimization) by real-time iterations (paper notes section 4): the one core.
 
 At step k the LSTM is linearized along the candidate of the proof of Theorem 3
 (Part 2b): the previous optimal inputs shifted by one, with :math:`\bar u_k` appended

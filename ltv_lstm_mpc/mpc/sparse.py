@@ -1,4 +1,4 @@
-r"""The FHOCP of eq. (optimization) as one convex subproblem (SPEC section 4).
+r"""The FHOCP of eq. (optimization) as one convex subproblem (paper notes section 4).
 
 At step k the LSTM is linearized along a trajectory :math:`(\tilde x_i, \tilde u_i)`
 (the shifted candidate of the proof of Theorem 3, Part 2b), and the FHOCP becomes
@@ -16,7 +16,7 @@ At step k the LSTM is linearized along a trajectory :math:`(\tilde x_i, \tilde u
 
 The tightened bounds :math:`\underline y_i, \overline y_i` come from
 eq. (optimization_constraint_yub)/(optimization_constraint_ylb); the i = 0 row involves
-only :math:`\hat h_k` and is checked by the caller (SPEC 1). Because :math:`P_f \ge 0`
+only :math:`\hat h_k` and is checked by the caller (paper notes 1). Because :math:`P_f \ge 0`
 entrywise, :math:`\|\cdot\|_{P_f}` is monotone on the nonnegative orthant and the
 relaxation through t is exact, both for the terminal set eq. (terminal_constraint) and
 for the terminal cost.
@@ -128,7 +128,7 @@ class SubproblemLayout:
 
 
 class FHOCPSubproblem:
-    r"""Builds the convex subproblem of SPEC 4 with a fixed sparsity pattern.
+    r"""Builds the convex subproblem of paper notes 4 with a fixed sparsity pattern.
 
     Parameters
     ----------
@@ -141,7 +141,7 @@ class FHOCPSubproblem:
     R : ndarray, shape (m, m)
         Stage input weight (positive definite).
     P_f : ndarray, shape (2, 2)
-        Terminal weight (SPEC 2.6), entrywise nonnegative.
+        Terminal weight (paper notes 2.6), entrywise nonnegative.
     W_y, b_y : ndarray
         Output map of eq. (y_lstm).
     u_max : float
@@ -392,7 +392,7 @@ class FHOCPSubproblem:
 
 
 def terminal_box_data(P_f: FloatArray) -> tuple[float, float, FloatArray]:
-    r"""The numbers of :class:`TerminalBoxReformulation` (SPEC 4), for both transcriptions.
+    r"""The numbers of :class:`TerminalBoxReformulation` (paper notes 4), for both transcriptions.
 
     Returns
     -------
@@ -413,7 +413,7 @@ def terminal_box_data(P_f: FloatArray) -> tuple[float, float, FloatArray]:
 
 
 class TerminalBoxReformulation:
-    r"""Conservative QP replacement of the terminal cones (SPEC 4), for QP-only backends.
+    r"""Conservative QP replacement of the terminal cones (paper notes 4), for QP-only backends.
 
     * Terminal cost: since :math:`2 t_c t_h \le t_c^2 + t_h^2` and :math:`P_{f,12} \ge 0`,
       :math:`t^\top P_f t \le (P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`

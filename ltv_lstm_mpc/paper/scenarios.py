@@ -2,7 +2,7 @@ r"""The paper's five closed-loop simulations (Section V, Figs. 3-7) on the shipp
 
 1. ``lstm_theorem3`` — LSTM plant (Fig. 2), slow set-point and disturbance changes that
    satisfy Theorem 3's conditions: the set-point passes through the rate limiter
-   :math:`\Delta y^0_{max}` of SPEC 2.10c and the disturbance ramps with
+   :math:`\Delta y^0_{max}` of paper notes 2.10c and the disturbance ramps with
    :math:`|w| \le w_{max}`. Expected: zero violations, every step feasible, zero
    steady-state error (Fig. 3).
 2. ``lstm_larger`` — larger set-point rate and disturbance steps that violate the
@@ -221,7 +221,7 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
             setpoint_rate_limit=rate,
             segments=schedule_segments(L),
             notes=(
-                f"rate limit {rate:.4g} (normalized/step, SPEC 2.10c, valid over "
+                f"rate limit {rate:.4g} (normalized/step, paper notes 2.10c, valid over "
                 f"[{range1[0]}, {range1[1]}] pH); |w| <= 0.8 w_max"
             ),
         )

@@ -3,7 +3,7 @@ r"""The pH-neutralization benchmark plant (paper Section V).
 Every plant follows the :class:`Plant` protocol (the "Plant" block of the paper's Fig. 1/Fig. 2):
 ``reset()`` puts it at its initial condition, ``output()`` returns the current measurement and
 ``step(u_phi, d_phi)`` applies an input for one sampling period and returns the new measurement.
-All signals are **physical** (suffix ``_phi``, SPEC 1).
+All signals are **physical** (suffix ``_phi``, paper notes 1).
 
 pH neutralization (paper Section V, Henson & Seborg 1994)
 --------------------------------------------------------
@@ -24,9 +24,9 @@ disturbance :math:`d_\phi = q_2` (mL/s, buffer flow), output :math:`y_\phi` = pH
     c(x, y_\phi) = x_1 + 10^{y_\phi - 14} - 10^{-y_\phi}
     + x_2 \frac{1 + 2 \cdot 10^{y_\phi - pK_2}}{1 + 10^{pK_1 - y_\phi} + 10^{y_\phi - pK_2}}.
 
-Parameters are those of Table I with :math:`W_{a3} = -3.05 \cdot 10^{-3}` M (SPEC 2.1: the paper
-prints +3.05e-3, which gives pH 2.6 instead of 7.0 at the nominal point). Flows in mL/s = cm^3/s,
-area in cm^2, level in cm, time in s, concentrations in mol/L.
+Parameters are those of Table I with :math:`W_{a3} = -3.05 \cdot 10^{-3}` M (paper notes 2.1:
+the paper prints +3.05e-3, which gives pH 2.6 instead of 7.0 at the nominal point). Flows in
+mL/s = cm^3/s, area in cm^2, level in cm, time in s, concentrations in mol/L.
 
 *Input saturation.* :math:`q_3` is clipped to :math:`\mathcal{U}_\phi = [12.5, 17]` mL/s
 (``u_phi_min``, ``u_phi_max``) before it is applied, as in the paper ("the alkaline flow is
@@ -43,7 +43,7 @@ always converges (never an unguarded Newton). Tolerance 1e-13 pH.
 fixed-step classical Runge-Kutta 4 with ``substeps = 10`` per sampling period (dt = 1 s) is used;
 the input is held constant over the period (zero-order hold). Against scipy ``solve_ivp`` Radau
 with rtol = 1e-12 the one-step pH error is about 1e-10 (max 1.1e-10 over 20 random steps; tested
-< 1e-6; SPEC 5 measured ~5e-10).
+< 1e-6; paper notes 5 measured ~5e-10).
 Measured cost on the 2-core development VM (Python 3.11, numpy 2.4): about 0.04 ms per step for
 one plant (:meth:`PHNeutralizationPlant.step` runs the same RK4 in plain Python floats, 40
 right-hand-side evaluations, plus a scalar pH solve), and about 0.7 ms per step for a batch of 15
@@ -70,7 +70,7 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class PHParameters:
-    """Parameters of the pH process, Table I of the paper (with SPEC 2.1's sign of W_a3).
+    """Parameters of the pH process, Table I of the paper (with paper notes 2.1's sign of W_a3).
 
     Attributes
     ----------

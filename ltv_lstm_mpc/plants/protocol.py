@@ -1,7 +1,7 @@
 """The plant role of the closed loop (paper Fig. 1 and Fig. 2), as a typing Protocol.
 
 Every plant (``reset()``, ``output()``, ``step(u_phi, d_phi)``) works with physical signals
-(suffix ``_phi``, SPEC 1).
+(suffix ``_phi``, paper notes 1).
 """
 
 from __future__ import annotations

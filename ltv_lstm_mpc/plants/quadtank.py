@@ -18,7 +18,7 @@ With :math:`\gamma_1 + \gamma_2 > 1` the linearization has two left-half-plane z
 (minimum phase, Johansson's operating point :math:`P_-`); with :math:`\gamma_1 + \gamma_2 < 1`
 one zero is in the right half plane (:math:`P_+`).
 
-Signals (suffix ``_phi``, SPEC 1)
+Signals (suffix ``_phi``, paper notes 1)
 ---------------------------------
 * input :math:`u_\phi = (v_1, v_2)` in V, saturated to :math:`[u_{\phi,min}, u_{\phi,max}]`
   per pump before it is applied (default [1.5, 4.0] V, the benchmark's operating range: lower

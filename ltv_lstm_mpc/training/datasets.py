@@ -9,7 +9,7 @@ r"""Identification data (paper Section V, "LSTM model identification"): pH and q
   can be regenerated alone, bit for bit, with :func:`generate_split`.
 * :class:`IdentificationDataset` — the arrays per split plus metadata with units;
   ``save``/``load`` (``.npz``), ``to_csv``; :meth:`IdentificationDataset.normalization` builds
-  the [-1, 1] normalization from the training split's min/max (SPEC 1), reusing
+  the [-1, 1] normalization from the training split's min/max (paper notes 1), reusing
   :class:`ltv_lstm_mpc.lstm.model.Normalization`.
 
 Conventions
@@ -19,7 +19,7 @@ q2 = 0.55 mL/s, pH 7.026). For a sequence of T steps, ``u_phi[k]`` (mL/s) is the
 applied on [k Ts, (k+1) Ts) and ``y_phi[k]`` (pH) is measured at the instant k Ts, before
 ``u_phi[k]`` acts: ``y_phi[0]`` is the initial steady-state pH and ``y_phi[k]`` depends on
 ``u_phi[0..k-1]`` only — the same alignment as the LSTM output :math:`\xi_k = W_y h_k + b_y`
-(SPEC 1). Arrays have shape (sequences in the split, T).
+(paper notes 1). Arrays have shape (sequences in the split, T).
 
 Quadruple tank (two inputs, two outputs)
 ----------------------------------------
@@ -294,7 +294,7 @@ class IdentificationDataset:
         return (u if u.ndim == 3 else u[..., None]), (y if y.ndim == 3 else y[..., None])
 
     def normalization(self) -> Normalization:
-        """[-1, 1] normalization from the training split's min/max per channel (SPEC 1)."""
+        """[-1, 1] normalization from the training split's min/max per channel (paper notes 1)."""
         u, y = self.channels("train")
         return Normalization(
             u_phi_min=u.min(axis=(0, 1)),

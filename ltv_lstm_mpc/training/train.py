@@ -14,7 +14,7 @@ Loss (paper, per batch)
 in normalized units, with the Remark 1 residuals :math:`r_1, r_2` computed differentiably
 (:func:`torch_residuals`; identical to
 :func:`ltv_lstm_mpc.certificates.stability.delta_iss_certificate`
-to rounding in float64, including the SPEC 2.2 correction of :math:`\alpha`).
+to rounding in float64, including the paper notes 2.2 correction of :math:`\alpha`).
 
 Design choices the paper leaves open
 ------------------------------------
@@ -27,7 +27,7 @@ Design choices the paper leaves open
   :meth:`ltv_lstm_mpc.lstm.model.LSTMModel.equilibrium` (exact). An optional ``washout``
   excludes the
   first samples of each sequence from the loss (default 0: the initial state is consistent).
-* **Output alignment (SPEC 1).** The model output at time k is :math:`W_y h_k + b_y`, with
+* **Output alignment (paper notes 1).** The model output at time k is :math:`W_y h_k + b_y`, with
   :math:`h_k` the state after reading :math:`u_0..u_{k-1}`. torch's ``nn.LSTM`` returns
   :math:`h_{k+1}` after reading :math:`u_k`, so the prediction sequence is
   :math:`[h_0, \text{out}_0, \dots, \text{out}_{T-2}]` mapped through the linear layer.
@@ -348,7 +348,7 @@ def _gate_blocks(lstm: Any) -> dict[str, tuple[Any, Any, Any]]:
 
 
 def torch_residuals(blocks: dict[str, tuple[Any, Any, Any]], u_max: float = 1.0) -> tuple[Any, Any]:
-    r"""Differentiable residuals :math:`r_1, r_2` of Remark 1 (SPEC 2.2 alpha).
+    r"""Differentiable residuals :math:`r_1, r_2` of Remark 1 (paper notes 2.2 alpha).
 
     Parameters
     ----------
