@@ -15,7 +15,7 @@ new / old of the medians means something:
 - ``--numpy-kernel``: this version on the numpy reference kernel (``compiled=False``).
 
     python experiments/pipeline_speed.py --steps 300
-    python experiments/pipeline_speed.py --baseline a853d65 --steps 300 --rounds 3
+    python experiments/pipeline_speed.py --baseline <revision> --steps 300 --rounds 3
     python experiments/pipeline_speed.py --numpy-kernel --steps 300 --rounds 3
 """
 

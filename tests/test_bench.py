@@ -1,4 +1,4 @@
-"""Benchmark command in smoke mode (issue 6): the CSV has the columns and sane values."""
+"""Benchmark command in smoke mode: the CSV has the columns and sane values."""
 
 from __future__ import annotations
 

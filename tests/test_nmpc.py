@@ -1,4 +1,4 @@
-"""Exact NMPC baseline (issue 6): matches a converged SQP on random feasible states."""
+"""Exact NMPC baseline: matches a converged SQP on random feasible states."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""One controller, one MPC core (issue 9): transcriptions, kernel, faults, policies, config."""
+"""One controller, one MPC core: transcriptions, kernel, faults, policies, config."""
 
 from __future__ import annotations
 

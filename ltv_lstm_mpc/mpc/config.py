@@ -1,7 +1,7 @@
 r"""Tuning of the robust offset-free MPC, :class:`MPCConfig` (defaults: the paper's Section V).
 
 Every field is honoured by every transcription, or rejected with an error naming the field
-(:meth:`MPCConfig.check_transcription`).
+(:func:`~ltv_lstm_mpc.mpc.rti.resolve_transcription`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 r"""Exact nonlinear MPC baseline: the FHOCP of eq. (optimization) solved by IPOPT.
 
-The accuracy reference for the RTI answers (:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC`,
-:class:`~ltv_lstm_mpc.mpc.fast.FastRobustMPC`): the *nonlinear* problem
+The accuracy reference for the RTI answers (:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC`): the
+*nonlinear* problem
 
 .. math::
 
