@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ltv_lstm_mpc.certificates.reference_gain import KBarEstimate, estimate_K_bar
 from ltv_lstm_mpc.certificates.stability import (
     DeltaISSCertificate,
     IncrementalLyapunovCertificate,
@@ -34,7 +35,6 @@ from ltv_lstm_mpc.certificates.tightening import (
     tightening_certificate,
 )
 from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.loop.reference import KBarEstimate, estimate_K_bar
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import (
     expect_bool,
