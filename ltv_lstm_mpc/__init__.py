@@ -53,8 +53,8 @@ from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel, ModelFormatError, Normalization
 from ltv_lstm_mpc.lstm.shipped import load_model, shipped_models, shipped_path
 from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.exact_nmpc import ExactNMPC
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution
-from ltv_lstm_mpc.mpc.nmpc import ExactNMPC
 from ltv_lstm_mpc.mpc.rti import RobustMPC, resolve_transcription
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant

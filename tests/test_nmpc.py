@@ -9,7 +9,7 @@ pytest.importorskip("casadi")
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, RobustMPC, load_model
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
-from ltv_lstm_mpc.mpc.nmpc import ExactNMPC
+from ltv_lstm_mpc.mpc.exact_nmpc import ExactNMPC
 
 
 @pytest.fixture(scope="module")

@@ -27,24 +27,20 @@ CasADi is an optional dependency: ``pip install -e ".[nmpc]"``.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ltv_lstm_mpc.certificates.certify import Certification
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
-from ltv_lstm_mpc.mpc.rti import RobustMPC
+from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus
-from ltv_lstm_mpc.validation import expect_instance, expect_real
 
-__all__ = ["ExactNMPC", "NonlinearTranscription"]
+__all__ = ["NonlinearTranscription"]  # ExactNMPC (still importable here): mpc/exact_nmpc.py
 
 FloatArray = NDArray[np.float64]
 
@@ -266,48 +262,11 @@ class NonlinearTranscription(TranscriptionBase):
                           iterations, f"IPOPT: {native}")  # fmt: skip
 
 
-class ExactNMPC(RobustMPC):
-    r"""Exact NMPC of eq. (optimization) with CasADi + IPOPT (the accuracy reference).
+def __getattr__(name: str) -> Any:
+    """``ExactNMPC`` lives in :mod:`~ltv_lstm_mpc.mpc.exact_nmpc` (imported on first use, so
+    this module does not import the RTI core that imports it)."""
+    if name == "ExactNMPC":
+        from ltv_lstm_mpc.mpc.exact_nmpc import ExactNMPC
 
-    :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` with the nonlinear transcription
-    (``MPCConfig(solver="ipopt")``): the same front-end, prechecks, fallback chain,
-    validation, residuals and records as every other transcription. Usable as
-    ``OffsetFreeController(model, MPCConfig(solver="ipopt"))``.
-
-    Parameters
-    ----------
-    model : LSTMModel
-    config : MPCConfig, optional
-        ``solver`` is set to ``"ipopt"`` (``transcription`` to ``"nonlinear"``).
-    certification : Certification, optional
-    smoothing : float
-        :math:`\varepsilon` of the smoothed norms.
-    ipopt_options : dict, optional
-        Extra IPOPT options, merged over ``config.solver_settings``.
-    """
-
-    def __init__(
-        self,
-        model: LSTMModel,
-        config: MPCConfig | None = None,
-        *,
-        certification: Certification | None = None,
-        smoothing: float = 1e-8,
-        ipopt_options: dict[str, Any] | None = None,
-    ) -> None:
-        config = require_config(config)
-        if ipopt_options is not None:
-            expect_instance("ipopt_options", ipopt_options, dict, expected="a dict or None")
-        expect_real("smoothing", smoothing, low=0.0, low_open=True)
-        config = replace(
-            config,
-            solver="ipopt",
-            transcription="nonlinear",
-            solver_settings={**config.solver_settings, **(ipopt_options or {})},
-        )
-        super().__init__(model, config, certification=certification, smoothing=smoothing)
-
-    @property
-    def ipopt_iterations(self) -> int:
-        """IPOPT iterations of the last call (all NLPs solved in it)."""
-        return self.qp_iterations
+        return ExactNMPC
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
