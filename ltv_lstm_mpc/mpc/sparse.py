@@ -377,19 +377,6 @@ class FHOCPSubproblem:
             cones=tuple(cones),
         )
 
-    def cost(self, x: FloatArray, u: FloatArray, x_bar: FloatArray, u_bar: FloatArray) -> float:
-        r"""Cost eq. (optimization_cost) of a trajectory, with the exact terminal term."""
-        dx = x[: self.N] - x_bar
-        du = u - u_bar
-        stage = float(
-            np.einsum("ki,ij,kj->", dx, self._Q, dx) + np.einsum("ki,ij,kj->", du, self._R, du)
-        )
-        n = self.n
-        t = np.array(
-            [np.linalg.norm(x[self.N, :n] - x_bar[:n]), np.linalg.norm(x[self.N, n:] - x_bar[n:])]
-        )
-        return stage + float(t @ self.P_f @ t)
-
 
 def terminal_box_data(P_f: FloatArray) -> tuple[float, float, FloatArray]:
     r"""The numbers of :class:`TerminalBoxReformulation` (paper notes 4), for both transcriptions.
