@@ -561,7 +561,7 @@ def save_subproblems(
         d = scenario.disturbances[k]
         y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, None if np.isnan(d) else d)))
     records = ctrl.records
-    sub = mpc._problem._subproblems["nominal"]  # type: ignore[attr-defined]
+    sub = mpc.subproblem("nominal")
     ti = mpc.tightening
     picks = np.unique(np.linspace(1, len(records) - 1, count).astype(int))
     names = list(solvers) if solvers is not None else available_solvers()
@@ -761,13 +761,13 @@ def resolve_backends(backends: Sequence[str] | None) -> list[str]:
 
 def main_bench(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc bench``."""
-    from ltv_lstm_mpc.cli.main import _resolve_model_path
+    from ltv_lstm_mpc.lstm.shipped import model_path
 
     try:  # usage errors first, before any work
         resolve_backends(args.backends)
     except InvalidValueError as error:
         raise UsageError(str(error)) from None
-    model = LSTMModel.load(_resolve_model_path(args.model))
+    model = LSTMModel.load(model_path(args.model))
     scenarios = bench_scenarios(model, short=True)
     patterns = args.scenarios or list(DEFAULT_SCENARIOS)
     names = [s.name for s in scenarios]

@@ -48,18 +48,12 @@ from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
 from ltv_lstm_mpc.loop.statuses import SETPOINT_STATUSES
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.lstm.shipped import shipped_path
+from ltv_lstm_mpc.lstm.shipped import model_path
 
 __all__ = ["build_parser", "main"]
 
 EXAMPLE_MODEL = "example_delta_iss_n3.npz"
 PH_MODEL = "ph_lstm_n5.npz"
-
-
-def _resolve_model_path(name: str) -> Path:
-    """A path, or the name of a model shipped in ``ltv_lstm_mpc/data``."""
-    path = Path(name)
-    return path if path.exists() else shipped_path(name)
 
 
 def _add_certify(subparsers: Any) -> None:
@@ -197,7 +191,7 @@ def _run_certify(args: argparse.Namespace) -> int:
     check_order("--y-min/--y-max", args.y_min, args.y_max)
     if (args.y_min is None) != (args.y_max is None):
         raise UsageError("give both --y-min and --y-max, or neither (the model's constraint)")
-    path = _resolve_model_path(args.model)
+    path = model_path(args.model)
     model = LSTMModel.load(path)
     extrapolation = u_max_extrapolation(model, args.u_max)
     if extrapolation is not None:
@@ -292,7 +286,7 @@ def _run_reproduce(args: argparse.Namespace) -> int:
         return _run_reproduce_quadtank(args)
     from ltv_lstm_mpc.paper.reproduce import format_certificates, format_table, reproduce
 
-    path = _resolve_model_path(args.model or PH_MODEL)
+    path = model_path(args.model or PH_MODEL)
     model = LSTMModel.load(path)
     report = reproduce(
         model,
@@ -321,7 +315,7 @@ def _run_reproduce_quadtank(args: argparse.Namespace) -> int:
         reproduce_quadtank,
     )
 
-    path = _resolve_model_path(args.model or QUADTANK_MODEL)
+    path = model_path(args.model or QUADTANK_MODEL)
     model = LSTMModel.load(path)
     report = reproduce_quadtank(
         model,
@@ -470,7 +464,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
     from ltv_lstm_mpc.paper.scenarios import Scenario, run_scenario
 
     default_model = QUADTANK_MODEL if args.plant == "quadtank" else PH_MODEL
-    model = LSTMModel.load(_resolve_model_path(args.model or default_model))
+    model = LSTMModel.load(model_path(args.model or default_model))
     config = MPCConfig(
         N=args.N,
         L_d=args.L_d,

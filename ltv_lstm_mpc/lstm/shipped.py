@@ -8,7 +8,7 @@ from pathlib import Path
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.validation import expect_instance, expect_path
 
-__all__ = ["load_model", "shipped_models", "shipped_path"]
+__all__ = ["load_model", "model_path", "shipped_models", "shipped_path"]
 
 
 def shipped_models() -> list[str]:
@@ -24,6 +24,18 @@ def shipped_path(name: str) -> Path:
     if not candidate.is_file():
         raise FileNotFoundError(f"no shipped file {name!r}; shipped models: {shipped_models()}")
     return Path(str(candidate))
+
+
+def model_path(name: str) -> Path:
+    """``name`` as a path where that file exists, else the shipped file of that name.
+
+    Raises
+    ------
+    FileNotFoundError
+        Neither exists (the message lists the shipped models).
+    """
+    path = Path(name)
+    return path if path.exists() else shipped_path(name)
 
 
 def load_model(name_or_path: str | Path) -> LSTMModel:

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -46,6 +46,9 @@ from ltv_lstm_mpc.mpc.fhocp import (
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus, feasibility_tolerance
 from ltv_lstm_mpc.validation import expect_bool, expect_instance, expect_real, real_vector
+
+if TYPE_CHECKING:
+    from ltv_lstm_mpc.mpc.sparse import FHOCPSubproblem
 
 __all__ = [
     "NLP_SOLVERS",
@@ -269,6 +272,25 @@ class RobustMPC:
             self._bounds_key = key
 
     # -------------------------------------------------------------------------- prepare
+    def subproblem(self, kind: str = "nominal") -> FHOCPSubproblem:
+        """The builder of the sparse transcription's subproblem ``kind``
+        (:meth:`~ltv_lstm_mpc.mpc.sparse.SparseTranscription.subproblem`): what replay tools
+        rebuild a step's convex subproblem with.
+
+        Raises
+        ------
+        InvalidValueError
+            If this controller's transcription is not ``"sparse"``.
+        """
+        from ltv_lstm_mpc.mpc.sparse import SparseTranscription
+
+        if not isinstance(self._problem, SparseTranscription):
+            raise InvalidValueError(
+                f"subproblem() needs transcription='sparse'; this controller's is "
+                f"{self.transcription!r}"
+            )
+        return self._problem.subproblem(kind)
+
     def prepare(
         self,
         x_bar: ArrayLike,

@@ -523,7 +523,18 @@ class SparseTranscription(TranscriptionBase):
         self.reformulation = None if info.supports_cones else TerminalBoxReformulation.name
         self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
         self._data: dict[str, Any] = {}
+
         self.N, self.n2, self.m = config.N, 2 * model.n, model.m
+
+    def subproblem(self, kind: str = "nominal") -> FHOCPSubproblem:
+        """The builder of the subproblem ``kind`` (``"nominal"``, ``"paper"`` or ``"soft"``,
+        where the configuration has it): what replay tools rebuild a step's problem with."""
+        try:
+            return self._subproblems[kind]
+        except KeyError:
+            raise InvalidValueError(
+                f"no {kind!r} subproblem; this transcription has {sorted(self._subproblems)}"
+            ) from None
 
     def reset(self) -> None:
         """Nothing to forget: every solve is a cold start."""
