@@ -12,7 +12,6 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 from ltv_lstm_mpc.certificates.certify import Certification, CertificationSettings, certify
-from ltv_lstm_mpc.certificates.disturbance import DMaxEstimate, estimate_d_max
 from ltv_lstm_mpc.certificates.stability import (
     DeltaISSCertificate,
     IncrementalLyapunovCertificate,
@@ -60,6 +59,7 @@ from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
 from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.quadtank import QuadrupleTankPlant
+from ltv_lstm_mpc.training.mismatch import DMaxEstimate, estimate_d_max
 
 __all__ = [
     "ArgumentTypeError",

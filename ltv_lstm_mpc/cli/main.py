@@ -197,7 +197,7 @@ def _run_certify(args: argparse.Namespace) -> int:
     if extrapolation is not None:
         print(f"ltv-lstm-mpc certify: warning: {extrapolation}", file=sys.stderr)
     if args.d_max_from is not None:
-        from ltv_lstm_mpc.certificates.disturbance import estimate_d_max
+        from ltv_lstm_mpc.training.mismatch import estimate_d_max
 
         estimate = estimate_d_max(model, args.d_max_from)
         args.d_max = estimate.d_max

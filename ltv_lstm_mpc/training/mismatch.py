@@ -1,4 +1,4 @@
-r"""The disturbance bound :math:`d_{max}` estimated from data.
+r"""The disturbance bound :math:`d_{max}` estimated from the plant-model mismatch on data.
 
 The guarantees of the paper assume the plant-model mismatch, seen by the observer as the
 output disturbance :math:`d`, lies in :math:`\mathcal D = \{\|d\|_\infty \le d_{max}\}`
@@ -11,7 +11,9 @@ open-loop prediction on identification or validation data and adds a stated marg
 The trade-off: a larger :math:`d_{max}` shrinks the admissible set-point interval of
 Assumption 5 by :math:`2 d_{max}` (and the tightened output bounds by :math:`d_{max}`),
 so the estimate is a starting point to weigh against the set-points the process needs.
-This is an estimate from finite data, not a bound proved for the plant, and a
+It lives with the identification data and the model's simulation (this package), and the
+certificates take its result as the number ``d_max``. This is an estimate from finite
+data, not a bound proved for the plant, and a
 conservative one: the open-loop mismatch also contains the drift of the model's state,
 which the observer corrects in closed loop. On the shipped pH model and the paper's
 identification data (``generate_dataset(seed=0)``) it gives a mismatch of 0.21
