@@ -117,6 +117,35 @@ class Trajectory:
         return self.J[:, :, 2 * self.n :]
 
 
+def _cell(
+    WU: FloatArray,
+    view: tuple[FloatArray, ...],
+    cn: FloatArray,
+    hn: FloatArray,
+    tmp: FloatArray,
+    extra: FloatArray | None,
+) -> None:
+    r"""One step of eq. (lstm) in place, on the views of one step of a :class:`Trajectory`
+    (the numpy reference; ``lstm/compiled.py`` has the same loops in numba).
+
+    ``t = WU [h; u; 1]`` (+ ``extra``) holds the gate pre-activations; ``s`` is its sigmoid
+    part (the views ``f``, ``i``, ``o``), ``g`` the cell candidate; then
+    :math:`c^+ = f \circ c + i \circ g` into ``cn``, :math:`h^+ = o \circ \tanh c^+` into
+    ``hn`` (``tc`` keeps :math:`\tanh c^+` for the Jacobians).
+    """
+    hu1, t, s, g, f, i, o, c, _, _, tc = view
+    np.dot(WU, hu1, out=t)
+    if extra is not None:
+        t += extra
+    expit(s, out=s)
+    np.tanh(g, out=g)
+    np.multiply(f, c, out=cn)
+    np.multiply(i, g, out=tmp)
+    cn += tmp
+    np.tanh(cn, out=tc)
+    np.multiply(o, tc, out=hn)
+
+
 class LSTMKernel:
     r"""eq. (lstm) and eq. (jacobian) writing into a :class:`Trajectory` (see module doc).
 
@@ -166,21 +195,10 @@ class LSTMKernel:
                 self.WU, traj.S, traj.T, traj.TC, k0, k1, self._no_extra if extra is None else extra
             )
             return
-        WU, tanh, mul, dot = self.WU, np.tanh, np.multiply, np.dot
-        tmp = traj.tmp
-        views = traj.views
+        WU, tmp, views = self.WU, traj.tmp, traj.views
         for k in range(k0, k1):
-            hu1, t, s, g, f, i, o, c, cn, hn, tc = views[k]
-            dot(WU, hu1, out=t)
-            if extra is not None:
-                t += extra
-            expit(s, out=s)
-            tanh(g, out=g)
-            mul(f, c, out=cn)
-            mul(i, g, out=tmp)
-            cn += tmp
-            tanh(cn, out=tc)
-            mul(o, tc, out=hn)
+            view = views[k]
+            _cell(WU, view, view[8], view[9], tmp, extra)
 
     def step(self, x: FloatArray, u: FloatArray, extra: FloatArray | None = None) -> FloatArray:
         """:math:`f(x, u)` of one point (a new array), the same arithmetic as :meth:`rollout`."""
@@ -223,19 +241,9 @@ class LSTMKernel:
             if jacobians:
                 self.jacobians(traj)
             return traj
-        WU, tanh, mul, dot = self.WU, np.tanh, np.multiply, np.dot
-        tmp = traj.tmp
+        WU, tmp = self.WU, traj.tmp
         for k in range(K):
-            hu1, t, s, g, f, i, o, c, _, _, tc = traj.views[k]
-            cn, hn = out[k, :n], out[k, n:]
-            dot(WU, hu1, out=t)
-            expit(s, out=s)
-            tanh(g, out=g)
-            mul(f, c, out=cn)
-            mul(i, g, out=tmp)
-            cn += tmp
-            tanh(cn, out=tc)
-            mul(o, tc, out=hn)
+            _cell(WU, traj.views[k], out[k, :n], out[k, n:], tmp, None)
         if jacobians:
             self.jacobians(traj)
         return traj
