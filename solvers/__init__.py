@@ -146,7 +146,8 @@ A missing or unknown solver raises :class:`~ltv_lstm_mpc.exceptions.SolverNotFou
 from __future__ import annotations
 
 from .acceptance import Residuals
-from .dense import DenseBackend, DenseCone, DenseQP, DenseSession
+from .dense import DenseBackend, DenseCone, DenseQP
+from .dense_session import DenseSession
 from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, frozen_csc
 from .reformulation import ConeReformulation, PolyhedralInnerApproximation
 from .registry import (

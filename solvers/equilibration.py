@@ -22,11 +22,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ._base import FloatArray
-from .dense import DenseCone, DenseQP
+
+if TYPE_CHECKING:  # the scaled QP is built with the type of the one given (no import cycle)
+    from .dense import DenseQP
 
 __all__ = ["Scaling", "ruiz"]
 
@@ -44,8 +47,9 @@ class Scaling:
     def apply(self, qp: DenseQP) -> DenseQP:
         """The scaled QP (new arrays)."""
         D, E = self.D, self.E
-        cones = tuple(DenseCone(c.F * D, c.g, c.e * D, c.f) for c in qp.cones)
-        return DenseQP(
+        cones = tuple(type(c)(c.F * D, c.g, c.e * D, c.f) for c in qp.cones)
+        qp_type: Any = type(qp)
+        return qp_type(
             H=(qp.H * D) * D[:, None],
             f=qp.f * D,
             A=np.ascontiguousarray((qp.A * D) * E[:, None]),

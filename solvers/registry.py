@@ -23,7 +23,7 @@ from .acceptance import ProblemView, accept
 from .dense import DenseBackendFactory
 from .problem import ConvexProblem, Solution, SolverStatus
 from .reformulation import ConeReformulation
-from .tolerances import feasibility_tolerance, optimality_tolerance
+from .tolerances import FIRST_ORDER, feasibility_tolerance, note_registered, optimality_tolerance
 
 __all__ = [
     "DEFAULT_SOLVER",
@@ -44,8 +44,6 @@ DEFAULT_SOLVER = "cvxpy:CLARABEL"
 _EXTRA_HINT = 'pip install "ltv_lstm_mpc[solvers]"'
 #: Accepted registry names: letters, digits and ``_ . : @ , + -`` (no spaces).
 _NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.:@,+\-]*")
-#: Native solver names (lower case, last part of a registry name) of first-order methods.
-FIRST_ORDER = frozenset({"osqp", "scs", "proxqp"})
 #: Native backends that solve second-order cones exactly.
 NATIVE_CONE_SOLVERS = frozenset({"clarabel"})
 
@@ -243,6 +241,7 @@ def _add(name: str, entry: _Entry, replace: bool) -> str:
             f"solver {name!r} is already registered; pass replace=True to replace it"
         )
     reg[name] = entry
+    note_registered(name, entry.info.first_order)
     return name
 
 
@@ -315,6 +314,7 @@ def unregister_backend(name: str) -> None:
     """
     _entry(name)
     del _registry()[name]
+    note_registered(name, None)
 
 
 class Session:

@@ -72,6 +72,21 @@ TOLERANCE_OPTIONS: Mapping[str, tuple[str, ...]] = {
     "scs": ("eps_abs", "eps_rel"),
 }
 
+#: Native solver names (lower case, last part of a registry name) of first-order methods.
+FIRST_ORDER = frozenset({"osqp", "scs", "proxqp"})
+#: Registry names added with ``register_backend`` (and ``testing.faulty``) -> first order;
+#: kept by the registry, so that this module does not import it.
+_REGISTERED_FIRST_ORDER: dict[str, bool] = {}
+
+
+def note_registered(name: str, first_order: bool | None) -> None:
+    """Record (``None``: forget) whether the registered solver ``name`` is first order."""
+    if first_order is None:
+        _REGISTERED_FIRST_ORDER.pop(name, None)
+    else:
+        _REGISTERED_FIRST_ORDER[name] = bool(first_order)
+
+
 #: Options fixed next to the tolerance (documented in the table above).
 _FIXED_OPTIONS: Mapping[str, Mapping[str, Any]] = {"proxqp": {"eps_rel": 0.0}}
 
@@ -162,12 +177,8 @@ def feasibility_tolerance(solver: str, tolerance: float) -> float:
     tol = real_scalar("tolerance", tolerance)
     if not (tol > 0.0 and tol < float("inf")):
         raise InvalidValueError(f"tolerance must be a positive finite float, got {tolerance!r}")
-    from .registry import FIRST_ORDER, _registry
-
-    entry = _registry().get(solver)
-    if entry is not None:
-        first_order = entry.info.first_order
-    else:
+    first_order = _REGISTERED_FIRST_ORDER.get(solver) if isinstance(solver, str) else None
+    if first_order is None:
         first_order = str(solver).rsplit(":", 1)[-1].lower() in FIRST_ORDER
     if first_order:
         return max(1e-5, 1e3 * tol)
