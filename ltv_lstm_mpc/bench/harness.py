@@ -7,7 +7,7 @@ disturbances, and one CSV row records
 * controller step time (median, p95, max, microseconds) and its split into observer,
   reference calculator (eq. reference_calculation), linearize + build, and solve;
 * first-input and closed-loop-cost difference to the exact NMPC
-  (:class:`~ltv_lstm_mpc.mpc.nmpc.ExactNMPC`) and the ratios of the median step to the exact
+  (:class:`~ltv_lstm_mpc.mpc.exact_nmpc.ExactNMPC`) and the ratios of the median step to the exact
   NMPC and to the fastest backend of the same scenario and N;
 * nonlinear (re-simulated) violations of the tightened output rows, plant output
   violations of :math:`\mathcal Y`, infeasible steps and fallback uses;
@@ -18,7 +18,7 @@ Backends
 A backend is a solver name of the one registry
 (:func:`ltv_lstm_mpc.solvers.available_solvers`), optionally with ``@<transcription>``
 (``"daqp@sparse"``, ``"cvxpy:OSQP@condensed"``), or ``"ipopt"`` (the exact NMPC,
-:class:`~ltv_lstm_mpc.mpc.nmpc.ExactNMPC`, needs the ``nmpc`` extra). Every run is
+:class:`~ltv_lstm_mpc.mpc.exact_nmpc.ExactNMPC`, needs the ``nmpc`` extra). Every run is
 ``OffsetFreeController(model, MPCConfig(solver=..., transcription=...))`` driven by
 :func:`~ltv_lstm_mpc.loop.simulation.simulate`: the one controller, the one loop.
 
@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.certify import Certification, certify
-from ltv_lstm_mpc.cli.arguments import UsageError, output_folder, positive_float, positive_int
+from ltv_lstm_mpc.command_arguments import UsageError, output_folder, positive_float, positive_int
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.simulation import simulate

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ltv_lstm_mpc.cli.arguments import UsageError, output_folder, positive_int
+from ltv_lstm_mpc.command_arguments import UsageError, output_folder, positive_int
 from ltv_lstm_mpc.exceptions import CampaignSpecError
 
 __all__ = ["campaign_command", "register"]

@@ -33,7 +33,7 @@ from ltv_lstm_mpc.certificates.certify import (
     certify,
     u_max_extrapolation,
 )
-from ltv_lstm_mpc.cli.arguments import (
+from ltv_lstm_mpc.command_arguments import (
     OrderedPair,
     UsageError,
     check_order,

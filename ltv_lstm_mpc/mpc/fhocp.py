@@ -166,7 +166,7 @@ class MPCSolver(Protocol):
     """What :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController` needs from an MPC.
 
     Implemented by :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (every transcription,
-    :class:`~ltv_lstm_mpc.mpc.nmpc.ExactNMPC` included).
+    :class:`~ltv_lstm_mpc.mpc.exact_nmpc.ExactNMPC` included).
     """
 
     certification: Certification

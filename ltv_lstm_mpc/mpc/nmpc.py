@@ -40,7 +40,7 @@ from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus
 
-__all__ = ["NonlinearTranscription"]  # ExactNMPC (still importable here): mpc/exact_nmpc.py
+__all__ = ["NonlinearTranscription"]  # ExactNMPC, the RTI core on it: mpc/exact_nmpc.py
 
 FloatArray = NDArray[np.float64]
 
@@ -260,13 +260,3 @@ class NonlinearTranscription(TranscriptionBase):
         U = w[n_x : n_x + n_u].reshape(N, model.m)
         return StepResult(status, U.copy(), X.copy(), violation, self.tolerance, elapsed,
                           iterations, f"IPOPT: {native}")  # fmt: skip
-
-
-def __getattr__(name: str) -> Any:
-    """``ExactNMPC`` lives in :mod:`~ltv_lstm_mpc.mpc.exact_nmpc` (imported on first use, so
-    this module does not import the RTI core that imports it)."""
-    if name == "ExactNMPC":
-        from ltv_lstm_mpc.mpc.exact_nmpc import ExactNMPC
-
-        return ExactNMPC
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

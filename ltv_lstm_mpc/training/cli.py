@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ltv_lstm_mpc.cli.arguments import nonnegative_float, positive_float, positive_int
+from ltv_lstm_mpc.command_arguments import nonnegative_float, positive_float, positive_int
 from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.training.datasets import IdentificationDataset, generate_dataset
 

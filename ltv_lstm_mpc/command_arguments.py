@@ -4,6 +4,10 @@ Each function is an ``argparse`` ``type=``: a bad value is a usage error (exit c
 line naming the option's value and the allowed range), never a traceback and never a
 silent fallback. :class:`UsageError` is raised by commands for usage errors found after
 parsing (e.g. an unknown bench backend); ``main`` turns it into exit code 2.
+
+A module of its own, below the ``cli`` package: the commands that live with their own
+packages (``train``/``generate-data`` in ``training``, ``bench``/``replay`` in ``bench``,
+``campaign``) use these types without importing the ``cli`` package that registers them.
 """
 
 from __future__ import annotations
