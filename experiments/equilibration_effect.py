@@ -27,7 +27,6 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 from ltv_lstm_mpc.solvers import DenseQP, DenseSession, SolverStatus
-from ltv_lstm_mpc.solvers._adapters import dense_qp_of
 from ltv_lstm_mpc.solvers.testing import random_dense_qp, random_mpc_problem
 
 FloatArray = np.ndarray
@@ -73,7 +72,7 @@ def _ill_conditioned(count: int) -> Iterator[Case]:
 
 def _mpc(count: int) -> Iterator[Case]:
     for seed in range(count):
-        qp = dense_qp_of(random_mpc_problem(10, seed=seed, terminal_cone=False))
+        qp = DenseQP.from_convex_problem(random_mpc_problem(10, seed=seed, terminal_cone=False))
         sol = DenseSession("quadprog").solve(qp)
         if sol.z is not None:
             yield qp, np.asarray(sol.z)

@@ -21,7 +21,7 @@ from typing import Any, ClassVar, cast
 import numpy as np
 
 from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart
-from .dense import DenseBackend, DenseBackendFactory, DenseCone, DenseQP
+from .dense import DenseBackend, DenseBackendFactory, DenseQP
 from .problem import ConvexProblem, Solution
 
 __all__ = ["convex_from_dense", "dense_from_convex", "dense_qp_of"]
@@ -127,31 +127,8 @@ def dense_from_convex(factory: BackendFactory) -> DenseBackendFactory:
 # ConvexProblems on a dense backend
 # --------------------------------------------------------------------------------------
 def dense_qp_of(problem: ConvexProblem) -> DenseQP:
-    """``problem`` as a :class:`DenseQP` (``[A_eq; G]``, ``lo = up`` for equalities, its cones
-    as :class:`DenseCone`; a QP-only dense backend refuses those)."""
-    n = problem.n_variables
-    rows: list[FloatArray] = []
-    lo: list[FloatArray] = []
-    up: list[FloatArray] = []
-    if problem.A_eq is not None and problem.b_eq is not None:
-        rows.append(problem.A_eq.toarray())
-        lo.append(np.asarray(problem.b_eq))
-        up.append(np.asarray(problem.b_eq))
-    if problem.G is not None and problem.l is not None and problem.u is not None:
-        rows.append(problem.G.toarray())
-        lo.append(np.asarray(problem.l))
-        up.append(np.asarray(problem.u))
-    A = np.vstack(rows) if rows else np.zeros((0, n))
-    return DenseQP(
-        H=np.ascontiguousarray(problem.P.toarray()),
-        f=np.array(problem.q, dtype=np.float64),
-        A=np.ascontiguousarray(A),
-        lo=np.concatenate(lo) if lo else np.zeros(0),
-        up=np.concatenate(up) if up else np.zeros(0),
-        lb=np.full(n, -np.inf) if problem.lb is None else np.array(problem.lb),
-        ub=np.full(n, np.inf) if problem.ub is None else np.array(problem.ub),
-        cones=tuple(DenseCone(c.F.toarray(), c.g, c.e, c.f) for c in problem.cones),
-    )
+    """``problem`` as a :class:`DenseQP` (:meth:`DenseQP.from_convex_problem`)."""
+    return DenseQP.from_convex_problem(problem)
 
 
 class ConvexFromDense(Backend):

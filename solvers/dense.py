@@ -285,6 +285,35 @@ class DenseQP:
             )
         return ConvexProblem(P=P, q=self.f, **kwargs)
 
+    @classmethod
+    def from_convex_problem(cls, problem: ConvexProblem) -> DenseQP:
+        """``problem`` as a dense QP: rows ``[A_eq; G]`` with ``lo = up = b_eq`` for the
+        equalities, missing bounds infinite, cones as :class:`DenseCone` (a QP-only backend
+        refuses those). The inverse of :meth:`to_convex_problem` up to the row order."""
+        n = problem.n_variables
+        rows: list[FloatArray] = []
+        lo: list[FloatArray] = []
+        up: list[FloatArray] = []
+        if problem.A_eq is not None and problem.b_eq is not None:
+            rows.append(problem.A_eq.toarray())
+            lo.append(np.asarray(problem.b_eq))
+            up.append(np.asarray(problem.b_eq))
+        if problem.G is not None and problem.l is not None and problem.u is not None:
+            rows.append(problem.G.toarray())
+            lo.append(np.asarray(problem.l))
+            up.append(np.asarray(problem.u))
+        A = np.vstack(rows) if rows else np.zeros((0, n))
+        return cls(
+            H=np.ascontiguousarray(problem.P.toarray()),
+            f=np.array(problem.q, dtype=np.float64),
+            A=np.ascontiguousarray(A),
+            lo=np.concatenate(lo) if lo else np.zeros(0),
+            up=np.concatenate(up) if up else np.zeros(0),
+            lb=np.full(n, -np.inf) if problem.lb is None else np.array(problem.lb),
+            ub=np.full(n, np.inf) if problem.ub is None else np.array(problem.ub),
+            cones=tuple(DenseCone(c.F.toarray(), c.g, c.e, c.f) for c in problem.cones),
+        )
+
     def copy(self) -> DenseQP:
         """Deep copy (new arrays)."""
         H, f, A, lo, up, lb, ub = (np.array(getattr(self, name)) for name in _FIELDS)

@@ -41,7 +41,6 @@ from ltv_lstm_mpc.solvers import (
     available_solvers,
     solve,
 )
-from ltv_lstm_mpc.solvers._adapters import dense_qp_of
 
 SOLVERS = available_solvers()
 OK = (SolverStatus.OPTIMAL,)
@@ -387,7 +386,7 @@ def test_peer_problem_solve(solver: str, name: str) -> None:
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_peer_problem_dense_session(solver: str, name: str) -> None:
     """Through ``DenseSession.solve`` on the problem as a DenseQP."""
-    qp: DenseQP = dense_qp_of(peers()[name].problem)
+    qp: DenseQP = DenseQP.from_convex_problem(peers()[name].problem)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sol = DenseSession(solver).solve(qp)
@@ -418,7 +417,7 @@ def test_peer_problem_warm_started_sessions(solver: str, name: str) -> None:
             else:
                 session.update(problem)
             sol = session.solve(warm_start=previous)
-            sol_dense = dense.solve(dense_qp_of(problem), warm_start=previous_dense)
+            sol_dense = dense.solve(DenseQP.from_convex_problem(problem), warm_start=previous_dense)
             t = tol(solver)
             for s in (sol, sol_dense):
                 if s.status is SolverStatus.OPTIMAL:

@@ -25,7 +25,6 @@ from ltv_lstm_mpc.solvers import (
     solver_info,
     unregister_backend,
 )
-from ltv_lstm_mpc.solvers._adapters import dense_qp_of
 from ltv_lstm_mpc.solvers._base import RawResult, WarmStart
 from ltv_lstm_mpc.solvers.testing import (
     GARBAGE,
@@ -518,7 +517,7 @@ def test_faulty_keeps_the_capabilities_of_a_cone_backend(base: str, cleanup: lis
             assert getattr(wrapped._backend, attribute) == getattr(plain._backend, attribute)
         assert wrapped._backend.handles_cones() == plain._backend.handles_cones()
     socp = problem("socp")
-    qp = dense_qp_of(socp)
+    qp = DenseQP.from_convex_problem(socp)
     assert qp.cones and socp.cones
     expected_dense = DenseSession(base).solve(qp)
     expected_sparse = solve(socp, base)
