@@ -38,6 +38,7 @@ from ltv_lstm_mpc.exceptions import (
     SamplingTimeError,
     SolverError,
     SolverNotFound,
+    UnknownPlantError,
     UnreachableSetpointError,
 )
 from ltv_lstm_mpc.loop.controller import ControllerStep, OffsetFreeController
@@ -59,6 +60,7 @@ from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
 from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.quadtank import QuadrupleTankPlant
+from ltv_lstm_mpc.plants.registry import register_plant, registered_plants, resolve_plant
 from ltv_lstm_mpc.training.mismatch import DMaxEstimate, estimate_d_max
 
 __all__ = [
@@ -99,6 +101,7 @@ __all__ = [
     "SolverError",
     "SolverNotFound",
     "TighteningCertificate",
+    "UnknownPlantError",
     "UnreachableSetpointError",
     "__version__",
     "certify",
@@ -109,6 +112,9 @@ __all__ = [
     "incremental_lyapunov_certificate",
     "load_model",
     "observer_certificate",
+    "register_plant",
+    "registered_plants",
+    "resolve_plant",
     "resolve_transcription",
     "shipped_models",
     "shipped_path",

@@ -27,6 +27,7 @@ __all__ = [
     "fraction_open",
     "nonnegative_float",
     "output_folder",
+    "plant_name",
     "positive_float",
     "positive_int",
     "real",
@@ -46,6 +47,24 @@ def real(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
     return value
+
+
+def plant_name(text: str) -> str:
+    """A registered plant name or an importable ``package.module:Class`` (the plant
+    registry, :func:`ltv_lstm_mpc.plants.registry.resolve_plant`)."""
+    from ltv_lstm_mpc.plants.registry import resolve_plant
+
+    try:
+        return resolve_plant(text).name
+    except LtvMpcError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def plant_help() -> str:
+    """The ``--plant`` choices for help texts: the registered names and the user form."""
+    from ltv_lstm_mpc.plants.registry import registered_plants
+
+    return ", ".join(registered_plants()) + ", or package.module:Class (a plant class of yours)"
 
 
 def positive_float(text: str) -> float:

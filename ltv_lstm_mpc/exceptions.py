@@ -19,6 +19,7 @@ __all__ = [
     "SamplingTimeError",
     "SolverError",
     "SolverNotFound",
+    "UnknownPlantError",
     "UnreachableSetpointError",
 ]
 
@@ -77,6 +78,10 @@ class EmptySetpointIntervalError(LtvMpcError, ValueError):
 
 class SamplingTimeError(LtvMpcError, ValueError):
     """The model was identified at another sampling time than the plant runs at."""
+
+
+class UnknownPlantError(LtvMpcError, ValueError):
+    """A plant name is neither registered nor an importable ``"package.module:Class"``."""
 
 
 class SolverNotFound(LtvMpcError, ImportError):

@@ -159,7 +159,11 @@ def test_cases_multiply_the_factors_and_installed_expands() -> None:
             "[factors].solver[1]",
             "installed:",
         ),
-        (lambda d: d["campaign"].update(plant="cstr"), "[campaign].plant", "'ph', 'lstm'"),
+        (
+            lambda d: d["campaign"].update(plant="cstr"),
+            "[campaign].plant",
+            "use one of lstm, ph, quadtank",
+        ),
         (lambda d: d["campaign"].update(steps=2.5), "[campaign].steps", "integer"),
         (lambda d: d["campaign"].update(setpoints=[7.0, "x"]), "[campaign].setpoints", "entry 1"),
         (lambda d: d["campaign"].update(plant="lstm"), "[campaign].q2", "use disturbances"),

@@ -167,7 +167,9 @@ def test_full_benchmark_is_offset_free_on_both_paths(model) -> None:  # type: ig
 def test_cli_refuses_a_single_output_model_on_the_quadruple_tank(capsys) -> None:  # type: ignore[no-untyped-def]
     code = main(["simulate", "--plant", "quadtank", "--model", "ph_lstm_n5.npz", "--no-progress"])
     assert code == 2
-    assert "two pumps and two levels; this model has m = 1, p = 1" in capsys.readouterr().err
+    error = capsys.readouterr().err
+    assert "2 input(s) and 2 output(s) (v1 (V), v2 (V) -> h1 (cm), h2 (cm))" in error
+    assert "this model has m = 1, p = 1: use --plant lstm, or --model quadtank_lstm_n8.npz" in error
     code = main(["reproduce", "--benchmark", "quadtank", "--model", "ph_lstm_n5.npz", "--short"])
     assert code == 1
     assert "m = 1, p = 1" in capsys.readouterr().err

@@ -54,6 +54,7 @@ from ltv_lstm_mpc.campaign.task import Task, task_key
 from ltv_lstm_mpc.exceptions import CampaignSpecError
 from ltv_lstm_mpc.mpc.config import TRANSCRIPTIONS, InfeasibilityPolicy
 from ltv_lstm_mpc.plants.ph import PHParameters
+from ltv_lstm_mpc.plants.registry import resolve_plant
 
 __all__ = [
     "DEFAULTS",
@@ -119,6 +120,18 @@ def _choice(*allowed: str) -> Checker:
         return value
 
     return check
+
+
+def _plant(value: Any) -> str:
+    """A plant name of the registry (:func:`ltv_lstm_mpc.plants.registry.resolve_plant`)."""
+    from ltv_lstm_mpc.exceptions import LtvMpcError
+
+    if not isinstance(value, str):
+        raise _Bad(f"expected a plant name, got {value!r}")
+    try:
+        return resolve_plant(value).name
+    except LtvMpcError as error:
+        raise _Bad(str(error)) from None
 
 
 def _string(value: Any) -> str:
@@ -246,7 +259,11 @@ class Setting:
 
 #: Every setting a spec understands (keys of ``[campaign]``, ``[factors]`` and ``[[cases]]``).
 SETTINGS: dict[str, Setting] = {
-    "plant": Setting(_choice("ph", "lstm"), "pH process (Fig. 1) or LSTM + output disturbance"),
+    "plant": Setting(
+        _plant,
+        "pH process (Fig. 1), LSTM + output disturbance, any registered plant name or "
+        "'package.module:Class' (importable on the workers too)",
+    ),
     "model": Setting(_string, "model .npz path (relative to the spec) or shipped name"),
     "scenario": Setting(_scenario, "a paper scenario: fixes plant, schedule and rate limit"),
     "short": Setting(_boolean, "scenario tasks: the quarter-length schedules"),
@@ -480,21 +497,27 @@ def _resolve_task(
         settings.setdefault("rate_limit", DEFAULTS["rate_limit"])
         if "q2" in settings and "disturbances" in settings:
             raise fail("q2", "give q2 or disturbances, not both (for the pH plant they are q2)")
+        entry = resolve_plant(plant)
         if "q2" in settings and plant != "ph":
             raise fail(
                 "q2",
-                "q2 is the pH plant's buffer flow; for plant = 'lstm' use disturbances "
-                "(output disturbance in output units)",
+                f"q2 is the pH plant's buffer flow; for plant = {plant!r} use disturbances "
+                f"({entry.disturbance})",
             )
         steps = settings["steps"]
         for name in ("setpoints", "q2", "disturbances"):
             if name in settings and len(settings[name]) > steps:
                 raise fail(name, f"{len(settings[name])} segments for steps = {steps}")
-        if "y0_initial" in settings and plant != "lstm":
-            raise fail("y0_initial", "applies to the LSTM plant (the pH plant starts at pH 7.03)")
-        if "disturbances" not in settings and "q2" not in settings:
-            settings["q2" if plant == "ph" else "disturbances"] = [0.55 if plant == "ph" else 0.0]
-    if settings.get("mismatch") and plant != "ph":
+        if "y0_initial" in settings and "y0_phi" not in entry.options:
+            raise fail(
+                "y0_initial",
+                f"applies to the LSTM plant (the {entry.title} starts where its reset() puts it)",
+            )
+        if "disturbances" not in settings and "q2" not in settings and entry.nominal_disturbance:
+            nominal = [float(entry.nominal_disturbance[0])]
+            settings["q2" if plant == "ph" else "disturbances"] = nominal
+    entry = resolve_plant(plant)
+    if settings.get("mismatch") and "mismatch" not in entry.options:
         raise fail("mismatch", "parameter mismatch applies to the pH plant only")
     if plant == "ph":
         for name in ("q2", "disturbances"):
@@ -561,14 +584,15 @@ def _model_file(location: str, field_name: str, cache: dict[str, _ModelFile]) ->
     return cache[location]
 
 
-def _check_ph_sampling_time(model_file: _ModelFile, field_name: str) -> None:
-    """The pH plant runs at its benchmark Ts; a model identified at another one is refused."""
+def _check_plant_sampling_time(model_file: _ModelFile, plant: str, field_name: str) -> None:
+    """A plant that states its Ts (the pH plant: the benchmark's) refuses a model identified
+    at another one; the LSTM plant runs at the model's own Ts."""
     from ltv_lstm_mpc.exceptions import SamplingTimeError
-    from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
     from ltv_lstm_mpc.plants.protocol import check_sampling_time
 
+    entry = resolve_plant(plant)
     try:
-        check_sampling_time(model_file.Ts, PHNeutralizationPlant().Ts, "pH plant")
+        check_sampling_time(model_file.Ts, entry.Ts, entry.title)
     except SamplingTimeError as error:
         raise CampaignSpecError(field_name, str(error)) from None
 
@@ -651,8 +675,7 @@ def parse_spec(
             model_file = _model_file(model, origin.get("model", "[campaign].model"), models)
             scenario = settings.get("scenario")
             plant = SCENARIO_NAMES[scenario] if scenario is not None else settings["plant"]
-            if plant == "ph":  # the LSTM plant runs at the model's own Ts
-                _check_ph_sampling_time(model_file, origin.get("model", "[campaign].model"))
+            _check_plant_sampling_time(model_file, plant, origin.get("model", "[campaign].model"))
             key = task_key(settings, model_sha256=model_file.sha256)
             if key in seen:
                 continue

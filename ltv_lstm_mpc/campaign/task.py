@@ -200,7 +200,7 @@ class _Loop:
     plant: Any
     controller: Any
     setpoints: FloatArray
-    disturbances: FloatArray
+    disturbances: FloatArray | None
     segments: list[tuple[int, int]]
     facts: dict[str, Any]
 
@@ -208,8 +208,7 @@ class _Loop:
 def _build_loop(task: Task, model: Any, steps_limit: int | None) -> _Loop:
     from ltv_lstm_mpc.loop.controller import OffsetFreeController
     from ltv_lstm_mpc.mpc.config import MPCConfig
-    from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
-    from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant, PHParameters
+    from ltv_lstm_mpc.plants.registry import resolve_plant
 
     s = task.settings
     if model.p != 1:
@@ -234,7 +233,8 @@ def _build_loop(task: Task, model: Any, steps_limit: int | None) -> _Loop:
             overrides["L_d"] = s["L_d"]
         config = replace(scenario.config, **overrides)
         plant_kind, rate_limit = scenario.plant, scenario.setpoint_rate_limit
-        setpoints, disturbances = scenario.setpoints, scenario.disturbances
+        setpoints = scenario.setpoints
+        disturbances: FloatArray | None = scenario.disturbances
         segments = list(scenario.segments)
         y0_initial: float | None = scenario.y0_phi_initial
     else:
@@ -243,24 +243,22 @@ def _build_loop(task: Task, model: Any, steps_limit: int | None) -> _Loop:
         rate_limit = s["rate_limit"] if s["rate_limit"] > 0 else None
         steps = s["steps"]
         setpoints, sp_edges = equal_segments(s["setpoints"], steps)
-        disturbances, d_edges = equal_segments(s.get("q2", s.get("disturbances", [])), steps)
+        given = s.get("q2", s.get("disturbances"))
+        disturbances, d_edges = (None, []) if given is None else equal_segments(given, steps)
         edges = sorted(set(sp_edges) | set(d_edges))
         segments = list(itertools.pairwise(edges))
         y0_initial = s.get("y0_initial")
     if steps_limit is not None:
-        setpoints, disturbances = setpoints[:steps_limit], disturbances[:steps_limit]
+        setpoints = setpoints[:steps_limit]
+        disturbances = None if disturbances is None else disturbances[:steps_limit]
         segments = [(a, min(b, steps_limit)) for a, b in segments if a < steps_limit]
-    if plant_kind == "ph":
-        nominal = PHParameters()
-        params = replace(
-            nominal, **{name: getattr(nominal, name) * k for name, k in s["mismatch"].items()}
-        )
-        inner: Any = PHNeutralizationPlant(q1=params.q1, params=params)
-        inner.reset()
-    elif y0_initial is not None:
-        inner = LSTMPlant(model, y0_phi=y0_initial)
-    else:
-        inner = LSTMPlant(model)
+    entry = resolve_plant(plant_kind)
+    options: dict[str, Any] = {}
+    if "mismatch" in entry.options:
+        options["mismatch"] = s["mismatch"]
+    if "y0_phi" in entry.options and y0_initial is not None:
+        options["y0_phi"] = y0_initial
+    inner = entry.build(model, **options)
     controller = OffsetFreeController(model, config, setpoint_rate_limit=rate_limit)
     facts = {
         "plant": plant_kind,

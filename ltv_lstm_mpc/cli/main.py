@@ -40,6 +40,8 @@ from ltv_lstm_mpc.command_arguments import (
     fraction_open,
     nonnegative_float,
     output_folder,
+    plant_help,
+    plant_name,
     positive_float,
     positive_int,
     real,
@@ -370,10 +372,6 @@ def _offset_status(offsets: Sequence[float | None], max_offset: float | None) ->
     return 0
 
 
-#: Default set-points of ``simulate --plant quadtank`` (h1,h2 in cm per segment).
-_QUADTANK_SETPOINTS = ("14,14", "13,11", "12.3,12.8")
-
-
 def _add_simulate(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "simulate",
@@ -387,15 +385,15 @@ def _add_simulate(subparsers: Any) -> None:
     parser.add_argument(
         "--model",
         default=None,
-        help=f"model (default {PH_MODEL}; --plant quadtank: {QUADTANK_MODEL})",
+        help=f"model (default: the plant's, {PH_MODEL} for ph; quadtank: {QUADTANK_MODEL})",
     )
     parser.add_argument(
         "--plant",
-        choices=["ph", "lstm", "quadtank"],
+        type=plant_name,
         default="ph",
         help=(
-            "plant (default ph); quadtank: the quadruple-tank process (pump voltages in V, "
-            "levels in cm, disturbances = leak areas of tanks 1 and 2 in cm^2)"
+            f"plant: {plant_help()} (default ph); quadtank: the quadruple-tank process (pump "
+            "voltages in V, levels in cm, disturbances = leak areas of tanks 1 and 2 in cm^2)"
         ),
     )
     parser.add_argument(
@@ -403,8 +401,8 @@ def _add_simulate(subparsers: Any) -> None:
         nargs="+",
         default=None,
         help=(
-            "set-point per segment, physical units (default 7.5 6.8 8.0 pH; quadtank: "
-            f"{' '.join(_QUADTANK_SETPOINTS)} cm); for a model with p > 1 outputs one "
+            "set-point per segment, physical units (default: the plant's, 7.5 6.8 8.0 pH for "
+            "ph; quadtank: 14,14 13,11 12.3,12.8 cm); for a model with p > 1 outputs one "
             "comma-separated value per output, e.g. 0.2,0.1 0.3,0.0"
         ),
     )
@@ -414,8 +412,8 @@ def _add_simulate(subparsers: Any) -> None:
         default=None,
         help=(
             "disturbance per segment (q2 in mL/s for ph, output offset for lstm, leak areas "
-            "of tanks 1 and 2 in cm^2 for quadtank, default none; comma-separated per output "
-            "for p > 1)"
+            "of tanks 1 and 2 in cm^2 for quadtank; default: the plant's nominal one; "
+            "comma-separated per output for p > 1)"
         ),
     )
     parser.add_argument(
@@ -462,9 +460,14 @@ def _run_simulate(args: argparse.Namespace) -> int:
     from ltv_lstm_mpc.mpc.config import MPCConfig
     from ltv_lstm_mpc.paper.reproduce import format_table, write_scenario_outputs
     from ltv_lstm_mpc.paper.scenarios import Scenario, run_scenario
+    from ltv_lstm_mpc.plants.registry import resolve_plant
 
-    default_model = QUADTANK_MODEL if args.plant == "quadtank" else PH_MODEL
-    model = LSTMModel.load(model_path(args.model or default_model))
+    entry = resolve_plant(args.plant)
+    model_name = args.model or entry.model
+    if model_name is None:
+        raise UsageError(f"the plant {entry.name} names no default model: give --model")
+    model = LSTMModel.load(model_path(model_name))
+    _check_plant_size(entry, model)
     config = MPCConfig(
         N=args.N,
         L_d=args.L_d,
@@ -474,30 +477,16 @@ def _run_simulate(args: argparse.Namespace) -> int:
         sqp_iterations=args.sqp_iterations,
     )
     rate_limit = args.rate_limit if args.rate_limit > 0 else None
+    default_setpoints = [t for t in entry.setpoints if len(t.split(",")) == model.p]
     if model.p > 1:
         from ltv_lstm_mpc.cli.simulate_mimo import run_mimo
 
-        if args.plant == "ph":
-            raise UsageError(
-                f"the pH plant has one input and one output; this model has m = {model.m}, "
-                f"p = {model.p}: use --plant lstm (or --plant quadtank for a quadruple-tank model)"
-            )
-        plant = None
-        setpoint_tokens = args.setpoints
-        if args.plant == "quadtank":
-            from ltv_lstm_mpc.plants.quadtank import QUADTANK_TS, QuadrupleTankPlant
-
-            if (model.m, model.p) != (2, 2):
-                raise UsageError(
-                    f"the quadruple tank has two pumps and two levels; this model has "
-                    f"m = {model.m}, p = {model.p}"
-                )
-            plant = QuadrupleTankPlant(Ts=model.Ts if model.Ts is not None else QUADTANK_TS)
-            setpoint_tokens = setpoint_tokens or list(_QUADTANK_SETPOINTS)
+        setpoint_tokens = args.setpoints or default_setpoints or None
         if setpoint_tokens is None:
             raise UsageError(
                 f"give --setpoints, one comma-separated value per output (p = {model.p})"
             )
+        plant = None if entry.name == "lstm" else entry.build(model)
         mimo, sim = run_mimo(
             model,
             config,
@@ -521,13 +510,9 @@ def _run_simulate(args: argparse.Namespace) -> int:
             f"step {1e6 * mimo['median_step_time_s']:.0f} us ({sim.transcription})"
         )
         return _offset_status([mimo["final_offset"]], args.max_offset)
-    if args.plant == "quadtank":
-        raise UsageError(
-            f"the quadruple tank has two pumps and two levels; this model has m = {model.m}, "
-            f"p = {model.p}: use --model {QUADTANK_MODEL} or a model from "
-            "`ltv-lstm-mpc train --plant quadtank`"
-        )
-    tokens = args.setpoints or ["7.5", "6.8", "8.0"]
+    tokens = args.setpoints or default_setpoints
+    if not tokens:
+        raise UsageError(f"the plant {entry.name} names no default set-points: give --setpoints")
     try:
         setpoints = [float(t) for t in tokens]
         given = None if args.disturbances is None else [float(t) for t in args.disturbances]
@@ -537,7 +522,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
             f"got {tokens} / {args.disturbances}"
         ) from None
     segments = len(setpoints)
-    nominal = 0.55 if args.plant == "ph" else 0.0
+    nominal = entry.nominal_disturbance[0] if entry.nominal_disturbance else float("nan")
     disturbances = given or [nominal] * segments
     if len(disturbances) != segments:
         raise UsageError(
@@ -547,8 +532,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
     lengths = [args.segment] * segments
     scenario = Scenario(
         name="simulate",
-        title=f"{args.plant} plant, {args.solver}, N = {args.N}, L_d = {args.L_d}",
-        plant=args.plant,
+        title=f"{entry.name} plant, {args.solver}, N = {args.N}, L_d = {args.L_d}",
+        plant=entry.name,
         setpoints=np.repeat(np.asarray(setpoints, dtype=float), args.segment),
         disturbances=np.repeat(np.asarray(disturbances, dtype=float), args.segment),
         config=config,
@@ -576,6 +561,24 @@ def _run_simulate(args: argparse.Namespace) -> int:
         f"{counts['measurement_implausible_steps']} steps"
     )
     return _offset_status([summary["final_offset"]], args.max_offset)
+
+
+def _check_plant_size(entry: Any, model: LSTMModel) -> None:
+    """The plant's inputs and outputs (where its entry names them) against the model's."""
+    if entry.name == "lstm" or not entry.output_labels:
+        return
+    inputs, outputs = len(entry.input_labels), len(entry.output_labels)
+    if (inputs, outputs) == (model.m, model.p):
+        return
+    hint = "use --plant lstm"
+    if entry.model is not None:
+        hint += f", or --model {entry.model} (or a model from `ltv-lstm-mpc train --plant "
+        hint += f"{entry.name}`)"
+    raise UsageError(
+        f"the {entry.name} plant has {inputs} input(s) and {outputs} output(s) "
+        f"({', '.join(entry.input_labels)} -> {', '.join(entry.output_labels)}); this model "
+        f"has m = {model.m}, p = {model.p}: {hint}"
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,9 +36,8 @@ from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.fhocp import MPCSolver
-from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
-from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant
 from ltv_lstm_mpc.plants.protocol import Plant
+from ltv_lstm_mpc.plants.registry import resolve_plant
 
 __all__ = [
     "Scenario",
@@ -74,12 +73,15 @@ class Scenario:
     ----------
     name, title : str
         Identifier and plot title.
-    plant : {"lstm", "ph"}
-        LSTM + output disturbance (Fig. 2) or the pH process (Fig. 1).
+    plant : str
+        A plant name of the registry (:mod:`ltv_lstm_mpc.plants.registry`): ``"lstm"``,
+        LSTM + output disturbance (Fig. 2), ``"ph"``, the pH process (Fig. 1), or another
+        registered name or ``"package.module:Class"``.
     setpoints : ndarray (steps,)
         Requested set-point :math:`y^0_\\phi` (pH) per sample, before the rate limiter.
     disturbances : ndarray (steps,)
-        LSTM plant: output disturbance in pH; pH plant: buffer flow q2 in mL/s.
+        LSTM plant: output disturbance in pH; pH plant: buffer flow q2 in mL/s; NaN
+        everywhere: the plant's own default disturbance.
     config : MPCConfig
         Controller tuning.
     setpoint_rate_limit : float or None
@@ -93,7 +95,7 @@ class Scenario:
 
     name: str
     title: str
-    plant: Literal["lstm", "ph"]
+    plant: str
     setpoints: FloatArray
     disturbances: FloatArray
     config: MPCConfig
@@ -108,12 +110,10 @@ class Scenario:
         return int(self.setpoints.shape[0])
 
     def make_plant(self, model: LSTMModel) -> Plant:
-        """A fresh plant at its initial condition."""
-        if self.plant == "lstm":
-            return LSTMPlant(model, y0_phi=self.y0_phi_initial)
-        plant = PHNeutralizationPlant()
-        plant.reset()
-        return plant
+        """A fresh plant at its initial condition (through the plant registry)."""
+        entry = resolve_plant(self.plant)
+        options = {"y0_phi": self.y0_phi_initial} if "y0_phi" in entry.options else {}
+        return entry.build(model, **options)
 
     def make_controller(
         self,
@@ -297,11 +297,12 @@ def run_scenario(
     """Simulate one scenario in closed loop and return it with its summary."""
     controller = scenario.make_controller(model, mpc=mpc, solver=solver, N=N)
     plant = scenario.make_plant(model)
+    disturbances = scenario.disturbances
     result = simulate(
         plant,
         controller,
         scenario.setpoints,
-        scenario.disturbances,
+        None if np.all(np.isnan(disturbances)) else disturbances,
         scenario.steps,
         progress=progress,
         description=scenario.name,

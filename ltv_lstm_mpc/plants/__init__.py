@@ -12,6 +12,9 @@ lstm_plant
     :class:`LSTMPlant`, the LSTM model with an additive output disturbance (Fig. 2).
 measurement
     :class:`NoisyMeasurement`, Gaussian measurement noise on any of them.
+registry
+    :func:`register_plant`, :func:`resolve_plant`: plant names (and ``"module:Class"``)
+    with their defaults, for the command line, data generation and campaigns.
 """
 
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
@@ -28,6 +31,12 @@ from ltv_lstm_mpc.plants.quadtank import (
     QuadrupleTankPlant,
     simulate_quadtank_batch,
 )
+from ltv_lstm_mpc.plants.registry import (
+    RegisteredPlant,
+    register_plant,
+    registered_plants,
+    resolve_plant,
+)
 
 __all__ = [
     "LSTMPlant",
@@ -37,7 +46,11 @@ __all__ = [
     "Plant",
     "QuadrupleTankParameters",
     "QuadrupleTankPlant",
+    "RegisteredPlant",
     "ph_from_state",
+    "register_plant",
+    "registered_plants",
+    "resolve_plant",
     "simulate_ph_batch",
     "simulate_quadtank_batch",
 ]

@@ -16,28 +16,35 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ltv_lstm_mpc.command_arguments import nonnegative_float, positive_float, positive_int
+from ltv_lstm_mpc.command_arguments import (
+    UsageError,
+    nonnegative_float,
+    plant_help,
+    plant_name,
+    positive_float,
+    positive_int,
+)
 from ltv_lstm_mpc.exceptions import LtvMpcError
+from ltv_lstm_mpc.plants.registry import plant_name_of, resolve_plant
 from ltv_lstm_mpc.training.datasets import IdentificationDataset, generate_dataset
 
 __all__ = ["generate_data_command", "register", "train_command"]
 
 _DEFAULT_DATA = "ph_identification_data.npz"
-#: Data file name per plant (``train`` without ``--data`` saves the generated data there).
-_DATA_NAMES = {"ph": _DEFAULT_DATA, "quadtank": "quadtank_identification_data.npz"}
 #: Default LSTM size for ``--plant quadtank`` (the shipped ``quadtank_lstm_n8.npz``).
-QUADTANK_NEURONS = 8
+QUADTANK_NEURONS = resolve_plant("quadtank").neurons
 
 
 def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
     parser.add_argument(
         "--plant",
-        choices=sorted(_DATA_NAMES),
+        type=plant_name,
         default=None,
         help=(
-            "plant to identify: ph (pH neutralization, one input) or quadtank (quadruple tank, "
-            "pump voltages v1, v2 in V -> levels h1, h2 in cm, Ts = 10 s); default ph, or "
-            "the plant of the --data file"
+            f"plant to identify: {plant_help()}; ph: pH neutralization, one input; "
+            "quadtank: quadruple tank, pump voltages v1, v2 in V -> levels h1, h2 in cm, "
+            "Ts = 10 s; a class of yours needs u_phi_min and u_phi_max (its input range). "
+            "Default ph, or the plant of the --data file"
         ),
     )
     parser.add_argument(
@@ -81,23 +88,34 @@ def _plant_name(args: argparse.Namespace) -> str:
 
 
 def _data_plant(dataset: IdentificationDataset) -> str:
-    """The ``--plant`` name of a data file's plant."""
-    return "quadtank" if dataset.metadata.get("plant") == "QuadrupleTankPlant" else "ph"
+    """The ``--plant`` name of a data file's plant (the data record its class, or
+    ``"package.module:Class"`` for a user's plant)."""
+    recorded = str(dataset.metadata.get("plant", "PHNeutralizationPlant"))
+    return plant_name_of(recorded) or recorded
+
+
+def _default_neurons(plant: str) -> int | None:
+    """The plant's default LSTM size n (None: the training default, also for data of a
+    plant class that is not importable here)."""
+    try:
+        return resolve_plant(plant).neurons
+    except LtvMpcError:
+        return None
 
 
 def _generate(args: argparse.Namespace) -> IdentificationDataset:
-    plant_name = _plant_name(args)
-    label = "quadruple-tank process" if plant_name == "quadtank" else "pH plant"
+    entry = resolve_plant(_plant_name(args))
+    if entry.name == "lstm":
+        raise UsageError(
+            "the LSTM plant is a model, not a process to identify: choose the plant the "
+            f"data come from ({plant_help()})"
+        )
     print(
-        f"simulating {args.sequences} sequences x {args.steps} steps of the {label} "
+        f"simulating {args.sequences} sequences x {args.steps} steps of the {entry.title} "
         f"(seed {args.data_seed})...",
         file=sys.stderr,
     )
-    plant = None
-    if plant_name == "quadtank":
-        from ltv_lstm_mpc.plants.quadtank import QuadrupleTankPlant
-
-        plant = QuadrupleTankPlant()
+    plant = entry.build()
     return generate_dataset(
         seed=args.data_seed,
         sequences=args.sequences,
@@ -147,8 +165,8 @@ def train_command(args: argparse.Namespace) -> int:
             )
             return 2
     neurons = args.neurons
-    if neurons is None and plant_name == "quadtank":
-        neurons = QUADTANK_NEURONS
+    if neurons is None:
+        neurons = _default_neurons(plant_name)
     overrides: dict[str, Any] = {
         "n": neurons,
         "epochs": args.epochs,
@@ -175,7 +193,7 @@ def train_command(args: argparse.Namespace) -> int:
             dataset = _generate(args)
             out = Path(args.out)
             out.mkdir(parents=True, exist_ok=True)
-            data_name = _DATA_NAMES[plant_name]
+            data_name = resolve_plant(plant_name).data_file
             print(f"wrote {dataset.save(out / data_name)}", file=sys.stderr)
         result = train(
             dataset,

@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.lstm.model import Normalization
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant, ph_from_state, simulate_ph_batch
+from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.quadtank import (
     QUADTANK_LEVEL_CONSTRAINT,
     QuadrupleTankPlant,
@@ -92,8 +93,10 @@ QUADTANK_UNITS: dict[str, str] = {
 
 FORMAT_VERSION = 1
 
-#: Plants :func:`generate_dataset` can simulate.
-IdentificationPlant = PHNeutralizationPlant | QuadrupleTankPlant
+#: Plants :func:`generate_dataset` can simulate: the pH and quadruple-tank plants (batched,
+#: compiled simulations) and any other plant with an input range (stepped one sample at a
+#: time through its ``reset``/``output``/``step``, see :func:`_simulate_stepped`).
+IdentificationPlant = PHNeutralizationPlant | QuadrupleTankPlant | Plant
 
 
 def initial_input(metadata: Mapping[str, Any]) -> FloatArray:
@@ -105,6 +108,70 @@ def initial_input(metadata: Mapping[str, Any]) -> FloatArray:
     if "u_phi_initial" in metadata:
         return np.atleast_1d(np.asarray(metadata["u_phi_initial"], dtype=np.float64))
     return np.array([float(metadata.get("q3_initial", 15.6))])
+
+
+def plant_label(plant: Any) -> str:
+    """The name identification data record for ``plant``: the class name of the plants that
+    ship (``"PHNeutralizationPlant"``), ``"package.module:Class"`` for any other."""
+    cls = type(plant)
+    if isinstance(plant, (PHNeutralizationPlant, QuadrupleTankPlant)):
+        return cls.__name__
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _input_range(plant: Any) -> tuple[FloatArray, FloatArray]:
+    """(low, high) per input of a plant's ``u_phi_min`` / ``u_phi_max`` (any plant)."""
+    low, high = getattr(plant, "u_phi_min", None), getattr(plant, "u_phi_max", None)
+    if low is None or high is None:
+        raise InvalidValueError(
+            f"{type(plant).__name__} states no input range: give it attributes u_phi_min and "
+            "u_phi_max (physical units, one value or one per input); the identification "
+            "signal is drawn in that range"
+        )
+    size = max(np.size(low), np.size(high), len(getattr(plant, "input_labels", ())) or 1)
+    low_v = np.broadcast_to(np.asarray(low, dtype=np.float64), (size,)).copy()
+    high_v = np.broadcast_to(np.asarray(high, dtype=np.float64), (size,)).copy()
+    return low_v, high_v
+
+
+def _simulate_stepped(
+    indices: list[int],
+    *,
+    seed: int,
+    sequences: int,
+    steps: int,
+    plant: Any,
+    min_hold: int,
+    max_hold: int,
+    progress: bool = False,
+) -> tuple[FloatArray, FloatArray]:
+    """(u_phi, y_phi) of any plant, one sample at a time: ``reset()``, then ``step(u)``.
+
+    Each input is its own multilevel signal in the plant's range, drawn from the sequence's
+    random stream (input 0 first, as for the quadruple tank). Shapes (S, T) for one
+    input / output, (S, T, channels) for several.
+    """
+    from tqdm.auto import tqdm
+
+    low, high = _input_range(plant)
+    m = low.size
+    u = np.empty((len(indices), steps, m))
+    for row, index in enumerate(indices):
+        rng = sequence_rng(seed, index, sequences)
+        for j in range(m):
+            u[row, :, j] = multilevel_signal(
+                rng, steps, float(low[j]), float(high[j]), min_hold=min_hold, max_hold=max_hold
+            )
+    outputs: list[FloatArray] = []
+    for row in tqdm(range(len(indices)), disable=not progress, desc="sequences", leave=False):
+        plant.reset()
+        y = [np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))]
+        for k in range(steps - 1):
+            y.append(np.atleast_1d(np.asarray(plant.step(u[row, k]), dtype=np.float64)))
+        outputs.append(np.array(y))
+    p = outputs[0].shape[1] if outputs else 1
+    y_all = np.array(outputs) if outputs else np.empty((0, steps, p))
+    return (u[..., 0] if m == 1 else u), (y_all[..., 0] if p == 1 else y_all)
 
 
 def multilevel_signal(
@@ -205,6 +272,11 @@ def _simulate(
         return _simulate_quadtank(
             indices, seed=seed, sequences=sequences, steps=steps, plant=plant,
             min_hold=min_hold, max_hold=max_hold,
+        )  # fmt: skip
+    if not isinstance(plant, PHNeutralizationPlant):
+        return _simulate_stepped(
+            indices, seed=seed, sequences=sequences, steps=steps, plant=plant,
+            min_hold=min_hold, max_hold=max_hold, progress=progress,
         )  # fmt: skip
     u = np.empty((len(indices), steps))
     for row, index in enumerate(indices):
@@ -420,9 +492,9 @@ def _metadata(
         "steps": int(steps),
         "split_sizes": [int(s) for s in split_sizes],
         "sequence_indices": split_indices(split_sizes),
-        "Ts": plant.Ts,
-        "substeps": plant.substeps,
-        "u_phi_range": [plant.u_phi_min, plant.u_phi_max],
+        "Ts": getattr(plant, "Ts", None),
+        "substeps": getattr(plant, "substeps", None),
+        "u_phi_range": [_plain(getattr(plant, name)) for name in ("u_phi_min", "u_phi_max")],
         "hold_range": [int(min_hold), int(max_hold)],
         "alignment": "y_phi[k] measured at k*Ts, before u_phi[k] acts",
     }
@@ -437,6 +509,8 @@ def _metadata(
             "model_stem": "quadtank_lstm",
             "initial_state": "steady state of u_phi_initial, no leak",
         }
+    if not isinstance(plant, PHNeutralizationPlant):
+        return _stepped_metadata(plant, common)
     return {
         "plant": "PHNeutralizationPlant",
         "units": UNITS,
@@ -446,6 +520,32 @@ def _metadata(
         "q3_initial": plant.q3_nominal,
         "initial_state": "nominal steady state (q3 = q3_initial, q2 = q2)",
     }
+
+
+def _plain(value: Any) -> Any:
+    """A number or a list of numbers (JSON)."""
+    array = np.asarray(value, dtype=np.float64)
+    return float(array) if array.ndim == 0 else array.tolist()
+
+
+def _stepped_metadata(plant: Any, common: dict[str, Any]) -> dict[str, Any]:
+    """Metadata of a plant stepped by :func:`_simulate_stepped` (a user's plant)."""
+    low, high = _input_range(plant)
+    initial = getattr(plant, "u_phi_initial", None)
+    inputs = ", ".join(getattr(plant, "input_labels", ())) or "input units"
+    outputs = ", ".join(getattr(plant, "output_labels", ())) or "output units"
+    meta: dict[str, Any] = {
+        "plant": plant_label(plant),
+        "units": {"u_phi": inputs, "y_phi": outputs, "Ts": "s"},
+        **common,
+        "u_phi_initial": _plain(initial if initial is not None else (low + high) / 2),
+        "model_stem": f"{type(plant).__name__.lower()}_lstm",
+        "initial_state": "the plant's reset()",
+    }
+    constraint = getattr(plant, "y_phi_constraint", None)
+    if constraint is not None:
+        meta["y_phi_constraint"] = _plain(constraint)
+    return meta
 
 
 def _check_sizes(sequences: int, steps: int, split_sizes: tuple[int, int, int]) -> None:
@@ -509,10 +609,13 @@ def generate_dataset(
         Number of sequences and samples per sequence (paper: 15 x 1500).
     split_sizes : (int, int, int)
         Train / validation / test sequence counts (paper: 10 / 3 / 2), assigned in order.
-    plant : PHNeutralizationPlant or QuadrupleTankPlant, optional
+    plant : Plant, optional
         Plant to simulate (default: the pH plant of Table I, Ts = 10 s, q2 = 0.55 mL/s;
         a :class:`~ltv_lstm_mpc.plants.quadtank.QuadrupleTankPlant` gives two-input data,
-        see the module docstring).
+        see the module docstring). Any other plant with ``u_phi_min`` / ``u_phi_max`` (the
+        input range) is stepped one sample at a time from its ``reset()``; its metadata
+        record ``"package.module:Class"``, its ``u_phi_initial`` (default: the middle of
+        the range) and its ``y_phi_constraint`` where it states them.
     min_hold, max_hold : int
         Range of the number of samples each level is held (paper: 10..100).
     progress : bool

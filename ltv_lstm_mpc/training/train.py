@@ -453,6 +453,14 @@ def _data_constraint(dataset: IdentificationDataset) -> tuple[Any, Any]:
     output), else the pH benchmark's [6, 9] pH."""
     stated = dataset.metadata.get("y_phi_constraint")
     if stated is None:
+        plant = dataset.metadata.get("plant", "PHNeutralizationPlant")
+        if plant != "PHNeutralizationPlant":
+            raise InvalidValueError(
+                f"the data of {plant} state no output constraint (metadata y_phi_constraint) "
+                "and the model needs one (the set Y of eq. (optimization)): give the plant a "
+                "y_phi_constraint = (low, high) attribute and generate the data again, or set "
+                "dataset.metadata['y_phi_constraint']"
+            )
         return PAPER_Y_PHI_BOUNDS
     pairs = np.asarray(stated, dtype=np.float64).reshape(-1, 2)
     return pairs[:, 0], pairs[:, 1]
