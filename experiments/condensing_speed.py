@@ -3,7 +3,7 @@
 ``CondensedTranscription`` forms the Hessian and gradient of the condensed QP either as one
 Gram matrix of the weighted prediction stack (one BLAS product, O(N^3 n m^2)) or by the
 backward recursion of the cost-to-go weights (O(N n^3 + N^2 n m^2)); both give the same
-QP (tests/test_kernel.py). This script times ``lstm/compiled.condense`` both ways,
+QP (tests/test_kernel.py). This script times ``mpc/compiled_condensing.condense`` both ways,
 interleaved call by call on the same data, for random delta-ISS models, and prints the
 medians and their ratio: the crossover sets ``BACKWARD_CONDENSING_RATIO``.
 
@@ -28,7 +28,7 @@ from lstm_factories import random_delta_iss_lstm  # noqa: E402
 
 from ltv_lstm_mpc import MPCConfig, RobustMPC  # noqa: E402
 from ltv_lstm_mpc.exceptions import EmptySetpointIntervalError  # noqa: E402
-from ltv_lstm_mpc.lstm import compiled  # noqa: E402
+from ltv_lstm_mpc.mpc import compiled_condensing  # noqa: E402
 from ltv_lstm_mpc.mpc.condensed import BACKWARD_CONDENSING_RATIO  # noqa: E402
 
 
@@ -45,7 +45,7 @@ def times(n: int, m: int, N: int, repeats: int) -> tuple[float, float]:
 
     def call(backward: bool) -> float:
         start = time.perf_counter()
-        compiled.condense(
+        compiled_condensing.condense(
             traj.J, traj.S, problem._M, problem._Maug_inputs, problem._Lt_all, problem._Qs,
             x_bar, u_bar, problem._R, problem._W_y, problem._b_y, lower, upper,
             problem._unit_half, 0.5, 1.0, problem._H, problem._g0, problem._A, problem._lo0,

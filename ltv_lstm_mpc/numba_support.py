@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["AVAILABLE", "njit"]
+__all__ = ["AVAILABLE", "REDUCTIONS", "njit"]
 
 try:  # pragma: no cover - numba is a core dependency
     from numba import njit
@@ -25,3 +25,10 @@ except ImportError:  # pragma: no cover - exercised in a subprocess by the tests
             return function
 
         return wrap
+
+
+#: LLVM flags of the compiled loops whose sums may run in any order (vectorized reductions,
+#: fused multiply-adds): results within a few ulps of the sequential sums. No "fast" flags
+#: that assume finite values: NaN and inf still propagate and are caught by the callers'
+#: checks. One definition for every kernel that uses them.
+REDUCTIONS = {"reassoc", "contract"}

@@ -22,8 +22,8 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.stability import ObserverGains
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.loop.compiled_observer import observer_update
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
-from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import expect_instance, expect_real, finite_array
 
@@ -75,7 +75,7 @@ class Observer:
         # Gate gains in the kernel's (f, i, o, c) order; None when all are zero (Remark 3).
         L_gates = np.vstack([gains.L_f, gains.L_i, gains.L_o, np.zeros((n, p))])
         self._L_gates: FloatArray | None = L_gates if np.any(L_gates) else None
-        # Compiled update (lstm/compiled.observer_update) on a compiled kernel; the numpy
+        # Compiled update (loop/compiled_observer.py) on a compiled kernel; the numpy
         # code of advance() is its reference.
         self._compiled = model.kernel.compiled
         if self._compiled:
@@ -160,13 +160,13 @@ class Observer:
         r"""eq. (lstm_observer) from a measurement :math:`y_k` and input :math:`u_k` (no checks).
 
         The controller's hot-loop call: one compiled call on a compiled kernel
-        (``lstm/compiled.observer_update``), else the innovation
+        (``loop/compiled_observer.py``), else the innovation
         :math:`y_k - \hat y_k` and :meth:`advance` (the numpy reference).
         """
         if self._compiled:
             x_new = np.empty_like(self.x_hat)
             d_new = np.empty_like(self.d_hat)
-            _compiled.observer_update(
+            observer_update(
                 self.model.kernel.WU, self._W_y, self._b_y, self._L_gates_c, self._L_d,
                 self.d_max, self.x_hat, self.d_hat, y, u, self._S, self._T, self._TC,
                 self._extra, x_new, d_new,

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 # (re-exported here, where it was first defined).
 from ltv_lstm_mpc.certificates.reference_gain import KBarEstimate, estimate_K_bar
 from ltv_lstm_mpc.exceptions import UnreachableSetpointError
-from ltv_lstm_mpc.lstm import compiled as _compiled
+from ltv_lstm_mpc.loop.compiled_reference import chord_newton
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import (
     expect_bool,
@@ -204,12 +204,12 @@ class ReferenceCalculator:
         self.counts["factorizations"] += 1
 
     def _chord_compiled(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
-        """:meth:`_chord` in one numba call (``lstm/compiled.chord_newton``), same algorithm."""
+        """:meth:`_chord` in one numba call (``loop/compiled_reference.py``), same algorithm."""
         kernel, traj, state = self.model.kernel, self._traj, self._chord_state
         state[0] = 1 if self._Jinv is not None else 0
         step = target - self._last_target if self._last_target is not None else target * 0.0
         z = np.empty_like(self._last_z)
-        norm = _compiled.chord_newton(
+        norm = chord_newton(
             kernel.WU, kernel.WU_raw, self._W_y, self._b_y, traj.S, traj.T, traj.TC, traj.J,
             self._last_z, target, step, self._Jinv_buffer, state, self.tol, self.max_iter,
             self._chord_F, self._chord_jacobian, z,

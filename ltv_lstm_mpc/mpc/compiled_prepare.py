@@ -8,7 +8,7 @@ transcription with the compiled kernel, :func:`prepare_condensed` does all of it
 the same steps as the Python code of ``prepare`` (its readable reference, tested against it
 in ``tests/test_kernel.py``) on the same compiled functions
 (:func:`~ltv_lstm_mpc.lstm.compiled.rollout`, :func:`~ltv_lstm_mpc.lstm.compiled.jacobians`,
-:func:`~ltv_lstm_mpc.lstm.compiled.condense`).
+:func:`~ltv_lstm_mpc.mpc.compiled_condensing.condense`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from ltv_lstm_mpc.lstm.compiled import condense, jacobians, njit, rollout
+from ltv_lstm_mpc.lstm.compiled import jacobians, rollout
+from ltv_lstm_mpc.mpc.compiled_condensing import condense
+from ltv_lstm_mpc.numba_support import njit
 
 __all__ = ["CANDIDATE_GIVEN", "CANDIDATE_SHIFT", "CANDIDATE_U_BAR", "prepare_condensed"]
 

@@ -26,7 +26,7 @@ The terminal set and cost take one of two forms, chosen by the solver:
   :math:`P_f \ge 0` entrywise), with :math:`c_N, h_N` affine in :math:`\delta u` by the
   condensing: the same FHOCP as the sparse transcription, in fewer variables;
 - **QP-only** solvers get the conservative replacement of paper notes 4, the math of
-  :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` (box inside
+  :class:`~ltv_lstm_mpc.mpc.terminal.TerminalBoxReformulation` (box inside
   :math:`\mathcal X_f(k)`, cost bound
   :math:`(P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`); its name
   is recorded in every :class:`~ltv_lstm_mpc.mpc.fhocp.MPCSolution`.
@@ -52,12 +52,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
-from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel, Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.mpc import compiled_condensing
 from ltv_lstm_mpc.mpc.compiled_prepare import prepare_condensed
 from ltv_lstm_mpc.mpc.config import MPCConfig
-from ltv_lstm_mpc.mpc.sparse import TerminalBoxReformulation, terminal_box_data
+from ltv_lstm_mpc.mpc.terminal import TerminalBoxReformulation, TerminalSet
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import (
     DenseCone,
@@ -70,7 +70,7 @@ from ltv_lstm_mpc.solvers import (
 __all__ = ["BACKWARD_CONDENSING_RATIO", "CondensedTranscription"]
 
 #: The compiled condensing forms H and g0 by the backward recursion when N m exceeds this
-#: multiple of the state dimension 2n (else by the Gram matrix); see ``lstm/compiled.py``.
+#: multiple of the state dimension 2n (else by the Gram matrix); see ``mpc/compiled_condensing.py``.
 #: Measured (``experiments/condensing_speed.py``, backward / Gram time): n = 5, m = 1:
 #: 1.62 / 1.32 / 1.12 / 0.80 at N = 20 / 30 / 40 / 50; n = 10: 1.06 at N = 50, 0.68 at 80;
 #: n = 20, m = 2: 2.04 at N = 20, 0.80 at 50.
@@ -120,13 +120,11 @@ class CondensedTranscription(TranscriptionBase):
         #: Exact terminal cones (a cone solver) or the box reformulation (QP-only solvers).
         self.exact_cones = solver_info(config.solver).supports_cones
         self.reformulation = None if self.exact_cones else TerminalBoxReformulation.name
-        P_f = np.asarray(tightening.P_f, dtype=np.float64)
-        weight_c, weight_h, unit_tau = terminal_box_data(P_f)
+        #: The terminal set of eq. (optimization): cone rows or box (mpc/terminal.py).
+        self.terminal = terminal = TerminalSet(tightening.P_f, n)
         # ---- weights: ||L' (x_i - x_bar)||^2 per stage i = 1..N (stage N: the terminal
         # bound of the box reformulation; none with exact cones, where t'P_f t is the term)
-        term = np.concatenate([np.full(n, weight_c), np.full(n, weight_h)])
-        if self.exact_cones:
-            term = np.zeros(n2)
+        term = np.zeros(n2) if self.exact_cones else terminal.box_weights
         self._diag_Q = bool(np.all(Q == np.diag(np.diag(Q))))  # exactly (as RobustMPC's check)
         if self._diag_Q:
             sw = np.tile(np.sqrt(np.diag(Q)), (N, 1))
@@ -158,14 +156,14 @@ class CondensedTranscription(TranscriptionBase):
         self._lo0_view = self._lo0[:n_out].reshape(N - 1, p)
         self._up0_view = self._up0[:n_out].reshape(N - 1, p)
         self._W_y_T = np.ascontiguousarray(model.W_y.T)
-        self._unit_half = np.repeat(np.asarray(unit_tau) / np.sqrt(n), n)
+        self._unit_half = terminal.unit_half_widths
         self._du_ref = np.empty((N, m))
         self._dx0 = np.empty(n2)
         self._dxu = np.empty(cols)
         self._traj: Trajectory | None = None
         self._alpha = 0.0
-        # Compiled condensing (numba, lstm/compiled.py) when the model's kernel is compiled:
-        # the same QP written in place; the numpy code of build() is its reference.
+        # Compiled condensing (numba, mpc/compiled_condensing.py) when the model's kernel is
+        # compiled: the same QP written in place; the numpy code of build() is its reference.
         self.compiled = model.kernel.compiled
         if self.compiled:
             Lt_all = (
@@ -189,7 +187,7 @@ class CondensedTranscription(TranscriptionBase):
             self._dX = np.zeros((N + 1, n2))
         self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
         if self.exact_cones:
-            self._cone_qp = {kind: self._cone_problem(kind, P_f) for kind in kinds}
+            self._cone_qp = {kind: self._cone_problem(kind) for kind in kinds}
         settings: dict[str, Any] = dict(config.solver_settings)
         self._sessions = {
             kind: DenseSession(config.solver, tolerance=config.tolerance, **settings)
@@ -223,7 +221,7 @@ class CondensedTranscription(TranscriptionBase):
             for kind in kinds
         }
 
-    def _cone_problem(self, kind: str, P_f: FloatArray) -> DenseQP:
+    def _cone_problem(self, kind: str) -> DenseQP:
         r"""The preallocated exact-cone QP of ``kind`` (values are written by :meth:`_cone_data`).
 
         Variables ``[du, t_c, t_h]`` (``"soft"``: then the output slacks and ``s_T``).
@@ -234,7 +232,7 @@ class CondensedTranscription(TranscriptionBase):
         nz = nu + 2 + (ns + 1 if soft else 0)
         t = slice(nu, nu + 2)
         H = np.zeros((nz, nz))
-        H[t, t] = P_f  # the QP objective is half the cost: 1/2 t'P_f t
+        H[t, t] = self.terminal.P_f  # the QP objective is half the cost: 1/2 t'P_f t
         f = np.zeros(nz)
         lb = np.zeros(nz)  # slacks >= 0; t >= 0 follows from its cones (no bound rows)
         lb[t] = -np.inf
@@ -255,7 +253,7 @@ class CondensedTranscription(TranscriptionBase):
         cones = [cone_c, cone_h]
         if kind != "paper":
             F_t = np.zeros((2, nz))
-            F_t[:, t] = np.linalg.cholesky(P_f).T  # ||F_t z||^2 = t'P_f t
+            F_t[:, t] = self.terminal.square_root  # ||F_t z||^2 = t'P_f t
             e_t = np.eye(nz)[nz - 1] if soft else np.zeros(nz)  # alpha_k + s_T
             cones.append(DenseCone(F_t, np.zeros(2), e_t, 0.0))
         return DenseQP(H=H, f=f, A=A, lo=lo, up=up, lb=lb, ub=ub, cones=tuple(cones))
@@ -357,7 +355,7 @@ class CondensedTranscription(TranscriptionBase):
         self._traj = traj
         self._alpha = alpha
         if self.compiled:
-            self.scale = _compiled.condense(
+            self.scale = compiled_condensing.condense(
                 J, S, M, self._Maug_inputs, self._Lt_all, self._Qs, x_bar, u_bar, self._R,
                 self._W_y, self._b_y, lower, upper, self._unit_half, float(alpha),
                 float(self.config.u_max), self._H, self._g0, self._A, self._lo0, self._up0,
@@ -460,7 +458,7 @@ class CondensedTranscription(TranscriptionBase):
         compiled = self.compiled
         if compiled:  # delta x_0 propagated here, not condensed in prepare (compiled.py)
             f, lo, up = self._f, self._lo, self._up
-            _compiled.insert_state(
+            compiled_condensing.insert_state(
                 x_hat, S, traj.J, self._Qs, self._W_y, self._g0,
                 self._lo0, self._up0, self._dX, f, lo, up, self._diag_Q,
             )  # fmt: skip
@@ -492,7 +490,7 @@ class CondensedTranscription(TranscriptionBase):
             x_linear = np.empty((N + 1, n2))
             u = np.empty((N, m))
             rows = nu if kind == "soft" or exact else nu + qp.A.shape[0]
-            violation = _compiled.expand_point(
+            violation = compiled_condensing.expand_point(
                 z, self._A, self._low, self._high, rows, self._M, S, self._dX, x_linear, u
             )
             if kind == "soft" or exact:  # slacks or cones: the QP's own rows and cones

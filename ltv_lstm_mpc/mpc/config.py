@@ -65,7 +65,7 @@ class MPCConfig:
     solver : str
         Backend name, e.g. ``"cvxpy:CLARABEL"`` (cones, exact), ``"osqp"``, ``"daqp"``,
         ``"qpsolvers:piqp"`` (QP-only: the terminal cones get the conservative
-        :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation`, recorded per step).
+        :class:`~ltv_lstm_mpc.mpc.terminal.TerminalBoxReformulation`, recorded per step).
     tolerance : float
         Solver tolerance (mapped per solver).
     sqp_iterations : int

@@ -8,7 +8,6 @@ result (:class:`MPCSolution`). Argument checks: :func:`ltv_lstm_mpc.validation.r
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Protocol
@@ -18,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.certificates.certify import Certification
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
+from ltv_lstm_mpc.mpc.terminal import TerminalSet
 
 __all__ = [
     "MPCSolution",
@@ -217,13 +217,14 @@ class PlanCost:
     """
 
     def __init__(self, Q: FloatArray, R: FloatArray, P_f: FloatArray, n: int) -> None:
-        self.Q, self.R, self.P_f, self.n = Q, R, np.asarray(P_f, dtype=np.float64), n
+        #: The terminal set and cost (:class:`~ltv_lstm_mpc.mpc.terminal.TerminalSet`).
+        self.terminal_set = TerminalSet(P_f, n)
+        self.Q, self.R, self.P_f, self.n = Q, R, self.terminal_set.P_f, n
         q0, r0 = float(Q[0, 0]), float(R[0, 0])
         self._q = q0 if np.array_equal(Q, q0 * np.eye(Q.shape[0])) else None
         self._r = r0 if np.array_equal(R, r0 * np.eye(R.shape[0])) else None
-        P = self.P_f
         #: :math:`(P_{11}, P_{12} + P_{21}, P_{22})` of the terminal norm (eq. terminal_constraint).
-        self.terminal_terms = (float(P[0, 0]), float(P[0, 1] + P[1, 0]), float(P[1, 1]))
+        self.terminal_terms = self.terminal_set.terms
 
     def __call__(self, x: FloatArray, u: FloatArray, x_bar: FloatArray, u_bar: FloatArray) -> float:
         """J of states ``x`` (N + 1, 2n) and inputs ``u`` (N, m)."""
@@ -253,9 +254,4 @@ class PlanCost:
 
     def terminal(self, x_N: FloatArray, x_bar: FloatArray) -> float:
         r""":math:`\|[\|c_N - \bar c\|, \|h_N - \bar h\|]\|_{P_f}` (eq. terminal_constraint)."""
-        n = self.n
-        d = x_N - x_bar
-        dc, dh = d[:n], d[n:]
-        tc2, th2 = float(np.vdot(dc, dc)), float(np.vdot(dh, dh))
-        p11, p12, p22 = self.terminal_terms
-        return math.sqrt(max(p11 * tc2 + p12 * math.sqrt(tc2 * th2) + p22 * th2, 0.0))
+        return self.terminal_set.norm(x_N, x_bar)

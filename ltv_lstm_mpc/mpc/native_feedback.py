@@ -3,10 +3,11 @@ r"""The nominal feedback as one compiled call, DAQP inside (``RobustMPC.feedback
 :meth:`~ltv_lstm_mpc.mpc.rti.RobustMPC.feedback` on the condensed transcription does, for
 the ``"nominal"`` problem: the pre-checks of :func:`~ltv_lstm_mpc.mpc.fhocp.precheck_status`,
 the insertion of :math:`\delta x_0 = \hat x_k - \tilde x_0`
-(:func:`~ltv_lstm_mpc.lstm.compiled.insert_state`), the QP solve, the expansion of the point
-(:func:`~ltv_lstm_mpc.lstm.compiled.expand_point`), the core's acceptance tests (finite,
-inputs in U within tolerance, rows within tolerance; clipping onto U), and the re-simulation
-of the plan with its cost and residuals (:func:`~ltv_lstm_mpc.lstm.compiled.plan_metrics`).
+(:func:`~ltv_lstm_mpc.mpc.compiled_condensing.insert_state`), the QP solve, the expansion of
+the point (:func:`~ltv_lstm_mpc.mpc.compiled_condensing.expand_point`), the core's acceptance
+tests (finite, inputs in U within tolerance, rows within tolerance; clipping onto U), and
+the re-simulation of the plan with its cost and residuals
+(:func:`~ltv_lstm_mpc.mpc.compiled_plan.plan_metrics`).
 With DAQP bound natively (:mod:`ltv_lstm_mpc.solvers.daqp_native`), :func:`nominal_feedback`
 does all of it without returning to Python: the same compiled functions and the same C call
 as ``daqp.solve`` with the same settings, so the same numbers as the general path (to a few
@@ -25,7 +26,8 @@ from typing import Any
 
 from numba import njit
 
-from ltv_lstm_mpc.lstm.compiled import expand_point, insert_state, plan_metrics
+from ltv_lstm_mpc.mpc.compiled_condensing import expand_point, insert_state
+from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
 
 __all__ = ["PRECHECK_MARGIN", "nominal_feedback"]

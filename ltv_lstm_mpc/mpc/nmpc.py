@@ -37,6 +37,7 @@ from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.terminal import TerminalSet
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus
 
@@ -148,7 +149,7 @@ class NonlinearTranscription(TranscriptionBase):
         y_lo = ca.SX.sym("y_lo", p, max(N - 1, 0))
         y_hi = ca.SX.sym("y_hi", p, max(N - 1, 0))
         Q, R = ca.DM(self._Q), ca.DM(self._R)
-        P_f = np.asarray(self.tightening.P_f)
+        terminal = TerminalSet(self.tightening.P_f, n)
         eps = self.smoothing
         cost = 0
         for i in range(N):
@@ -158,7 +159,7 @@ class NonlinearTranscription(TranscriptionBase):
         dN = X[:, N] - x_bar
         t_c = ca.sqrt(ca.sumsqr(dN[:n]) + eps)
         t_h = ca.sqrt(ca.sumsqr(dN[n:]) + eps)
-        level = P_f[0, 0] * t_c**2 + (P_f[0, 1] + P_f[1, 0]) * t_c * t_h + P_f[1, 1] * t_h**2
+        level = terminal.level(t_c, t_h)
         cost += level
         g: list[Any] = [X[:, 0] - x_hat]
         lbg: list[float] = [0.0] * n2

@@ -31,8 +31,8 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.certify import Certification, certify, u_max_extrapolation
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
-from ltv_lstm_mpc.lstm import compiled as _compiled
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
 from ltv_lstm_mpc.mpc.compiled_prepare import CANDIDATE_GIVEN, CANDIDATE_SHIFT, CANDIDATE_U_BAR
 from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import (
@@ -207,7 +207,7 @@ class RobustMPC:
         self.solver = config.solver
         self.reuse_tol = float(reuse_tol)
         self._cost = PlanCost(Q, R, np.asarray(ti.P_f), model.n)
-        # buffers of the compiled plan checks (lstm/compiled.plan_metrics)
+        # buffers of the compiled plan checks (mpc/compiled_plan.plan_metrics)
         self._Q = np.ascontiguousarray(Q, dtype=np.float64)
         self._Q_diagonal = bool(np.all(self._Q == np.diag(np.diag(self._Q))))
         self._R = np.ascontiguousarray(R, dtype=np.float64)
@@ -500,7 +500,7 @@ class RobustMPC:
             x_plan = np.empty((N + 1, n2))
             metrics = self._metrics
             plan = self._plan
-            _compiled.plan_metrics(
+            plan_metrics(
                 self._kernel.WU, P, plan.T, plan.TC, self._W_y, self._b_y, self._x_bar,
                 self._u_bar, self._Q, self._R, self._P_terms, self._lower, self._upper,
                 self._no_rows if x_linear is None else x_linear, x_plan, metrics,

@@ -40,6 +40,7 @@ from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.terminal import TerminalBoxReformulation, TerminalSet
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import (
     ConvexProblem,
@@ -54,8 +55,6 @@ __all__ = [
     "FHOCPSubproblem",
     "SparseTranscription",
     "SubproblemLayout",
-    "TerminalBoxReformulation",
-    "terminal_box_data",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -275,9 +274,10 @@ class FHOCPSubproblem:
         self._e_c[layout.t_start] = 1.0
         self._e_h = np.zeros(nz)
         self._e_h[layout.t_start + 1] = 1.0
-        P_f_sqrt = np.linalg.cholesky(P_f).T  # any square root: ||P_f^{1/2} t||^2 = t'P_f t
+        #: The terminal set of eq. (optimization) (cone row ||P_f^{1/2} t|| <= alpha_k).
+        self.terminal = TerminalSet(P_f, n)
         F_t = sp.lil_matrix((2, nz))
-        F_t[:, layout.t_start : layout.t_start + 2] = P_f_sqrt
+        F_t[:, layout.t_start : layout.t_start + 2] = self.terminal.square_root
         self._F_t = frozen_csc(F_t, "F_t")
         self._e_t = np.zeros(nz)
         if soft:
@@ -375,99 +375,6 @@ class FHOCPSubproblem:
             lb=self._lb,
             ub=self._ub,
             cones=tuple(cones),
-        )
-
-
-def terminal_box_data(P_f: FloatArray) -> tuple[float, float, FloatArray]:
-    r"""The numbers of :class:`TerminalBoxReformulation` (paper notes 4), for both transcriptions.
-
-    Returns
-    -------
-    weight_c, weight_h : float
-        :math:`P_{11}+P_{12}` and :math:`P_{22}+P_{12}`: the terminal cost bound
-        :math:`t^\top P_f t \le w_c\|c_N-\bar c\|^2 + w_h\|h_N-\bar h\|^2`.
-    unit_tau : ndarray, shape (2,)
-        :math:`\tau` for :math:`\alpha_k = 1`: with :math:`\tau^\top P_f \tau = 1` and
-        :math:`P_{11}\tau_c^2 = P_{22}\tau_h^2` (the largest-volume box); the box of level
-        :math:`\alpha_k` has half-widths :math:`\alpha_k \tau / \sqrt n`.
-    """
-    P_f = np.asarray(P_f, dtype=np.float64)
-    weight_c = float(P_f[0, 0] + P_f[0, 1])
-    weight_h = float(P_f[1, 1] + P_f[0, 1])
-    direction = np.array([1.0, np.sqrt(P_f[0, 0] / P_f[1, 1])])
-    unit_tau = direction / np.sqrt(direction @ P_f @ direction)
-    return weight_c, weight_h, unit_tau
-
-
-class TerminalBoxReformulation:
-    r"""Conservative QP replacement of the terminal cones (paper notes 4), for QP-only backends.
-
-    * Terminal cost: since :math:`2 t_c t_h \le t_c^2 + t_h^2` and :math:`P_{f,12} \ge 0`,
-      :math:`t^\top P_f t \le (P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`
-      (an upper bound: the QP minimizes a larger cost).
-    * Terminal set: the box :math:`|c_{N,j} - \bar c_j| \le \tau_c/\sqrt n`,
-      :math:`|h_{N,j} - \bar h_j| \le \tau_h/\sqrt n` implies
-      :math:`\|c_N - \bar c\| \le \tau_c`, :math:`\|h_N - \bar h\| \le \tau_h`; with
-      :math:`\tau^\top P_f \tau = \alpha_k^2` and :math:`P_{11}\tau_c^2 = P_{22}\tau_h^2`
-      (the largest-volume such box) it lies inside :math:`\mathcal{X}_f(k)`.
-
-    The t variables are kept (fixed to 0) so the variable layout does not change.
-    """
-
-    name = "terminal_box_and_quadratic_cost_bound"
-
-    def __init__(self, subproblem: FHOCPSubproblem) -> None:
-        self.subproblem = subproblem
-        #: tau for alpha_k = 1: (||c_N - c_bar||, ||h_N - h_bar||) bounds on the P_f-ellipse
-        self.weight_c, self.weight_h, self.unit_tau = terminal_box_data(subproblem.P_f)
-
-    def apply(self, problem: ConvexProblem) -> ConvexProblem:
-        """Return the cone-free problem (see the class docstring)."""
-        sub = self.subproblem
-        layout, n, N = sub.layout, sub.n, sub.N
-        c_bar = -problem.cones[0].g
-        h_bar = -problem.cones[1].g
-        xN = layout.x(N)
-        weights = np.concatenate([np.full(n, self.weight_c), np.full(n, self.weight_h)])
-        diag = np.zeros(layout.n_variables)
-        diag[xN] = 2.0 * weights
-        # t is pinned to 0 below; a unit diagonal there (instead of 2 P_f) keeps P positive
-        # definite for solvers that need it (quadprog) without changing the solution.
-        diag[layout.t_start : layout.t_start + 2] = 1.0 - 2.0 * np.diag(sub.P_f)
-        P = problem.P + sp.diags(diag, format="csc")
-        t_block = sp.lil_matrix((layout.n_variables, layout.n_variables))
-        t_block[layout.t_start, layout.t_start + 1] = -2.0 * sub.P_f[0, 1]
-        t_block[layout.t_start + 1, layout.t_start] = -2.0 * sub.P_f[0, 1]
-        P = (P + t_block.tocsc()).tocsc()
-        P.eliminate_zeros()
-        q = problem.q.copy()
-        q[xN] += -2.0 * weights * np.concatenate([c_bar, h_bar])
-        assert problem.lb is not None and problem.ub is not None  # set by FHOCPSubproblem
-        lb, ub = problem.lb.copy(), problem.ub.copy()
-        lb[layout.t_start : layout.t_start + 2] = 0.0
-        ub[layout.t_start : layout.t_start + 2] = 0.0
-        if len(problem.cones) == 3:
-            alpha = problem.cones[2].f
-            if sub.soft_penalty is not None:
-                alpha = max(alpha, 0.0)  # the terminal slack has no QP counterpart
-            tau = max(alpha, 0.0) * self.unit_tau / np.sqrt(n)
-            centre = np.concatenate([c_bar, h_bar])
-            half = np.concatenate([np.full(n, tau[0]), np.full(n, tau[1])])
-            lb[xN] = centre - half
-            ub[xN] = centre + half
-            if sub.soft_penalty is not None:
-                lb[-1] = ub[-1] = 0.0
-        return ConvexProblem(
-            P=P,
-            q=q,
-            A_eq=problem.A_eq,
-            b_eq=problem.b_eq,
-            G=problem.G,
-            l=problem.l,
-            u=problem.u,
-            lb=lb,
-            ub=ub,
-            cones=(),
         )
 
 

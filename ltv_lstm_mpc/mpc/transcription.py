@@ -10,7 +10,7 @@ transcription only turns one linearization into solver data and solves it:
     dense QP in the input deviations, prediction matrices built by the recursion into
     preallocated arrays, solved by a :class:`~ltv_lstm_mpc.solvers.DenseSession` (the
     real-time path). QP-only: the terminal cones get the conservative
-    :class:`~ltv_lstm_mpc.mpc.sparse.TerminalBoxReformulation` math.
+    :class:`~ltv_lstm_mpc.mpc.terminal.TerminalBoxReformulation` math.
 ``"sparse"`` (:class:`~ltv_lstm_mpc.mpc.sparse.SparseTranscription`)
     states and inputs as variables with the exact second-order cones
     (:class:`~ltv_lstm_mpc.mpc.sparse.FHOCPSubproblem`), solved by a

@@ -1,0 +1,55 @@
+r"""Compiled (numba) observer update, eq. (lstm_observer); the numpy reference is
+:meth:`ltv_lstm_mpc.loop.observer.Observer.update` on the numpy kernel (tested to 1e-12 in
+``tests/test_kernel.py``). Used when the model's kernel is compiled.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ltv_lstm_mpc.lstm.compiled import lstm_cell
+from ltv_lstm_mpc.numba_support import njit
+
+__all__ = ["observer_update"]
+
+
+@njit(cache=True)
+def observer_update(
+    WU: Any, W_y: Any, b_y: Any, L_gates: Any, L_d: Any, d_max: float,
+    x_hat: Any, d_hat: Any, y: Any, u: Any, S: Any, T: Any, TC: Any, extra: Any,
+    x_out: Any, d_out: Any,
+) -> None:  # fmt: skip
+    r"""eq. (lstm_observer): :math:`(\hat x_k, \hat d_k, y_k, u_k) \to (\hat x_{k+1},
+    \hat d_{k+1})` into ``x_out``, ``d_out``. The innovation is
+    :math:`y_k - W_y \hat h_k - b_y - \hat d_k`; ``L_gates`` (4n, p) injects it into the
+    gates (0 rows: no injection, Remark 3); :math:`\hat d` is saturated at ``d_max``.
+    ``S`` (one row of a Trajectory), ``T``, ``TC`` and ``extra`` (4n) are scratch."""
+    n = WU.shape[0] // 4
+    p = W_y.shape[0]
+    m = u.shape[0]
+    innovation = np.empty(p)
+    for j in range(p):
+        acc = y[j] - b_y[j] - d_hat[j]
+        for a in range(n):
+            acc -= W_y[j, a] * x_hat[n + a]
+        innovation[j] = acc
+    for a in range(2 * n):
+        S[a] = x_hat[a]
+    for j in range(m):
+        S[2 * n + j] = u[j]
+    injected = extra[:0]
+    if L_gates.shape[0]:
+        for r in range(4 * n):
+            acc = 0.0
+            for j in range(p):
+                acc += L_gates[r, j] * innovation[j]
+            extra[r] = acc
+        injected = extra
+    lstm_cell(WU, S[n:], T, S[:n], x_out[:n], x_out[n : 2 * n], TC, injected)
+    for j in range(p):
+        acc = d_hat[j]
+        for l in range(p):
+            acc += L_d[j, l] * innovation[l]
+        d_out[j] = min(max(acc, -d_max), d_max)

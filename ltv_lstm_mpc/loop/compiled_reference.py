@@ -1,0 +1,133 @@
+r"""Compiled (numba) chord-Newton of the reference calculator, eq. (reference_calculation).
+
+The warm path of :class:`~ltv_lstm_mpc.loop.reference.ReferenceCalculator` in one call; its
+numpy reference is ``ReferenceCalculator._chord`` (same algorithm, tested to 1e-12 in
+``tests/test_kernel.py``). Used when the model's kernel is compiled.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ltv_lstm_mpc.lstm.compiled import jacobians, lstm_cell
+from ltv_lstm_mpc.numba_support import njit
+
+__all__ = ["chord_newton"]
+
+
+@njit(cache=True)
+def _equilibrium_residual(
+    WU: Any, W_y: Any, b_y: Any, S: Any, T: Any, TC: Any, z: Any, target: Any, F: Any
+) -> float:
+    """:math:`F(z) = [f(x, u) - x; W_y h + b_y - target]` into ``F``; returns its inf-norm."""
+    n = WU.shape[0] // 4
+    n2 = 2 * n
+    p = W_y.shape[0]
+    for q in range(z.shape[0]):
+        S[0, q] = z[q]
+    lstm_cell(WU, S[0, n:], T[0], S[0, :n], S[1, :n], S[1, n:n2], TC[0], np.zeros(0))
+    norm = 0.0
+    for q in range(n2):
+        F[q] = S[1, q] - z[q]
+        if abs(F[q]) > norm:
+            norm = abs(F[q])
+    for j in range(p):
+        acc = b_y[j] - target[j]
+        for q in range(n):
+            acc += W_y[j, q] * z[n + q]
+        F[n2 + j] = acc
+        if abs(acc) > norm:
+            norm = abs(acc)
+    return norm
+
+
+@njit(cache=True)
+def chord_newton(
+    WU: Any,
+    WU_raw: Any,
+    W_y: Any,
+    b_y: Any,
+    S: Any,
+    T: Any,
+    TC: Any,
+    J: Any,
+    z_start: Any,
+    target: Any,
+    step_target: Any,
+    Jinv: Any,
+    state: Any,
+    tol: float,
+    max_iter: int,
+    F: Any,
+    jac: Any,
+    z_out: Any,
+) -> float:
+    r"""The chord-Newton warm path of ``ReferenceCalculator`` (eq. reference_calculation).
+
+    ``state`` (int64, 4): [Jinv valid, iterations, factorizations, ok] (in and out);
+    ``step_target`` is the change of the target since the last solution (predictor of
+    Lemma 5 with the kept inverse Jacobian). The solution goes into ``z_out``; returns the
+    residual. Same algorithm as the numpy ``ReferenceCalculator._chord``.
+    """
+    n = WU.shape[0] // 4
+    n2 = 2 * n
+    size = z_start.shape[0]
+    z = z_start.copy()
+    if state[0] == 1:
+        for a in range(size):
+            acc = 0.0
+            for j in range(size - n2):
+                acc += Jinv[a, n2 + j] * step_target[j]
+            z[a] += acc
+    norm = _equilibrium_residual(WU, W_y, b_y, S, T, TC, z, target, F)
+    iterations = 0
+    factorizations = 0
+    fresh = False
+    z_new = np.empty(size)
+    while norm >= tol and iterations < max_iter:
+        if state[0] == 0:
+            jacobians(WU_raw, S[:2], T[:1], TC[:1], J[:1])
+            for r in range(size):
+                for c in range(size):
+                    jac[r, c] = 0.0
+            for r in range(n2):
+                for c in range(size):
+                    jac[r, c] = J[0, r, c]
+                jac[r, r] -= 1.0
+            for j in range(size - n2):
+                for q in range(n):
+                    jac[n2 + j, n + q] = W_y[j, q]
+            inverse = np.linalg.inv(jac)
+            for r in range(size):
+                for c in range(size):
+                    Jinv[r, c] = inverse[r, c]
+            state[0] = 1
+            factorizations += 1
+            fresh = True
+        for a in range(size):
+            acc = 0.0
+            for c in range(size):
+                acc += Jinv[a, c] * F[c]
+            z_new[a] = z[a] - acc
+        iterations += 1
+        norm_new = _equilibrium_residual(WU, W_y, b_y, S, T, TC, z_new, target, F)
+        if not norm_new < norm:
+            if fresh:
+                break
+            state[0] = 0
+            norm = _equilibrium_residual(WU, W_y, b_y, S, T, TC, z, target, F)  # restore
+            continue
+        if norm_new > 1e-2 * norm:
+            state[0] = 0  # slow contraction: refactorize at z_new
+        for a in range(size):
+            z[a] = z_new[a]
+        norm = norm_new
+        fresh = False
+    for a in range(size):
+        z_out[a] = z[a]
+    state[1] = iterations
+    state[2] = factorizations
+    state[3] = 1 if norm < tol else 0
+    return norm

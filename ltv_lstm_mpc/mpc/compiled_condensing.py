@@ -1,0 +1,427 @@
+r"""Compiled (numba) condensing of the FHOCP subproblem and its feedback insertion.
+
+The twins of :class:`~ltv_lstm_mpc.mpc.condensed.CondensedTranscription`'s numpy ``build``
+and ``solve`` (their reference, tested to 1e-12 in ``tests/test_kernel.py``):
+:func:`condense` (the condensed QP in delta u: Hessian by the Gram matrix or the backward
+recursion, gradient, output and terminal-box rows), :func:`insert_state` (the measured
+:math:`\delta x_0` into gradient and row bounds at feedback time) and :func:`expand_point`
+(the QP point back to states and inputs, with the largest row violation). Used when the
+model's kernel is compiled.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ltv_lstm_mpc.numba_support import REDUCTIONS, njit
+
+__all__ = ["condense", "expand_point", "insert_state"]
+
+#: State size n from which condense's Gamma recursion uses BLAS products (loops below).
+_BLAS_RECURSION_N = 10
+
+
+@njit(cache=True)
+def condense(
+    J: Any,
+    S: Any,
+    M: Any,
+    Maug: Any,
+    Lt: Any,
+    Qs: Any,
+    x_bar: Any,
+    u_bar: Any,
+    R: Any,
+    W_y: Any,
+    b_y: Any,
+    lower: Any,
+    upper: Any,
+    unit_half: Any,
+    alpha: float,
+    u_max: float,
+    H: Any,
+    g0: Any,
+    A: Any,
+    lo0: Any,
+    up0: Any,
+    lb: Any,
+    ub: Any,
+    diagonal: bool,
+    backward: bool,
+) -> float:
+    r"""The input part of the condensed QP (``CondensedTranscription.build``), in place.
+
+    Input-to-state matrices by the recursion :math:`\Gamma_{i+1} = A_i \Gamma_i + B_i e_i`
+    (only the causal columns; ``M[i][:, 2n:]``), then the Hessian ``H`` and gradient ``g0``
+    :math:`H = \sum_i \Gamma_i^\top Q_i \Gamma_i + \mathrm{blkdiag}(R)`,
+    :math:`g_0 = \sum_i \Gamma_i^\top Q_i (\tilde x_i - \bar x) + R(\tilde u - \bar u)`
+    (``Qs[i]`` weighs :math:`x_{i+1}`, ``Lt[i]`` is its factor) in one of two ways with the
+    same result (see :func:`_hessian_gram`, :func:`_hessian_backward`), the tightened output
+    rows i = 1..N-1 and the terminal box rows in :math:`\delta u`, and the input bounds
+    around the candidate. The part in :math:`\delta x_0` (``F`` and ``E`` of the numpy
+    build) is not formed: :func:`insert_state` propagates :math:`\delta x_0` at feedback
+    time. Returns the violation scale :math:`1 + \max(u_{max}, |lo_0|, |up_0|)`.
+
+    The state Jacobian of eq. (lstm) has diagonal :math:`\partial c^+/\partial c` and
+    :math:`\partial h^+/\partial c` blocks (the gates do not depend on c), so the recursion
+    takes two n x n products per stage instead of one 2n x 2n product (half the flops);
+    ``diagonal`` says the stage weights are diagonal (diagonal Q).
+    """
+    N = J.shape[0]
+    n2 = J.shape[1]
+    m = J.shape[2] - n2
+    n = n2 // 2
+    p = W_y.shape[0]
+    nu = N * m
+    cols = n2 + nu
+    # Gamma_{i+1} = A_i Gamma_i on the causal columns, A_i = [[D_cc, J_ch], [D_hc, J_hh]]
+    # with diagonal D: two n x n products per stage, for small n as row updates along the
+    # columns (contiguous, no call or copy per stage), else two BLAS products on copies
+    # (measured crossover n ~ 10, experiments/condensing_speed.py)
+    for i in range(N):
+        live = n2 + i * m  # columns of M[i] that can be nonzero
+        if n >= _BLAS_RECURSION_N and live > n2:
+            Gamma_h = np.ascontiguousarray(M[i, n:n2, n2:live])
+            by_h = np.ascontiguousarray(J[i, :, n:n2]) @ Gamma_h  # [J_ch; J_hh] Gamma_h
+            for r in range(n):
+                d_cc = J[i, r, r]
+                d_hc = J[i, n + r, r]
+                for c in range(live - n2):
+                    gamma_c = M[i, r, n2 + c]
+                    M[i + 1, r, n2 + c] = by_h[r, c] + d_cc * gamma_c
+                    M[i + 1, n + r, n2 + c] = by_h[n + r, c] + d_hc * gamma_c
+        for r in range(n if n < _BLAS_RECURSION_N else 0):
+            d_cc = J[i, r, r]
+            d_hc = J[i, n + r, r]
+            target_c = M[i + 1, r]
+            target_h = M[i + 1, n + r]
+            source_c = M[i, r]
+            for c in range(n2, live):
+                target_c[c] = d_cc * source_c[c]
+                target_h[c] = d_hc * source_c[c]
+            for q in range(n):
+                j_c = J[i, r, n + q]
+                j_h = J[i, n + r, n + q]
+                source_h = M[i, n + q]
+                for c in range(n2, live):
+                    target_c[c] += j_c * source_h[c]
+                    target_h[c] += j_h * source_h[c]
+        for r in range(n2):
+            for j in range(m):
+                M[i + 1, r, live + j] = J[i, r, n2 + j]
+            for c in range(live + m, cols):
+                M[i + 1, r, c] = 0.0
+    if backward:
+        _hessian_backward(J, S, M, Qs, x_bar, H, g0, diagonal)
+    else:
+        _hessian_gram(S, M, Maug, Lt, x_bar, H, g0, diagonal)
+    for i in range(N):
+        for a in range(m):
+            acc = 0.0
+            for b in range(m):
+                H[i * m + a, i * m + b] += R[a, b]
+                acc += R[a, b] * (S[i, n2 + b] - u_bar[b])
+            g0[i * m + a] += acc
+    n_out = (N - 1) * p
+    for i in range(1, N):
+        for j in range(p):
+            row = (i - 1) * p + j
+            y_lin = b_y[j]
+            for q in range(n):
+                y_lin += W_y[j, q] * S[i, n + q]
+            lo0[row] = lower[i, j] - y_lin
+            up0[row] = upper[i, j] - y_lin
+            for c in range(nu):
+                A[row, c] = 0.0
+            for q in range(n):
+                w = W_y[j, q]
+                source = M[i, n + q]
+                for c in range(nu):
+                    A[row, c] += w * source[n2 + c]
+    level = alpha if alpha > 0.0 else 0.0
+    for r in range(n2):
+        row = n_out + r
+        for c in range(nu):
+            A[row, c] = M[N, r, n2 + c]
+        half = unit_half[r] * level
+        centre = x_bar[r] - S[N, r]
+        lo0[row] = centre - half
+        up0[row] = centre + half
+    for i in range(N):
+        for a in range(m):
+            value = S[i, n2 + a]
+            lb[i * m + a] = -u_max - value
+            ub[i * m + a] = u_max - value
+    scale = u_max
+    for row in range(n_out + n2):
+        if abs(lo0[row]) > scale:
+            scale = abs(lo0[row])
+        if abs(up0[row]) > scale:
+            scale = abs(up0[row])
+    return 1.0 + scale
+
+
+@njit(cache=True)
+def _hessian_gram(S: Any, M: Any, Maug: Any, Lt: Any, x_bar: Any, H: Any, g0: Any,
+                  diagonal: bool) -> None:  # fmt: skip
+    r"""``H`` and ``g0`` (without R) of the condensed stage cost of eq. (optimization_cost)
+    as one Gram matrix: the weighted stack
+    ``Maug[i] = [Lt_i \Gamma_{i+1}, Lt_i (\tilde x_{i+1} - \bar x)]`` (N, 2n, Nm + 1) and one
+    BLAS product :math:`O(N^3 n m^2)`, the cheaper way for short horizons."""
+    N, n2 = Maug.shape[0], Maug.shape[1]
+    nu = Maug.shape[2] - 1
+    m = nu // N
+    for i in range(N):
+        live = (i + 1) * m
+        if diagonal:
+            for r in range(n2):
+                w = Lt[i, r, r]
+                target = Maug[i, r]
+                source = M[i + 1, r]
+                for c in range(live):
+                    target[c] = w * source[n2 + c]
+                for c in range(live, nu):
+                    target[c] = 0.0
+                target[nu] = w * (S[i + 1, r] - x_bar[r])
+        else:
+            for r in range(n2):  # Lt_i Gamma_{i+1} as row updates (a full Q is rare)
+                target = Maug[i, r]
+                for c in range(nu):
+                    target[c] = 0.0
+                for q in range(n2):
+                    w = Lt[i, r, q]
+                    source = M[i + 1, q]
+                    for c in range(live):
+                        target[c] += w * source[n2 + c]
+                acc = 0.0
+                for q in range(n2):
+                    acc += Lt[i, r, q] * (S[i + 1, q] - x_bar[q])
+                target[nu] = acc
+    flat = Maug.reshape(N * n2, nu + 1)
+    gram = flat.T @ flat  # one BLAS product (faster than loops over the causal blocks)
+    for a in range(nu):
+        for b in range(nu):
+            H[a, b] = gram[a, b]
+        g0[a] = gram[a, nu]
+
+
+@njit(cache=True, fastmath=REDUCTIONS)
+def _transpose_times(J: Any, i: int, s: Any, out: Any) -> None:
+    r"""``out = A_i^T s`` for the state Jacobian :math:`A_i` (its diagonal c-column blocks)."""
+    n2 = s.shape[0]
+    n = n2 // 2
+    for r in range(n):
+        out[r] = J[i, r, r] * s[r] + J[i, n + r, r] * s[n + r]
+        out[n + r] = 0.0
+    for row in range(n2):  # along the rows of J (contiguous)
+        weight = s[row]
+        for q in range(n):
+            out[n + q] += J[i, row, n + q] * weight
+
+
+@njit(cache=True, fastmath=REDUCTIONS)
+def _weight_times(Qs: Any, i: int, v: Any, out: Any, diagonal: bool) -> None:
+    """``out = Qs[i] v``."""
+    n2 = v.shape[0]
+    for r in range(n2):
+        if diagonal:
+            out[r] = Qs[i, r, r] * v[r]
+            continue
+        acc = 0.0
+        for q in range(n2):
+            acc += Qs[i, r, q] * v[q]
+        out[r] = acc
+
+
+@njit(cache=True, fastmath=REDUCTIONS)
+def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: Any,
+                      diagonal: bool) -> None:  # fmt: skip
+    r"""``H`` and ``g0`` (without R) of the condensed stage cost of eq. (optimization_cost)
+    (stage N: the terminal weight of the transcription) by the backward recursion of the
+    cost-to-go weights, :math:`O(N n^3 + N^2 n m^2)`, the cheaper way for long horizons.
+
+    With :math:`W_N = Q_N`, :math:`W_i = Q_i + A_i^\top W_{i+1} A_i` and
+    :math:`V_i = W_{i+1} B_i`: :math:`H_{ji} = \Gamma_{i+1}[:, j]^\top V_i` (j <= i; the
+    causal column blocks of ``M``) and :math:`g_{0,i} = B_i^\top s_{i+1}` with
+    :math:`s_N = Q_N (\tilde x_N - \bar x)`, :math:`s_i = Q_i (\tilde x_i - \bar x) +
+    A_i^\top s_{i+1}`: the same sums as the Gram matrix, grouped by stage.
+    """
+    N, n2 = J.shape[0], J.shape[1]
+    m = J.shape[2] - n2
+    n = n2 // 2
+    W = np.empty((n2, n2))
+    WA = np.empty((n2, n2))
+    V = np.empty((n2, m))
+    for r in range(n2):
+        for q in range(n2):
+            W[r, q] = Qs[N - 1, r, q]
+    s = np.empty(n2)
+    dev = np.empty(n2)
+    As = np.empty(n2)
+    for q in range(n2):
+        dev[q] = S[N, q] - x_bar[q]
+    _weight_times(Qs, N - 1, dev, s, diagonal)
+    for i in range(N - 1, -1, -1):
+        # V_i = W_{i+1} B_i and the H blocks of input i against inputs j <= i
+        for r in range(n2):
+            for b in range(m):
+                acc = 0.0
+                for q in range(n2):
+                    acc += W[r, q] * J[i, q, n2 + b]
+                V[r, b] = acc
+        for j in range(i + 1):
+            for a in range(m):
+                for b in range(m):
+                    acc = 0.0
+                    for r in range(n2):
+                        acc += M[i + 1, r, n2 + j * m + a] * V[r, b]
+                    H[j * m + a, i * m + b] = acc
+                    H[i * m + b, j * m + a] = acc
+        for b in range(m):
+            acc = 0.0
+            for r in range(n2):
+                acc += J[i, r, n2 + b] * s[r]
+            g0[i * m + b] = acc
+        if i == 0:
+            break
+        # W_i = Q_i + A_i^T W_{i+1} A_i (A_i's c-columns are diagonal blocks); inner loops
+        # run along rows (contiguous)
+        for r in range(n2):
+            for q in range(n):
+                WA[r, q] = W[r, q] * J[i, q, q] + W[r, n + q] * J[i, n + q, q]
+                WA[r, n + q] = 0.0
+            for t in range(n2):
+                w = W[r, t]
+                for q in range(n):
+                    WA[r, n + q] += w * J[i, t, n + q]
+        for r in range(n):
+            d_cc, d_hc = J[i, r, r], J[i, n + r, r]
+            for q in range(n2):
+                W[r, q] = d_cc * WA[r, q] + d_hc * WA[n + r, q] + Qs[i - 1, r, q]
+                W[n + r, q] = Qs[i - 1, n + r, q]
+        for t in range(n2):
+            for r in range(n):
+                j_tr = J[i, t, n + r]
+                for q in range(n2):
+                    W[n + r, q] += j_tr * WA[t, q]
+        # s_i = Q_i (x_i - x_bar) + A_i^T s_{i+1}
+        _transpose_times(J, i, s, As)
+        for q in range(n2):
+            dev[q] = S[i, q] - x_bar[q]
+        _weight_times(Qs, i - 1, dev, s, diagonal)
+        for q in range(n2):
+            s[q] += As[q]
+
+
+@njit(cache=True, fastmath=REDUCTIONS)
+def insert_state(
+    x_hat: Any,
+    S: Any,
+    J: Any,
+    Qs: Any,
+    W_y: Any,
+    g0: Any,
+    lo0: Any,
+    up0: Any,
+    dX: Any,
+    f: Any,
+    lo: Any,
+    up: Any,
+    diagonal: bool,
+) -> None:
+    r"""Feedback data of the condensed QP for :math:`\delta x_0 = \hat x - \tilde x_0`.
+
+    Propagates :math:`\delta x^0_{i+1} = A_i \delta x^0_i` into ``dX`` (N + 1, 2n), then
+    :math:`f = g_0 + \sum_i \Gamma_i^\top Q_i \delta x^0_i` by the backward recursion
+    :math:`s_N = Q_N \delta x^0_N`, :math:`s_i = Q_i \delta x^0_i + A_i^\top s_{i+1}`,
+    :math:`f_i = g_{0,i} + B_i^\top s_{i+1}` (:math:`O(N n^2)`), and the rows
+    :math:`lo_0 - W_y \delta h^0_i`, :math:`up_0 - W_y \delta h^0_i` (i = 1..N-1) and
+    :math:`lo_0 - \delta x^0_N`, :math:`up_0 - \delta x^0_N` (terminal box). Both
+    recursions use the diagonal blocks of the state Jacobian (see :func:`condense`);
+    ``Qs[i]`` weighs :math:`x_{i+1}`, ``diagonal``: they are diagonal.
+    """
+    N = J.shape[0]
+    n2 = J.shape[1]
+    m = J.shape[2] - n2
+    n = n2 // 2
+    p = W_y.shape[0]
+    for q in range(n2):
+        dX[0, q] = x_hat[q] - S[0, q]
+    for i in range(N):
+        for r in range(n):
+            acc_c = J[i, r, r] * dX[i, r]
+            acc_h = J[i, n + r, r] * dX[i, r]
+            for q in range(n):
+                acc_c += J[i, r, n + q] * dX[i, n + q]
+            for q in range(n):
+                acc_h += J[i, n + r, n + q] * dX[i, n + q]
+            dX[i + 1, r] = acc_c
+            dX[i + 1, n + r] = acc_h
+    s = np.empty(n2)
+    As = np.empty(n2)
+    _weight_times(Qs, N - 1, dX[N], s, diagonal)
+    for i in range(N - 1, -1, -1):
+        for b in range(m):
+            acc = g0[i * m + b]
+            for r in range(n2):
+                acc += J[i, r, n2 + b] * s[r]
+            f[i * m + b] = acc
+        if i == 0:
+            break
+        _transpose_times(J, i, s, As)
+        _weight_times(Qs, i - 1, dX[i], s, diagonal)
+        for q in range(n2):
+            s[q] += As[q]
+    n_out = (N - 1) * p
+    for i in range(1, N):
+        for j in range(p):
+            row = (i - 1) * p + j
+            acc = 0.0
+            for q in range(n):
+                acc += W_y[j, q] * dX[i, n + q]
+            lo[row] = lo0[row] - acc
+            up[row] = up0[row] - acc
+    for r in range(n2):
+        lo[n_out + r] = lo0[n_out + r] - dX[N, r]
+        up[n_out + r] = up0[n_out + r] - dX[N, r]
+
+
+@njit(cache=True, fastmath=REDUCTIONS)
+def expand_point(
+    z: Any, A: Any, low: Any, high: Any, rows: int, M: Any, S: Any, dX: Any, x_linear: Any, u: Any
+) -> float:
+    r"""From the QP point ``z`` (its first ``N m`` entries :math:`\delta u`): the largest
+    violation of ``low <= [z; A z] <= high`` over the first ``rows`` entries, the linearized
+    states :math:`\tilde x_i + \delta x^0_i + \Gamma_i \delta u` and the inputs
+    :math:`\tilde u + \delta u`."""
+    nu = A.shape[1]
+    violation = 0.0
+    for a in range(min(nu, rows)):
+        value = z[a]
+        if low[a] - value > violation:
+            violation = low[a] - value
+        if value - high[a] > violation:
+            violation = value - high[a]
+    for row in range(rows - nu):
+        acc = 0.0
+        for a in range(nu):
+            acc += A[row, a] * z[a]
+        if low[nu + row] - acc > violation:
+            violation = low[nu + row] - acc
+        if acc - high[nu + row] > violation:
+            violation = acc - high[nu + row]
+    N1, n2 = x_linear.shape
+    m = u.shape[1]
+    for i in range(N1):
+        for r in range(n2):
+            acc = S[i, r] + dX[i, r]
+            if i:
+                for a in range(nu):
+                    acc += M[i, r, n2 + a] * z[a]
+            x_linear[i, r] = acc
+    for i in range(u.shape[0]):
+        for j in range(m):
+            u[i, j] = S[i, n2 + j] + z[i * m + j]
+    return violation
