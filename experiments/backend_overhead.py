@@ -48,7 +48,7 @@ def captured_qps(N: int, count: int = 5) -> list[DenseQP]:
     for k in range(40):
         u = controller.step(y, scenario.setpoints[k])
         if k % (40 // count) == 0:
-            qps.append(controller.mpc._problem._qp["nominal"].copy())  # type: ignore[attr-defined]
+            qps.append(mpc.last_problem("nominal"))  # a copy of the QP DAQP solved
         y = plant.step(u)
     return qps
 

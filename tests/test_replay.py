@@ -52,3 +52,50 @@ def test_backends_agree_on_first_input(saved) -> None:
             centre = np.median(values)
             for r, value in zip(group, values, strict=True):
                 assert abs(value - centre) <= _tol(r["solver"]), (file, r["solver"])
+
+
+def test_last_problem_is_the_problem_the_controller_solved() -> None:
+    """RobustMPC.last_problem re-solved by another backend gives the controller's inputs."""
+    from ltv_lstm_mpc.solvers import cone_solvers
+    from ltv_lstm_mpc.solvers import solve as solve_problem
+
+    from ltv_lstm_mpc import MPCConfig, RobustMPC
+    from ltv_lstm_mpc.exceptions import InvalidValueError
+    from ltv_lstm_mpc.loop.controller import OffsetFreeController
+
+    cones = cone_solvers()
+    if len(cones) < 2:
+        pytest.skip("needs two cone solvers")
+    model = load_model("ph_lstm_n5.npz")
+    config = MPCConfig(solver=cones[0], transcription="sparse", L_d=0.1)
+    controller = OffsetFreeController(model, config)
+    with pytest.raises(InvalidValueError, match="was not solved at this step"):
+        controller.mpc.last_problem("nominal")  # type: ignore[attr-defined]
+    scenario = bench.standin_scenario(model, steps=5)
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    for k in range(5):
+        u = controller.step(y, scenario.setpoints[k])
+        y = plant.step(u)
+    mpc = controller.mpc
+    assert isinstance(mpc, RobustMPC)
+    problem = mpc.last_problem("nominal")
+    layout = mpc.subproblem("nominal").layout
+    applied = controller.records[-1].mpc.u.ravel()
+    same = solve_problem(problem, cones[0])  # the same backend: the same plan
+    np.testing.assert_allclose(
+        np.asarray(same.z)[layout.u_start : layout.t_start], applied, rtol=0, atol=1e-9
+    )
+    other = solve_problem(problem, cones[1])  # another: the same first input
+    assert abs(float(np.asarray(other.z)[layout.u_start]) - applied[0]) <= 1e-5
+    # the condensed transcription keeps its dense QP on the general feedback path
+    general = RobustMPC(model, MPCConfig(solver="daqp", L_d=0.1), native_feedback=False)
+    dense = OffsetFreeController(model, general.config, mpc=general)
+    y = scenario.make_plant(model).output()
+    dense.step(y, scenario.setpoints[0])
+    qp = general.last_problem("nominal")
+    point = solve_problem(qp.to_convex_problem(), "daqp")
+    # the first step's candidate is u_bar repeated: the QP variable is u - u_bar
+    record = dense.records[-1]
+    delta_u = np.asarray(point.z)[: qp.f.shape[0]].reshape(-1, model.m)
+    np.testing.assert_allclose(delta_u + record.u_bar, record.mpc.u, rtol=0, atol=1e-9)

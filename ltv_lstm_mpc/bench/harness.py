@@ -533,11 +533,11 @@ def save_subproblems(
 ) -> Path:
     """Save ``count`` RTI subproblems of one closed loop and every backend's answer.
 
-    Runs the scenario with ``RobustMPC`` (CLARABEL when installed), rebuilds the
-    subproblem of evenly spaced steps exactly as RobustMPC does (candidate, simulation,
-    linearization, :meth:`FHOCPSubproblem.build`), saves it with cones
-    (``k<step>_cone.npz``) and in the conservative QP form (``k<step>_qp.npz``), solves
-    both with every installed solver and writes the numbers to ``replay_reference.csv``.
+    Runs the scenario with ``RobustMPC`` (CLARABEL when installed) on the sparse
+    transcription, keeps the subproblem it solved at evenly spaced steps
+    (:meth:`RobustMPC.last_problem`), saves it with cones (``k<step>_cone.npz``) and in the
+    conservative QP form (``k<step>_qp.npz``), solves both with every installed solver and
+    writes the numbers to ``replay_reference.csv``.
     """
     from ltv_lstm_mpc.solvers import ConvexProblem, available_solvers, cone_solvers
     from ltv_lstm_mpc.solvers import solve as solve_problem
@@ -556,27 +556,21 @@ def save_subproblems(
     plant = scenario.make_plant(model)
     y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
     steps = min(steps, scenario.steps)
+    picks = set(np.unique(np.linspace(1, steps - 1, count).astype(int)).tolist())
+    solved: dict[int, ConvexProblem] = {}
     for k in range(steps):
         u_phi = ctrl.step(y_phi, scenario.setpoints[k])
+        if k in picks:
+            try:
+                solved[k] = mpc.last_problem("nominal")  # what the backend got at step k
+            except InvalidValueError:  # not solved at this step (e.g. a pre-check failed)
+                pass
         d = scenario.disturbances[k]
         y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, None if np.isnan(d) else d)))
-    records = ctrl.records
     sub = mpc.subproblem("nominal")
-    ti = mpc.tightening
-    picks = np.unique(np.linspace(1, len(records) - 1, count).astype(int))
     names = list(solvers) if solvers is not None else available_solvers()
     rows = []
-    for k in picks:
-        rec, prev = records[k], records[k - 1]
-        cand = np.vstack([prev.mpc.u[1:], rec.u_bar[None, :]])
-        x_traj, _ = model.simulate(rec.x_hat, cand)
-        f_lin, A, B = model.step_and_jacobians(x_traj[:-1], cand)
-        lower, upper = ti.output_bounds(rec.e_hat)
-        problem = sub.build(
-            x_hat=rec.x_hat, x_bar=rec.x_bar, u_bar=rec.u_bar, x_lin=x_traj[:-1],
-            u_lin=cand, f_lin=f_lin, A=A, B=B, y_lower=lower, y_upper=upper,
-            alpha=ti.alpha(rec.y0, rec.e_hat),
-        )  # fmt: skip
+    for k, problem in sorted(solved.items()):
         qp = sub.reformulation.apply(problem)
         files = {"cone": f"k{k:05d}_cone.npz", "qp": f"k{k:05d}_qp.npz"}
         problem.save(directory / files["cone"])

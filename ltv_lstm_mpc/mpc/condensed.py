@@ -52,6 +52,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
+from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel, Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc import compiled_condensing
@@ -161,6 +162,7 @@ class CondensedTranscription(TranscriptionBase):
         self._dx0 = np.empty(n2)
         self._dxu = np.empty(cols)
         self._traj: Trajectory | None = None
+        self._last: dict[str, DenseQP] = {}  # the QPs solved since the last linearization
         self._alpha = 0.0
         # Compiled condensing (numba, mpc/compiled_condensing.py) when the model's kernel is
         # compiled: the same QP written in place; the numpy code of build() is its reference.
@@ -316,6 +318,7 @@ class CondensedTranscription(TranscriptionBase):
         numpy condensing (the core then runs the steps and :meth:`build`)."""
         if not self.compiled:
             return False
+        self._last.clear()
         self.scale, _ = prepare_condensed(
             kernel.WU, kernel.WU_raw, traj.S, traj.T, traj.TC, traj.J, plan.S, plan.T, plan.TC,
             cand, previous_u, candidate, x0, reuse_allowed, reuse_tol, x_bar, u_bar, lower,
@@ -333,6 +336,23 @@ class CondensedTranscription(TranscriptionBase):
         to ``settings`` (None without DAQP bound natively or with the numpy condensing)."""
         return self._native_buffers if self.compiled else None
 
+    def last_problem(self, kind: str = "nominal") -> DenseQP:
+        """A copy of the condensed QP ``kind`` as the session solved it at this step (the
+        general feedback path; the one-call native path does not fill it).
+
+        Raises
+        ------
+        InvalidValueError
+            ``kind`` was not solved through the session since the last linearization.
+        """
+        if kind not in self._last:
+            raise InvalidValueError(
+                f"the {kind!r} subproblem was not solved through the session at this step "
+                f"(solved: {sorted(self._last) or 'none'}; the nominal QP of the one-call "
+                "native feedback is not kept: RobustMPC(..., native_feedback=False) keeps it)"
+            )
+        return self._last[kind].copy()
+
     def reset(self) -> None:
         """Drop the solver workspaces' warm starts."""
         for session in self._sessions.values():
@@ -349,6 +369,7 @@ class CondensedTranscription(TranscriptionBase):
         alpha: float,
     ) -> None:
         """Condense the linearization in ``traj`` into H, F, g0 and the rows (no solve)."""
+        self._last.clear()
         n, N, m = self.n, self.N, self.m
         n2 = 2 * n
         S, J, M = traj.S, traj.J, self._M
@@ -471,6 +492,7 @@ class CondensedTranscription(TranscriptionBase):
             up = np.subtract(self._up0, shift, out=self._up)
         exact = self.exact_cones
         qp = self._cone_data(kind, f, lo, up) if exact else self._data(kind, f, lo, up)
+        self._last[kind] = qp
         start = time.perf_counter()
         status, z, iterations, info = self._sessions[kind].solve_point(qp)
         elapsed = time.perf_counter() - start

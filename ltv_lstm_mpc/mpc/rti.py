@@ -44,7 +44,7 @@ from ltv_lstm_mpc.mpc.fhocp import (
     shifted_candidate,
 )
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
-from ltv_lstm_mpc.solvers import SolverStatus, feasibility_tolerance
+from ltv_lstm_mpc.solvers import ConvexProblem, DenseQP, SolverStatus, feasibility_tolerance
 from ltv_lstm_mpc.validation import expect_bool, expect_instance, expect_real, real_vector
 
 if TYPE_CHECKING:
@@ -290,6 +290,32 @@ class RobustMPC:
                 f"{self.transcription!r}"
             )
         return self._problem.subproblem(kind)
+
+    def last_problem(self, kind: str = "nominal") -> ConvexProblem | DenseQP:
+        """The convex subproblem of eq. (optimization) solved at the last step, exactly as
+        the backend got it: what replay tools save and re-solve with other backends.
+
+        The sparse transcription gives its :class:`~ltv_lstm_mpc.solvers.ConvexProblem`
+        (exact cones; ``subproblem(kind).reformulation.apply`` gives the QP form); the
+        condensed one a copy of its :class:`~ltv_lstm_mpc.solvers.DenseQP` (kept on the
+        general feedback path: ``RobustMPC(..., native_feedback=False)`` for the nominal
+        QP of a natively bound DAQP).
+
+        Raises
+        ------
+        InvalidValueError
+            The transcription is ``"nonlinear"``, or ``kind`` was not solved at the last
+            step.
+        """
+        from ltv_lstm_mpc.mpc.condensed import CondensedTranscription
+        from ltv_lstm_mpc.mpc.sparse import SparseTranscription
+
+        if not isinstance(self._problem, (SparseTranscription, CondensedTranscription)):
+            raise InvalidValueError(
+                "last_problem() needs the sparse or condensed transcription; this "
+                f"controller's is {self.transcription!r}"
+            )
+        return self._problem.last_problem(kind)
 
     def prepare(
         self,

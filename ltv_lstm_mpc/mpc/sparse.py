@@ -430,6 +430,7 @@ class SparseTranscription(TranscriptionBase):
         self.reformulation = None if info.supports_cones else TerminalBoxReformulation.name
         self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
         self._data: dict[str, Any] = {}
+        self._last: dict[str, ConvexProblem] = {}
 
         self.N, self.n2, self.m = config.N, 2 * model.n, model.m
 
@@ -442,6 +443,22 @@ class SparseTranscription(TranscriptionBase):
             raise InvalidValueError(
                 f"no {kind!r} subproblem; this transcription has {sorted(self._subproblems)}"
             ) from None
+
+    def last_problem(self, kind: str = "nominal") -> ConvexProblem:
+        """The subproblem ``kind`` as solved for the current linearization (its exact-cone
+        form; :meth:`FHOCPSubproblem.reformulation` gives the QP form).
+
+        Raises
+        ------
+        InvalidValueError
+            ``kind`` was not solved since the last linearization.
+        """
+        if kind not in self._last:
+            raise InvalidValueError(
+                f"the {kind!r} subproblem was not solved at this step (solved: "
+                f"{sorted(self._last) or 'none'})"
+            )
+        return self._last[kind]
 
     def reset(self) -> None:
         """Nothing to forget: every solve is a cold start."""
@@ -475,6 +492,7 @@ class SparseTranscription(TranscriptionBase):
     ) -> None:
         """Keep the linearization (the sparse problem needs x_hat in its equalities)."""
         N, n2, m = self.N, self.n2, self.m
+        self._last = {}
         self._data = dict(
             x_bar=x_bar, u_bar=u_bar, x_lin=traj.S[:N, :n2].copy(),
             u_lin=traj.S[:N, n2 : n2 + m].copy(), f_lin=traj.S[1 : N + 1, :n2].copy(),
@@ -485,6 +503,7 @@ class SparseTranscription(TranscriptionBase):
         r"""Build the subproblem ``kind`` at :math:`\hat x_k` and solve it."""
         sub, session = self._subproblems[kind], self._sessions[kind]
         problem = sub.build(x_hat=x_hat, **self._data)
+        self._last[kind] = problem
         if session.structure_key is None:
             session.setup(problem)
         else:
