@@ -7,9 +7,10 @@ still imports and runs its numpy reference code (``AVAILABLE`` is then ``False``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["AVAILABLE", "REDUCTIONS", "njit"]
+__all__ = ["AVAILABLE", "REDUCTIONS", "njit", "workspace_type"]
 
 try:  # pragma: no cover - numba is a core dependency
     from numba import njit
@@ -32,3 +33,52 @@ except ImportError:  # pragma: no cover - exercised in a subprocess by the tests
 #: that assume finite values: NaN and inf still propagate and are caught by the callers'
 #: checks. One definition for every kernel that uses them.
 REDUCTIONS = {"reassoc", "contract"}
+
+
+def workspace_type(name: str, fields: Sequence[str], doc: str, module: str) -> Any:
+    """A typed workspace class: named fields that travel into compiled kernels as one object.
+
+    With numba: a ``numba.experimental.structref`` proxy (a mutable struct of the given
+    fields, typed at construction; a kernel reads ``workspace.M`` by name, so no argument
+    order can be swapped, and one object crosses the Python/compiled boundary instead of
+    many arrays; dispatch costs what one argument costs). Without numba: a ``NamedTuple``
+    with the same fields (the kernels are then plain Python).
+
+    Why structref and not the alternatives (measured on this machine kind, 20 arrays):
+    a ``namedtuple`` argument is typed by numba's Python fallback (3.5 us per call against
+    1.3 us for 20 positional arrays); ``jitclass`` dispatches fastest (0.8 us) but functions
+    taking one cannot be cached on disk, so every process would recompile the kernels;
+    a structref dispatches in 1.4 us and its kernels are cached. Its cost is a one-off
+    per process: about 0.6 s for the first workspace type constructed, 0.15 s for each
+    further one.
+
+    Arrays stored in a workspace are shared with their owners (the kernels write into the
+    owners' buffers); scalars are copied, so values that change between calls stay
+    arguments of the kernel.
+
+    ``module`` is the defining module's ``__name__``: bind the result there as ``name``
+    and its numba type as ``name + "Type"`` (``proxy.numba_type``), so that the on-disk
+    cache of the kernels finds both by module and name.
+    """
+    import collections
+
+    if not AVAILABLE:
+        tuple_type = collections.namedtuple(name, list(fields), module=module)  # type: ignore[misc]
+        tuple_type.__doc__ = doc
+        return tuple_type
+    from numba.core import types
+    from numba.experimental import structref
+
+    def preprocess_fields(self: Any, given: Any) -> Any:
+        return tuple((field, types.unliteral(typ)) for field, typ in given)
+
+    numba_type = type(
+        f"{name}Type",
+        (types.StructRef,),
+        {"preprocess_fields": preprocess_fields, "__module__": module},
+    )
+    structref.register(numba_type)
+    proxy = type(name, (structref.StructRefProxy,), {"__doc__": doc, "__module__": module})
+    structref.define_proxy(proxy, numba_type, list(fields))
+    proxy.numba_type = numba_type  # type: ignore[attr-defined]
+    return proxy

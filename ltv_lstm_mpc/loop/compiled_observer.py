@@ -10,22 +10,50 @@ from typing import Any
 import numpy as np
 
 from ltv_lstm_mpc.lstm.compiled import lstm_cell
-from ltv_lstm_mpc.numba_support import njit
+from ltv_lstm_mpc.numba_support import njit, workspace_type
 
-__all__ = ["observer_update"]
+__all__ = ["ObserverWorkspace", "new_observer_workspace", "observer_update"]
+
+ObserverWorkspace = workspace_type(
+    "ObserverWorkspace",
+    ("WU", "W_y", "b_y", "L_gates", "L_d", "S", "T", "TC", "extra"),
+    """Buffers of :func:`observer_update`, shared with the observer.
+
+    ``WU``: the kernel's stacked gate weights; ``W_y``, ``b_y``: the output map;
+    ``L_gates`` (4n, p): the gate gains (0 rows: no injection, Remark 3); ``L_d`` (p, p):
+    the disturbance gain; ``S`` (2n + m + 1), ``T`` (4n), ``TC`` (n), ``extra`` (4n):
+    scratch.
+    """,
+    __name__,
+)
+ObserverWorkspaceType = getattr(ObserverWorkspace, "numba_type", None)
+
+
+@njit(cache=True)
+def new_observer_workspace(WU, W_y, b_y, L_gates, L_d, S, T, TC, extra):  # type: ignore[no-untyped-def]
+    """An :data:`ObserverWorkspace` (built in compiled code: no constructor compile at run
+    time)."""
+    return ObserverWorkspace(WU, W_y, b_y, L_gates, L_d, S, T, TC, extra)
 
 
 @njit(cache=True)
 def observer_update(
-    WU: Any, W_y: Any, b_y: Any, L_gates: Any, L_d: Any, d_max: float,
-    x_hat: Any, d_hat: Any, y: Any, u: Any, S: Any, T: Any, TC: Any, extra: Any,
-    x_out: Any, d_out: Any,
-) -> None:  # fmt: skip
+    workspace: Any,
+    d_max: float,
+    x_hat: Any,
+    d_hat: Any,
+    y: Any,
+    u: Any,
+    x_out: Any,
+    d_out: Any,
+) -> None:
     r"""eq. (lstm_observer): :math:`(\hat x_k, \hat d_k, y_k, u_k) \to (\hat x_{k+1},
     \hat d_{k+1})` into ``x_out``, ``d_out``. The innovation is
-    :math:`y_k - W_y \hat h_k - b_y - \hat d_k`; ``L_gates`` (4n, p) injects it into the
-    gates (0 rows: no injection, Remark 3); :math:`\hat d` is saturated at ``d_max``.
-    ``S`` (one row of a Trajectory), ``T``, ``TC`` and ``extra`` (4n) are scratch."""
+    :math:`y_k - W_y \hat h_k - b_y - \hat d_k`; the workspace's ``L_gates`` injects it
+    into the gates; :math:`\hat d` is saturated at ``d_max``."""
+    WU, W_y, b_y = workspace.WU, workspace.W_y, workspace.b_y
+    L_gates, L_d = workspace.L_gates, workspace.L_d
+    S, T, TC, extra = workspace.S, workspace.T, workspace.TC, workspace.extra
     n = WU.shape[0] // 4
     p = W_y.shape[0]
     m = u.shape[0]

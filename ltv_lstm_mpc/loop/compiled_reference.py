@@ -12,9 +12,30 @@ from typing import Any
 import numpy as np
 
 from ltv_lstm_mpc.lstm.compiled import jacobians, lstm_cell
-from ltv_lstm_mpc.numba_support import njit
+from ltv_lstm_mpc.numba_support import njit, workspace_type
 
-__all__ = ["chord_newton"]
+__all__ = ["ChordWorkspace", "chord_newton", "new_chord_workspace"]
+
+ChordWorkspace = workspace_type(
+    "ChordWorkspace",
+    ("WU", "WU_raw", "W_y", "b_y", "S", "T", "TC", "J", "Jinv", "state", "F", "jacobian"),
+    """Buffers of :func:`chord_newton`, shared with the reference calculator.
+
+    ``WU``, ``WU_raw``: the kernel's stacked gate weights (scaled and raw); ``W_y``, ``b_y``:
+    the output map; ``S``, ``T``, ``TC``, ``J``: a one-step Trajectory; ``Jinv``: the kept
+    inverse Jacobian; ``state`` (int64, 4): [Jinv valid, iterations, factorizations, ok];
+    ``F``, ``jacobian``: residual and Jacobian scratch.
+    """,
+    __name__,
+)
+ChordWorkspaceType = getattr(ChordWorkspace, "numba_type", None)
+
+
+@njit(cache=True)
+def new_chord_workspace(WU, WU_raw, W_y, b_y, S, T, TC, J, Jinv, state, F, jacobian):  # type: ignore[no-untyped-def]
+    """A :data:`ChordWorkspace` (built in compiled code: no constructor compile at run
+    time)."""
+    return ChordWorkspace(WU, WU_raw, W_y, b_y, S, T, TC, J, Jinv, state, F, jacobian)
 
 
 @njit(cache=True)
@@ -45,32 +66,24 @@ def _equilibrium_residual(
 
 @njit(cache=True)
 def chord_newton(
-    WU: Any,
-    WU_raw: Any,
-    W_y: Any,
-    b_y: Any,
-    S: Any,
-    T: Any,
-    TC: Any,
-    J: Any,
+    workspace: Any,
     z_start: Any,
     target: Any,
     step_target: Any,
-    Jinv: Any,
-    state: Any,
     tol: float,
     max_iter: int,
-    F: Any,
-    jac: Any,
     z_out: Any,
 ) -> float:
     r"""The chord-Newton warm path of ``ReferenceCalculator`` (eq. reference_calculation).
 
-    ``state`` (int64, 4): [Jinv valid, iterations, factorizations, ok] (in and out);
+    ``workspace`` is a :data:`ChordWorkspace`; its ``state`` is read and written;
     ``step_target`` is the change of the target since the last solution (predictor of
     Lemma 5 with the kept inverse Jacobian). The solution goes into ``z_out``; returns the
     residual. Same algorithm as the numpy ``ReferenceCalculator._chord``.
     """
+    WU, WU_raw, W_y, b_y = workspace.WU, workspace.WU_raw, workspace.W_y, workspace.b_y
+    S, T, TC, J = workspace.S, workspace.T, workspace.TC, workspace.J
+    Jinv, state, F, jac = workspace.Jinv, workspace.state, workspace.F, workspace.jacobian
     n = WU.shape[0] // 4
     n2 = 2 * n
     size = z_start.shape[0]

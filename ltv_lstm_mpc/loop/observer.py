@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.stability import ObserverGains
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
-from ltv_lstm_mpc.loop.compiled_observer import observer_update
+from ltv_lstm_mpc.loop.compiled_observer import new_observer_workspace, observer_update
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import expect_instance, expect_real, finite_array
@@ -90,6 +90,10 @@ class Observer:
             self._T = np.zeros(4 * n)
             self._TC = np.zeros(n)
             self._extra = np.zeros(4 * n)
+            self._workspace = new_observer_workspace(
+                model.kernel.WU, self._W_y, self._b_y, self._L_gates_c, self._L_d, self._S,
+                self._T, self._TC, self._extra,
+            )  # fmt: skip
         self.x_hat = np.zeros(2 * n)
         self.d_hat = np.zeros(p)
         self.reset(
@@ -166,11 +170,7 @@ class Observer:
         if self._compiled:
             x_new = np.empty_like(self.x_hat)
             d_new = np.empty_like(self.d_hat)
-            observer_update(
-                self.model.kernel.WU, self._W_y, self._b_y, self._L_gates_c, self._L_d,
-                self.d_max, self.x_hat, self.d_hat, y, u, self._S, self._T, self._TC,
-                self._extra, x_new, d_new,
-            )  # fmt: skip
+            observer_update(self._workspace, self.d_max, self.x_hat, self.d_hat, y, u, x_new, d_new)
             self.x_hat, self.d_hat = x_new, d_new  # rebound, never mutated (see controller)
             return
         model = self.model

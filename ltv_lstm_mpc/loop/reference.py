@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -23,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 # (re-exported here, where it was first defined).
 from ltv_lstm_mpc.certificates.reference_gain import KBarEstimate, estimate_K_bar
 from ltv_lstm_mpc.exceptions import UnreachableSetpointError
-from ltv_lstm_mpc.loop.compiled_reference import chord_newton
+from ltv_lstm_mpc.loop.compiled_reference import chord_newton, new_chord_workspace
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import (
     expect_bool,
@@ -155,6 +156,7 @@ class ReferenceCalculator:
         self._Jinv_buffer = np.zeros((n2 + m, n2 + m))
         self._W_y = np.ascontiguousarray(model.W_y)
         self._b_y = np.ascontiguousarray(model.b_y)
+        self._chord_workspace: Any = None  # built at the first compiled chord step
         #: Chord-Jacobian factorizations / fallbacks from the warm path to damped Newton.
         self.counts = {"factorizations": 0, "fallbacks": 0}
         per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points
@@ -209,11 +211,14 @@ class ReferenceCalculator:
         state[0] = 1 if self._Jinv is not None else 0
         step = target - self._last_target if self._last_target is not None else target * 0.0
         z = np.empty_like(self._last_z)
+        if self._chord_workspace is None:
+            self._chord_workspace = new_chord_workspace(
+                kernel.WU, kernel.WU_raw, self._W_y, self._b_y, traj.S, traj.T, traj.TC,
+                traj.J, self._Jinv_buffer, state, self._chord_F, self._chord_jacobian,
+            )  # fmt: skip
         norm = chord_newton(
-            kernel.WU, kernel.WU_raw, self._W_y, self._b_y, traj.S, traj.T, traj.TC, traj.J,
-            self._last_z, target, step, self._Jinv_buffer, state, self.tol, self.max_iter,
-            self._chord_F, self._chord_jacobian, z,
-        )  # fmt: skip
+            self._chord_workspace, self._last_z, target, step, self.tol, self.max_iter, z
+        )
         self._Jinv = self._Jinv_buffer if state[0] == 1 else None
         self.counts["factorizations"] += int(state[2])
         return z, float(norm), int(state[1]), bool(state[3])
