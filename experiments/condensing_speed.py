@@ -40,17 +40,12 @@ def times(n: int, m: int, N: int, repeats: int) -> tuple[float, float]:
     u_bar = rng.uniform(-0.2, 0.2, m)
     x_bar = model.equilibrium(u_bar)
     mpc.prepare(x_bar, u_bar, model.output(x_bar), 0.01, x_pred=x_bar + 0.01)
-    problem, traj = mpc._problem, mpc._traj
+    workspace = mpc.condensing_workspace()
     lower, upper = mpc.tightening.output_bounds(0.01)
 
     def call(backward: bool) -> float:
         start = time.perf_counter()
-        compiled_condensing.condense(
-            traj.J, traj.S, problem._M, problem._Maug_inputs, problem._Lt_all, problem._Qs,
-            x_bar, u_bar, problem._R, problem._W_y, problem._b_y, lower, upper,
-            problem._unit_half, 0.5, 1.0, problem._H, problem._g0, problem._A, problem._lo0,
-            problem._up0, problem._lb, problem._ub, problem._diag_Q, backward,
-        )  # fmt: skip
+        compiled_condensing.condense(workspace, x_bar, u_bar, lower, upper, 0.5, backward)
         return time.perf_counter() - start
 
     call(False), call(True)

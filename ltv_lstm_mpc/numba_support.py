@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["AVAILABLE", "REDUCTIONS", "njit", "workspace_type"]
+__all__ = ["AVAILABLE", "REDUCTIONS", "build_workspace", "njit", "workspace_type"]
 
 try:  # pragma: no cover - numba is a core dependency
     from numba import njit
@@ -82,3 +82,22 @@ def workspace_type(name: str, fields: Sequence[str], doc: str, module: str) -> A
     structref.define_proxy(proxy, numba_type, list(fields))
     proxy.numba_type = numba_type  # type: ignore[attr-defined]
     return proxy
+
+
+def build_workspace(factory: Any, fields: Sequence[str], values: dict[str, Any]) -> Any:
+    """A workspace from ``values`` given by field name: ``factory`` (a compiled constructor
+    whose parameters are ``fields``, in that order; a test checks it) gets them in field
+    order, so no caller passes them by position.
+
+    Raises
+    ------
+    TypeError
+        A field is missing or unknown (the message names them).
+    """
+    missing = [name for name in fields if name not in values]
+    unknown = [name for name in values if name not in fields]
+    if missing or unknown:
+        raise TypeError(
+            f"workspace fields: missing {missing}, unknown {unknown}; expected {list(fields)}"
+        )
+    return factory(*(values[name] for name in fields))

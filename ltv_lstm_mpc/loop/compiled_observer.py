@@ -10,13 +10,16 @@ from typing import Any
 import numpy as np
 
 from ltv_lstm_mpc.lstm.compiled import lstm_cell
-from ltv_lstm_mpc.numba_support import njit, workspace_type
+from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
-__all__ = ["ObserverWorkspace", "new_observer_workspace", "observer_update"]
+__all__ = ["OBSERVER_FIELDS", "ObserverWorkspace", "new_observer_workspace", "observer_update"]
+
+#: Fields of :data:`ObserverWorkspace`, in the order of its compiled constructor.
+OBSERVER_FIELDS = ("WU", "W_y", "b_y", "L_gates", "L_d", "S", "T", "TC", "extra")
 
 ObserverWorkspace = workspace_type(
     "ObserverWorkspace",
-    ("WU", "W_y", "b_y", "L_gates", "L_d", "S", "T", "TC", "extra"),
+    OBSERVER_FIELDS,
     """Buffers of :func:`observer_update`, shared with the observer.
 
     ``WU``: the kernel's stacked gate weights; ``W_y``, ``b_y``: the output map;
@@ -29,10 +32,14 @@ ObserverWorkspace = workspace_type(
 ObserverWorkspaceType = getattr(ObserverWorkspace, "numba_type", None)
 
 
+def new_observer_workspace(**fields: Any) -> Any:
+    """A :data:`ObserverWorkspace` from its fields by name (:data:`OBSERVER_FIELDS`)."""
+    return build_workspace(_new_observer_workspace, OBSERVER_FIELDS, fields)
+
+
 @njit(cache=True)
-def new_observer_workspace(WU, W_y, b_y, L_gates, L_d, S, T, TC, extra):  # type: ignore[no-untyped-def]
-    """An :data:`ObserverWorkspace` (built in compiled code: no constructor compile at run
-    time)."""
+def _new_observer_workspace(WU, W_y, b_y, L_gates, L_d, S, T, TC, extra):  # type: ignore[no-untyped-def]
+    """The compiled constructor (no constructor compile at run time; cached)."""
     return ObserverWorkspace(WU, W_y, b_y, L_gates, L_d, S, T, TC, extra)
 
 

@@ -12,13 +12,16 @@ from typing import Any
 import numpy as np
 
 from ltv_lstm_mpc.lstm.compiled import jacobians, lstm_cell
-from ltv_lstm_mpc.numba_support import njit, workspace_type
+from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
-__all__ = ["ChordWorkspace", "chord_newton", "new_chord_workspace"]
+__all__ = ["CHORD_FIELDS", "ChordWorkspace", "chord_newton", "new_chord_workspace"]
+
+#: Fields of :data:`ChordWorkspace`, in the order of its compiled constructor.
+CHORD_FIELDS = ("WU", "WU_raw", "W_y", "b_y", "S", "T", "TC", "J", "Jinv", "state", "F", "jacobian")
 
 ChordWorkspace = workspace_type(
     "ChordWorkspace",
-    ("WU", "WU_raw", "W_y", "b_y", "S", "T", "TC", "J", "Jinv", "state", "F", "jacobian"),
+    CHORD_FIELDS,
     """Buffers of :func:`chord_newton`, shared with the reference calculator.
 
     ``WU``, ``WU_raw``: the kernel's stacked gate weights (scaled and raw); ``W_y``, ``b_y``:
@@ -31,10 +34,14 @@ ChordWorkspace = workspace_type(
 ChordWorkspaceType = getattr(ChordWorkspace, "numba_type", None)
 
 
+def new_chord_workspace(**fields: Any) -> Any:
+    """A :data:`ChordWorkspace` from its fields by name (:data:`CHORD_FIELDS`)."""
+    return build_workspace(_new_chord_workspace, CHORD_FIELDS, fields)
+
+
 @njit(cache=True)
-def new_chord_workspace(WU, WU_raw, W_y, b_y, S, T, TC, J, Jinv, state, F, jacobian):  # type: ignore[no-untyped-def]
-    """A :data:`ChordWorkspace` (built in compiled code: no constructor compile at run
-    time)."""
+def _new_chord_workspace(WU, WU_raw, W_y, b_y, S, T, TC, J, Jinv, state, F, jacobian):  # type: ignore[no-untyped-def]
+    """The compiled constructor (no constructor compile at run time; cached)."""
     return ChordWorkspace(WU, WU_raw, W_y, b_y, S, T, TC, J, Jinv, state, F, jacobian)
 
 

@@ -91,9 +91,16 @@ class Observer:
             self._TC = np.zeros(n)
             self._extra = np.zeros(4 * n)
             self._workspace = new_observer_workspace(
-                model.kernel.WU, self._W_y, self._b_y, self._L_gates_c, self._L_d, self._S,
-                self._T, self._TC, self._extra,
-            )  # fmt: skip
+                WU=model.kernel.WU,
+                W_y=self._W_y,
+                b_y=self._b_y,
+                L_gates=self._L_gates_c,
+                L_d=self._L_d,
+                S=self._S,
+                T=self._T,
+                TC=self._TC,
+                extra=self._extra,
+            )
         self.x_hat = np.zeros(2 * n)
         self.d_hat = np.zeros(p)
         self.reset(

@@ -213,9 +213,19 @@ class ReferenceCalculator:
         z = np.empty_like(self._last_z)
         if self._chord_workspace is None:
             self._chord_workspace = new_chord_workspace(
-                kernel.WU, kernel.WU_raw, self._W_y, self._b_y, traj.S, traj.T, traj.TC,
-                traj.J, self._Jinv_buffer, state, self._chord_F, self._chord_jacobian,
-            )  # fmt: skip
+                WU=kernel.WU,
+                WU_raw=kernel.WU_raw,
+                W_y=self._W_y,
+                b_y=self._b_y,
+                S=traj.S,
+                T=traj.T,
+                TC=traj.TC,
+                J=traj.J,
+                Jinv=self._Jinv_buffer,
+                state=state,
+                F=self._chord_F,
+                jacobian=self._chord_jacobian,
+            )
         norm = chord_newton(
             self._chord_workspace, self._last_z, target, step, self.tol, self.max_iter, z
         )

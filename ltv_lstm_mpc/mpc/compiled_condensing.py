@@ -15,9 +15,82 @@ from typing import Any
 
 import numpy as np
 
-from ltv_lstm_mpc.numba_support import REDUCTIONS, njit
+from ltv_lstm_mpc.numba_support import REDUCTIONS, build_workspace, njit, workspace_type
 
-__all__ = ["condense", "expand_point", "insert_state"]
+__all__ = [
+    "CONDENSING_FIELDS",
+    "CondensingWorkspace",
+    "condense",
+    "expand_point",
+    "insert_state",
+    "new_condensing_workspace",
+]
+
+#: Fields of :data:`CondensingWorkspace`, in the order of its compiled constructor.
+CONDENSING_FIELDS = (
+    "J",
+    "S",
+    "M",
+    "Maug",
+    "Lt",
+    "Qs",
+    "R",
+    "W_y",
+    "b_y",
+    "unit_half",
+    "H",
+    "g0",
+    "A",
+    "lo0",
+    "up0",
+    "lb",
+    "ub",
+    "dX",
+    "f",
+    "lo",
+    "up",
+    "low",
+    "high",
+    "u_max",
+    "diagonal",
+)
+
+CondensingWorkspace = workspace_type(
+    "CondensingWorkspace",
+    CONDENSING_FIELDS,
+    r"""Buffers of the condensed QP, shared with ``CondensedTranscription`` (one per
+    linearization trajectory).
+
+    ``J``, ``S``: the trajectory's Jacobians and states/inputs; ``M`` (N + 1, 2n, 2n + N m):
+    :math:`\Gamma_i` and the state part; ``Maug``, ``Lt``, ``Qs``: the Gram stack, the stage
+    weights' factors and the stage weights (``Qs[i]`` weighs :math:`x_{i+1}`); ``R``;
+    ``W_y``, ``b_y``: the output map; ``unit_half``: the terminal box half-widths at
+    :math:`\alpha_k = 1` (:class:`~ltv_lstm_mpc.mpc.terminal.TerminalSet`); ``H``, ``g0``,
+    ``A``, ``lo0``, ``up0``, ``lb``, ``ub``: the QP before :math:`\delta x_0`; ``dX``, ``f``,
+    ``lo``, ``up``: its feedback data; ``low``, ``high``: ``[lb; lo]`` and ``[ub; up]`` (the
+    same memory); ``u_max``; ``diagonal``: the stage weights are diagonal.
+    """,
+    __name__,
+)
+CondensingWorkspaceType = getattr(CondensingWorkspace, "numba_type", None)
+
+
+def new_condensing_workspace(**fields: Any) -> Any:
+    """A :data:`CondensingWorkspace` from its fields by name (:data:`CONDENSING_FIELDS`)."""
+    return build_workspace(_new_condensing_workspace, CONDENSING_FIELDS, fields)
+
+
+@njit(cache=True)
+def _new_condensing_workspace(  # type: ignore[no-untyped-def]
+    J, S, M, Maug, Lt, Qs, R, W_y, b_y, unit_half, H, g0, A, lo0, up0, lb, ub, dX, f, lo, up,
+    low, high, u_max, diagonal,
+):  # fmt: skip
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return CondensingWorkspace(
+        J, S, M, Maug, Lt, Qs, R, W_y, b_y, unit_half, H, g0, A, lo0, up0, lb, ub, dX, f, lo,
+        up, low, high, u_max, diagonal,
+    )  # fmt: skip
+
 
 #: State size n from which condense's Gamma recursion uses BLAS products (loops below).
 _BLAS_RECURSION_N = 10
@@ -25,30 +98,12 @@ _BLAS_RECURSION_N = 10
 
 @njit(cache=True)
 def condense(
-    J: Any,
-    S: Any,
-    M: Any,
-    Maug: Any,
-    Lt: Any,
-    Qs: Any,
+    workspace: Any,
     x_bar: Any,
     u_bar: Any,
-    R: Any,
-    W_y: Any,
-    b_y: Any,
     lower: Any,
     upper: Any,
-    unit_half: Any,
     alpha: float,
-    u_max: float,
-    H: Any,
-    g0: Any,
-    A: Any,
-    lo0: Any,
-    up0: Any,
-    lb: Any,
-    ub: Any,
-    diagonal: bool,
     backward: bool,
 ) -> float:
     r"""The input part of the condensed QP (``CondensedTranscription.build``), in place.
@@ -67,8 +122,14 @@ def condense(
     The state Jacobian of eq. (lstm) has diagonal :math:`\partial c^+/\partial c` and
     :math:`\partial h^+/\partial c` blocks (the gates do not depend on c), so the recursion
     takes two n x n products per stage instead of one 2n x 2n product (half the flops);
-    ``diagonal`` says the stage weights are diagonal (diagonal Q).
+    ``diagonal`` says the stage weights are diagonal (diagonal Q); ``backward``: H and g0 by
+    the backward recursion, else by the Gram matrix.
     """
+    J, S, M, Maug, Lt = workspace.J, workspace.S, workspace.M, workspace.Maug, workspace.Lt
+    Qs, R, W_y, b_y = workspace.Qs, workspace.R, workspace.W_y, workspace.b_y
+    unit_half, u_max, diagonal = workspace.unit_half, workspace.u_max, workspace.diagonal
+    H, g0, A, lo0, up0 = workspace.H, workspace.g0, workspace.A, workspace.lo0, workspace.up0
+    lb, ub = workspace.lb, workspace.ub
     N = J.shape[0]
     n2 = J.shape[1]
     m = J.shape[2] - n2
@@ -316,21 +377,7 @@ def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: A
 
 
 @njit(cache=True, fastmath=REDUCTIONS)
-def insert_state(
-    x_hat: Any,
-    S: Any,
-    J: Any,
-    Qs: Any,
-    W_y: Any,
-    g0: Any,
-    lo0: Any,
-    up0: Any,
-    dX: Any,
-    f: Any,
-    lo: Any,
-    up: Any,
-    diagonal: bool,
-) -> None:
+def insert_state(workspace: Any, x_hat: Any) -> None:
     r"""Feedback data of the condensed QP for :math:`\delta x_0 = \hat x - \tilde x_0`.
 
     Propagates :math:`\delta x^0_{i+1} = A_i \delta x^0_i` into ``dX`` (N + 1, 2n), then
@@ -340,8 +387,12 @@ def insert_state(
     :math:`lo_0 - W_y \delta h^0_i`, :math:`up_0 - W_y \delta h^0_i` (i = 1..N-1) and
     :math:`lo_0 - \delta x^0_N`, :math:`up_0 - \delta x^0_N` (terminal box). Both
     recursions use the diagonal blocks of the state Jacobian (see :func:`condense`);
-    ``Qs[i]`` weighs :math:`x_{i+1}`, ``diagonal``: they are diagonal.
+    ``Qs[i]`` weighs :math:`x_{i+1}`, ``diagonal``: they are diagonal. Writes the
+    workspace's ``dX``, ``f``, ``lo``, ``up``.
     """
+    S, J, Qs, W_y, g0 = workspace.S, workspace.J, workspace.Qs, workspace.W_y, workspace.g0
+    lo0, up0, dX, f = workspace.lo0, workspace.up0, workspace.dX, workspace.f
+    lo, up, diagonal = workspace.lo, workspace.up, workspace.diagonal
     N = J.shape[0]
     n2 = J.shape[1]
     m = J.shape[2] - n2
@@ -389,13 +440,13 @@ def insert_state(
 
 
 @njit(cache=True, fastmath=REDUCTIONS)
-def expand_point(
-    z: Any, A: Any, low: Any, high: Any, rows: int, M: Any, S: Any, dX: Any, x_linear: Any, u: Any
-) -> float:
+def expand_point(workspace: Any, z: Any, rows: int, x_linear: Any, u: Any) -> float:
     r"""From the QP point ``z`` (its first ``N m`` entries :math:`\delta u`): the largest
     violation of ``low <= [z; A z] <= high`` over the first ``rows`` entries, the linearized
-    states :math:`\tilde x_i + \delta x^0_i + \Gamma_i \delta u` and the inputs
-    :math:`\tilde u + \delta u`."""
+    states :math:`\tilde x_i + \delta x^0_i + \Gamma_i \delta u` into ``x_linear`` and the
+    inputs :math:`\tilde u + \delta u` into ``u``."""
+    A, low, high, M = workspace.A, workspace.low, workspace.high, workspace.M
+    S, dX = workspace.S, workspace.dX
     nu = A.shape[1]
     violation = 0.0
     for a in range(min(nu, rows)):

@@ -15,39 +15,61 @@ import numpy as np
 
 from ltv_lstm_mpc.lstm.compiled import lstm_cell
 from ltv_lstm_mpc.mpc.terminal import terminal_norm_of_squares
-from ltv_lstm_mpc.numba_support import REDUCTIONS, njit
+from ltv_lstm_mpc.numba_support import REDUCTIONS, build_workspace, njit, workspace_type
 
-__all__ = ["plan_metrics"]
+__all__ = ["PLAN_FIELDS", "PlanWorkspace", "new_plan_workspace", "plan_metrics"]
+
+#: Fields of :data:`PlanWorkspace`, in the order of its compiled constructor.
+PLAN_FIELDS = ("WU", "S", "T", "TC", "W_y", "b_y", "Q", "R", "P_terms", "out", "Q_diagonal")
+
+PlanWorkspace = workspace_type(
+    "PlanWorkspace",
+    PLAN_FIELDS,
+    r"""Buffers of :func:`plan_metrics`, shared with ``RobustMPC``.
+
+    ``WU``: the kernel's stacked gate weights; ``S``, ``T``, ``TC``: the plan's Trajectory
+    (row 0 state, inputs given); ``W_y``, ``b_y``: the output map; ``Q``, ``R``: the stage
+    weights; ``P_terms``: :attr:`~ltv_lstm_mpc.mpc.terminal.TerminalSet.terms`; ``out``
+    (4,): the metrics written; ``Q_diagonal``: Q is diagonal.
+    """,
+    __name__,
+)
+PlanWorkspaceType = getattr(PlanWorkspace, "numba_type", None)
+
+
+def new_plan_workspace(**fields: Any) -> Any:
+    """A :data:`PlanWorkspace` from its fields by name (:data:`PLAN_FIELDS`)."""
+    return build_workspace(_new_plan_workspace, PLAN_FIELDS, fields)
+
+
+@njit(cache=True)
+def _new_plan_workspace(WU, S, T, TC, W_y, b_y, Q, R, P_terms, out, Q_diagonal):  # type: ignore[no-untyped-def]
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return PlanWorkspace(WU, S, T, TC, W_y, b_y, Q, R, P_terms, out, Q_diagonal)
 
 
 @njit(cache=True, fastmath=REDUCTIONS)
 def plan_metrics(
-    WU: Any,
-    S: Any,
-    T: Any,
-    TC: Any,
-    W_y: Any,
-    b_y: Any,
+    workspace: Any,
     x_bar: Any,
     u_bar: Any,
-    Q: Any,
-    R: Any,
-    P_terms: Any,
     lower: Any,
     upper: Any,
     x_linear: Any,
     x_plan: Any,
-    out: Any,
-    Q_diagonal: bool,
 ) -> None:
-    r"""Re-simulate the plan in ``S`` (row 0 state, inputs given) and its checks.
+    r"""Re-simulate the plan in the workspace's ``S`` (row 0 state, inputs given) and its
+    checks.
 
-    Writes the states into ``x_plan`` (N + 1, 2n) and ``out`` = [cost eq.
+    Writes the states into ``x_plan`` (N + 1, 2n) and the workspace's ``out`` = [cost eq.
     (optimization_cost), terminal norm :math:`\|[\|c_N-\bar c\|, \|h_N-\bar h\|]\|_{P_f}`,
     largest tightened-output violation (>= 0), :math:`\max|x - x_{linear}|` (NaN when
-    ``x_linear`` has no rows)]; ``P_terms`` = (P11, P12 + P21, P22); ``Q_diagonal``: Q is
-    diagonal (its quadratic form in O(n) instead of O(n^2)).
+    ``x_linear`` has no rows)]; ``Q_diagonal``: Q's quadratic form in O(n) instead of
+    O(n^2).
     """
+    WU, S, T, TC = workspace.WU, workspace.S, workspace.T, workspace.TC
+    W_y, b_y, Q, R = workspace.W_y, workspace.b_y, workspace.Q, workspace.R
+    P_terms, out, Q_diagonal = workspace.P_terms, workspace.out, workspace.Q_diagonal
     N = x_plan.shape[0] - 1
     n = WU.shape[0] // 4
     n2 = 2 * n

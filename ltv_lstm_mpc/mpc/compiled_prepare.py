@@ -19,9 +19,45 @@ import numpy as np
 
 from ltv_lstm_mpc.lstm.compiled import jacobians, rollout
 from ltv_lstm_mpc.mpc.compiled_condensing import condense
-from ltv_lstm_mpc.numba_support import njit
+from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
-__all__ = ["CANDIDATE_GIVEN", "CANDIDATE_SHIFT", "CANDIDATE_U_BAR", "prepare_condensed"]
+__all__ = [
+    "CANDIDATE_GIVEN",
+    "CANDIDATE_SHIFT",
+    "CANDIDATE_U_BAR",
+    "PREPARE_FIELDS",
+    "PrepareWorkspace",
+    "new_prepare_workspace",
+    "prepare_condensed",
+]
+
+#: Fields of :data:`PrepareWorkspace`, in the order of its compiled constructor.
+PREPARE_FIELDS = ("WU", "WU_raw", "S", "T", "TC", "J", "PS", "PT", "PTC")
+
+PrepareWorkspace = workspace_type(
+    "PrepareWorkspace",
+    PREPARE_FIELDS,
+    """The trajectories of :func:`prepare_condensed`, shared with ``RobustMPC``.
+
+    ``WU``, ``WU_raw``: the kernel's stacked gate weights (scaled and raw); ``S``, ``T``,
+    ``TC``, ``J``: the linearization trajectory; ``PS``, ``PT``, ``PTC``: the previous
+    plan's re-simulation.
+    """,
+    __name__,
+)
+PrepareWorkspaceType = getattr(PrepareWorkspace, "numba_type", None)
+
+
+def new_prepare_workspace(**fields: Any) -> Any:
+    """A :data:`PrepareWorkspace` from its fields by name (:data:`PREPARE_FIELDS`)."""
+    return build_workspace(_new_prepare_workspace, PREPARE_FIELDS, fields)
+
+
+@njit(cache=True)
+def _new_prepare_workspace(WU, WU_raw, S, T, TC, J, PS, PT, PTC):  # type: ignore[no-untyped-def]
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return PrepareWorkspace(WU, WU_raw, S, T, TC, J, PS, PT, PTC)
+
 
 #: How :func:`prepare_condensed` forms the candidate: ``cand`` as given (``warm``),
 #: :math:`\bar u` repeated, or the previous plan shifted with :math:`\bar u` appended.
@@ -30,54 +66,34 @@ CANDIDATE_GIVEN, CANDIDATE_U_BAR, CANDIDATE_SHIFT = 0, 1, 2
 
 @njit(cache=True)
 def prepare_condensed(
-    WU: Any,
-    WU_raw: Any,
-    S: Any,
-    T: Any,
-    TC: Any,
-    J: Any,
-    PS: Any,
-    PT: Any,
-    PTC: Any,
+    trajectories: Any,
+    condensing: Any,
     cand: Any,
     previous_u: Any,
     candidate: int,
     x0: Any,
-    reuse_allowed: bool,
     reuse_tol: float,
     x_bar: Any,
     u_bar: Any,
     lower: Any,
     upper: Any,
     alpha: float,
-    M: Any,
-    Maug: Any,
-    Lt: Any,
-    Qs: Any,
-    R: Any,
-    W_y: Any,
-    b_y: Any,
-    unit_half: Any,
-    u_max: float,
-    H: Any,
-    g0: Any,
-    A: Any,
-    lo0: Any,
-    up0: Any,
-    lb: Any,
-    ub: Any,
-    diagonal: bool,
     backward: bool,
 ) -> tuple[float, bool]:
     """Candidate, rollout (or the shifted re-simulation), Jacobians, condensing.
 
-    ``S, T, TC, J``: the linearization trajectory; ``PS, PT, PTC``: the previous plan's
-    re-simulation; ``candidate``: :data:`CANDIDATE_GIVEN` / :data:`CANDIDATE_U_BAR` /
-    :data:`CANDIDATE_SHIFT` (``previous_u`` (N, m) used by the last); ``reuse_allowed``:
-    the shift of the re-simulation may replace the rollout when ``x0`` is within
-    ``reuse_tol`` (inf-norm) of the plan's :math:`x_1`. Returns ``(violation scale of the
-    condensed rows, whether the re-simulation was reused)``.
+    ``trajectories`` is a :data:`PrepareWorkspace` (the linearization trajectory and the
+    previous plan's re-simulation), ``condensing`` the transcription's
+    :data:`~ltv_lstm_mpc.mpc.compiled_condensing.CondensingWorkspace`; ``candidate``:
+    :data:`CANDIDATE_GIVEN` / :data:`CANDIDATE_U_BAR` / :data:`CANDIDATE_SHIFT`
+    (``previous_u`` (N, m) used by the last); the shift of the re-simulation replaces the
+    rollout when ``x0`` is within ``reuse_tol`` (inf-norm) of the plan's :math:`x_1`
+    (``reuse_tol < 0``: never); ``backward``: H and g0 by the backward recursion. Returns
+    ``(violation scale of the condensed rows, whether the re-simulation was reused)``.
     """
+    WU, WU_raw = trajectories.WU, trajectories.WU_raw
+    S, T, TC, J = trajectories.S, trajectories.T, trajectories.TC, trajectories.J
+    PS, PT, PTC = trajectories.PS, trajectories.PT, trajectories.PTC
     N, m = cand.shape
     n2 = J.shape[1]
     if candidate == CANDIDATE_U_BAR:
@@ -90,7 +106,7 @@ def prepare_condensed(
                 cand[i, a] = previous_u[i + 1, a]
         for a in range(m):
             cand[N - 1, a] = u_bar[a]
-    reuse = reuse_allowed
+    reuse = reuse_tol >= 0.0
     if reuse:
         for q in range(n2):
             if not abs(x0[q] - PS[1, q]) <= reuse_tol:
@@ -116,8 +132,5 @@ def prepare_condensed(
                 S[i, n2 + a] = cand[i, a]
         rollout(WU, S, T, TC, 0, N, np.empty(0))
     jacobians(WU_raw, S, T, TC, J)
-    scale = condense(
-        J, S, M, Maug, Lt, Qs, x_bar, u_bar, R, W_y, b_y, lower, upper, unit_half, alpha,
-        u_max, H, g0, A, lo0, up0, lb, ub, diagonal, backward,
-    )  # fmt: skip
+    scale = condense(condensing, x_bar, u_bar, lower, upper, alpha, backward)
     return scale, reuse

@@ -53,9 +53,10 @@ from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
 from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.lstm.kernel import LSTMKernel, Trajectory
+from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc import compiled_condensing
+from ltv_lstm_mpc.mpc.compiled_condensing import new_condensing_workspace
 from ltv_lstm_mpc.mpc.compiled_prepare import prepare_condensed
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.terminal import TerminalBoxReformulation, TerminalSet
@@ -197,18 +198,22 @@ class CondensedTranscription(TranscriptionBase):
         }
         # The nominal feedback as one compiled call in the core where DAQP's C entry point is
         # bound (mpc/native_feedback.py); otherwise, and for the other problems, the session.
-        # nominal_feedback's arguments from Qs to settings, in its order (None: no native path)
-        self._native_buffers: tuple[Any, ...] | None = None
+        self._daqp_workspace: Any = None  # DAQP's buffers of the one-call feedback
         native = self._sessions["nominal"].native if "nominal" in self._sessions else None
         if self.compiled and not self.exact_cones and native is not None:
-            self._native_buffers = (
-                self._Qs, self._g0, self._lo0, self._up0, self._dX, self._f,
-                self._low, self._high, self._diag_Q, self._H, self._A, self._M,
-                np.zeros(nu + self._mA, dtype=np.intc),  # cold working set
-                np.empty(nu),  # z
-                np.empty(nu + self._mA),  # multipliers
-                native.problem, native.result, native.settings,
-            )  # fmt: skip
+            from ltv_lstm_mpc.mpc.native_feedback import new_daqp_workspace
+
+            self._daqp_workspace = new_daqp_workspace(
+                sense=np.zeros(nu + self._mA, dtype=np.intc),  # cold working set
+                z=np.empty(nu),
+                lam=np.empty(nu + self._mA),  # multipliers
+                problem=native.problem,
+                result=native.result,
+                settings=native.settings,
+                tolerance=self.tolerance,
+            )
+        #: The compiled condensing's buffers for the bound trajectory (:meth:`workspace`).
+        self._workspace: Any = None
         empty = np.zeros(0)
         self._qp = {
             kind: DenseQP(
@@ -296,11 +301,33 @@ class CondensedTranscription(TranscriptionBase):
             qp.cones[2].f = float(self._alpha)
         return qp
 
+    @property
+    def daqp_workspace(self) -> Any:
+        """DAQP's buffers of the core's one-call nominal feedback (None without DAQP bound
+        natively, or with the numpy condensing)."""
+        return self._daqp_workspace if self.compiled else None
+
+    def workspace(self, traj: Trajectory) -> Any:
+        """The :data:`~ltv_lstm_mpc.mpc.compiled_condensing.CondensingWorkspace` of the
+        compiled condensing on the linearization trajectory ``traj`` (built once per
+        trajectory; the core keeps one); None with the numpy condensing."""
+        if not hasattr(self, "_Maug_inputs"):  # built on a numpy kernel: no compiled path
+            return None
+        if self._workspace is None or traj is not self._traj:
+            self._traj = traj
+            self._workspace = new_condensing_workspace(
+                J=traj.J, S=traj.S, M=self._M, Maug=self._Maug_inputs, Lt=self._Lt_all,
+                Qs=self._Qs, R=self._R, W_y=self._W_y, b_y=self._b_y,
+                unit_half=self._unit_half, H=self._H, g0=self._g0, A=self._A, lo0=self._lo0,
+                up0=self._up0, lb=self._lb, ub=self._ub, dX=self._dX, f=self._f, lo=self._lo,
+                up=self._up, low=self._low, high=self._high, u_max=float(self.config.u_max),
+                diagonal=self._diag_Q,
+            )  # fmt: skip
+        return self._workspace
+
     def linearize_and_build(
         self,
-        kernel: LSTMKernel,
-        traj: Trajectory,
-        plan: Trajectory,
+        trajectories: Any,
         cand: FloatArray,
         previous_u: FloatArray,
         candidate: int,
@@ -315,26 +342,19 @@ class CondensedTranscription(TranscriptionBase):
     ) -> bool:
         """The core's preparation in one compiled call on the compiled kernel
         (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`); False with the
-        numpy condensing (the core then runs the steps and :meth:`build`)."""
-        if not self.compiled:
+        numpy condensing (the core then runs the steps and :meth:`build`). ``trajectories``:
+        the core's :data:`~ltv_lstm_mpc.mpc.compiled_prepare.PrepareWorkspace`, on the
+        trajectory bound by :meth:`workspace`."""
+        if not self.compiled or self._workspace is None:
             return False
         self._last.clear()
         self.scale, _ = prepare_condensed(
-            kernel.WU, kernel.WU_raw, traj.S, traj.T, traj.TC, traj.J, plan.S, plan.T, plan.TC,
-            cand, previous_u, candidate, x0, reuse_allowed, reuse_tol, x_bar, u_bar, lower,
-            upper, float(alpha), self._M, self._Maug_inputs, self._Lt_all, self._Qs, self._R,
-            self._W_y, self._b_y, self._unit_half, float(self.config.u_max), self._H,
-            self._g0, self._A, self._lo0, self._up0, self._lb, self._ub, self._diag_Q,
+            trajectories, self._workspace, cand, previous_u, candidate, x0,
+            reuse_tol if reuse_allowed else -1.0, x_bar, u_bar, lower, upper, float(alpha),
             self.backward_condensing,
         )  # fmt: skip
-        self._traj, self._alpha = traj, alpha
+        self._alpha = alpha
         return True
-
-    @property
-    def native_buffers(self) -> tuple[Any, ...] | None:
-        """:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`'s arguments from ``Qs``
-        to ``settings`` (None without DAQP bound natively or with the numpy condensing)."""
-        return self._native_buffers if self.compiled else None
 
     def last_problem(self, kind: str = "nominal") -> DenseQP:
         """A copy of the condensed QP ``kind`` as the session solved it at this step (the
@@ -377,10 +397,8 @@ class CondensedTranscription(TranscriptionBase):
         self._alpha = alpha
         if self.compiled:
             self.scale = compiled_condensing.condense(
-                J, S, M, self._Maug_inputs, self._Lt_all, self._Qs, x_bar, u_bar, self._R,
-                self._W_y, self._b_y, lower, upper, self._unit_half, float(alpha),
-                float(self.config.u_max), self._H, self._g0, self._A, self._lo0, self._up0,
-                self._lb, self._ub, self._diag_Q, self.backward_condensing,
+                self.workspace(traj), x_bar, u_bar, lower, upper, float(alpha),
+                self.backward_condensing,
             )  # fmt: skip
             return
         matmul = np.matmul
@@ -479,10 +497,7 @@ class CondensedTranscription(TranscriptionBase):
         compiled = self.compiled
         if compiled:  # delta x_0 propagated here, not condensed in prepare (compiled.py)
             f, lo, up = self._f, self._lo, self._up
-            compiled_condensing.insert_state(
-                x_hat, S, traj.J, self._Qs, self._W_y, self._g0,
-                self._lo0, self._up0, self._dX, f, lo, up, self._diag_Q,
-            )  # fmt: skip
+            compiled_condensing.insert_state(self.workspace(traj), x_hat)
         else:
             np.subtract(x_hat, S[0, :n2], out=dx0)
             f = self._F @ dx0
@@ -512,9 +527,7 @@ class CondensedTranscription(TranscriptionBase):
             x_linear = np.empty((N + 1, n2))
             u = np.empty((N, m))
             rows = nu if kind == "soft" or exact else nu + qp.A.shape[0]
-            violation = compiled_condensing.expand_point(
-                z, self._A, self._low, self._high, rows, self._M, S, self._dX, x_linear, u
-            )
+            violation = compiled_condensing.expand_point(self.workspace(traj), z, rows, x_linear, u)
             if kind == "soft" or exact:  # slacks or cones: the QP's own rows and cones
                 violation = qp.max_violation(z)
             return StepResult(

@@ -28,9 +28,16 @@ from numba import njit
 
 from ltv_lstm_mpc.mpc.compiled_condensing import expand_point, insert_state
 from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
+from ltv_lstm_mpc.numba_support import build_workspace, workspace_type
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
 
-__all__ = ["PRECHECK_MARGIN", "nominal_feedback"]
+__all__ = [
+    "DAQP_FIELDS",
+    "PRECHECK_MARGIN",
+    "DaqpWorkspace",
+    "new_daqp_workspace",
+    "nominal_feedback",
+]
 
 #: The pre-check accepts ``y`` only within ``[lower - 1e-12, upper + 1e-12]`` shrunk by this
 #: much (its sum runs in another order than the general path's, so ulps may differ there).
@@ -39,61 +46,74 @@ _PRECHECK_TOL = 1e-12  # fhocp.precheck_status
 _HUGE = 1e100  # entries beyond it go to the general path (its finiteness test sums them)
 
 
+#: Fields of :data:`DaqpWorkspace`, in the order of its compiled constructor.
+DAQP_FIELDS = ("sense", "z", "lam", "problem", "result", "settings", "tolerance")
+
+DaqpWorkspace = workspace_type(
+    "DaqpWorkspace",
+    DAQP_FIELDS,
+    """DAQP's buffers for :func:`nominal_feedback`.
+
+    ``sense`` (int32): the working set (cold: zeros); ``z``, ``lam``: the point and the
+    multipliers; ``problem``, ``result``, ``settings``: the C structs of
+    :class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative`; ``tolerance``: the acceptance
+    tolerance of the point (:func:`~ltv_lstm_mpc.solvers.feasibility_tolerance`).
+    """,
+    __name__,
+)
+DaqpWorkspaceType = getattr(DaqpWorkspace, "numba_type", None)
+
+
+def new_daqp_workspace(**fields: Any) -> Any:
+    """A :data:`DaqpWorkspace` from its fields by name (:data:`DAQP_FIELDS`)."""
+    return build_workspace(_new_daqp_workspace, DAQP_FIELDS, fields)
+
+
+@njit(cache=True)
+def _new_daqp_workspace(sense, z, lam, problem, result, settings, tolerance):  # type: ignore[no-untyped-def]
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return DaqpWorkspace(sense, z, lam, problem, result, settings, tolerance)
+
+
 @njit(cache=True)
 def nominal_feedback(
+    condensing: Any,
+    daqp: Any,
+    plan: Any,
     x_hat: Any,
-    W_y: Any,
-    b_y: Any,
+    x_bar: Any,
+    u_bar: Any,
     lower: Any,
     upper: Any,
     alpha: float,
     scale: float,
-    S: Any,
-    J: Any,
-    Qs: Any,
-    g0: Any,
-    lo0: Any,
-    up0: Any,
-    dX: Any,
-    f: Any,
-    low: Any,
-    high: Any,
-    diagonal: bool,
-    H: Any,
-    A: Any,
-    M: Any,
-    sense: Any,
-    z: Any,
-    lam: Any,
-    problem: Any,
-    result: Any,
-    settings: Any,
-    tolerance: float,
-    u_max: float,
-    WU: Any,
-    P: Any,
-    PT: Any,
-    PTC: Any,
-    x_bar: Any,
-    u_bar: Any,
-    Q: Any,
-    R: Any,
-    P_terms: Any,
-    Q_diagonal: bool,
     x_linear: Any,
     u: Any,
     x_plan: Any,
-    metrics: Any,
 ) -> tuple[int, int, float, float]:
     """Pre-check, insert, solve, expand, accept, re-simulate.
 
     Returns ``(code, iterations, sqp step, solver seconds)``: code 1 (optimal) or 2
     (optimal, inaccurate) when accepted, with the plan in ``u``/``x_linear``/``x_plan`` and
-    ``metrics`` as :func:`plan_metrics` writes them; 0: not accepted here (general path).
-    ``low``/``high`` are ``[lb; lo]`` and ``[ub; up]`` (DAQP's layout, simple bounds first),
-    ``P``/``PT``/``PTC`` the plan trajectory's buffers, ``lower``/``upper`` the tightened
-    output bounds (N, p).
+    the metrics in ``plan.out`` as :func:`plan_metrics` writes them; 0: not accepted here
+    (general path). ``condensing``: the transcription's
+    :data:`~ltv_lstm_mpc.mpc.compiled_condensing.CondensingWorkspace` (its ``low``/``high``
+    are ``[lb; lo]`` and ``[ub; up]``, DAQP's layout, simple bounds first); ``daqp``: a
+    :data:`DaqpWorkspace`; ``plan``: the
+    :data:`~ltv_lstm_mpc.mpc.compiled_plan.PlanWorkspace`; ``lower``/``upper``: the
+    tightened output bounds (N, p).
     """
+    W_y, b_y, H, A = condensing.W_y, condensing.b_y, condensing.H, condensing.A
+    f, low, high, S, u_max = (
+        condensing.f,
+        condensing.low,
+        condensing.high,
+        condensing.S,
+        condensing.u_max,
+    )
+    sense, z, lam, tolerance = daqp.sense, daqp.z, daqp.lam, daqp.tolerance
+    problem, result, settings = daqp.problem, daqp.result, daqp.settings
+    P = plan.S
     n2 = x_linear.shape[1]
     n = n2 // 2
     p = W_y.shape[0]
@@ -110,12 +130,12 @@ def nominal_feedback(
         return 0, 0, 0.0, 0.0
     # ---- insert, solve, expand (CondensedTranscription.solve)
     nu = f.shape[0]
-    insert_state(x_hat, S, J, Qs, W_y, g0, lo0, up0, dX, f, low[nu:], high[nu:], diagonal)
+    insert_state(condensing, x_hat)
     flag, iterations = quadprog(H, f, A, high, low, sense, z, lam, problem, result, settings)
     seconds = solver_seconds(result)
     if flag != 1 and flag != 2:
         return 0, iterations, 0.0, seconds
-    violation = expand_point(z, A, low, high, high.shape[0], M, S, dX, x_linear, u)
+    violation = expand_point(condensing, z, high.shape[0], x_linear, u)
     # ---- acceptance (RobustMPC._checked_solve)
     for a in range(nu):
         if not abs(z[a]) < _HUGE:
@@ -143,8 +163,5 @@ def nominal_feedback(
     for i in range(N):
         for a in range(m):
             P[i, n2 + a] = u[i, a]
-    plan_metrics(
-        WU, P, PT, PTC, W_y, b_y, x_bar, u_bar, Q, R, P_terms, lower, upper, x_linear, x_plan,
-        metrics, Q_diagonal,
-    )  # fmt: skip
+    plan_metrics(plan, x_bar, u_bar, lower, upper, x_linear, x_plan)
     return flag, iterations, step, seconds

@@ -32,8 +32,13 @@ from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.certify import Certification, certify, u_max_extrapolation
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
-from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
-from ltv_lstm_mpc.mpc.compiled_prepare import CANDIDATE_GIVEN, CANDIDATE_SHIFT, CANDIDATE_U_BAR
+from ltv_lstm_mpc.mpc.compiled_plan import new_plan_workspace, plan_metrics
+from ltv_lstm_mpc.mpc.compiled_prepare import (
+    CANDIDATE_GIVEN,
+    CANDIDATE_SHIFT,
+    CANDIDATE_U_BAR,
+    new_prepare_workspace,
+)
 from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import (
     MPCSolution,
@@ -44,7 +49,7 @@ from ltv_lstm_mpc.mpc.fhocp import (
     shifted_candidate,
 )
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
-from ltv_lstm_mpc.solvers import ConvexProblem, DenseQP, SolverStatus, feasibility_tolerance
+from ltv_lstm_mpc.solvers import ConvexProblem, DenseQP, SolverStatus
 from ltv_lstm_mpc.validation import expect_bool, expect_instance, expect_real, real_vector
 
 if TYPE_CHECKING:
@@ -222,6 +227,37 @@ class RobustMPC:
         self._plan = kernel.trajectory(N)
         self._plan_valid = False
         self._cand = np.empty((N, model.m))
+        # Typed workspaces of the compiled calls (None on the numpy kernel): the plan checks,
+        # the preparation's trajectories, the transcription's condensing buffers.
+        self._plan_workspace: Any = None
+        self._prepare_workspace: Any = None
+        if kernel.compiled:
+            plan, traj = self._plan, self._traj
+            self._plan_workspace = new_plan_workspace(
+                WU=kernel.WU,
+                S=plan.S,
+                T=plan.T,
+                TC=plan.TC,
+                W_y=self._W_y,
+                b_y=self._b_y,
+                Q=self._Q,
+                R=self._R,
+                P_terms=self._P_terms,
+                out=self._metrics,
+                Q_diagonal=self._Q_diagonal,
+            )
+            if self._problem.workspace(self._traj) is not None:  # binds the trajectory
+                self._prepare_workspace = new_prepare_workspace(
+                    WU=kernel.WU,
+                    WU_raw=kernel.WU_raw,
+                    S=traj.S,
+                    T=traj.T,
+                    TC=traj.TC,
+                    J=traj.J,
+                    PS=plan.S,
+                    PT=plan.T,
+                    PTC=plan.TC,
+                )
         self._W_y_T = np.ascontiguousarray(model.W_y.T)
         self._bounds_key: tuple[float, bytes] | None = None
         self._bounds_e: float | None = None
@@ -232,14 +268,14 @@ class RobustMPC:
         # (condensed QP, DAQP bound natively, compiled kernel; one SQP iteration).
         self._native_feedback: Any = None
         if (
-            self._problem.native_buffers is not None
+            self._problem.daqp_workspace is not None
+            and self._prepare_workspace is not None
             and config.sqp_iterations == 1
             and native_feedback
         ):
             from ltv_lstm_mpc.mpc.native_feedback import nominal_feedback
 
             self._native_feedback = nominal_feedback
-            self._tolerance = feasibility_tolerance(config.solver, config.tolerance)
         self.prepare_time = self.feedback_time = self.solver_time = 0.0
         self.qp_iterations = 0
 
@@ -290,6 +326,14 @@ class RobustMPC:
                 f"{self.transcription!r}"
             )
         return self._problem.subproblem(kind)
+
+    def condensing_workspace(self) -> Any:
+        """The compiled condensing's buffers on this controller's linearization trajectory
+        (:data:`~ltv_lstm_mpc.mpc.compiled_condensing.CondensingWorkspace`, what
+        :func:`~ltv_lstm_mpc.mpc.compiled_condensing.condense` takes), or None when the
+        transcription is not the condensed one on a compiled kernel. For timing and
+        checking the condensing alone (``experiments/condensing_speed.py``)."""
+        return self._problem.workspace(self._traj)
 
     def last_problem(self, kind: str = "nominal") -> ConvexProblem | DenseQP:
         """The convex subproblem of eq. (optimization) solved at the last step, exactly as
@@ -381,9 +425,9 @@ class RobustMPC:
         # the re-simulation of the previous plan may replace the rollout (x0 at its x_1)
         reuse_allowed = warm is None and self._plan_valid
         previous_u = cand if self._previous_u is None else self._previous_u
-        if not self._problem.linearize_and_build(
-            kernel, traj, plan, cand, previous_u, candidate, x0, reuse_allowed, self.reuse_tol,
-            x_bar_a, u_bar_a, self._lower, self._upper, self._alpha,
+        if self._prepare_workspace is None or not self._problem.linearize_and_build(
+            self._prepare_workspace, cand, previous_u, candidate, x0, reuse_allowed,
+            self.reuse_tol, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha,
         ):  # fmt: skip
             # the same steps in Python (the reference of compiled_prepare.prepare_condensed)
             if candidate == CANDIDATE_U_BAR:
@@ -522,15 +566,13 @@ class RobustMPC:
         self._plan_valid = True
         u_out = np.array(u_plan)
         self._previous_u = u_out
-        if self._kernel.compiled:  # re-simulation, cost and residuals in one numba call
+        if self._plan_workspace is not None and self._kernel.compiled:
+            # re-simulation, cost and residuals in one numba call
             x_plan = np.empty((N + 1, n2))
             metrics = self._metrics
-            plan = self._plan
             plan_metrics(
-                self._kernel.WU, P, plan.T, plan.TC, self._W_y, self._b_y, self._x_bar,
-                self._u_bar, self._Q, self._R, self._P_terms, self._lower, self._upper,
-                self._no_rows if x_linear is None else x_linear, x_plan, metrics,
-                self._Q_diagonal,
+                self._plan_workspace, self._x_bar, self._u_bar, self._lower, self._upper,
+                self._no_rows if x_linear is None else x_linear, x_plan,
             )  # fmt: skip
             cost = float(metrics[0])
             residuals = {
@@ -576,19 +618,17 @@ class RobustMPC:
         """The nominal feedback in one compiled call (mpc/native_feedback.py); ``None`` when
         it does not accept the point (the general path of :meth:`feedback` then runs)."""
         N, n2, m = self.N, 2 * self.model.n, self.model.m
-        problem, plan, traj, alpha = self._problem, self._plan, self._traj, self._alpha
-        buffers = problem.native_buffers
-        if buffers is None:
+        problem, traj, alpha = self._problem, self._traj, self._alpha
+        daqp = problem.daqp_workspace
+        if daqp is None:
             return None
         u = np.empty((N, m))
         x_linear = np.empty((N + 1, n2))
         x_plan = np.empty((N + 1, n2))
         metrics = self._metrics
         code, iterations, step, solver_time = self._native_feedback(
-            x_hat, self._W_y, self._b_y, self._lower, self._upper, alpha, problem.scale,
-            traj.S, traj.J, *buffers, self._tolerance, self.config.u_max,
-            self._kernel.WU, plan.S, plan.T, plan.TC, self._x_bar, self._u_bar, self._Q,
-            self._R, self._P_terms, self._Q_diagonal, x_linear, u, x_plan, metrics,
+            problem.workspace(traj), daqp, self._plan_workspace, x_hat, self._x_bar,
+            self._u_bar, self._lower, self._upper, alpha, problem.scale, x_linear, u, x_plan,
         )  # fmt: skip
         if not code:
             return None

@@ -33,7 +33,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ltv_lstm_mpc.lstm.kernel import LSTMKernel, Trajectory
+from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.solvers import SolverStatus
 
 __all__ = ["KINDS", "StepResult", "TranscriptionBase"]
@@ -87,8 +87,12 @@ class TranscriptionBase(abc.ABC):
     name: ClassVar[str]
     #: Name of the conservative cone reformulation applied, or None (exact cones).
     reformulation: str | None = None
-    #: Scale of the row violations of the last build (used with :attr:`native_buffers`).
+    #: Scale of the row violations of the last build (used by the one-call feedback).
     scale: float = 1.0
+    #: DAQP's buffers of the core's one-call nominal feedback
+    #: (:data:`~ltv_lstm_mpc.mpc.native_feedback.DaqpWorkspace`) where the transcription has
+    #: one (the condensed QP with DAQP bound natively), else None.
+    daqp_workspace: Any = None
 
     @abc.abstractmethod
     def build(
@@ -107,11 +111,16 @@ class TranscriptionBase(abc.ABC):
         tightened output bounds and ``alpha`` is :math:`\alpha_k`.
         """
 
+    def workspace(self, traj: Trajectory) -> Any:
+        """The compiled buffers of the transcription on the linearization trajectory
+        ``traj`` (the condensed QP's
+        :data:`~ltv_lstm_mpc.mpc.compiled_condensing.CondensingWorkspace`), or None where
+        the transcription has no compiled path."""
+        return None
+
     def linearize_and_build(
         self,
-        kernel: LSTMKernel,
-        traj: Trajectory,
-        plan: Trajectory,
+        trajectories: Any,
         cand: FloatArray,
         previous_u: FloatArray,
         candidate: int,
@@ -126,16 +135,10 @@ class TranscriptionBase(abc.ABC):
     ) -> bool:
         """The core's preparation (candidate, reuse of the plan's re-simulation, rollout,
         Jacobians, :meth:`build`) in one compiled call, where the transcription has one
-        (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`). Returns whether it
-        did; by default it has none and the core runs these steps in Python."""
+        (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`; ``trajectories`` is
+        the core's :data:`~ltv_lstm_mpc.mpc.compiled_prepare.PrepareWorkspace`). Returns
+        whether it did; by default it has none and the core runs these steps in Python."""
         return False
-
-    @property
-    def native_buffers(self) -> tuple[Any, ...] | None:
-        """Buffers of the core's one-call nominal feedback
-        (:mod:`~ltv_lstm_mpc.mpc.native_feedback`) where the transcription has one (the
-        condensed QP with DAQP bound natively), else None."""
-        return None
 
     @abc.abstractmethod
     def solve(self, kind: str, x_hat: FloatArray) -> StepResult:
