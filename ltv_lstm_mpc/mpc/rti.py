@@ -231,6 +231,7 @@ class RobustMPC:
         # the preparation's trajectories, the transcription's condensing buffers.
         self._plan_workspace: Any = None
         self._prepare_workspace: Any = None
+        self._condensing_workspace: Any = None
         if kernel.compiled:
             plan, traj = self._plan, self._traj
             self._plan_workspace = new_plan_workspace(
@@ -246,7 +247,8 @@ class RobustMPC:
                 out=self._metrics,
                 Q_diagonal=self._Q_diagonal,
             )
-            if self._problem.workspace(self._traj) is not None:  # binds the trajectory
+            self._condensing_workspace = self._problem.workspace(traj)  # binds traj
+            if self._condensing_workspace is not None:
                 self._prepare_workspace = new_prepare_workspace(
                     WU=kernel.WU,
                     WU_raw=kernel.WU_raw,
@@ -618,7 +620,7 @@ class RobustMPC:
         """The nominal feedback in one compiled call (mpc/native_feedback.py); ``None`` when
         it does not accept the point (the general path of :meth:`feedback` then runs)."""
         N, n2, m = self.N, 2 * self.model.n, self.model.m
-        problem, traj, alpha = self._problem, self._traj, self._alpha
+        problem, alpha = self._problem, self._alpha
         daqp = problem.daqp_workspace
         if daqp is None:
             return None
@@ -627,7 +629,7 @@ class RobustMPC:
         x_plan = np.empty((N + 1, n2))
         metrics = self._metrics
         code, iterations, step, solver_time = self._native_feedback(
-            problem.workspace(traj), daqp, self._plan_workspace, x_hat, self._x_bar,
+            self._condensing_workspace, daqp, self._plan_workspace, x_hat, self._x_bar,
             self._u_bar, self._lower, self._upper, alpha, problem.scale, x_linear, u, x_plan,
         )  # fmt: skip
         if not code:
