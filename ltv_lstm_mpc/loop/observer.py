@@ -78,6 +78,7 @@ class Observer:
         # Compiled update (loop/compiled_observer.py) on a compiled kernel; the numpy
         # code of advance() is its reference.
         self._compiled = model.kernel.compiled
+        self._update = self._update_compiled if self._compiled else self._update_numpy
         if self._compiled:
             self._W_y = np.ascontiguousarray(model.W_y, dtype=np.float64)
             self._b_y = np.ascontiguousarray(model.b_y, dtype=np.float64)
@@ -172,14 +173,20 @@ class Observer:
 
         The controller's hot-loop call: one compiled call on a compiled kernel
         (``loop/compiled_observer.py``), else the innovation
-        :math:`y_k - \hat y_k` and :meth:`advance` (the numpy reference).
+        :math:`y_k - \hat y_k` and :meth:`advance` (the numpy reference); chosen once, when
+        the observer is built.
         """
-        if self._compiled:
-            x_new = np.empty_like(self.x_hat)
-            d_new = np.empty_like(self.d_hat)
-            observer_update(self._workspace, self.d_max, self.x_hat, self.d_hat, y, u, x_new, d_new)
-            self.x_hat, self.d_hat = x_new, d_new  # rebound, never mutated (see controller)
-            return
+        self._update(y, u)
+
+    def _update_compiled(self, y: FloatArray, u: FloatArray) -> None:
+        """:meth:`update` in one numba call (``loop/compiled_observer.py``)."""
+        x_new = np.empty_like(self.x_hat)
+        d_new = np.empty_like(self.d_hat)
+        observer_update(self._workspace, self.d_max, self.x_hat, self.d_hat, y, u, x_new, d_new)
+        self.x_hat, self.d_hat = x_new, d_new  # rebound, never mutated (see controller)
+
+    def _update_numpy(self, y: FloatArray, u: FloatArray) -> None:
+        """:meth:`update` by the innovation and :meth:`advance` (the numpy reference)."""
         model = self.model
         innovation = model.W_y @ self.x_hat[model.n :]
         innovation += model.b_y

@@ -143,7 +143,7 @@ class ReferenceCalculator:
         self._jacobian = np.zeros((n2 + m, n2 + m))
         self._jacobian[n2:, model.n : n2] = model.W_y
         self._last_z: FloatArray | None = None  # previous solution [x_bar; u_bar]
-        # Warm path (chord Newton on the model's kernel), see :meth:`_chord`.
+        # Warm path (chord Newton on the model's kernel): _chord_numpy or its compiled twin.
         self._traj = model.kernel.trajectory(1)
         self._z_view = self._traj.S[0, : n2 + m]
         self._chord_jacobian = self._jacobian.copy()
@@ -152,6 +152,8 @@ class ReferenceCalculator:
         self._Jinv: FloatArray | None = None
         self._last_target: FloatArray | None = None
         self._compiled = model.kernel.compiled  # the warm path in one numba call
+        #: The chord-Newton warm path, chosen once: compiled twin or numpy reference.
+        self._chord = self._chord_compiled if self._compiled else self._chord_numpy
         self._chord_state = np.zeros(4, dtype=np.int64)
         self._Jinv_buffer = np.zeros((n2 + m, n2 + m))
         self._W_y = np.ascontiguousarray(model.W_y)
@@ -206,7 +208,7 @@ class ReferenceCalculator:
         self.counts["factorizations"] += 1
 
     def _chord_compiled(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
-        """:meth:`_chord` in one numba call (``loop/compiled_reference.py``), same algorithm."""
+        """:meth:`_chord_numpy` in one numba call (``loop/compiled_reference.py``)."""
         kernel, traj, state = self.model.kernel, self._traj, self._chord_state
         state[0] = 1 if self._Jinv is not None else 0
         step = target - self._last_target if self._last_target is not None else target * 0.0
@@ -233,7 +235,7 @@ class ReferenceCalculator:
         self.counts["factorizations"] += int(state[2])
         return z, float(norm), int(state[1]), bool(state[3])
 
-    def _chord(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
+    def _chord_numpy(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
         r"""Warm-started chord Newton from the previous solution: (z, residual, iterations, ok).
 
         The equilibrium moves little between samples, so the inverse Jacobian is kept from
@@ -245,8 +247,6 @@ class ReferenceCalculator:
         """
         assert self._last_z is not None
         n2 = 2 * self.model.n
-        if self._compiled:
-            return self._chord_compiled(target)
         z = self._last_z
         if self._Jinv is not None and self._last_target is not None:
             z = z + self._Jinv[:, n2:] @ (target - self._last_target)
