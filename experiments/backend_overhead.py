@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 from ltv_lstm_mpc.solvers import DenseQP, DenseSession, available_solvers, solver_info  # noqa: E402
 
 from ltv_lstm_mpc import OffsetFreeController, RobustMPC, load_model  # noqa: E402
-from ltv_lstm_mpc.bench.harness import bench_scenarios  # noqa: E402
+from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
 
 
 def captured_qps(N: int, count: int = 5) -> list[DenseQP]:

@@ -74,10 +74,15 @@ def _controller(
     if numpy_kernel:  # the numpy reference of eq. (lstm) and of the condensing
         kernel = importlib.import_module(f"{name}.lstm.kernel")
         model.kernel = kernel.LSTMKernel(model, compiled=False)
-    try:
-        harness = importlib.import_module(f"{name}.bench.harness")
-    except ImportError:  # the layout before the one pipeline
-        harness = importlib.import_module(f"{name}.bench")
+    harness = None
+    # today's layout, then the older ones (a baseline may be any earlier revision)
+    for module in ("solver_comparison.harness", "bench.harness", "bench"):
+        try:
+            harness = importlib.import_module(f"{name}.{module}")
+            break
+        except ImportError:
+            continue
+    assert harness is not None, f"no solver-comparison harness in {name}"
     scenario = harness.bench_scenarios(model)[0]
     config = replace(scenario.config, N=N, solver=solver)
     rate = scenario.setpoint_rate_limit

@@ -1,6 +1,7 @@
 """Solver comparison experiment: every backend on the paper's closed loops.
 
-Same as ``ltv-lstm-mpc bench`` (see :mod:`ltv_lstm_mpc.bench.harness` for the columns); writes
+Same as ``ltv-lstm-mpc bench`` (see :mod:`ltv_lstm_mpc.solver_comparison.harness` for the
+columns); writes
 ``bench.csv``, ``bench.md`` and ``bench_N<N>.png`` under ``--out`` (default
 ``bench_results/``), optionally replayable subproblems (``--save-subproblems DIR``, then
 ``ltv-lstm-mpc replay DIR``).
@@ -18,7 +19,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from ltv_lstm_mpc.bench import harness as bench
+from ltv_lstm_mpc.solver_comparison import harness as bench
 
 
 def main(argv: Sequence[str] | None = None) -> int:

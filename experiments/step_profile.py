@@ -28,8 +28,8 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from ltv_lstm_mpc import OffsetFreeController  # noqa: E402
-from ltv_lstm_mpc.bench.harness import bench_scenarios  # noqa: E402
 from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
+from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
 
 
 def loop(

@@ -9,7 +9,7 @@ import importlib.util
 import numpy as np
 import pytest
 
-from ltv_lstm_mpc.bench import harness as bench
+from ltv_lstm_mpc.solver_comparison import harness as bench
 
 HAS_CASADI = importlib.util.find_spec("casadi") is not None
 

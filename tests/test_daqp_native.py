@@ -128,7 +128,7 @@ def _closed_loop(model, config, scenario, native: bool, steps: int):
 def test_one_call_feedback_equals_the_general_path_in_closed_loop(index: int) -> None:
     """Bench scenarios on the shipped pH model: the same MPCSolution at every step (scenario
     3 includes infeasible steps, which the general path handles)."""
-    from ltv_lstm_mpc.bench.harness import bench_scenarios
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
 
     model = load_model("ph_lstm_n5.npz")
     scenario = bench_scenarios(model)[index]

@@ -208,7 +208,7 @@ def test_numpy_and_compiled_condensing_give_the_same_cone_plan(model, sparse, re
 
 
 def test_closed_loop_same_inputs_native_condensed_and_cvxpy_sparse(model) -> None:
-    from ltv_lstm_mpc.bench.harness import bench_scenarios
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
 
     scenario = bench_scenarios(model)[0]
     rate = scenario.setpoint_rate_limit

@@ -301,7 +301,7 @@ def test_solver_info_of_a_condensed_backend() -> None:
 
 
 def test_closed_loop_same_inputs_condensed_and_sparse_qp(model) -> None:
-    from ltv_lstm_mpc.bench.harness import bench_scenarios
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
 
     scenario = bench_scenarios(model)[0]
     rate = scenario.setpoint_rate_limit

@@ -7,7 +7,7 @@ import pytest
 from ltv_lstm_mpc.solvers import available_solvers
 
 from ltv_lstm_mpc import load_model
-from ltv_lstm_mpc.bench import harness as bench
+from ltv_lstm_mpc.solver_comparison import harness as bench
 
 #: First-input tolerance per solver family (against the median over solvers of one form).
 TOL = {"osqp": 1e-4, "scs": 1e-3, "proxqp": 1e-4, "highs": 1e-5, "clarabel": 1e-5, "ecos": 1e-5}

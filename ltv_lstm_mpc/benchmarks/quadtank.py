@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ltv_lstm_mpc.benchmarks.benchmark import Benchmark
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.schedules import piecewise_constant
@@ -47,10 +48,12 @@ from ltv_lstm_mpc.plants.quadtank import QUADTANK_TS, QuadrupleTankPlant
 __all__ = [
     "DEFAULT_SOLVERS",
     "OFFSET_TOLERANCE_FRACTION",
+    "QUADTANK_BENCHMARK",
     "QUADTANK_CONFIG",
     "QUADTANK_MODEL",
     "QuadTankResult",
     "QuadTankScenario",
+    "format_quadtank_report",
     "format_quadtank_table",
     "plot_quadtank",
     "quadtank_scenarios",
@@ -356,6 +359,61 @@ def format_quadtank_table(summaries: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _certificate(model: LSTMModel, results: list[QuadTankResult]) -> dict[str, Any]:
+    """The certificate numbers of the first run's controller (every path certifies alike)."""
+    if not results:
+        return {}
+    result = results[0]
+    cert = result.controller.certification
+    return {
+        "rho_A_delta": cert.delta_iss.rho_A_delta,
+        "rho_s": cert.lyapunov.rho_s,
+        "rho_o": cert.observer.rho_o,
+        "e_inf": cert.tightening.e_inf,
+        "K_bar": cert.K_bar.K_bar,
+        "y0_interval_phi": None
+        if cert.y0_interval_phi is None
+        else [v.tolist() for v in cert.y0_interval_phi],
+        "L_d": result.controller.config.L_d,
+    }
+
+
+def format_quadtank_report(report: dict[str, Any]) -> str:
+    """The printed report of ``reproduce --benchmark quadtank``: table and certificate."""
+    cert = report["certificate"]
+    interval = cert["y0_interval_phi"]
+    admissible = (
+        "set-points -"
+        if interval is None
+        else "set-points "
+        + ", ".join(f"h{j + 1} [{interval[0][j]:.2f}, {interval[1][j]:.2f}] cm" for j in range(2))
+    )
+    return (
+        format_quadtank_table(report["scenarios"])
+        + f"\n\nrho_A_delta {cert['rho_A_delta']:.4f}, rho_s {cert['rho_s']:.4f}, rho_o "
+        f"{cert['rho_o']:.4f} (L_d = {cert['L_d']}), e_inf {cert['e_inf']:.4g}, admissible "
+        + admissible
+    )
+
+
+#: The quadruple-tank benchmark: set-point changes on both levels and a leak, on the
+#: condensed (daqp) and exact-cone (clarabel) paths.
+QUADTANK_BENCHMARK = Benchmark(
+    name="quadtank",
+    plant="quadtank",
+    model=QUADTANK_MODEL,
+    scenarios=lambda model, short: quadtank_scenarios(short=short),
+    run=lambda scenario, model, solver, progress: run_quadtank_scenario(
+        scenario, model, solver=solver, progress=progress
+    ),
+    write=lambda result, out, plot: write_quadtank_outputs(result, out, plot=plot),
+    certificate_key="certificate",
+    certificate=_certificate,
+    format_report=format_quadtank_report,
+    solvers=DEFAULT_SOLVERS,
+)
+
+
 def reproduce_quadtank(
     model: LSTMModel,
     out: Path | None = None,
@@ -367,7 +425,9 @@ def reproduce_quadtank(
     plot: bool = True,
     model_info: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Run the benchmark's scenarios on every solver path; optionally write the outputs.
+    """Run the benchmark's scenarios on every solver path; optionally write the outputs
+    (:meth:`~ltv_lstm_mpc.benchmarks.benchmark.Benchmark.reproduce` of
+    :data:`QUADTANK_BENCHMARK`).
 
     Returns
     -------
@@ -375,42 +435,7 @@ def reproduce_quadtank(
         ``{"scenarios": [summary, ...], "certificate": {...}, "wall_time_s": float}``;
         also written to ``out/summary.json`` when ``out`` is given.
     """
-    start = time.perf_counter()
-    scenarios = [
-        sc for sc in quadtank_scenarios(short=short) if not only or any(o in sc.name for o in only)
-    ]
-    if not scenarios:
-        names = [sc.name for sc in quadtank_scenarios(short=True)]
-        raise InvalidValueError(f"no scenario matches {list(only or [])}; scenarios: {names}")
-    summaries = []
-    certificate: dict[str, Any] = {}
-    for scenario in scenarios:
-        for solver in solvers:
-            result = run_quadtank_scenario(scenario, model, solver=solver, progress=progress)
-            if out is not None:
-                summaries.append(write_quadtank_outputs(result, out, plot=plot))
-            else:
-                summaries.append(result.summary())
-            if not certificate:
-                cert = result.controller.certification
-                certificate = {
-                    "rho_A_delta": cert.delta_iss.rho_A_delta,
-                    "rho_s": cert.lyapunov.rho_s,
-                    "rho_o": cert.observer.rho_o,
-                    "e_inf": cert.tightening.e_inf,
-                    "K_bar": cert.K_bar.K_bar,
-                    "y0_interval_phi": None
-                    if cert.y0_interval_phi is None
-                    else [v.tolist() for v in cert.y0_interval_phi],
-                    "L_d": result.controller.config.L_d,
-                }
-    report = {
-        "model": model_info or {},
-        "scenarios": summaries,
-        "certificate": certificate,
-        "wall_time_s": time.perf_counter() - start,
-    }
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "summary.json").write_text(json.dumps(report, indent=2))
-    return report
+    return QUADTANK_BENCHMARK.reproduce(
+        model, out, only=only, solvers=tuple(solvers), short=short, progress=progress,
+        plot=plot, model_info=model_info,
+    )  # fmt: skip

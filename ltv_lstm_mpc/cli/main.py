@@ -283,69 +283,31 @@ def _add_reproduce(subparsers: Any) -> None:
     parser.set_defaults(func=_run_reproduce)
 
 
-def _run_reproduce(args: argparse.Namespace) -> int:
-    if args.benchmark == "quadtank":
-        return _run_reproduce_quadtank(args)
-    from ltv_lstm_mpc.paper.reproduce import format_certificates, format_table, reproduce
+def _benchmarks() -> dict[str, Any]:
+    """The benchmarks of ``reproduce --benchmark``, by name."""
+    from ltv_lstm_mpc.benchmarks.quadtank import QUADTANK_BENCHMARK
+    from ltv_lstm_mpc.paper.reproduce import PAPER_BENCHMARK
 
-    path = model_path(args.model or PH_MODEL)
+    return {"paper": PAPER_BENCHMARK, "quadtank": QUADTANK_BENCHMARK}
+
+
+def _run_reproduce(args: argparse.Namespace) -> int:
+    benchmark = _benchmarks()[args.benchmark]
+    path = model_path(args.model or benchmark.model)
     model = LSTMModel.load(path)
-    report = reproduce(
+    report = benchmark.reproduce(
         model,
         args.out,
         only=args.only,
-        solver=args.solver,
+        solvers=None if args.solver is None else (args.solver,),
         short=args.short,
         progress=not args.no_progress,
         plot=not args.no_plots,
         model_info={"path": str(path)},
     )
-    print(format_table(report["scenarios"]))
-    print()
-    print(format_certificates(report["certificates"]))
+    print(benchmark.format_report(report))
     print(
         f"\nwall time {report['wall_time_s']:.1f} s"
-        + (f"; results in {args.out}" if args.out else "")
-    )
-    return _offset_status([s["final_offset"] for s in report["scenarios"]], args.max_offset)
-
-
-def _run_reproduce_quadtank(args: argparse.Namespace) -> int:
-    from ltv_lstm_mpc.benchmarks.quadtank import (
-        DEFAULT_SOLVERS,
-        format_quadtank_table,
-        reproduce_quadtank,
-    )
-
-    path = model_path(args.model or QUADTANK_MODEL)
-    model = LSTMModel.load(path)
-    report = reproduce_quadtank(
-        model,
-        args.out,
-        solvers=DEFAULT_SOLVERS if args.solver is None else (args.solver,),
-        only=args.only,
-        short=args.short,
-        progress=not args.no_progress,
-        plot=not args.no_plots,
-        model_info={"path": str(path)},
-    )
-    print(format_quadtank_table(report["scenarios"]))
-    cert = report["certificate"]
-    interval = cert["y0_interval_phi"]
-    print(
-        f"\nrho_A_delta {cert['rho_A_delta']:.4f}, rho_s {cert['rho_s']:.4f}, rho_o "
-        f"{cert['rho_o']:.4f} (L_d = {cert['L_d']}), e_inf {cert['e_inf']:.4g}, admissible "
-        + (
-            "set-points -"
-            if interval is None
-            else "set-points "
-            + ", ".join(
-                f"h{j + 1} [{interval[0][j]:.2f}, {interval[1][j]:.2f}] cm" for j in range(2)
-            )
-        )
-    )
-    print(
-        f"wall time {report['wall_time_s']:.1f} s"
         + (f"; results in {args.out}" if args.out else "")
     )
     return _offset_status([s["final_offset"] for s in report["scenarios"]], args.max_offset)
@@ -602,7 +564,7 @@ def build_parser() -> argparse.ArgumentParser:
 #: Modules whose ``register(subparsers)`` adds subcommands (train, bench, replay, campaign).
 OPTIONAL_COMMAND_MODULES = (
     "ltv_lstm_mpc.training.cli",
-    "ltv_lstm_mpc.bench.harness",
+    "ltv_lstm_mpc.solver_comparison.harness",
     "ltv_lstm_mpc.campaign.cli",
 )
 

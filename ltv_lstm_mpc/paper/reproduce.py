@@ -11,15 +11,14 @@ from __future__ import annotations
 
 import csv
 import json
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ltv_lstm_mpc.benchmarks.benchmark import Benchmark
 from ltv_lstm_mpc.certificates.certify import CertificationSettings, certify
-from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.paper.scenarios import (
     Y_PHI_MAX,
@@ -30,7 +29,14 @@ from ltv_lstm_mpc.paper.scenarios import (
     run_scenario,
 )
 
-__all__ = ["PAPER_VALUES", "certificate_comparison", "reproduce", "write_scenario_outputs"]
+__all__ = [
+    "PAPER_BENCHMARK",
+    "PAPER_VALUES",
+    "certificate_comparison",
+    "format_report",
+    "reproduce",
+    "write_scenario_outputs",
+]
 
 #: Numbers the paper reports (Section V) for its own trained model.
 PAPER_VALUES: dict[str, Any] = {
@@ -203,6 +209,33 @@ def format_certificates(comparison: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _run(scenario: Scenario, model: LSTMModel, solver: str | None, progress: bool) -> Any:
+    return run_scenario(scenario, model, solver=solver, progress=progress)
+
+
+def _write(result: ScenarioResult, out: Path, plot: bool) -> dict[str, Any]:
+    return write_scenario_outputs(result, out, plot=plot)
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """The printed report of ``reproduce``: the scenario table and the certificates."""
+    return format_table(report["scenarios"]) + "\n\n" + format_certificates(report["certificates"])
+
+
+#: The paper's five closed loops of Section V on the pH plant and its LSTM (Fig. 1, Fig. 2).
+PAPER_BENCHMARK = Benchmark(
+    name="paper",
+    plant="ph",
+    model="ph_lstm_n5.npz",
+    scenarios=lambda model, short: paper_scenarios(model, short=short),
+    run=_run,
+    write=_write,
+    certificate_key="certificates",
+    certificate=lambda model, results: certificate_comparison(model),
+    format_report=format_report,
+)
+
+
 def reproduce(
     model: LSTMModel,
     out: Path | None = None,
@@ -214,7 +247,9 @@ def reproduce(
     plot: bool = True,
     model_info: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Run the paper's scenarios (all, or those whose name contains one of ``only``).
+    """Run the paper's scenarios (all, or those whose name contains one of ``only``):
+    :meth:`~ltv_lstm_mpc.benchmarks.benchmark.Benchmark.reproduce` of
+    :data:`PAPER_BENCHMARK`.
 
     Returns
     -------
@@ -222,29 +257,7 @@ def reproduce(
         ``{"scenarios": [summary, ...], "certificates": {...}, "wall_time_s": float}``;
         also written to ``out/summary.json`` when ``out`` is given.
     """
-    start = time.perf_counter()
-    scenarios: list[Scenario] = [
-        sc
-        for sc in paper_scenarios(model, short=short)
-        if not only or any(o in sc.name for o in only)
-    ]
-    if not scenarios:
-        names = [sc.name for sc in paper_scenarios(model, short=True)]
-        raise InvalidValueError(f"no scenario matches {list(only or [])}; scenarios: {names}")
-    summaries = []
-    for scenario in scenarios:
-        result = run_scenario(scenario, model, solver=solver, progress=progress)
-        if out is not None:
-            summaries.append(write_scenario_outputs(result, out, plot=plot))
-        else:
-            summaries.append(result.summary())
-    report = {
-        "model": model_info or {},
-        "scenarios": summaries,
-        "certificates": certificate_comparison(model),
-        "wall_time_s": time.perf_counter() - start,
-    }
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "summary.json").write_text(json.dumps(report, indent=2))
-    return report
+    return PAPER_BENCHMARK.reproduce(
+        model, out, only=only, solvers=(solver,), short=short, progress=progress, plot=plot,
+        model_info=model_info,
+    )  # fmt: skip
