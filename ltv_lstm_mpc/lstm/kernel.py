@@ -173,6 +173,13 @@ class LSTMKernel:
         #: Whether the numba-compiled loops run (``False``: the numpy reference).
         self.compiled = bool(compiled) and _compiled.AVAILABLE
         self._no_extra = np.zeros(0)
+        # the loops, chosen once: the numba twins or the numpy reference
+        if self.compiled:
+            self._rollout, self._pairs = self._rollout_compiled, self._pairs_compiled
+            self._jacobians = self._jacobians_compiled
+        else:
+            self._rollout, self._pairs = self._rollout_numpy, self._pairs_numpy
+            self._jacobians = self._jacobians_numpy
 
     def trajectory(self, N: int) -> Trajectory:
         """New preallocated buffers for a horizon of N steps."""
@@ -190,11 +197,16 @@ class LSTMKernel:
         ``extra`` is added to the gate pre-activations of every step (the observer's
         :math:`L (y - \hat y)` terms, eq. lstm_observer).
         """
-        if self.compiled:
-            _compiled.rollout(
-                self.WU, traj.S, traj.T, traj.TC, k0, k1, self._no_extra if extra is None else extra
-            )
-            return
+        self._rollout(traj, k0, k1, extra)
+
+    def _rollout_compiled(
+        self, traj: Trajectory, k0: int, k1: int, extra: FloatArray | None
+    ) -> None:
+        _compiled.rollout(
+            self.WU, traj.S, traj.T, traj.TC, k0, k1, self._no_extra if extra is None else extra
+        )
+
+    def _rollout_numpy(self, traj: Trajectory, k0: int, k1: int, extra: FloatArray | None) -> None:
         WU, tmp, views = self.WU, traj.tmp, traj.views
         for k in range(k0, k1):
             view = views[k]
@@ -228,7 +240,7 @@ class LSTMKernel:
         object's ``pair_next`` attribute ``(K, 2n)``.
         """
         K = x.shape[0]
-        n, n2, m = self.n, 2 * self.n, self.m
+        n2, m = 2 * self.n, self.m
         traj = self._scratch_trajectory(K)
         out = getattr(traj, "pair_next", None)
         if out is None:
@@ -236,23 +248,27 @@ class LSTMKernel:
         S = traj.S
         S[:K, :n2] = x
         S[:K, n2 : n2 + m] = u
-        if self.compiled:
-            _compiled.pairs(self.WU, S, traj.T, traj.TC, out, K)
-            if jacobians:
-                self.jacobians(traj)
-            return traj
-        WU, tmp = self.WU, traj.tmp
-        for k in range(K):
-            _cell(WU, traj.views[k], out[k, :n], out[k, n:], tmp, None)
+        self._pairs(traj, out, K)
         if jacobians:
             self.jacobians(traj)
         return traj
 
+    def _pairs_compiled(self, traj: Trajectory, out: FloatArray, K: int) -> None:
+        _compiled.pairs(self.WU, traj.S, traj.T, traj.TC, out, K)
+
+    def _pairs_numpy(self, traj: Trajectory, out: FloatArray, K: int) -> None:
+        n, WU, tmp = self.n, self.WU, traj.tmp
+        for k in range(K):
+            _cell(WU, traj.views[k], out[k, :n], out[k, n:], tmp, None)
+
     def jacobians(self, traj: Trajectory) -> None:
         r"""Batched :math:`[A_k\; B_k] = \partial f / \partial [c; h; u]` at the stored steps."""
-        if self.compiled:
-            _compiled.jacobians(self.WU_raw, traj.S, traj.T, traj.TC, traj.J)
-            return
+        self._jacobians(traj)
+
+    def _jacobians_compiled(self, traj: Trajectory) -> None:
+        _compiled.jacobians(self.WU_raw, traj.S, traj.T, traj.TC, traj.J)
+
+    def _jacobians_numpy(self, traj: Trajectory) -> None:
         n = self.n
         n3 = 3 * n
         S, T, TC, J, Dv, dh_dc = traj.S, traj.T, traj.TC, traj.J, traj.Dv, traj.dh_dc

@@ -167,8 +167,8 @@ class CondensedTranscription(TranscriptionBase):
         self._alpha = 0.0
         # Compiled condensing (numba, mpc/compiled_condensing.py) when the model's kernel is
         # compiled: the same QP written in place; the numpy code of build() is its reference.
-        self.compiled = model.kernel.compiled
-        if self.compiled:
+        self._compiled = model.kernel.compiled
+        if self._compiled:
             Lt_all = (
                 np.stack([np.diag(row) for row in self._sw[:, :, 0]]) if self._diag_Q else self._Lt
             )
@@ -188,6 +188,7 @@ class CondensedTranscription(TranscriptionBase):
             self._W_y = np.ascontiguousarray(model.W_y)
             self._f = np.zeros(nu)
             self._dX = np.zeros((N + 1, n2))
+        self._choose_kernels()
         self.tolerance = feasibility_tolerance(config.solver, config.tolerance)
         if self.exact_cones:
             self._cone_qp = {kind: self._cone_problem(kind) for kind in kinds}
@@ -302,6 +303,29 @@ class CondensedTranscription(TranscriptionBase):
         return qp
 
     @property
+    def compiled(self) -> bool:
+        """The compiled condensing (numba) is in use; else the numpy reference. Chosen when
+        the transcription is built (from the model's kernel); setting False switches to
+        the reference (tests compare the two)."""
+        return self._compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self._compiled = bool(value) and hasattr(self, "_Maug_inputs")
+        self._choose_kernels()
+
+    def _choose_kernels(self) -> None:
+        """Condensing, state insertion and expansion: the numba twins or the numpy ones."""
+        if self._compiled:
+            self._condense = self._condense_compiled
+            self._insert = self._insert_compiled
+            self._expand = self._expand_compiled
+        else:
+            self._condense = self._condense_numpy
+            self._insert = self._insert_numpy
+            self._expand = self._expand_numpy
+
+    @property
     def daqp_workspace(self) -> Any:
         """DAQP's buffers of the core's one-call nominal feedback (None without DAQP bound
         natively, or with the numpy condensing)."""
@@ -390,17 +414,42 @@ class CondensedTranscription(TranscriptionBase):
     ) -> None:
         """Condense the linearization in ``traj`` into H, F, g0 and the rows (no solve)."""
         self._last.clear()
+        self._traj = traj
+        self._alpha = alpha
+        self.scale = self._condense(traj, x_bar, u_bar, lower, upper, alpha)
+
+    def _condense_compiled(
+        self,
+        traj: Trajectory,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        lower: FloatArray,
+        upper: FloatArray,
+        alpha: float,
+    ) -> float:
+        r""":meth:`build` in one numba call (``mpc/compiled_condensing.py``): the input part
+        only, :math:`\delta x_0` enters at feedback time. Returns the violation scale."""
+        return float(
+            compiled_condensing.condense(
+                self.workspace(traj), x_bar, u_bar, lower, upper, float(alpha),
+                self.backward_condensing,
+            )
+        )  # fmt: skip
+
+    def _condense_numpy(
+        self,
+        traj: Trajectory,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+        lower: FloatArray,
+        upper: FloatArray,
+        alpha: float,
+    ) -> float:
+        """:meth:`build` in numpy (the reference): H, F, g0, the rows and E. Returns the
+        violation scale."""
         n, N, m = self.n, self.N, self.m
         n2 = 2 * n
         S, J, M = traj.S, traj.J, self._M
-        self._traj = traj
-        self._alpha = alpha
-        if self.compiled:
-            self.scale = compiled_condensing.condense(
-                self.workspace(traj), x_bar, u_bar, lower, upper, float(alpha),
-                self.backward_condensing,
-            )  # fmt: skip
-            return
         matmul = np.matmul
         for i in range(N):
             matmul(J[i, :, :n2], M[i], out=M[i + 1])
@@ -441,7 +490,7 @@ class CondensedTranscription(TranscriptionBase):
         u_max = self.config.u_max
         np.subtract(-u_max, flat_cand, out=self._lb)
         np.subtract(u_max, flat_cand, out=self._ub)
-        self.scale = 1.0 + max(u_max, float(np.abs(self._rows0).max()))
+        return 1.0 + max(u_max, float(np.abs(self._rows0).max()))
 
     # --------------------------------------------------------------------- feedback
     def _data(self, kind: str, f: FloatArray, lo: FloatArray, up: FloatArray) -> DenseQP:
@@ -491,20 +540,7 @@ class CondensedTranscription(TranscriptionBase):
         traj = self._traj
         if traj is None:  # pragma: no cover - the core always builds first
             raise RuntimeError("CondensedTranscription.solve() before build()")
-        n2, N, m = 2 * self.n, self.N, self.m
-        S = traj.S
-        dx0 = self._dx0
-        compiled = self.compiled
-        if compiled:  # delta x_0 propagated here, not condensed in prepare (compiled.py)
-            f, lo, up = self._f, self._lo, self._up
-            compiled_condensing.insert_state(self.workspace(traj), x_hat)
-        else:
-            np.subtract(x_hat, S[0, :n2], out=dx0)
-            f = self._F @ dx0
-            f += self._g0
-            shift = self._E @ dx0
-            lo = np.subtract(self._lo0, shift, out=self._lo)
-            up = np.subtract(self._up0, shift, out=self._up)
+        f, lo, up = self._insert(traj, x_hat)
         exact = self.exact_cones
         qp = self._cone_data(kind, f, lo, up) if exact else self._data(kind, f, lo, up)
         self._last[kind] = qp
@@ -522,33 +558,10 @@ class CondensedTranscription(TranscriptionBase):
                 iterations=iterations,
                 info=info,
             )
-        nu = N * m
-        if compiled:
-            x_linear = np.empty((N + 1, n2))
-            u = np.empty((N, m))
-            rows = nu if kind == "soft" or exact else nu + qp.A.shape[0]
-            violation = compiled_condensing.expand_point(self.workspace(traj), z, rows, x_linear, u)
-            if kind == "soft" or exact:  # slacks or cones: the QP's own rows and cones
-                violation = qp.max_violation(z)
-            return StepResult(
-                status=status,
-                u=u,
-                x_linear=x_linear,
-                violation=max(violation, 0.0) / self.scale,
-                tolerance=self.tolerance,
-                solver_time=elapsed,
-                iterations=iterations,
-                info=info,
-            )
-        violation = qp.max_violation(z) / self.scale
-        dxu = self._dxu
-        dxu[:n2] = dx0
-        dxu[n2:] = z[:nu]
-        x_linear = self._M @ dxu
-        x_linear += S[:, :n2]
+        u, x_linear, violation = self._expand(traj, kind, qp, z)
         return StepResult(
             status=status,
-            u=S[:N, n2 : n2 + m] + dxu[n2:].reshape(N, m),
+            u=u,
             x_linear=x_linear,
             violation=violation,
             tolerance=self.tolerance,
@@ -556,3 +569,54 @@ class CondensedTranscription(TranscriptionBase):
             iterations=iterations,
             info=info,
         )
+
+    def _insert_compiled(
+        self, traj: Trajectory, x_hat: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        r"""(f, lo, up) for :math:`\delta x_0 = \hat x_k - \tilde x_0`, propagated in one
+        numba call (not condensed in the preparation)."""
+        compiled_condensing.insert_state(self.workspace(traj), x_hat)
+        return self._f, self._lo, self._up
+
+    def _insert_numpy(
+        self, traj: Trajectory, x_hat: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        r"""(f, lo, up) for :math:`\delta x_0` by the condensed F and E (the reference)."""
+        dx0 = self._dx0
+        np.subtract(x_hat, traj.S[0, : 2 * self.n], out=dx0)
+        f = self._F @ dx0
+        f += self._g0
+        shift = self._E @ dx0
+        lo = np.subtract(self._lo0, shift, out=self._lo)
+        up = np.subtract(self._up0, shift, out=self._up)
+        return f, lo, up
+
+    def _expand_compiled(
+        self, traj: Trajectory, kind: str, qp: DenseQP, z: FloatArray
+    ) -> tuple[FloatArray, FloatArray, float]:
+        """(u, x_linear, scaled violation) of the QP point ``z``, in one numba call."""
+        n2, N, m = 2 * self.n, self.N, self.m
+        x_linear = np.empty((N + 1, n2))
+        u = np.empty((N, m))
+        nu = N * m
+        exact = self.exact_cones
+        rows = nu if kind == "soft" or exact else nu + qp.A.shape[0]
+        violation = compiled_condensing.expand_point(self.workspace(traj), z, rows, x_linear, u)
+        if kind == "soft" or exact:  # slacks or cones: the QP's own rows and cones
+            violation = qp.max_violation(z)
+        return u, x_linear, max(violation, 0.0) / self.scale
+
+    def _expand_numpy(
+        self, traj: Trajectory, kind: str, qp: DenseQP, z: FloatArray
+    ) -> tuple[FloatArray, FloatArray, float]:
+        """(u, x_linear, scaled violation) of the QP point ``z`` (the reference)."""
+        n2, N, m = 2 * self.n, self.N, self.m
+        S = traj.S
+        nu = N * m
+        violation = qp.max_violation(z) / self.scale
+        dxu = self._dxu
+        dxu[:n2] = self._dx0
+        dxu[n2:] = z[:nu]
+        x_linear = self._M @ dxu
+        x_linear += S[:, :n2]
+        return S[:N, n2 : n2 + m] + dxu[n2:].reshape(N, m), x_linear, violation

@@ -232,6 +232,8 @@ class RobustMPC:
         self._plan_workspace: Any = None
         self._prepare_workspace: Any = None
         self._condensing_workspace: Any = None
+        #: The plan checks of the feedback, chosen once: compiled twin or numpy reference.
+        self._check_plan = self._check_plan_compiled if kernel.compiled else self._check_plan_numpy
         if kernel.compiled:
             plan, traj = self._plan, self._traj
             self._plan_workspace = new_plan_workspace(
@@ -395,7 +397,7 @@ class RobustMPC:
         self._x_bar = x_bar_a = np.asarray(x_bar, dtype=np.float64)
         self._u_bar = u_bar_a = np.asarray(u_bar, dtype=np.float64).reshape(m)
         self._bounds(np.asarray(y0, dtype=np.float64).reshape(model.p), float(e_hat))
-        cand, traj, plan, kernel = self._cand, self._traj, self._plan, self._kernel
+        cand, plan = self._cand, self._plan
         # the candidate (Theorem 3, Part 2b) and the start of the linearization
         u_max = self.config.u_max
         self._u_bar_projected = False
@@ -431,28 +433,82 @@ class RobustMPC:
             self._prepare_workspace, cand, previous_u, candidate, x0, reuse_allowed,
             self.reuse_tol, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha,
         ):  # fmt: skip
-            # the same steps in Python (the reference of compiled_prepare.prepare_condensed)
-            if candidate == CANDIDATE_U_BAR:
-                cand[:] = u_bar_a
-            elif candidate == CANDIDATE_SHIFT:
-                cand[:-1] = previous_u[1:]
-                cand[-1] = u_bar_a
-            S = traj.S
-            if reuse_allowed and float(np.abs(x0 - plan.S[1, :n2]).max()) <= self.reuse_tol:
-                # The shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one.
-                S[:N] = plan.S[1:]
-                traj.T[: N - 1] = plan.T[1:]
-                traj.TC[: N - 1] = plan.TC[1:]
-                S[N - 1, n2 : n2 + m] = cand[N - 1]
-                kernel.rollout(traj, N - 1, N)
-            else:
-                S[0, :n2] = x0
-                S[:N, n2 : n2 + m] = cand
-                kernel.rollout(traj, 0, N)
-            kernel.jacobians(traj)
-            self._problem.build(traj, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha)
+            self._linearize_numpy(previous_u, candidate, x0, reuse_allowed, x_bar_a, u_bar_a)
         self._prepared = True
         self.prepare_time = time.perf_counter() - start
+
+    def _linearize_numpy(
+        self,
+        previous_u: FloatArray,
+        candidate: int,
+        x0: FloatArray,
+        reuse_allowed: bool,
+        x_bar: FloatArray,
+        u_bar: FloatArray,
+    ) -> None:
+        """The preparation's candidate, rollout (or the shifted re-simulation), Jacobians and
+        :meth:`~ltv_lstm_mpc.mpc.transcription.TranscriptionBase.build` in Python: the
+        readable reference of
+        :func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed` (tested against it),
+        and the path of every transcription without that one call."""
+        N, n2, m = self.N, 2 * self.model.n, self.model.m
+        cand, traj, plan, kernel = self._cand, self._traj, self._plan, self._kernel
+        u_bar_a, x_bar_a = u_bar, x_bar
+        if candidate == CANDIDATE_U_BAR:
+            cand[:] = u_bar_a
+        elif candidate == CANDIDATE_SHIFT:
+            cand[:-1] = previous_u[1:]
+            cand[-1] = u_bar_a
+        S = traj.S
+        if reuse_allowed and float(np.abs(x0 - plan.S[1, :n2]).max()) <= self.reuse_tol:
+            # The shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one.
+            S[:N] = plan.S[1:]
+            traj.T[: N - 1] = plan.T[1:]
+            traj.TC[: N - 1] = plan.TC[1:]
+            S[N - 1, n2 : n2 + m] = cand[N - 1]
+            kernel.rollout(traj, N - 1, N)
+        else:
+            S[0, :n2] = x0
+            S[:N, n2 : n2 + m] = cand
+            kernel.rollout(traj, 0, N)
+        kernel.jacobians(traj)
+        self._problem.build(traj, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha)
+
+    def _check_plan_compiled(
+        self, u: FloatArray, x_linear: FloatArray | None, alpha: float
+    ) -> tuple[FloatArray, float, dict[str, float]]:
+        """Re-simulation of the plan in ``_plan`` (state and inputs written), its cost and
+        nonlinear residuals, in one numba call (``mpc/compiled_plan.py``)."""
+        N, n2 = self.N, 2 * self.model.n
+        x_plan = np.empty((N + 1, n2))
+        metrics = self._metrics
+        plan_metrics(
+            self._plan_workspace, self._x_bar, self._u_bar, self._lower, self._upper,
+            self._no_rows if x_linear is None else x_linear, x_plan,
+        )  # fmt: skip
+        residuals = {
+            "output_violation": float(metrics[2]),
+            "terminal_residual": float(metrics[1]) - alpha,
+            "linearization_gap": float(metrics[3]),
+        }
+        return x_plan, float(metrics[0]), residuals
+
+    def _check_plan_numpy(
+        self, u: FloatArray, x_linear: FloatArray | None, alpha: float
+    ) -> tuple[FloatArray, float, dict[str, float]]:
+        """:meth:`_check_plan_compiled` in numpy (the reference): the kernel's rollout,
+        :class:`~ltv_lstm_mpc.mpc.fhocp.PlanCost` and
+        :func:`~ltv_lstm_mpc.mpc.fhocp.plan_residuals`."""
+        N, n = self.N, self.model.n
+        self._kernel.rollout(self._plan, 0, N)
+        x_plan = self._plan.S[:, : 2 * n].copy()
+        y_plan = x_plan[:N, n:] @ self._W_y_T
+        y_plan += self.model.b_y
+        cost, terminal_norm = self._cost.evaluate(x_plan, u, self._x_bar, self._u_bar)
+        residuals = plan_residuals(
+            terminal_norm, x_plan, y_plan, x_linear, (self._lower, self._upper), alpha
+        )
+        return x_plan, cost, residuals
 
     # ------------------------------------------------------------------------- feedback
     def _checked_solve(self, kind: str, x_hat: FloatArray) -> tuple[StepResult, str, str]:
@@ -568,29 +624,7 @@ class RobustMPC:
         self._plan_valid = True
         u_out = np.array(u_plan)
         self._previous_u = u_out
-        if self._plan_workspace is not None and self._kernel.compiled:
-            # re-simulation, cost and residuals in one numba call
-            x_plan = np.empty((N + 1, n2))
-            metrics = self._metrics
-            plan_metrics(
-                self._plan_workspace, self._x_bar, self._u_bar, self._lower, self._upper,
-                self._no_rows if x_linear is None else x_linear, x_plan,
-            )  # fmt: skip
-            cost = float(metrics[0])
-            residuals = {
-                "output_violation": float(metrics[2]),
-                "terminal_residual": float(metrics[1]) - alpha,
-                "linearization_gap": float(metrics[3]),
-            }
-        else:
-            self._kernel.rollout(self._plan, 0, N)
-            x_plan = P[:, :n2].copy()
-            y_plan = x_plan[:N, n:] @ self._W_y_T
-            y_plan += model.b_y
-            cost, terminal_norm = self._cost.evaluate(x_plan, u_out, self._x_bar, self._u_bar)
-            residuals = plan_residuals(
-                terminal_norm, x_plan, y_plan, x_linear, (self._lower, self._upper), alpha
-            )
+        x_plan, cost, residuals = self._check_plan(u_out, x_linear, alpha)
         self.solver_time = solver_time
         self.qp_iterations = iterations
         self.feedback_time = time.perf_counter() - start
