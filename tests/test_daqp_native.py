@@ -182,10 +182,11 @@ def test_without_numba_the_numpy_path_and_daqp_solve_run() -> None:
 
     code = (
         "import sys; sys.modules['numba'] = None\n"
+        "import warnings; warnings.simplefilter('always')\n"
         "import numpy as np\n"
         "from ltv_lstm_mpc import MPCConfig, RobustMPC, load_model\n"
         "from ltv_lstm_mpc.solvers import daqp_native\n"
-        "model = load_model('ph_lstm_n5.npz')\n"
+        "model = load_model('ph_lstm_n5.npz'); load_model('ph_lstm_n5.npz')\n"
         "mpc = RobustMPC(model, MPCConfig(solver='daqp'))\n"
         "u = np.array([0.1]); x = model.equilibrium(u)\n"
         "solution = mpc.solve(x, x, u, model.output(x), 0.01)\n"
@@ -195,3 +196,5 @@ def test_without_numba_the_numpy_path_and_daqp_solve_run() -> None:
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.split() == ["optimal", "False", "True", "True", "True"]
+    # said once, however many kernels are built
+    assert result.stderr.count("numba cannot be imported: the controller runs its numpy") == 1

@@ -33,6 +33,7 @@ environment variable ``LTV_LSTM_MPC_KERNEL=numpy`` select the reference.
 from __future__ import annotations
 
 import os
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -146,6 +147,24 @@ def _cell(
     np.multiply(o, tc, out=hn)
 
 
+_numba_missing_said = False
+
+
+def _say_numba_missing_once() -> None:
+    """One warning per process: numba is missing, the numpy reference kernels run."""
+    global _numba_missing_said
+    if _numba_missing_said:
+        return
+    _numba_missing_said = True
+    warnings.warn(
+        "numba cannot be imported: the controller runs its numpy reference kernels (the same "
+        "numbers, several times slower). Install numba (a core dependency: pip install "
+        "numba), or set LTV_LSTM_MPC_KERNEL=numpy to choose the reference on purpose",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+
+
 class LSTMKernel:
     r"""eq. (lstm) and eq. (jacobian) writing into a :class:`Trajectory` (see module doc).
 
@@ -170,7 +189,10 @@ class LSTMKernel:
         self._scratch: dict[int, Trajectory] = {}
         if compiled is None:
             compiled = os.environ.get("LTV_LSTM_MPC_KERNEL", "numba").lower() != "numpy"
-        #: Whether the numba-compiled loops run (``False``: the numpy reference).
+        if compiled and not _compiled.AVAILABLE:
+            _say_numba_missing_once()
+        #: Whether the numba-compiled loops run (``False``: the numpy reference); chosen
+        #: here, once, for every kernel of the controller built on this model.
         self.compiled = bool(compiled) and _compiled.AVAILABLE
         self._no_extra = np.zeros(0)
         # the loops, chosen once: the numba twins or the numpy reference
