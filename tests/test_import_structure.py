@@ -8,6 +8,8 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -122,3 +124,33 @@ def test_no_package_import_cycles() -> None:
 def test_the_check_sees_a_cycle() -> None:
     """The detector itself finds a cycle (so the two tests above can fail)."""
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_importing_the_package_loads_no_numerical_library() -> None:
+    """``import ltv_lstm_mpc`` is cheap (PEP 562 lazy names): numba, scipy, cvxpy, torch and
+    dask load only when a name that needs them is first used."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, ltv_lstm_mpc\n"
+        "heavy = ('numba', 'scipy', 'cvxpy', 'torch', 'distributed', 'matplotlib')\n"
+        "print(sorted(m for m in heavy if m in sys.modules))\n"
+        "ltv_lstm_mpc.MPCConfig\n"
+        "names = ltv_lstm_mpc.__all__\n"
+        "print('numba' in sys.modules, len(names) == len(set(names)))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+    lines = result.stdout.splitlines()
+    assert lines[0] == "[]"
+    assert lines[1].split()[1] == "True"
+
+
+def test_every_public_name_resolves() -> None:
+    import ltv_lstm_mpc
+
+    for name in ltv_lstm_mpc.__all__:
+        assert getattr(ltv_lstm_mpc, name) is not None, name
+    with pytest.raises(AttributeError, match="has no attribute 'nothing_here'"):
+        ltv_lstm_mpc.nothing_here  # noqa: B018
