@@ -10,7 +10,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["AVAILABLE", "REDUCTIONS", "build_workspace", "njit", "workspace_type"]
+__all__ = [
+    "AVAILABLE",
+    "REDUCTIONS",
+    "announce_compile",
+    "build_workspace",
+    "njit",
+    "uncached",
+    "workspace_type",
+]
 
 try:  # pragma: no cover - numba is a core dependency
     from numba import njit
@@ -101,3 +109,45 @@ def build_workspace(factory: Any, fields: Sequence[str], values: dict[str, Any])
             f"workspace fields: missing {missing}, unknown {unknown}; expected {list(fields)}"
         )
     return factory(*(values[name] for name in fields))
+
+
+_compile_announced = False
+
+
+def uncached(dispatchers: Sequence[Any]) -> list[str]:
+    """Names of the compiled functions among ``dispatchers`` that the on-disk cache cannot
+    serve (no entry for their current source): they compile at their first call.
+
+    Reads numba's cache index; anything unexpected there counts as cached (say nothing
+    rather than something wrong).
+    """
+    missing = []
+    for dispatcher in dispatchers:
+        try:
+            index = dispatcher._cache._cache_file._load_index()
+        except Exception:  # numba internals: an unknown layout counts as cached
+            continue
+        if not index:
+            missing.append(getattr(dispatcher, "__name__", str(dispatcher)))
+    return missing
+
+
+def announce_compile(dispatchers: Sequence[Any], what: str, seconds: str) -> bool:
+    """Say once per process, on stderr, that ``what`` compiles now (first run only) when
+    any of ``dispatchers`` is not in the on-disk cache; returns whether it said so."""
+    global _compile_announced
+    if _compile_announced or not AVAILABLE:
+        return False
+    missing = uncached(dispatchers)
+    if not missing:
+        return False
+    _compile_announced = True
+    import sys
+
+    print(
+        f"ltv_lstm_mpc: compiling {what} (first run only, about {seconds} on 2 cores; "
+        "cached on disk for the next runs)...",
+        file=sys.stderr,
+        flush=True,
+    )
+    return True

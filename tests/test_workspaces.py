@@ -99,3 +99,23 @@ def test_no_function_takes_more_than_about_a_dozen_positional_parameters() -> No
         if count > MAX_POSITIONAL and where.rsplit(" ", 1)[1] not in constructors
     ]
     assert not too_many, too_many
+
+
+def test_a_cold_compile_is_announced_once(monkeypatch, capsys) -> None:
+    """An empty numba cache is said once, on stderr, before the compile; a warm one is not."""
+    from ltv_lstm_mpc import numba_support
+    from ltv_lstm_mpc.lstm.compiled import rollout
+
+    if not numba_support.AVAILABLE:
+        pytest.skip("needs numba")
+    assert numba_support.uncached([object()]) == []  # unknown layout: counted as cached
+    monkeypatch.setattr(numba_support, "_compile_announced", False)
+    monkeypatch.setattr(numba_support, "uncached", lambda dispatchers: ["rollout"])
+    assert numba_support.announce_compile([rollout], "the kernels", "5 s")
+    assert not numba_support.announce_compile([rollout], "the kernels", "5 s")
+    err = capsys.readouterr().err
+    assert err.count("compiling the kernels (first run only, about 5 s on 2 cores") == 1
+    monkeypatch.setattr(numba_support, "_compile_announced", False)
+    monkeypatch.setattr(numba_support, "uncached", lambda dispatchers: [])
+    assert not numba_support.announce_compile([rollout], "the kernels", "5 s")
+    assert capsys.readouterr().err == ""

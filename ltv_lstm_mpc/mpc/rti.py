@@ -118,6 +118,28 @@ def resolve_transcription(config: MPCConfig) -> str:
     return chosen
 
 
+def _announce_compile(problem: TranscriptionBase) -> None:
+    """Say once, before it happens, that the controller's compiled kernels compile now (an
+    empty numba cache: a fresh install, or changed sources)."""
+    from ltv_lstm_mpc.loop.compiled_observer import observer_update
+    from ltv_lstm_mpc.loop.compiled_reference import chord_newton
+    from ltv_lstm_mpc.lstm import compiled as lstm_compiled
+    from ltv_lstm_mpc.mpc import compiled_condensing, compiled_plan, compiled_prepare
+    from ltv_lstm_mpc.numba_support import announce_compile
+
+    kernels: list[Any] = [
+        lstm_compiled.rollout, lstm_compiled.jacobians, observer_update, chord_newton,
+        compiled_plan.plan_metrics,
+    ]  # fmt: skip
+    if problem.name == "condensed":
+        kernels += [compiled_condensing.condense, compiled_prepare.prepare_condensed]
+    if problem.daqp_workspace is not None:
+        from ltv_lstm_mpc.mpc.native_feedback import nominal_feedback
+
+        kernels.append(nominal_feedback)
+    announce_compile(kernels, "the controller kernels", "20-40 s")
+
+
 class RobustMPC:
     r"""The robust MPC of eq. (optimization), one RTI core for every transcription.
 
@@ -235,6 +257,7 @@ class RobustMPC:
         #: The plan checks of the feedback, chosen once: compiled twin or numpy reference.
         self._check_plan = self._check_plan_compiled if kernel.compiled else self._check_plan_numpy
         if kernel.compiled:
+            _announce_compile(self._problem)
             plan, traj = self._plan, self._traj
             self._plan_workspace = new_plan_workspace(
                 WU=kernel.WU,
