@@ -7,7 +7,7 @@ CLARABEL (Goulart & Chen) solves
     \min_x \tfrac12 x^\top P x + q^\top x \quad\text{s.t.}\quad A x + s = b,\; s \in \mathcal K
 
 with :math:`\mathcal K` a product of zero, nonnegative and second-order cones. A
-:class:`~ltv_lstm_mpc.solvers.dense.DenseQP` maps onto it row block by row block, in
+:class:`~ltv_lstm_mpc.solvers.DenseQP` maps onto it row block by row block, in
 this order:
 
 - zero cone: rows with ``lo == up`` (``A_i x = up_i``) and fixed variables (``lb == ub``);

@@ -1,11 +1,11 @@
 r"""All certificate numbers of the paper for one model and one tuning, in one call.
 
-:func:`certify` chains :func:`~ltv_lstm_mpc.certificates.stability.delta_iss_certificate`
-(Assumption 2), :func:`~ltv_lstm_mpc.certificates.stability.incremental_lyapunov_certificate`
-(Lemma 2), :func:`~ltv_lstm_mpc.certificates.stability.observer_certificate` (Theorem 2),
+:func:`certify` chains :func:`~ltv_lstm_mpc.delta_iss_certificate`
+(Assumption 2), :func:`~ltv_lstm_mpc.incremental_lyapunov_certificate`
+(Lemma 2), :func:`~ltv_lstm_mpc.observer_certificate` (Theorem 2),
 :func:`~ltv_lstm_mpc.certificates.tightening.tightening_certificate`
 (eq. constraint_tightening_parameters,
-terminal set), :func:`~ltv_lstm_mpc.loop.reference.estimate_K_bar` (Lemma 5) and the set-point
+terminal set), :func:`~ltv_lstm_mpc.estimate_K_bar` (Lemma 5) and the set-point
 rate bound of Theorem 3 (paper notes 2.10c). :class:`CertificationSettings` defaults are the
 paper's values (Section V).
 """
@@ -73,7 +73,7 @@ class CertificationSettings:
         ``design_gains`` is True.
     design_gains : bool
         Choose :math:`L_f, L_i, L_o` by
-        :func:`~ltv_lstm_mpc.certificates.stability.design_observer_gains`.
+        :func:`~ltv_lstm_mpc.design_observer_gains`.
     d_max : float
         :math:`d_{max}`, 0.1.
     w_bar : float

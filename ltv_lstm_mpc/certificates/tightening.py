@@ -296,7 +296,7 @@ class TighteningCertificate:
             :math:`\hat e_{o,k}`.
         K_bar : float
             :math:`\bar K` of Lemma 5 (estimate with
-            :func:`ltv_lstm_mpc.loop.reference.estimate_K_bar`; paper: 2.67).
+            :func:`ltv_lstm_mpc.estimate_K_bar`; paper: 2.67).
         e_y_bar : float
             Bound on :math:`|y - \hat y|` (paper: 0.03).
         """
@@ -337,9 +337,9 @@ def tightening_certificate(
     ----------
     model : LSTMModel
     delta_iss, lyapunov, observer : certificates
-        From :func:`~ltv_lstm_mpc.certificates.stability.delta_iss_certificate`,
-        :func:`~ltv_lstm_mpc.certificates.stability.incremental_lyapunov_certificate`,
-        :func:`~ltv_lstm_mpc.certificates.stability.observer_certificate`.
+        From :func:`~ltv_lstm_mpc.delta_iss_certificate`,
+        :func:`~ltv_lstm_mpc.incremental_lyapunov_certificate`,
+        :func:`~ltv_lstm_mpc.observer_certificate`.
     N : int
         Prediction horizon (paper: 5).
     Q : float or array_like, shape (2n, 2n)

@@ -40,7 +40,7 @@ class Observer:
     model : LSTMModel
     gains : ObserverGains
         :math:`L_f, L_i, L_o` (n, p) and :math:`L_d` (p, p); certify them with
-        :func:`~ltv_lstm_mpc.certificates.stability.observer_certificate`.
+        :func:`~ltv_lstm_mpc.observer_certificate`.
     d_max : float
         Saturation bound of :math:`\hat d` (:math:`\mathcal{D}`).
     x_hat0, d_hat0 : array_like, optional

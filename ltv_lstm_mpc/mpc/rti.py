@@ -151,7 +151,7 @@ class RobustMPC:
         Every field is honoured; ``solver`` and ``transcription`` choose the
         transcription (:func:`resolve_transcription`).
     certification : Certification, optional
-        Precomputed certificates (default: :func:`~ltv_lstm_mpc.certificates.certify.certify`
+        Precomputed certificates (default: :func:`~ltv_lstm_mpc.certify`
         with ``config.certification_settings(model)``).
     reuse_tol : float
         When the linearization start is within this distance (inf-norm) of the previous

@@ -13,7 +13,7 @@ Loss (paper, per batch)
 
 in normalized units, with the Remark 1 residuals :math:`r_1, r_2` computed differentiably
 (:func:`torch_residuals`; identical to
-:func:`ltv_lstm_mpc.certificates.stability.delta_iss_certificate`
+:func:`ltv_lstm_mpc.delta_iss_certificate`
 to rounding in float64, including the paper notes 2.2 correction of :math:`\alpha`).
 
 Design choices the paper leaves open
@@ -361,7 +361,7 @@ def torch_residuals(blocks: dict[str, tuple[Any, Any, Any]], u_max: float = 1.0)
     Returns
     -------
     r1, r2 : torch scalar tensors
-        Equal (to rounding) to :func:`ltv_lstm_mpc.certificates.stability.delta_iss_certificate`'s.
+        Equal (to rounding) to :func:`ltv_lstm_mpc.delta_iss_certificate`'s.
     """
     torch = _import_torch()
 
