@@ -52,7 +52,13 @@ myst_heading_anchors = 3
 
 # Nitpicky cross-references for the project's own names only (array shapes such as "(2n,)"
 # and third-party types are not pages of this site).
-nitpick_ignore_regex = [(r"py:.*", r"^(?!ltv_lstm_mpc\b).*")]
+nitpick_ignore_regex = [
+    (r"py:.*", r"^(?!ltv_lstm_mpc\b).*"),
+    # private names (a leading underscore) and numba's structref types have no pages
+    (r"py:.*", r".*\._[A-Za-z].*"),
+    (r"py:.*", r".*WorkspaceType$"),
+    (r"py:class", r"ltv_lstm_mpc\.validation\.T"),  # a TypeVar
+]
 
 sphinx_gallery_conf = {
     "examples_dirs": "examples",
@@ -69,3 +75,60 @@ html_theme_options = {
     "navigation_depth": 2,
     "show_toc_level": 2,
 }
+
+
+def _write_modules_page() -> None:
+    """``modules.rst``: every module with its description and the members not already on
+    an API page (the names re-exported by ``ltv_lstm_mpc`` / ``ltv_lstm_mpc.solvers`` have
+    their page there, so each object is documented once)."""
+    import importlib
+
+    import ltv_lstm_mpc
+    import ltv_lstm_mpc.solvers as solvers
+
+    exported: dict[int, str] = {}
+    for package in (ltv_lstm_mpc, solvers):
+        for name in package.__all__:
+            exported[id(getattr(package, name))] = name
+    names = []
+    for folder, prefix in ((ROOT / "ltv_lstm_mpc", "ltv_lstm_mpc"), (ROOT / "solvers", "ltv_lstm_mpc.solvers")):
+        for path in sorted(folder.rglob("*.py")):
+            parts = list(path.relative_to(folder).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            if any(part.startswith("_") for part in parts) or parts[-1:] == ["__main__"]:
+                continue
+            names.append(".".join([prefix, *parts]))
+    lines = [
+        "Modules",
+        "=======",
+        "",
+        "Every module of the library with its description; the docstrings name the paper's",
+        "equations and the items of the :doc:`paper notes <paper-notes>` they implement. Names",
+        "that ``ltv_lstm_mpc`` or ``ltv_lstm_mpc.solvers`` export have their page in the",
+        ":doc:`API reference <api>`.",
+        "",
+    ]
+    for module_name in names:
+        if module_name in ("ltv_lstm_mpc", "ltv_lstm_mpc.solvers"):
+            continue
+        module = importlib.import_module(module_name)
+        public = getattr(module, "__all__", None)
+        if public is None:
+            public = [n for n, v in vars(module).items() if not n.startswith("_")
+                      and getattr(v, "__module__", None) == module_name]  # fmt: skip
+        excluded = sorted(n for n in public if id(getattr(module, n, None)) in exported)
+        package = hasattr(module, "__path__")  # its names are its modules' (listed below)
+        lines += [f"``{module_name}``", "-" * (len(module_name) + 4), "",
+                  f".. automodule:: {module_name}",
+                  "   :no-members:" if package else "   :members:"]  # fmt: skip
+        if excluded and not package:
+            lines.append(f"   :exclude-members: {', '.join(excluded)}")
+        lines.append("")
+    text = "\n".join(lines)
+    page = Path(__file__).with_name("modules.rst")
+    if not page.exists() or page.read_text() != text:
+        page.write_text(text)
+
+
+_write_modules_page()

@@ -51,7 +51,7 @@ def real(text: str) -> float:
 
 def plant_name(text: str) -> str:
     """A registered plant name or an importable ``package.module:Class`` (the plant
-    registry, :func:`ltv_lstm_mpc.plants.registry.resolve_plant`)."""
+    registry, :func:`ltv_lstm_mpc.resolve_plant`)."""
     from ltv_lstm_mpc.plants.registry import resolve_plant
 
     try:

@@ -12,8 +12,8 @@ construction or at the top of the call, never per control step), with the helper
 given), :func:`expect_real` and :func:`expect_int` (a number of the right type in its
 range), :func:`expect_bool`, :func:`expect_path` and :func:`expect_methods` (an object that
 fills a role, e.g. a plant). A wrong type raises
-:class:`~ltv_lstm_mpc.exceptions.ArgumentTypeError` (a ``TypeError``), a value out of range
-:class:`~ltv_lstm_mpc.exceptions.InvalidValueError` (a ``ValueError``).
+:class:`~ltv_lstm_mpc.ArgumentTypeError` (a ``TypeError``), a value out of range
+:class:`~ltv_lstm_mpc.InvalidValueError` (a ``ValueError``).
 """
 
 from __future__ import annotations

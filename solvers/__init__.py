@@ -92,7 +92,7 @@ residuals in ``Solution.residuals`` and ``info``. Certificates of infeasibility 
 unboundedness that a backend returns (native OSQP, CLARABEL) are checked and kept in
 ``Solution.certificate``. ``DenseSession.solve_point`` (the hot-loop call) is not
 checked: its caller checks the point. An exception out of a backend becomes a
-:class:`~ltv_lstm_mpc.exceptions.SolverError` naming the solver, phase and cause.
+:class:`~ltv_lstm_mpc.SolverError` naming the solver, phase and cause.
 
 ``Session(solver, tolerance=..., reformulation=None, **settings)`` keeps one
 workspace per structure: ``setup(problem)``, then ``update(problem)`` (same
@@ -121,7 +121,7 @@ scs        ``eps_abs``, ``eps_rel``
 
 Settings whose names the installed package exposes (osqp, piqp, daqp,
 clarabel, ecos, quadprog) are checked and unknown names rejected with
-:class:`~ltv_lstm_mpc.exceptions.InvalidValueError`; others are passed through
+:class:`~ltv_lstm_mpc.InvalidValueError`; others are passed through
 to the solver's interface. ``verbose`` defaults to ``False``; PIQP's
 ``compute_timings`` to ``True``.
 
@@ -138,7 +138,7 @@ backend needs it, and ``Solution.reformulation`` records its name.
 (``|F_i z + g_i| <= (e'z + f)/sqrt(k)``); the controller supplies the paper notes 4
 terminal-set and terminal-cost ones.
 
-A missing or unknown solver raises :class:`~ltv_lstm_mpc.exceptions.SolverNotFound`
+A missing or unknown solver raises :class:`~ltv_lstm_mpc.SolverNotFound`
 (an ``ImportError``) that lists the installed ones and
 ``pip install "ltv_lstm_mpc[solvers]"``.
 """

@@ -1,6 +1,6 @@
 """Compiled (numba) helpers of the dense layer's hot calls; the numpy code is the reference.
 
-:meth:`~ltv_lstm_mpc.solvers.dense.DenseQP.max_violation` checks every solver point of the
+:meth:`~ltv_lstm_mpc.solvers.DenseQP.max_violation` checks every solver point of the
 controller loop; on the small QPs of MPC its dozen numpy reductions cost more than the
 arithmetic. These loops give the same values (sums in another order: a few ulps) and are
 tested against the numpy expressions in ``tests/solvers/test_dense_compiled.py``.

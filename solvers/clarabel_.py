@@ -13,7 +13,7 @@ this order:
 - zero cone: rows with ``lo == up`` (``A_i x = up_i``) and fixed variables (``lb == ub``);
 - nonnegative cone: ``A_i x <= up_i`` and ``-A_i x <= -lo_i`` where finite, then the
   finite variable bounds ``x_j <= ub_j`` and ``-x_j <= -lb_j``;
-- one second-order cone per :class:`~ltv_lstm_mpc.solvers.dense.DenseCone`
+- one second-order cone per :class:`~ltv_lstm_mpc.solvers.DenseCone`
   :math:`\|F x + g\| \le e^\top x + f`: :math:`s = (e^\top x + f, F x + g)`, i.e. the
   rows :math:`[-e^\top; -F]` with right-hand side :math:`[f; g]`.
 
@@ -33,7 +33,7 @@ without refinement an ill-conditioned problem may take more iterations instead.
 
 Multipliers follow the dense layer's convention (``H x + f + A' y_ineq + y_bounds = 0``);
 the cones' multipliers are in ``duals["cones"]`` (the cones' ``k + 1`` entries one after
-the other, in the order of :attr:`~ltv_lstm_mpc.solvers.dense.DenseQP.cones`).
+the other, in the order of ``cones`` of :class:`~ltv_lstm_mpc.solvers.DenseQP`).
 """
 
 from __future__ import annotations

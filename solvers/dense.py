@@ -15,7 +15,7 @@ it sets a workspace up (first call, or a new :meth:`DenseQP.structure_key`),
 never on the update path.
 
 Every registered solver accepts a :class:`DenseQP`: the ones with a dedicated
-dense backend (:attr:`~ltv_lstm_mpc.solvers.SolverInfo.native_dense`: ``daqp``,
+dense backend (``native_dense`` of :class:`~ltv_lstm_mpc.solvers.SolverInfo`: ``daqp``,
 ``quadprog``, ``proxqp``, ``piqp``, ``piqp:dense``, ``osqp``, ``qpsolvers:*``)
 use it, the others go through :meth:`DenseQP.to_convex_problem` and their
 :class:`~ltv_lstm_mpc.solvers.ConvexProblem` backend (correct, not fast).

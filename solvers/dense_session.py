@@ -1,6 +1,6 @@
 r""":class:`DenseSession`: one dense solver workspace, one solve per control step.
 
-The session sets a :class:`~ltv_lstm_mpc.solvers.dense.DenseBackend` up for a
+The session sets a :class:`~ltv_lstm_mpc.solvers.DenseBackend` up for a
 :class:`~ltv_lstm_mpc.solvers.DenseQP` (``dense.py``: the data classes and the backend
 interface), writes new values into it in place, solves, and holds every answer of
 :meth:`DenseSession.solve` to the layer's acceptance check (``acceptance.py``).

@@ -62,7 +62,7 @@ class SolverInfo:
     supports_cones : bool
         Solves second-order cones exactly.
     native_dense : bool
-        Has a dedicated :class:`~ltv_lstm_mpc.solvers.dense.DenseBackend` (no
+        Has a dedicated :class:`~ltv_lstm_mpc.solvers.DenseBackend` (no
         conversion to a ConvexProblem), i.e. is meant for condensed MPC QPs.
     first_order : bool
         A first-order method (OSQP, SCS, ProxQP): accurate to about ``1e3 *

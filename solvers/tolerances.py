@@ -38,7 +38,7 @@ first order (osqp, scs, proxqp, also as     ``max(1e-5, 1000 * tolerance)``
 ==========================================  ==================================
 
 A registered solver is classified by its
-:attr:`~ltv_lstm_mpc.solvers.SolverInfo.first_order`, any other name by its
+``first_order`` of :class:`~ltv_lstm_mpc.solvers.SolverInfo`, any other name by its
 last ``:``-separated part.
 """
 

@@ -1,7 +1,7 @@
 r"""The quadruple-tank benchmark (two pumps, two levels): closed-loop scenarios on the true plant.
 
 The offset-free LSTM MPC (paper Fig. 1) runs on Johansson's quadruple-tank process
-(:class:`~ltv_lstm_mpc.plants.quadtank.QuadrupleTankPlant`, minimum-phase parameters, pump
+(:class:`~ltv_lstm_mpc.QuadrupleTankPlant`, minimum-phase parameters, pump
 voltages in V, levels in cm, Ts = 10 s) with the shipped (2, 2) delta-ISS LSTM
 :data:`QUADTANK_MODEL`. Two scenarios, each on the condensed QP path (``"daqp"``, conservative
 terminal box) and on an exact-cone path (``"clarabel"``, condensed with second-order cones):

@@ -61,6 +61,7 @@ __all__ = [
     "INSTALLED",
     "SCENARIO_NAMES",
     "SETTINGS",
+    "Setting",
     "CampaignSpec",
     "TraceSelector",
     "load_spec",
@@ -123,7 +124,7 @@ def _choice(*allowed: str) -> Checker:
 
 
 def _plant(value: Any) -> str:
-    """A plant name of the registry (:func:`ltv_lstm_mpc.plants.registry.resolve_plant`)."""
+    """A plant name of the registry (:func:`ltv_lstm_mpc.resolve_plant`)."""
     from ltv_lstm_mpc.exceptions import LtvMpcError
 
     if not isinstance(value, str):

@@ -1,8 +1,8 @@
 r"""One campaign task: one closed loop of the one controller, a plain function of its settings.
 
 :func:`run_task` builds the plant (with measurement noise and pH-plant parameter mismatch
-when asked), the :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController`, runs
-:func:`~ltv_lstm_mpc.loop.simulation.simulate` and returns one row of the results table
+when asked), the :class:`~ltv_lstm_mpc.OffsetFreeController`, runs
+:func:`~ltv_lstm_mpc.simulate` and returns one row of the results table
 (:data:`METRIC_COLUMNS`) and, for the traced subset, the per-step trace. It reads nothing
 but its :class:`Task` and the model file and keeps no state between calls, so it runs the
 same in this process or on any Dask worker. :func:`execute` is what the runners call: it
@@ -144,7 +144,7 @@ class Task:
 
 
 def load_task_model(task: Task) -> Any:
-    """The task's :class:`~ltv_lstm_mpc.lstm.model.LSTMModel` (from its bytes when it has them)."""
+    """The task's :class:`~ltv_lstm_mpc.LSTMModel` (from its bytes when it has them)."""
     if task.model_bytes is None:
         from ltv_lstm_mpc.lstm.shipped import load_model
 

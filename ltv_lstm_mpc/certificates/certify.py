@@ -3,7 +3,7 @@ r"""All certificate numbers of the paper for one model and one tuning, in one ca
 :func:`certify` chains :func:`~ltv_lstm_mpc.delta_iss_certificate`
 (Assumption 2), :func:`~ltv_lstm_mpc.incremental_lyapunov_certificate`
 (Lemma 2), :func:`~ltv_lstm_mpc.observer_certificate` (Theorem 2),
-:func:`~ltv_lstm_mpc.certificates.tightening.tightening_certificate`
+:func:`~ltv_lstm_mpc.tightening_certificate`
 (eq. constraint_tightening_parameters,
 terminal set), :func:`~ltv_lstm_mpc.estimate_K_bar` (Lemma 5) and the set-point
 rate bound of Theorem 3 (paper notes 2.10c). :class:`CertificationSettings` defaults are the

@@ -1,5 +1,5 @@
 r"""Compiled (numba) observer update, eq. (lstm_observer); the numpy reference is
-:meth:`ltv_lstm_mpc.loop.observer.Observer.update` on the numpy kernel (tested to 1e-12 in
+:meth:`ltv_lstm_mpc.Observer.update` on the numpy kernel (tested to 1e-12 in
 ``tests/test_kernel.py``). Used when the model's kernel is compiled.
 """
 

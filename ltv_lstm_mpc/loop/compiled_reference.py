@@ -1,6 +1,6 @@
 r"""Compiled (numba) chord-Newton of the reference calculator, eq. (reference_calculation).
 
-The warm path of :class:`~ltv_lstm_mpc.loop.reference.ReferenceCalculator` in one call; its
+The warm path of :class:`~ltv_lstm_mpc.ReferenceCalculator` in one call; its
 numpy reference is ``ReferenceCalculator._chord`` (same algorithm, tested to 1e-12 in
 ``tests/test_kernel.py``). Used when the model's kernel is compiled.
 """

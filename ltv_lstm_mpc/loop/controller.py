@@ -1,8 +1,8 @@
 r"""The offset-free control loop of the paper's Fig. 1, one ``step`` per sample.
 
-normalization -> :class:`~ltv_lstm_mpc.loop.observer.Observer` (eq. lstm_observer) ->
-:class:`~ltv_lstm_mpc.loop.reference.ReferenceCalculator` (eq. reference_calculation) ->
-:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (eq. optimization; ``prepare`` then ``feedback``,
+normalization -> :class:`~ltv_lstm_mpc.Observer` (eq. lstm_observer) ->
+:class:`~ltv_lstm_mpc.ReferenceCalculator` (eq. reference_calculation) ->
+:class:`~ltv_lstm_mpc.RobustMPC` (eq. optimization; ``prepare`` then ``feedback``,
 whatever the transcription) -> de-normalization. This is the only controller: the
 configuration chooses the solver and the transcription (condensed dense QP, sparse with
 exact cones, or the exact NMPC), with the same checks, fallbacks and records.
@@ -90,7 +90,7 @@ class ControllerStep:
     measurement_status : str
         ``"ok"`` (the normalized measurement lies in [-1, 1], the training range);
         ``"outside_training_range"`` (up to one range width beyond it: the model
-        extrapolates); ``"implausible"`` (further: |y| > ``IMPLAUSIBLE_MEASUREMENT_LIMIT``,
+        extrapolates); ``"implausible"`` (further: ``|y|`` > ``IMPLAUSIBLE_MEASUREMENT_LIMIT``,
         most likely a sensor fault or wrong units).
     """
 
@@ -140,7 +140,7 @@ class OffsetFreeController:
         What :meth:`step` does with a measurement more than one range width outside the
         model's normalization range (``measurement_status == "implausible"``): ``"flag"``
         (default) records it, warns once per run and uses it; ``"raise"`` refuses it with
-        :class:`~ltv_lstm_mpc.exceptions.InvalidValueError` before anything is updated.
+        :class:`~ltv_lstm_mpc.InvalidValueError` before anything is updated.
 
     Notes
     -----

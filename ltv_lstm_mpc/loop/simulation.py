@@ -67,7 +67,7 @@ class SimulationResult:
         The MPC's transcription (``"condensed"``, ``"sparse"``, ``"nonlinear"``).
     setpoint_status : (steps,) str
         One of :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES`
-        (see :class:`~ltv_lstm_mpc.loop.controller.ControllerStep`).
+        (see :class:`~ltv_lstm_mpc.ControllerStep`).
     d_hat_saturated : (steps, p) bool
         :math:`|\hat d_k| = d_{max}` per output.
     plant_violation : (steps,)
@@ -83,9 +83,9 @@ class SimulationResult:
         inf-norm; 0 inside, inf where a non-finite input was replaced).
     measurement_status : (steps,) str
         ``"ok"``, ``"outside_training_range"`` or ``"implausible"`` (see
-        :class:`~ltv_lstm_mpc.loop.controller.ControllerStep`).
+        :class:`~ltv_lstm_mpc.ControllerStep`).
     warning_counts : dict of str to int
-        The controller's :attr:`~ltv_lstm_mpc.loop.controller.OffsetFreeController.warning_counts`
+        The controller's :attr:`~ltv_lstm_mpc.OffsetFreeController.warning_counts`
         for this run: steps on which each warned condition held (each warning is shown once
         per run).
     """
@@ -241,7 +241,7 @@ def simulate(
         None leaves the BLAS as it is).
     check_sampling_time : bool
         Refuse a plant whose ``Ts`` differs from the model's
-        (:class:`~ltv_lstm_mpc.exceptions.SamplingTimeError`; a model without ``Ts`` warns,
+        (:class:`~ltv_lstm_mpc.SamplingTimeError`; a model without ``Ts`` warns,
         a plant without ``Ts`` is not checked). ``False``: the model's Ts is unknown or
         knowingly ignored.
     """

@@ -1,6 +1,6 @@
 """The per-step status values the closed loop records (one home for their names).
 
-See :class:`~ltv_lstm_mpc.loop.controller.ControllerStep` for what each value means.
+See :class:`~ltv_lstm_mpc.ControllerStep` for what each value means.
 """
 
 from __future__ import annotations

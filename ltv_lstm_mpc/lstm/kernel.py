@@ -1,7 +1,7 @@
 r"""The one implementation of eq. (lstm) and of its Jacobians eq. (jacobian).
 
 Every part of the library that evaluates the LSTM goes through :class:`LSTMKernel`: the
-model (:meth:`~ltv_lstm_mpc.lstm.model.LSTMModel.step`, ``simulate``,
+model (:meth:`~ltv_lstm_mpc.LSTMModel.step`, ``simulate``,
 ``step_and_jacobians``), the observer eq. (lstm_observer) (through the gate injection
 ``extra``), the reference calculator eq. (reference_calculation) and both MPC
 transcriptions (rollout along the candidate, batched linearization, re-simulation of the

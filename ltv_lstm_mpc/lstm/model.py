@@ -763,6 +763,6 @@ MODEL_HINT = (
 
 def require_model(value: Any, name: str = "model") -> LSTMModel:
     """``value`` when it is an :class:`LSTMModel`, else
-    :class:`~ltv_lstm_mpc.exceptions.ArgumentTypeError` saying how to get one (a file name
+    :class:`~ltv_lstm_mpc.ArgumentTypeError` saying how to get one (a file name
     given where the model is expected is the usual slip)."""
     return expect_instance(name, value, LSTMModel, MODEL_HINT, expected="an LSTMModel")

@@ -1,6 +1,6 @@
 r"""The preparation phase of the condensed QP as one compiled call (``RobustMPC.prepare``).
 
-:meth:`~ltv_lstm_mpc.mpc.rti.RobustMPC.prepare` builds the proof candidate (previous plan
+:meth:`~ltv_lstm_mpc.RobustMPC.prepare` builds the proof candidate (previous plan
 shifted by one, :math:`\bar u_k` appended; paper notes 4), reuses the previous re-simulation when
 the linearization starts at its predicted :math:`x_{1|k-1}`, rolls the LSTM out along the
 candidate (eq. lstm), linearizes it (eq. jacobian) and condenses the QP. On the condensed

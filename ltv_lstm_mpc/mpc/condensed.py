@@ -29,7 +29,7 @@ The terminal set and cost take one of two forms, chosen by the solver:
   :class:`~ltv_lstm_mpc.mpc.terminal.TerminalBoxReformulation` (box inside
   :math:`\mathcal X_f(k)`, cost bound
   :math:`(P_{11}+P_{12})\|c_N-\bar c\|^2 + (P_{22}+P_{12})\|h_N-\bar h\|^2`); its name
-  is recorded in every :class:`~ltv_lstm_mpc.mpc.fhocp.MPCSolution`.
+  is recorded in every :class:`~ltv_lstm_mpc.MPCSolution`.
 
 The ``"soft"`` problem adds exact-penalty (L1) slacks :math:`s \ge 0` on the output rows
 (:math:`\underline y - s \le y \le \overline y + s`) and :math:`s_T \ge 0` on the terminal

@@ -1,7 +1,7 @@
 r"""Tuning of the robust offset-free MPC, :class:`MPCConfig` (defaults: the paper's Section V).
 
 Every field is honoured by every transcription, or rejected with an error naming the field
-(:func:`~ltv_lstm_mpc.mpc.rti.resolve_transcription`).
+(:func:`~ltv_lstm_mpc.resolve_transcription`).
 """
 
 from __future__ import annotations
@@ -200,7 +200,7 @@ class MPCConfig:
 
 def require_config(value: Any, name: str = "config") -> MPCConfig:
     """``value`` when it is an :class:`MPCConfig` (``None``: the defaults), else
-    :class:`~ltv_lstm_mpc.exceptions.ArgumentTypeError` (a dict of settings is the usual
+    :class:`~ltv_lstm_mpc.ArgumentTypeError` (a dict of settings is the usual
     slip: the message says to write ``MPCConfig(**settings)``)."""
     if value is None:
         return MPCConfig()

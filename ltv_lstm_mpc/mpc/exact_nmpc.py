@@ -21,7 +21,7 @@ __all__ = ["ExactNMPC"]
 class ExactNMPC(RobustMPC):
     r"""Exact NMPC of eq. (optimization) with CasADi + IPOPT (the accuracy reference).
 
-    :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` with the nonlinear transcription
+    :class:`~ltv_lstm_mpc.RobustMPC` with the nonlinear transcription
     (``MPCConfig(solver="ipopt")``): the same front-end, prechecks, fallback chain,
     validation, residuals and records as every other transcription. Usable as
     ``OffsetFreeController(model, MPCConfig(solver="ipopt"))``.

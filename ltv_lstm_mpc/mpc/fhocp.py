@@ -163,10 +163,10 @@ def plan_residuals(
 
 
 class MPCSolver(Protocol):
-    """What :class:`~ltv_lstm_mpc.loop.controller.OffsetFreeController` needs from an MPC.
+    """What :class:`~ltv_lstm_mpc.OffsetFreeController` needs from an MPC.
 
-    Implemented by :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` (every transcription,
-    :class:`~ltv_lstm_mpc.mpc.exact_nmpc.ExactNMPC` included).
+    Implemented by :class:`~ltv_lstm_mpc.RobustMPC` (every transcription,
+    :class:`~ltv_lstm_mpc.ExactNMPC` included).
     """
 
     certification: Certification

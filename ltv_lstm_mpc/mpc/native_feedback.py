@@ -1,6 +1,6 @@
 r"""The nominal feedback as one compiled call, DAQP inside (``RobustMPC.feedback``'s fast path).
 
-:meth:`~ltv_lstm_mpc.mpc.rti.RobustMPC.feedback` on the condensed transcription does, for
+:meth:`~ltv_lstm_mpc.RobustMPC.feedback` on the condensed transcription does, for
 the ``"nominal"`` problem: the pre-checks of :func:`~ltv_lstm_mpc.mpc.fhocp.precheck_status`,
 the insertion of :math:`\delta x_0 = \hat x_k - \tilde x_0`
 (:func:`~ltv_lstm_mpc.mpc.compiled_condensing.insert_state`), the QP solve, the expansion of

@@ -1,6 +1,6 @@
 r"""Exact nonlinear MPC baseline: the FHOCP of eq. (optimization) solved by IPOPT.
 
-The accuracy reference for the RTI answers (:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC`): the
+The accuracy reference for the RTI answers (:class:`~ltv_lstm_mpc.RobustMPC`): the
 *nonlinear* problem
 
 .. math::

@@ -1,6 +1,6 @@
 r"""How the FHOCP of eq. (optimization) becomes a solver problem: the transcription interface.
 
-The RTI core (:class:`~ltv_lstm_mpc.mpc.rti.RobustMPC`) owns everything that is the same
+The RTI core (:class:`~ltv_lstm_mpc.RobustMPC`) owns everything that is the same
 for every transcription: the candidate, its rollout and linearization on the one LSTM
 kernel, the tightened bounds and :math:`\alpha_k`, the prechecks, the fallback chain, the
 validation of every solution, the re-simulation, the cost and the residuals. A

@@ -3,7 +3,7 @@ r"""Measurement noise on any plant: :class:`NoisyMeasurement` (the sensor of Fig
 The plant's outputs reach the controller as :math:`y_k + \sigma \varepsilon_k`,
 :math:`\varepsilon_k \sim \mathcal N(0, I)`; the plant's state is never affected, and the
 true output stays available (:meth:`NoisyMeasurement.true_output`), so that
-:func:`~ltv_lstm_mpc.loop.simulation.simulate` judges constraint violations and offsets on
+:func:`~ltv_lstm_mpc.simulate` judges constraint violations and offsets on
 the true plant, not on the noisy measurement.
 """
 

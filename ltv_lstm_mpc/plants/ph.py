@@ -6,7 +6,7 @@ Every plant follows the :class:`Plant` protocol (the "Plant" block of the paper'
 All signals are **physical** (suffix ``_phi``, paper notes 1).
 
 pH neutralization (paper Section V, Henson & Seborg 1994)
---------------------------------------------------------
+---------------------------------------------------------
 States :math:`x = [W_{a4}, W_{b4}, h_1]` (M, M, cm), input :math:`u_\phi = q_3` (mL/s, base flow),
 disturbance :math:`d_\phi = q_2` (mL/s, buffer flow), output :math:`y_\phi` = pH:
 
@@ -156,7 +156,7 @@ def ph_from_state(
     Notes
     -----
     The residual is strictly increasing in pH, so the root is unique. The bracket
-    [-2, 16] always contains it for physical invariants (|W_a4| < 1 M). Each iteration takes
+    [-2, 16] always contains it for physical invariants (``|W_a4|`` < 1 M). Each iteration takes
     the Newton step from the bracket end with the smaller residual if it falls strictly inside
     the bracket, else the midpoint, and then shrinks the bracket with the sign of the residual.
     """

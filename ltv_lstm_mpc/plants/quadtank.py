@@ -19,7 +19,7 @@ With :math:`\gamma_1 + \gamma_2 > 1` the linearization has two left-half-plane z
 one zero is in the right half plane (:math:`P_+`).
 
 Signals (suffix ``_phi``, paper notes 1)
----------------------------------
+----------------------------------------
 * input :math:`u_\phi = (v_1, v_2)` in V, saturated to :math:`[u_{\phi,min}, u_{\phi,max}]`
   per pump before it is applied (default [1.5, 4.0] V, the benchmark's operating range: lower
   levels from about 3 cm to 22 cm at steady state);
@@ -86,19 +86,19 @@ class QuadrupleTankParameters:
     Table I (process parameters) and Table II (operating points); the defaults are the
     minimum-phase operating point :math:`P_-`.
 
-    ==========================  =============  ==============
-    parameter                   value          unit
-    ==========================  =============  ==============
-    A1, A3 (tank areas)         28             cm^2
-    A2, A4                      32             cm^2
-    a1, a3 (outlet areas)       0.071          cm^2
-    a2, a4                      0.057          cm^2
-    kc (level sensor gain)      0.50           V/cm
-    g                           981            cm/s^2
-    k1, k2 (pump gains, P-)     3.33, 3.35     cm^3/(V s)
-    gamma1, gamma2 (P-)         0.70, 0.60     -
-    operating point (P-)        h = (12.4, 12.7, 1.8, 1.4) cm at v = (3.00, 3.00) V
-    ==========================  =============  ==============
+    ==========================  ===============================  ==============
+    parameter                   value                            unit
+    ==========================  ===============================  ==============
+    A1, A3 (tank areas)         28                               cm^2
+    A2, A4                      32                               cm^2
+    a1, a3 (outlet areas)       0.071                            cm^2
+    a2, a4                      0.057                            cm^2
+    kc (level sensor gain)      0.50                             V/cm
+    g                           981                              cm/s^2
+    k1, k2 (pump gains, P-)     3.33, 3.35                       cm^3/(V s)
+    gamma1, gamma2 (P-)         0.70, 0.60                       -
+    operating point (P-)        h = (12.4, 12.7, 1.8, 1.4)       cm, at v = (3.00, 3.00) V
+    ==========================  ===============================  ==============
 
     With these parameters the equations give the steady state (12.26, 12.78, 1.63, 1.41) cm
     at v = (3, 3) V (Table II lists measured, rounded levels).
@@ -218,7 +218,7 @@ def simulate_quadtank_batch(
 class QuadrupleTankPlant:
     r"""Johansson's quadruple-tank process as a closed-loop plant (two pumps, two levels).
 
-    Follows the :class:`~ltv_lstm_mpc.plants.protocol.Plant` protocol with physical signals:
+    Follows the :class:`~ltv_lstm_mpc.Plant` protocol with physical signals:
     ``step(u_phi, d_phi)`` takes the pump voltages (V, saturated per pump) and the leak areas
     of tanks 1 and 2 (cm^2, ``None``: no leak) and returns the measured lower levels (cm).
     See the module docstring for the equations, the integrator and the noise model.

@@ -12,22 +12,22 @@ Two kinds of names
 ``"package.module:Class"``
     A user's own plant class, importable on the Python path (``PYTHONPATH``; a Dask
     campaign worker imports it the same way, so it must be importable there too). The class
-    is constructed without arguments and must fill the :class:`~ltv_lstm_mpc.plants.Plant`
+    is constructed without arguments and must fill the :class:`~ltv_lstm_mpc.Plant`
     role (``reset``, ``output``, ``step``). Optional class attributes give its defaults:
 
-    ==========================  ===========================================================
-    attribute                   meaning
-    ==========================  ===========================================================
-    ``Ts``                      sampling time, s (checked against the model's)
-    ``u_phi_min``, ``u_phi_max``  input range (identification data, physical units)
-    ``u_phi_initial``           input of the state ``reset()`` puts the plant in
-    ``y_phi_constraint``        output constraint (low, high) stated in generated data
-    ``default_model``           model file used when none is given
-    ``default_setpoints``       set-point per segment (strings, ``"a,b"`` for p > 1)
-    ``nominal_disturbance``     disturbance of each segment when none is given
-    ``default_neurons``         LSTM size ``train`` uses for its data
-    ``input_labels``, ``output_labels``  names with units, for plots and data files
-    ==========================  ===========================================================
+    =====================================  =====================================================
+    attribute                              meaning
+    =====================================  =====================================================
+    ``Ts``                                 sampling time, s (checked against the model's)
+    ``u_phi_min``, ``u_phi_max``           input range (identification data, physical units)
+    ``u_phi_initial``                      input of the state ``reset()`` puts the plant in
+    ``y_phi_constraint``                   output constraint (low, high) stated in generated data
+    ``default_model``                      model file used when none is given
+    ``default_setpoints``                  set-point per segment (strings, ``"a,b"`` for p > 1)
+    ``nominal_disturbance``                disturbance of each segment when none is given
+    ``default_neurons``                    LSTM size ``train`` uses for its data
+    ``input_labels``, ``output_labels``    names with units, for plots and data files
+    =====================================  =====================================================
 
 Example
 -------

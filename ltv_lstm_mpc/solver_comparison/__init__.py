@@ -4,5 +4,5 @@ Modules
 -------
 harness
     Backends x horizons x scenarios, each run through
-    :func:`~ltv_lstm_mpc.loop.simulation.simulate`.
+    :func:`~ltv_lstm_mpc.simulate`.
 """

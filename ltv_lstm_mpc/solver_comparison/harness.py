@@ -7,7 +7,7 @@ disturbances, and one CSV row records
 * controller step time (median, p95, max, microseconds) and its split into observer,
   reference calculator (eq. reference_calculation), linearize + build, and solve;
 * first-input and closed-loop-cost difference to the exact NMPC
-  (:class:`~ltv_lstm_mpc.mpc.exact_nmpc.ExactNMPC`) and the ratios of the median step to the exact
+  (:class:`~ltv_lstm_mpc.ExactNMPC`) and the ratios of the median step to the exact
   NMPC and to the fastest backend of the same scenario and N;
 * nonlinear (re-simulated) violations of the tightened output rows, plant output
   violations of :math:`\mathcal Y`, infeasible steps and fallback uses;
@@ -18,9 +18,9 @@ Backends
 A backend is a solver name of the one registry
 (:func:`ltv_lstm_mpc.solvers.available_solvers`), optionally with ``@<transcription>``
 (``"daqp@sparse"``, ``"cvxpy:OSQP@condensed"``), or ``"ipopt"`` (the exact NMPC,
-:class:`~ltv_lstm_mpc.mpc.exact_nmpc.ExactNMPC`, needs the ``nmpc`` extra). Every run is
+:class:`~ltv_lstm_mpc.ExactNMPC`, needs the ``nmpc`` extra). Every run is
 ``OffsetFreeController(model, MPCConfig(solver=..., transcription=...))`` driven by
-:func:`~ltv_lstm_mpc.loop.simulation.simulate`: the one controller, the one loop.
+:func:`~ltv_lstm_mpc.simulate`: the one controller, the one loop.
 
 Saved subproblems (``save_subproblems``) are the RTI subproblems of one closed loop as
 ``.npz`` (:meth:`ConvexProblem.save`), both with cones and in the conservative QP form,

@@ -10,7 +10,7 @@ r"""Identification data (paper Section V, "LSTM model identification"): pH and q
 * :class:`IdentificationDataset` — the arrays per split plus metadata with units;
   ``save``/``load`` (``.npz``), ``to_csv``; :meth:`IdentificationDataset.normalization` builds
   the [-1, 1] normalization from the training split's min/max (paper notes 1), reusing
-  :class:`ltv_lstm_mpc.lstm.model.Normalization`.
+  :class:`ltv_lstm_mpc.Normalization`.
 
 Conventions
 -----------
@@ -611,7 +611,7 @@ def generate_dataset(
         Train / validation / test sequence counts (paper: 10 / 3 / 2), assigned in order.
     plant : Plant, optional
         Plant to simulate (default: the pH plant of Table I, Ts = 10 s, q2 = 0.55 mL/s;
-        a :class:`~ltv_lstm_mpc.plants.quadtank.QuadrupleTankPlant` gives two-input data,
+        a :class:`~ltv_lstm_mpc.QuadrupleTankPlant` gives two-input data,
         see the module docstring). Any other plant with ``u_phi_min`` / ``u_phi_max`` (the
         input range) is stepped one sample at a time from its ``reset()``; its metadata
         record ``"package.module:Class"``, its ``u_phi_initial`` (default: the middle of

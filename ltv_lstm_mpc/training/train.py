@@ -24,7 +24,7 @@ Design choices the paper leaves open
   equilibrium for that constant input, :math:`x_0 = f(x_0, N_u(15.6))`. In training this is
   approximated differentiably (``equilibrium_steps`` iterations without gradient, then
   ``equilibrium_grad_steps`` with gradient); in evaluation it is
-  :meth:`ltv_lstm_mpc.lstm.model.LSTMModel.equilibrium` (exact). An optional ``washout``
+  :meth:`ltv_lstm_mpc.LSTMModel.equilibrium` (exact). An optional ``washout``
   excludes the
   first samples of each sequence from the loss (default 0: the initial state is consistent).
 * **Output alignment (paper notes 1).** The model output at time k is :math:`W_y h_k + b_y`, with
@@ -43,7 +43,7 @@ Design choices the paper leaves open
   if no evaluated weights were ever certified, :class:`TrainingError` is raised.
 * **FIT.** :math:`100 (1 - \|y_{real} - y\| / \|y_{real} - \bar y_{real}\|)` on the physical
   outputs of all sequences of a split concatenated (one number per split), simulated with
-  :meth:`~ltv_lstm_mpc.lstm.model.LSTMModel.simulate` on the exported model from the equilibrium
+  :meth:`~ltv_lstm_mpc.LSTMModel.simulate` on the exported model from the equilibrium
   above. The per-sequence FITs are reported too.
 * **Several inputs and outputs** (e.g. the quadruple tank, data of shape (S, T, m) and
   (S, T, p)): the network has m inputs and p outputs, the MSE averages over the outputs
