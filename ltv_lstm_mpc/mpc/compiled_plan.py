@@ -29,8 +29,9 @@ PlanWorkspace = workspace_type(
 
     ``WU``: the kernel's stacked gate weights; ``S``, ``T``, ``TC``: the plan's Trajectory
     (row 0 state, inputs given); ``W_y``, ``b_y``: the output map; ``Q``, ``R``: the stage
-    weights; ``P_terms``: ``TerminalSet.terms`` (:class:`~ltv_lstm_mpc.mpc.terminal.TerminalSet`); ``out``
-    (4,): the metrics written; ``Q_diagonal``: Q is diagonal.
+    weights; ``P_terms``: the ``terms`` of the
+    :class:`~ltv_lstm_mpc.mpc.terminal.TerminalSet`; ``out`` (4,): the metrics written;
+    ``Q_diagonal``: Q is diagonal.
     """,
     __name__,
 )
