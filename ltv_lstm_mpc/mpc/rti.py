@@ -119,17 +119,15 @@ def resolve_transcription(config: MPCConfig) -> str:
 
 
 def _announce_compile(problem: TranscriptionBase) -> None:
-    """Say once, before it happens, that the controller's compiled kernels compile now (an
-    empty numba cache: a fresh install, or changed sources)."""
-    from ltv_lstm_mpc.loop.compiled_observer import observer_update
-    from ltv_lstm_mpc.loop.compiled_reference import chord_newton
+    """Say once, before it happens, that the MPC's compiled kernels compile now (an empty
+    numba cache: a fresh install, or changed sources). ``OffsetFreeController`` says it
+    earlier for the whole controller (observer and reference calculator included)."""
     from ltv_lstm_mpc.lstm import compiled as lstm_compiled
     from ltv_lstm_mpc.mpc import compiled_condensing, compiled_plan, compiled_prepare
     from ltv_lstm_mpc.numba_support import announce_compile
 
     kernels: list[Any] = [
-        lstm_compiled.rollout, lstm_compiled.jacobians, observer_update, chord_newton,
-        compiled_plan.plan_metrics,
+        lstm_compiled.rollout, lstm_compiled.jacobians, compiled_plan.plan_metrics
     ]  # fmt: skip
     if problem.name == "condensed":
         kernels += [compiled_condensing.condense, compiled_prepare.prepare_condensed]
