@@ -43,6 +43,8 @@ Warm start
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
@@ -319,6 +321,33 @@ class CvxpyBackend(Backend):
         return {"eq": np.zeros(0) if eq is None else eq, "ineq": ineq, "bounds": bounds}
 
 
+_highs_banner_silenced = False
+
+
+def _silence_highs_banner() -> None:
+    """HiGHS prints its banner on standard output (from C, whatever ``verbose`` says) when
+    the first ``Highs`` object of the process is made: make that one with the output
+    descriptor pointed at the null device, once, so solver comparisons print no banner."""
+    global _highs_banner_silenced
+    if _highs_banner_silenced:
+        return
+    _highs_banner_silenced = True
+    try:
+        import highspy
+    except ImportError:  # cvxpy's HIGHS needs it; without it cvxpy raises its own error
+        return
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 1)
+        os.close(devnull)
+        highspy.Highs()
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def _run(
     problem: Any,
     z: Any,
@@ -340,6 +369,8 @@ def _run(
         use_warm = False
     if use_warm:
         z.value = z0
+    if solver == "HIGHS" and not options.get("verbose", False):
+        _silence_highs_banner()
     try:
         problem.solve(solver=solver, warm_start=use_warm, **{"verbose": False, **options})
     except cp.error.SolverError as exc:
