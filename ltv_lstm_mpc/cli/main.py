@@ -459,6 +459,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
             args.out,
             not args.no_progress,
             plant=plant,
+            labels=(entry.input_labels, entry.output_labels),
+            title=f"{entry.title}, {args.solver}, N = {args.N}, L_d = {args.L_d}",
         )
         offsets = mimo["segment_offsets"]
         print(f"{'segment':>7}  " + "  ".join(f"offset y_{j:<6}" for j in range(model.p)))

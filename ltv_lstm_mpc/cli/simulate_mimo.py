@@ -70,12 +70,15 @@ def run_mimo(
     progress: bool,
     *,
     plant: Plant | None = None,
+    labels: tuple[tuple[str, ...], tuple[str, ...]] = ((), ()),
+    title: str = "",
 ) -> tuple[dict[str, Any], SimulationResult]:
     """Run the MIMO closed loop; returns (summary, simulation).
 
     ``plant`` defaults to the model's own :class:`LSTMPlant`; another plant is used as
     given (reset it first) and its disturbance has ``plant.disturbance_size`` entries per
-    segment (default: p).
+    segment (default: p). ``labels`` = (input labels, output labels) with units for the
+    plot (the plant registry's; empty: ``u_0``, ``y_0``, ...), ``title`` its title.
     """
     p = model.p
     size = None if plant is None else getattr(plant, "disturbance_size", None)
@@ -118,6 +121,7 @@ def run_mimo(
         summary["max_constraint_violation"] = float(max(0.0, violation.max()))
     if out is not None:
         _write(out, sim, y0_schedule, d_schedule, summary)
+        _plot(out / "simulate.png", sim, y0_schedule, model, config, labels, title)
     return summary, sim
 
 
@@ -142,24 +146,59 @@ def _write(
             signals = [*sim.y_phi[k], *y0[k], *sim.u_phi[k], *d[k], *sim.d_hat[k]]
             writer.writerow([k, *signals, status, sim.status[k], sim.policy[k]])
     (out / "simulate.json").write_text(json.dumps(summary, indent=2))
+
+
+def _plot(
+    path: Path,
+    sim: SimulationResult,
+    y0: FloatArray,
+    model: LSTMModel,
+    config: MPCConfig,
+    labels: tuple[tuple[str, ...], tuple[str, ...]],
+    title: str,
+) -> None:
+    """Outputs with set-points and the output constraint, inputs with their bounds, and the
+    disturbance estimate, against time; signals named with units where the plant states
+    them."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    p, m = sim.y_phi.shape[1], sim.u_phi.shape[1]
+    inputs = labels[0] if len(labels[0]) == m else tuple(f"u_{j}" for j in range(m))
+    outputs = labels[1] if len(labels[1]) == p else tuple(f"y_{j}" for j in range(p))
+    Ts = model.Ts
     samples = np.arange(sim.y_phi.shape[0])
+    t, unit = (samples * Ts / 60.0, "time (min)") if Ts else (samples, "sample k")
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8.5), sharex=True)
+    constraint = model.y_phi_constraint
     for j in range(p):
-        axes[0].plot(samples, sim.y_phi[:, j], label=f"y_{j}")
-        axes[0].plot(samples, y0[: samples.size, j], "--", color=f"C{j}", alpha=0.6)
-        axes[2].plot(samples, sim.d_hat[:, j], label=f"d_hat_{j}")
+        axes[0].plot(t, sim.y_phi[:, j], color=f"C{j}", label=outputs[j])
+        axes[0].plot(t, y0[: samples.size, j], "--", color=f"C{j}", alpha=0.7,
+                     label=f"set-point {outputs[j]}")  # fmt: skip
+        axes[2].plot(t, sim.d_hat[:, j], color=f"C{j}", label=f"d_hat on {outputs[j]}")
+    if constraint is not None:
+        low, high = (np.broadcast_to(np.asarray(v, dtype=float), (p,)) for v in constraint)
+        for value in sorted(set(low.tolist()) | set(high.tolist())):
+            axes[0].axhline(value, color="r", lw=0.8, ls="-", alpha=0.7)
+        axes[0].plot([], [], color="r", lw=0.8, label="output constraint")
+    u_low = model.denormalize_u(np.full(m, -config.u_max))
+    u_high = model.denormalize_u(np.full(m, config.u_max))
     for j in range(m):
-        axes[1].plot(samples, sim.u_phi[:, j], label=f"u_{j}")
-    for ax, title in zip(axes, ("outputs and set-points", "inputs", "d_hat"), strict=True):
-        ax.set_title(title)
+        axes[1].plot(t, sim.u_phi[:, j], color=f"C{j}", label=inputs[j])
+        for bound in (u_low[j], u_high[j]):
+            axes[1].axhline(bound, color=f"C{j}", lw=0.8, ls=":")
+    axes[1].plot([], [], color="k", lw=0.8, ls=":", label="input bounds (U)")
+    panels = ("outputs, set-points and the output constraint", "inputs and their bounds",
+              "disturbance estimate d_hat (normalized output units)")  # fmt: skip
+    for ax, panel in zip(axes, panels, strict=True):
+        ax.set_title(panel, fontsize=10)
         ax.legend(loc="best", fontsize=8)
         ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("sample k")
+    axes[-1].set_xlabel(unit)
+    if title:
+        fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(out / "simulate.png", dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
