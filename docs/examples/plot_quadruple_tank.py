@@ -10,8 +10,8 @@ class of your own works the same way by its ``"package.module:Class"`` name.
 The leak (0.002 cm^2, the benchmark's) lies within what the disturbance estimate may
 take, :math:`|\hat d| \le d_{max}`: it is removed without offset. A leak five times
 larger saturates :math:`\hat d` at :math:`d_{max}` and leaves an offset of about 2 cm on
-h1 (the records' ``d_hat_saturated`` and a warning say so): :math:`d_{max}` is the size of mismatch the
-guarantees cover.
+h1 (the records' ``d_hat_saturated`` and a warning say so): :math:`d_{max}` is the size
+of mismatch the guarantees cover.
 """
 
 import matplotlib.pyplot as plt
