@@ -1,4 +1,4 @@
-"""
+r"""
 Bring your own process: the quadruple tank (two pumps, two levels)
 ==================================================================
 
