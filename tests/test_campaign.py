@@ -637,3 +637,14 @@ def test_ctrl_c_prints_one_line_and_no_worker_traceback(tmp_path, where) -> None
     assert int(match[1]) == len(stored) >= 1
     assert all(row["status"] == "ok" for row in stored)
     assert f"--out {out}" in match[3] and where[0] in match[3]
+
+
+def test_report_plots_name_the_plant_output_unit() -> None:
+    from ltv_lstm_mpc.campaign.report import output_unit
+
+    assert output_unit([{"plant": "ph"}, {"plant": "ph"}]) == "pH"
+    assert output_unit([{"plant": "quadtank"}]) == "cm"
+    # the LSTM plant states none; mixed plants or an unimportable class: generic
+    assert output_unit([{"plant": "lstm"}]) == "output units"
+    assert output_unit([{"plant": "ph"}, {"plant": "quadtank"}]) == "output units"
+    assert output_unit([{"plant": "nowhere.mod:Plant"}]) == "output units"

@@ -33,6 +33,24 @@ _METRICS = (
 )
 
 
+def output_unit(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The output unit of the campaign's plant(s) for plot labels: from the plant registry's
+    output labels ("pH", "h1 (cm)" -> "cm"); "output units" when the plants differ, state
+    none, or a plant class is not importable here."""
+    from ltv_lstm_mpc.exceptions import LtvMpcError
+    from ltv_lstm_mpc.plants.registry import resolve_plant
+
+    units = set()
+    for plant in {str(r.get("plant")) for r in rows if r.get("plant")}:
+        try:
+            labels = resolve_plant(plant).output_labels
+        except LtvMpcError:
+            return "output units"
+        for label in labels:
+            units.add(label[label.find("(") + 1 : label.rfind(")")] if "(" in label else label)
+    return units.pop() if len(units) == 1 else "output units"
+
+
 def _number(value: Any) -> float:
     if value is None or isinstance(value, (bool, str)):
         return math.nan
@@ -83,7 +101,10 @@ def _factor_plot(rows: Sequence[Mapping[str, Any]], name: str, path: Path) -> Pa
     levels = factor_levels(rows, name)
     figure = Figure(figsize=(4.0 * len(_METRICS), 3.6), layout="constrained")
     axes = figure.subplots(1, len(_METRICS))
+    unit = output_unit(rows)
     for ax, (column, label, scale) in zip(axes, _METRICS, strict=True):
+        if column == "final_offset":
+            label = f"{label} ({unit})"
         data = [_values([r for r in rows if r.get(name) == lv], column, scale) for lv in levels]
         positions = [i for i, d in enumerate(data) if d]
         if positions:
@@ -102,7 +123,11 @@ def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     groups = factor_levels(rows, "mismatch") if "mismatch" in rows[0] else [None]
     figure = Figure(figsize=(10, 3.8), layout="constrained")
     axes = figure.subplots(1, 2)
-    panels = (("violations", "violations (samples)"), ("max_violation", "largest violation"))
+    unit = output_unit(rows)
+    panels = (
+        ("violations", "violations (samples)"),
+        ("max_violation", f"largest violation ({unit})"),
+    )
     for ax, (column, title) in zip(axes, panels, strict=True):
         for group in groups:
             subset = [r for r in rows if group is None or r.get("mismatch") == group]
@@ -120,7 +145,7 @@ def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
                 alpha=0.35,
                 color=line.get_color(),
             )
-        ax.set_xlabel("measurement noise std (output units)")
+        ax.set_xlabel(f"measurement noise std ({unit})")
         ax.set_title(title)
         ax.grid(alpha=0.3)
     axes[0].legend(title="mismatch" if groups != [None] else None, fontsize=8)
