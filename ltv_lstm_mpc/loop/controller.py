@@ -45,21 +45,14 @@ FloatArray = NDArray[np.float64]
 
 
 def _announce_compile() -> None:
-    """Say once, before it happens, that the controller's compiled kernels compile now (an
-    empty numba cache: a fresh install, or changed sources): the LSTM, the observer, the
-    reference calculator and, for the condensed QP, the condensing and its one-call phases."""
+    """Say once, before it happens, that the observer's and the reference calculator's
+    compiled kernels compile now (an empty numba cache). ``RobustMPC`` says it for its own
+    kernels when it is built (the message is said once per process)."""
     from ltv_lstm_mpc.loop.compiled_observer import observer_update
     from ltv_lstm_mpc.loop.compiled_reference import chord_newton
-    from ltv_lstm_mpc.lstm import compiled as lstm_compiled
-    from ltv_lstm_mpc.mpc import compiled_condensing, compiled_plan, compiled_prepare
     from ltv_lstm_mpc.numba_support import announce_compile
 
-    kernels: list[object] = [
-        lstm_compiled.rollout, lstm_compiled.jacobians, observer_update, chord_newton,
-        compiled_plan.plan_metrics, compiled_condensing.condense,
-        compiled_prepare.prepare_condensed,
-    ]  # fmt: skip
-    announce_compile(kernels, "the controller kernels", "20-40 s")
+    announce_compile([observer_update, chord_newton], "the controller kernels", "20-40 s")
 
 
 @dataclass(slots=True)  # one per control step: not frozen (2 us less to build)
@@ -202,9 +195,9 @@ class OffsetFreeController:
         self.implausible_measurements = implausible_measurements
         self.model = model
         self.config = config = config or MPCConfig()
+        self.mpc: MPCSolver = mpc if mpc is not None else RobustMPC(model, config)
         if model.kernel.compiled:
             _announce_compile()
-        self.mpc: MPCSolver = mpc if mpc is not None else RobustMPC(model, config)
         self.certification = self.mpc.certification
         self.observer = Observer(model, self.certification.observer.gains, d_max=config.d_max)
         # tol 1e-10 (not 1e-12): the warm chord path then ends in one residual check at steady

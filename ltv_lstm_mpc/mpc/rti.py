@@ -119,9 +119,9 @@ def resolve_transcription(config: MPCConfig) -> str:
 
 
 def _announce_compile(problem: TranscriptionBase) -> None:
-    """Say once, before it happens, that the MPC's compiled kernels compile now (an empty
-    numba cache: a fresh install, or changed sources). ``OffsetFreeController`` says it
-    earlier for the whole controller (observer and reference calculator included)."""
+    """Say once, before it happens, that the compiled kernels this configuration of the MPC
+    uses compile now (an empty numba cache: a fresh install, or changed sources);
+    ``OffsetFreeController`` adds the observer's and the reference calculator's."""
     from ltv_lstm_mpc.lstm import compiled as lstm_compiled
     from ltv_lstm_mpc.mpc import compiled_condensing, compiled_plan, compiled_prepare
     from ltv_lstm_mpc.numba_support import announce_compile
