@@ -158,7 +158,23 @@ class ReferenceCalculator:
         self._Jinv_buffer = np.zeros((n2 + m, n2 + m))
         self._W_y = np.ascontiguousarray(model.W_y)
         self._b_y = np.ascontiguousarray(model.b_y)
-        self._chord_workspace: Any = None  # built at the first compiled chord step
+        self._chord_workspace: Any = None  # the compiled warm path's buffers
+        if self._compiled:
+            traj, kernel = self._traj, model.kernel
+            self._chord_workspace = new_chord_workspace(
+                WU=kernel.WU,
+                WU_raw=kernel.WU_raw,
+                W_y=self._W_y,
+                b_y=self._b_y,
+                S=traj.S,
+                T=traj.T,
+                TC=traj.TC,
+                J=traj.J,
+                Jinv=self._Jinv_buffer,
+                state=self._chord_state,
+                F=self._chord_F,
+                jacobian=self._chord_jacobian,
+            )
         #: Chord-Jacobian factorizations / fallbacks from the warm path to damped Newton.
         self.counts = {"factorizations": 0, "fallbacks": 0}
         per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points
@@ -209,25 +225,10 @@ class ReferenceCalculator:
 
     def _chord_compiled(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
         """:meth:`_chord_numpy` in one numba call (``loop/compiled_reference.py``)."""
-        kernel, traj, state = self.model.kernel, self._traj, self._chord_state
+        state = self._chord_state
         state[0] = 1 if self._Jinv is not None else 0
         step = target - self._last_target if self._last_target is not None else target * 0.0
         z = np.empty_like(self._last_z)
-        if self._chord_workspace is None:
-            self._chord_workspace = new_chord_workspace(
-                WU=kernel.WU,
-                WU_raw=kernel.WU_raw,
-                W_y=self._W_y,
-                b_y=self._b_y,
-                S=traj.S,
-                T=traj.T,
-                TC=traj.TC,
-                J=traj.J,
-                Jinv=self._Jinv_buffer,
-                state=state,
-                F=self._chord_F,
-                jacobian=self._chord_jacobian,
-            )
         norm = chord_newton(
             self._chord_workspace, self._last_z, target, step, self.tol, self.max_iter, z
         )

@@ -167,7 +167,8 @@ class CondensedTranscription(TranscriptionBase):
         self._alpha = 0.0
         # Compiled condensing (numba, mpc/compiled_condensing.py) when the model's kernel is
         # compiled: the same QP written in place; the numpy code of build() is its reference.
-        self._compiled = model.kernel.compiled
+        #: The compiled condensing's buffers exist (built on a compiled kernel).
+        self._has_compiled_buffers = self._compiled = model.kernel.compiled
         if self._compiled:
             Lt_all = (
                 np.stack([np.diag(row) for row in self._sw[:, :, 0]]) if self._diag_Q else self._Lt
@@ -311,7 +312,7 @@ class CondensedTranscription(TranscriptionBase):
 
     @compiled.setter
     def compiled(self, value: bool) -> None:
-        self._compiled = bool(value) and hasattr(self, "_Maug_inputs")
+        self._compiled = bool(value) and self._has_compiled_buffers
         self._choose_kernels()
 
     def _choose_kernels(self) -> None:
@@ -335,7 +336,7 @@ class CondensedTranscription(TranscriptionBase):
         """The :data:`~ltv_lstm_mpc.mpc.compiled_condensing.CondensingWorkspace` of the
         compiled condensing on the linearization trajectory ``traj`` (built once per
         trajectory; the core keeps one); None with the numpy condensing."""
-        if not hasattr(self, "_Maug_inputs"):  # built on a numpy kernel: no compiled path
+        if not self._has_compiled_buffers:
             return None
         if self._workspace is None or traj is not self._traj:
             self._traj = traj

@@ -376,14 +376,6 @@ class RobustMPC:
             The transcription is ``"nonlinear"``, or ``kind`` was not solved at the last
             step.
         """
-        from ltv_lstm_mpc.mpc.condensed import CondensedTranscription
-        from ltv_lstm_mpc.mpc.sparse import SparseTranscription
-
-        if not isinstance(self._problem, (SparseTranscription, CondensedTranscription)):
-            raise InvalidValueError(
-                "last_problem() needs the sparse or condensed transcription; this "
-                f"controller's is {self.transcription!r}"
-            )
         return self._problem.last_problem(kind)
 
     def prepare(
@@ -474,12 +466,11 @@ class RobustMPC:
         and the path of every transcription without that one call."""
         N, n2, m = self.N, 2 * self.model.n, self.model.m
         cand, traj, plan, kernel = self._cand, self._traj, self._plan, self._kernel
-        u_bar_a, x_bar_a = u_bar, x_bar
         if candidate == CANDIDATE_U_BAR:
-            cand[:] = u_bar_a
+            cand[:] = u_bar
         elif candidate == CANDIDATE_SHIFT:
             cand[:-1] = previous_u[1:]
-            cand[-1] = u_bar_a
+            cand[-1] = u_bar
         S = traj.S
         if reuse_allowed and float(np.abs(x0 - plan.S[1, :n2]).max()) <= self.reuse_tol:
             # The shifted candidate from x_{1|k-1} is the re-simulated plan shifted by one.
@@ -493,7 +484,7 @@ class RobustMPC:
             S[:N, n2 : n2 + m] = cand
             kernel.rollout(traj, 0, N)
         kernel.jacobians(traj)
-        self._problem.build(traj, x_bar_a, u_bar_a, self._lower, self._upper, self._alpha)
+        self._problem.build(traj, x_bar, u_bar, self._lower, self._upper, self._alpha)
 
     def _check_plan_compiled(
         self, u: FloatArray, x_linear: FloatArray | None, alpha: float

@@ -170,8 +170,12 @@ class TerminalBoxReformulation:
 
     def __init__(self, subproblem: FHOCPSubproblem) -> None:
         self.subproblem = subproblem
+        terminal = subproblem.terminal
         #: tau for alpha_k = 1: (||c_N - c_bar||, ||h_N - h_bar||) bounds on the P_f-ellipse
-        self.weight_c, self.weight_h, self.unit_tau = terminal_box_data(subproblem.P_f)
+        self.weight_c, self.weight_h, self.unit_tau = (
+            terminal.weight_c, terminal.weight_h, terminal.unit_tau
+        )  # fmt: skip
+        self._weights = terminal.box_weights
 
     def apply(self, problem: ConvexProblem) -> ConvexProblem:
         """Return the cone-free problem (see the class docstring)."""
@@ -180,7 +184,7 @@ class TerminalBoxReformulation:
         c_bar = -problem.cones[0].g
         h_bar = -problem.cones[1].g
         xN = layout.x(N)
-        weights = np.concatenate([np.full(n, self.weight_c), np.full(n, self.weight_h)])
+        weights = self._weights
         diag = np.zeros(layout.n_variables)
         diag[xN] = 2.0 * weights
         # t is pinned to 0 below; a unit diagonal there (instead of 2 P_f) keeps P positive

@@ -33,6 +33,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.solvers import SolverStatus
 
@@ -143,6 +144,19 @@ class TranscriptionBase(abc.ABC):
     @abc.abstractmethod
     def solve(self, kind: str, x_hat: FloatArray) -> StepResult:
         r"""Feedback phase: insert :math:`\hat x_k` and solve the problem ``kind``."""
+
+    def last_problem(self, kind: str = "nominal") -> Any:
+        """The subproblem ``kind`` as the backend got it at the last step (replay tools);
+        the sparse and condensed transcriptions keep it, this one has none.
+
+        Raises
+        ------
+        InvalidValueError
+            Always here (the nonlinear transcription solves an NLP, not a convex problem).
+        """
+        raise InvalidValueError(
+            f"last_problem() needs the sparse or condensed transcription; this one is {self.name!r}"
+        )
 
     def reset(self) -> None:  # noqa: B027 - optional hook
         """Forget warm starts (a new closed loop begins)."""
