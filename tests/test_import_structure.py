@@ -150,6 +150,8 @@ def test_importing_the_package_loads_no_numerical_library() -> None:
 def test_every_public_name_resolves() -> None:
     import ltv_lstm_mpc
 
+    # the lazy table and __all__ name the same public names (the two lists cannot drift)
+    assert sorted(ltv_lstm_mpc._LAZY) == sorted(set(ltv_lstm_mpc.__all__) - {"__version__"})
     for name in ltv_lstm_mpc.__all__:
         assert getattr(ltv_lstm_mpc, name) is not None, name
     with pytest.raises(AttributeError, match="has no attribute 'nothing_here'"):

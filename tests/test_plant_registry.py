@@ -91,7 +91,9 @@ def test_register_plant_adds_a_name_and_refuses_duplicates() -> None:
         with pytest.raises(UnknownPlantError, match="without ':'"):
             register_plant("a:b", lambda model: None)
         register_plant("broken_test", lambda model: object())
-        with pytest.raises(ArgumentTypeError, match=r"without reset\(\), output\(\)"):
+        with pytest.raises(
+            ArgumentTypeError, match=r"must be a plant \(with reset\(\), output\(\), step\(\)\)"
+        ):
             resolve_plant("broken_test").build()
     finally:
         registry._REGISTRY.pop("hammerstein_test", None)

@@ -448,7 +448,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
             raise UsageError(
                 f"give --setpoints, one comma-separated value per output (p = {model.p})"
             )
-        plant = None if entry.name == "lstm" else entry.build(model)
+        plant = entry.build(model)
         mimo, sim = run_mimo(
             model,
             config,
@@ -529,7 +529,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
 
 def _check_plant_size(entry: Any, model: LSTMModel) -> None:
     """The plant's inputs and outputs (where its entry names them) against the model's."""
-    if entry.name == "lstm" or not entry.output_labels:
+    if not entry.output_labels:  # the LSTM plant (the model itself) or a class without labels
         return
     inputs, outputs = len(entry.input_labels), len(entry.output_labels)
     if (inputs, outputs) == (model.m, model.p):

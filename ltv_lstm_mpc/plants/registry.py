@@ -45,6 +45,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from ltv_lstm_mpc.exceptions import ArgumentTypeError, UnknownPlantError
+from ltv_lstm_mpc.validation import expect_methods
 
 if TYPE_CHECKING:
     from ltv_lstm_mpc.lstm.model import LSTMModel
@@ -133,12 +134,18 @@ class RegisteredPlant:
                 f"plant {self.name!r} takes no option {', '.join(unknown)} (it accepts: {accepted})"
             )
         plant = self.factory(model, **options)
-        _check_plant(self.name, plant)
+        expect_methods(
+            f"plant {self.name!r}", plant, PLANT_METHODS, "a plant",
+            "reset(), output() and step(u_phi, d_phi): ltv_lstm_mpc.Plant",
+        )  # fmt: skip
         plant.reset()
         return plant
 
 
 _REGISTRY: dict[str, RegisteredPlant] = {}
+
+#: The methods of the plant role (:class:`~ltv_lstm_mpc.Plant`).
+PLANT_METHODS = ("reset", "output", "step")
 
 
 def register_plant(
@@ -221,16 +228,6 @@ def plant_name_of(class_name: str) -> str | None:
     return None
 
 
-def _check_plant(name: str, plant: Any) -> None:
-    missing = [m for m in ("reset", "output", "step") if not callable(getattr(plant, m, None))]
-    if missing:
-        raise ArgumentTypeError(
-            f"plant {name!r} built a {type(plant).__name__} without "
-            f"{', '.join(m + '()' for m in missing)}: a plant needs reset(), output() and "
-            "step(u_phi, d_phi) (ltv_lstm_mpc.plants.Plant)"
-        )
-
-
 def _from_class_path(path: str) -> RegisteredPlant:
     module_name, _, attribute = path.partition(":")
     if not module_name or not attribute:
@@ -252,7 +249,7 @@ def _from_class_path(path: str) -> RegisteredPlant:
         cls = getattr(cls, part)
     if not callable(cls):
         raise UnknownPlantError(f"plant {path!r}: {attribute!r} is not a class or factory")
-    missing = [m for m in ("reset", "output", "step") if not callable(getattr(cls, m, None))]
+    missing = [m for m in PLANT_METHODS if not callable(getattr(cls, m, None))]
     if inspect.isclass(cls) and missing:
         raise UnknownPlantError(
             f"plant {path!r}: class {cls.__name__} has no {', '.join(m + '()' for m in missing)}"
