@@ -488,6 +488,7 @@ def _resolve_task(
                     f"remove {name} or the scenario",
                 )
         plant = SCENARIO_NAMES[scenario]
+        entry = resolve_plant(plant)
     else:
         if "short" in settings:
             raise fail("short", "applies to scenario tasks only: set scenario or remove short")
@@ -517,7 +518,6 @@ def _resolve_task(
         if "disturbances" not in settings and "q2" not in settings and entry.nominal_disturbance:
             nominal = [float(entry.nominal_disturbance[0])]
             settings["q2" if plant == "ph" else "disturbances"] = nominal
-    entry = resolve_plant(plant)
     if settings.get("mismatch") and "mismatch" not in entry.options:
         raise fail("mismatch", "parameter mismatch applies to the pH plant only")
     if plant == "ph":

@@ -121,7 +121,8 @@ def run_mimo(
         summary["max_constraint_violation"] = float(max(0.0, violation.max()))
     if out is not None:
         _write(out, sim, y0_schedule, d_schedule, summary)
-        _plot(out / "simulate.png", sim, y0_schedule, model, config, labels, title)
+        bounds = controller.input_bounds_phi
+        _plot(out / "simulate.png", sim, y0_schedule, model, bounds, labels, title)
     return summary, sim
 
 
@@ -153,7 +154,7 @@ def _plot(
     sim: SimulationResult,
     y0: FloatArray,
     model: LSTMModel,
-    config: MPCConfig,
+    input_bounds: tuple[FloatArray, FloatArray],
     labels: tuple[tuple[str, ...], tuple[str, ...]],
     title: str,
 ) -> None:
@@ -177,14 +178,14 @@ def _plot(
         axes[0].plot(t, sim.y_phi[:, j], color=f"C{j}", label=outputs[j])
         axes[0].plot(t, y0[: samples.size, j], "--", color=f"C{j}", alpha=0.7,
                      label=f"set-point {outputs[j]}")  # fmt: skip
-        axes[2].plot(t, sim.d_hat[:, j], color=f"C{j}", label=f"d_hat on {outputs[j]}")
+        signal = outputs[j].split(" (")[0]  # d_hat is normalized: no physical unit
+        axes[2].plot(t, sim.d_hat[:, j], color=f"C{j}", label=f"d_hat on {signal}")
     if constraint is not None:
         low, high = (np.broadcast_to(np.asarray(v, dtype=float), (p,)) for v in constraint)
         for value in sorted(set(low.tolist()) | set(high.tolist())):
             axes[0].axhline(value, color="r", lw=0.8, ls="-", alpha=0.7)
         axes[0].plot([], [], color="r", lw=0.8, label="output constraint")
-    u_low = model.denormalize_u(np.full(m, -config.u_max))
-    u_high = model.denormalize_u(np.full(m, config.u_max))
+    u_low, u_high = input_bounds  # U in physical units (the controller's)
     for j in range(m):
         axes[1].plot(t, sim.u_phi[:, j], color=f"C{j}", label=inputs[j])
         for bound in (u_low[j], u_high[j]):
