@@ -48,8 +48,7 @@ ax_y.axhline(float(np.min(low)), color="r", lw=0.8, label="level constraint")
 ax_y.axhline(float(np.max(high)), color="r", lw=0.8)
 ax_y.set_ylabel("level (cm)")
 ax_y.legend(loc="upper right", fontsize=8)
-u_low = model.denormalize_u(np.full(2, -1.0))
-u_high = model.denormalize_u(np.full(2, 1.0))
+u_low, u_high = controller.input_bounds_phi  # U in physical units
 for j, name in enumerate(entry.input_labels):
     ax_u.plot(t, result.u_phi[:, j], color=f"C{j}", label=name)
     ax_u.axhline(u_low[j], color=f"C{j}", lw=0.8, ls=":")

@@ -40,7 +40,7 @@ ax_y.axhline(float(high[0]), color="r", lw=0.8)
 ax_y.set_ylabel("pH")
 ax_y.legend(loc="upper right")
 ax_u.plot(t, result.u_phi[:, 0], label="q3 (base flow)")
-u_low, u_high = model.normalization.u_phi_min[0], model.normalization.u_phi_max[0]
+u_low, u_high = (bound[0] for bound in controller.input_bounds_phi)  # U, physical
 ax_u.axhline(u_low, color="k", lw=0.8, ls=":", label="input bounds")
 ax_u.axhline(u_high, color="k", lw=0.8, ls=":")
 ax_u.set_ylabel("q3 (mL/s)")
