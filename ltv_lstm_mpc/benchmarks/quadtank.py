@@ -30,7 +30,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +45,9 @@ from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.plants.quadtank import QUADTANK_TS, QuadrupleTankPlant
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = [
     "DEFAULT_SOLVERS",
     "OFFSET_TOLERANCE_FRACTION",
@@ -56,6 +59,7 @@ __all__ = [
     "format_quadtank_report",
     "format_quadtank_table",
     "plot_quadtank",
+    "quadtank_figure",
     "quadtank_scenarios",
     "reproduce_quadtank",
     "run_quadtank_scenario",
@@ -256,56 +260,93 @@ def run_quadtank_scenario(
     return QuadTankResult(scenario, result, controller, time.perf_counter() - start)
 
 
-def plot_quadtank(result: QuadTankResult, path: Path) -> Path:
-    """PNG: both levels with set-points and the level constraint, both pump voltages, the
-    leaks, and :math:`\\hat d` (grey bands: FHOCP infeasible)."""
-    import matplotlib
+def quadtank_figure(result: QuadTankResult) -> Figure:
+    """The figure of :func:`plot_quadtank` (not saved): both levels with set-points, the
+    level constraint and clipped set-point markers; both pump voltages with their bounds U;
+    the leaks; :math:`\\hat d` with :math:`\\pm d_{max}` (grey bands: FHOCP infeasible).
+    Names and units from the plant registry (``"quadtank"``: h1/h2 in cm, v1/v2 in V)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ltv_lstm_mpc.plotting import (
+        INPUT_BOUND_GID,
+        OUTPUT_CONSTRAINT_GID,
+        axis_label,
+        bounds_text,
+        draw_bounds,
+        draw_d_hat,
+        fit_ylim,
+        legend,
+        mark_clipped_setpoints,
+        name_of,
+        shade_infeasible,
+        signal_labels,
+        titled,
+        unit_of,
+    )
 
     sim, sc = result.simulation, result.scenario
-    model = result.controller.model
+    controller = result.controller
+    model = controller.model
+    labels = signal_labels("quadtank", model)
     low, high = result.level_constraint()
     k = np.arange(sim.y_phi.shape[0])
     infeasible = ~sim.feasible
-    fig, axes = plt.subplots(5, 1, figsize=(9, 11), sharex=True,
-                             height_ratios=[2.2, 2.2, 1.5, 1.0, 1.2])  # fmt: skip
+    fig = Figure(figsize=(9, 11.5), layout="constrained")
+    axes = fig.subplots(5, 1, sharex=True, height_ratios=[2.2, 2.2, 1.6, 1.0, 1.3])
     for ax in axes:
-        if np.any(infeasible):
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], infeasible.astype(int), [0]])))
-            for a, b in zip(edges[::2], edges[1::2], strict=True):
-                ax.axvspan(a - 0.5, b - 0.5, color="0.8", lw=0, zorder=0)
+        shade_infeasible(ax, k, infeasible)
+        ax.grid(alpha=0.3)
     summary = result.summary()
+    y0_used = model.denormalize_y(sim.y0)
     for j in range(2):
         ax = axes[j]
-        ax.plot(k, sim.y_phi[:, j], color=f"C{j}", lw=1.3, label=f"$h_{j + 1}$ (plant)")
+        output, unit = labels.outputs[j], unit_of(labels.outputs[j])
+        ax.plot(
+            k, sim.y_phi[:, j], color=f"C{j}", lw=1.3, label=f"{name_of(output)} (plant output)"
+        )
         ax.plot(k, sc.setpoints[: k.size, j], "k--", lw=0.9, label="set-point (requested)")
-        ax.plot(k, model.denormalize_y(sim.y0)[:, j], color="0.45", lw=0.8, ls=":",
-                label="rate-limited set-point")  # fmt: skip
-        ax.axhline(low[j], color="tab:red", lw=0.8)
-        ax.axhline(high[j], color="tab:red", lw=0.8, label="level constraint")
-        ax.set_ylabel(f"$h_{j + 1}$ (cm)")
-        ax.legend(loc="upper right", fontsize=7, ncol=2)
+        ax.plot(k, y0_used[:, j], color="0.45", lw=0.8, ls=":", label="rate-limited set-point")
+        draw_bounds(
+            ax, low[j], high[j], label=f"level constraint {bounds_text(low[j], high[j], unit)}",
+            gid=OUTPUT_CONSTRAINT_GID,
+        )  # fmt: skip
+        fit_ylim(ax, sim.y_phi[:, j], low[j], high[j])
+        mark_clipped_setpoints(ax, k, sc.setpoints[: k.size, j], unit=unit)
+        ax.set_ylabel(output)
+        legend(ax, loc="best", ncol=2)
+    unit = labels.output_unit
     axes[0].set_title(
-        f"{sc.title} ({summary['solver']}, {summary['transcription']})\nfinal offset "
-        f"{summary['final_offset']:.1e} cm, violations {summary['constraint_violation_steps']}, "
-        f"infeasible steps {summary['infeasible_steps']}",
+        f"{titled(labels.plant, sc.title)} ({summary['solver']}, {summary['transcription']})\n"
+        f"final offset {summary['final_offset']:.1e} {unit}, constraint violations "
+        f"{summary['constraint_violation_steps']}, infeasible steps {summary['infeasible_steps']}",
         fontsize=10,
     )
+    u_low, u_high = controller.input_bounds_phi
     for j in range(2):
-        axes[2].plot(k, sim.u_phi[:, j], color=f"C{j + 2}", lw=1.0, label=f"$v_{j + 1}$ (V)")
+        color = f"C{j + 2}"
+        u_unit = unit_of(labels.inputs[j])
+        axes[2].plot(k, sim.u_phi[:, j], color=color, lw=1.0, label=labels.inputs[j])
+        draw_bounds(
+            axes[2], u_low[j], u_high[j], gid=INPUT_BOUND_GID, color=color, ls=":",
+            label=f"bounds U of {name_of(labels.inputs[j])} "
+            f"{bounds_text(u_low[j], u_high[j], u_unit)}",
+        )  # fmt: skip
         axes[3].plot(k, sc.leaks[: k.size, j], color=f"C{j}", lw=1.0, ls="-.",
-                     label=f"leak tank {j + 1} (cm$^2$)")  # fmt: skip
-        axes[4].plot(k, sim.d_hat[:, j], color=f"C{j}", lw=1.0, label=f"$\\hat d_{j + 1}$")
-    axes[4].axhline(result.controller.config.d_max, color="0.5", lw=0.6, ls="--")
-    axes[4].axhline(-result.controller.config.d_max, color="0.5", lw=0.6, ls="--")
+                     label=f"leak tank {j + 1} (cm\u00b2), unmeasured")  # fmt: skip
+    axes[2].set_ylabel(axis_label(labels.inputs))
+    axes[3].set_ylabel("leak area (cm\u00b2)")
+    draw_d_hat(axes[4], k, sim.d_hat, labels.outputs, controller.config.d_max)
     for ax in axes[2:]:
-        ax.legend(loc="upper right", fontsize=7, ncol=2)
-    axes[4].set_xlabel("sample k (Ts = 10 s)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+        legend(ax, loc="best", ncol=2)
+    Ts = model.Ts if model.Ts is not None else QUADTANK_TS
+    note = "; grey: FHOCP infeasible" if infeasible.any() else ""
+    axes[4].set_xlabel(f"sample k (Ts = {Ts:g} s){note}")
+    return fig
+
+
+def plot_quadtank(result: QuadTankResult, path: Path) -> Path:
+    """PNG of :func:`quadtank_figure`."""
+    quadtank_figure(result).savefig(path, dpi=100)
     return path
 
 

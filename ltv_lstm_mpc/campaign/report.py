@@ -23,14 +23,24 @@ from matplotlib.figure import Figure
 
 from ltv_lstm_mpc.campaign.store import atomic_write
 
-__all__ = ["factor_levels", "write_report"]
+__all__ = ["factor_levels", "output_unit", "plant_title", "write_report"]
 
-#: (column, axis label, scale) of the distribution plots and tables.
+#: (column, axis label, scale) of the distribution plots and tables ("output units" is
+#: replaced by the plant's output unit).
 _METRICS = (
-    ("final_offset", "final offset", 1.0),
+    ("final_offset", "final offset (output units)", 1.0),
     ("violations", "violations (samples)", 1.0),
     ("median_step_s", "median step (ms)", 1e3),
 )
+
+#: Units of the factors on a plot axis ("output units": the plant's output unit).
+_FACTOR_UNITS = {
+    "noise_std": "output units",
+    "N": "horizon, samples",
+    "d_max": "normalized",
+    "rate_limit": "normalized per step",
+    "solver": "backend",
+}
 
 
 def output_unit(rows: Sequence[Mapping[str, Any]]) -> str:
@@ -49,6 +59,32 @@ def output_unit(rows: Sequence[Mapping[str, Any]]) -> str:
         for label in labels:
             units.add(label[label.find("(") + 1 : label.rfind(")")] if "(" in label else label)
     return units.pop() if len(units) == 1 else "output units"
+
+
+def plant_title(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The campaign's plant(s) in words, from the plant registry ("pH plant"); the names
+    as given when a plant class is not importable here."""
+    from ltv_lstm_mpc.exceptions import LtvMpcError
+    from ltv_lstm_mpc.plants.registry import resolve_plant
+
+    titles = []
+    for plant in dict.fromkeys(str(r.get("plant")) for r in rows if r.get("plant")):
+        try:
+            titles.append(resolve_plant(plant).title or plant)
+        except LtvMpcError:
+            titles.append(plant)
+    return ", ".join(titles) or "plant not recorded"
+
+
+def _suptitle(rows: Sequence[Mapping[str, Any]], title: str, what: str) -> str:
+    return f"campaign {title} ({plant_title(rows)}): {what}"
+
+
+def _factor_label(rows: Sequence[Mapping[str, Any]], name: str) -> str:
+    unit = _FACTOR_UNITS.get(name)
+    if unit is None:
+        return name
+    return f"{name} ({unit.replace('output units', output_unit(rows))})"
 
 
 def _number(value: Any) -> float:
@@ -97,38 +133,40 @@ def _save(figure: Figure, path: Path) -> Path:
     return path
 
 
-def _factor_plot(rows: Sequence[Mapping[str, Any]], name: str, path: Path) -> Path:
+def _factor_plot(
+    rows: Sequence[Mapping[str, Any]], name: str, path: Path, title: str = "campaign"
+) -> Path:
     levels = factor_levels(rows, name)
-    figure = Figure(figsize=(4.0 * len(_METRICS), 3.6), layout="constrained")
+    figure = Figure(figsize=(4.0 * len(_METRICS), 3.8), layout="constrained")
     axes = figure.subplots(1, len(_METRICS))
     unit = output_unit(rows)
     for ax, (column, label, scale) in zip(axes, _METRICS, strict=True):
-        if column == "final_offset":
-            label = f"{label} ({unit})"
+        label = label.replace("output units", unit)
         data = [_values([r for r in rows if r.get(name) == lv], column, scale) for lv in levels]
         positions = [i for i, d in enumerate(data) if d]
         if positions:
             ax.boxplot([data[i] for i in positions], positions=positions, widths=0.6)
         ax.set_xticks(range(len(levels)), [_label(lv) for lv in levels], rotation=30, ha="right")
         ax.set_xlim(-0.6, len(levels) - 0.4)
-        ax.set_title(label)
-        ax.set_xlabel(name)
+        ax.set_title(label.split(" (")[0])
+        ax.set_ylabel(label)
+        ax.set_xlabel(_factor_label(rows, name))
         ax.grid(alpha=0.3)
-    figure.suptitle(f"distributions per {name}")
+    figure.suptitle(_suptitle(rows, title, f"distributions per {name}"))
     return _save(figure, path)
 
 
-def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
+def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path, title: str = "campaign") -> Path:
     noise = factor_levels(rows, "noise_std")
     groups = factor_levels(rows, "mismatch") if "mismatch" in rows[0] else [None]
-    figure = Figure(figsize=(10, 3.8), layout="constrained")
+    figure = Figure(figsize=(10, 4.0), layout="constrained")
     axes = figure.subplots(1, 2)
     unit = output_unit(rows)
     panels = (
         ("violations", "violations (samples)"),
         ("max_violation", f"largest violation ({unit})"),
     )
-    for ax, (column, title) in zip(axes, panels, strict=True):
+    for ax, (column, label) in zip(axes, panels, strict=True):
         for group in groups:
             subset = [r for r in rows if group is None or r.get("mismatch") == group]
             means = []
@@ -145,15 +183,19 @@ def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
                 alpha=0.35,
                 color=line.get_color(),
             )
+        numeric = [v for v in (_number(level) for level in noise) if math.isfinite(v)]
+        if numeric and len(numeric) <= 12:
+            ax.set_xticks(numeric, [f"{v:g}" for v in numeric])
         ax.set_xlabel(f"measurement noise std ({unit})")
-        ax.set_title(title)
+        ax.set_ylabel(label)
+        ax.set_title(label.split(" (")[0] + " of the true plant output")
         ax.grid(alpha=0.3)
     axes[0].legend(title="mismatch" if groups != [None] else None, fontsize=8)
-    figure.suptitle("true-plant constraint violations vs measurement noise")
+    figure.suptitle(_suptitle(rows, title, "output-constraint violations vs measurement noise"))
     return _save(figure, path)
 
 
-def _heatmap(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
+def _heatmap(rows: Sequence[Mapping[str, Any]], path: Path, title: str = "campaign") -> Path:
     solvers = factor_levels(rows, "solver")
     horizons = factor_levels(rows, "N")
     grid = np.full((len(solvers), len(horizons)), np.nan)
@@ -164,7 +206,7 @@ def _heatmap(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
             if values:
                 grid[i, j] = float(np.median(values))
     figure = Figure(
-        figsize=(2.0 + 1.3 * len(horizons), 1.2 + 0.38 * len(solvers)), layout="constrained"
+        figsize=(3.5 + 1.3 * len(horizons), 1.6 + 0.38 * len(solvers)), layout="constrained"
     )
     ax = figure.subplots()
     shown = np.log10(np.where(np.isfinite(grid) & (grid > 0), grid, np.nan))
@@ -180,9 +222,11 @@ def _heatmap(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
                 )  # fmt: skip
     ax.set_xticks(range(len(horizons)), [str(n) for n in horizons])
     ax.set_yticks(range(len(solvers)), [str(s) for s in solvers])
-    ax.set_xlabel("N")
-    figure.colorbar(image, ax=ax, label="log10 median step (ms)")
-    ax.set_title("median controller step (ms), backend x N")
+    ax.set_xlabel("horizon N (samples)")
+    ax.set_ylabel("backend")
+    figure.colorbar(image, ax=ax, label="log10 of the median step in ms")
+    ax.set_title("median controller step (ms; numbers in the cells)", fontsize=10)
+    figure.suptitle(_suptitle(rows, title, "step time, backend x N"), fontsize=10)
     return _save(figure, path)
 
 
@@ -224,18 +268,21 @@ def write_report(
     if plots and ok:
         for name in varying:
             figures.append(
-                (f"by {name}", _factor_plot(rows, name, root / "plots" / f"by_{name}.png"))
+                (f"by {name}", _factor_plot(rows, name, root / "plots" / f"by_{name}.png", title))
             )
         if "noise_std" in rows[0] and len(factor_levels(rows, "noise_std")) > 1:
             figures.append(
                 (
                     "violations vs noise",
-                    _noise_plot(rows, root / "plots" / "violations_vs_noise.png"),
+                    _noise_plot(rows, root / "plots" / "violations_vs_noise.png", title),
                 )
             )
         if "solver" in rows[0] and "N" in rows[0] and ({"solver", "N"} & set(varying)):
             figures.append(
-                ("step time, backend x N", _heatmap(rows, root / "plots" / "step_time_heatmap.png"))
+                (
+                    "step time, backend x N",
+                    _heatmap(rows, root / "plots" / "step_time_heatmap.png", title),
+                )
             )
     levels = ", ".join(f"`{n}` ({len(factor_levels(rows, n))})" for n in factors)
     truncated = [r for r in ok if r.get("truncated") is True]

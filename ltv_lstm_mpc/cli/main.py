@@ -13,6 +13,9 @@ generate-data, train
     Identification data and delta-ISS LSTM training (see ``ltv_lstm_mpc.training.cli``).
 campaign
     Many closed loops over a product of factors, on Dask (see ``ltv_lstm_mpc.campaign.cli``).
+warmup
+    Compile the controller kernels into numba's cache ahead of time
+    (``ltv_lstm_mpc.cli.warmup``).
 """
 
 from __future__ import annotations
@@ -459,8 +462,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
             args.out,
             not args.no_progress,
             plant=plant,
-            labels=(entry.input_labels, entry.output_labels),
-            title=f"{entry.title}, {args.solver}, N = {args.N}, L_d = {args.L_d}",
+            labels=_plot_labels(entry, model),
+            title=_plot_title(entry, model, setpoint_tokens, args),
         )
         offsets = mimo["segment_offsets"]
         print(f"{'segment':>7}  " + "  ".join(f"offset y_{j:<6}" for j in range(model.p)))
@@ -496,7 +499,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
     lengths = [args.segment] * segments
     scenario = Scenario(
         name="simulate",
-        title=f"{entry.name} plant, {args.solver}, N = {args.N}, L_d = {args.L_d}",
+        title=_plot_title(entry, model, tokens, args),
         plant=entry.name,
         setpoints=np.repeat(np.asarray(setpoints, dtype=float), args.segment),
         disturbances=np.repeat(np.asarray(disturbances, dtype=float), args.segment),
@@ -525,6 +528,30 @@ def _run_simulate(args: argparse.Namespace) -> int:
         f"{counts['measurement_implausible_steps']} steps"
     )
     return _offset_status([summary["final_offset"]], args.max_offset)
+
+
+def _plot_labels(entry: Any, model: LSTMModel) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(input labels, output labels) with units for the ``simulate`` plot: the plant's, or
+    those of the plant whose shipped model this is (the LSTM plant)."""
+    from ltv_lstm_mpc.plotting import signal_labels
+
+    labels = signal_labels(entry.name, model)
+    return labels.inputs, labels.outputs
+
+
+def _plot_title(
+    entry: Any, model: LSTMModel, setpoints: Sequence[str], args: argparse.Namespace
+) -> str:
+    """Title of the ``simulate`` plot: the plant, the set-point schedule with its unit and
+    the controller settings ("pH plant: set-points 7.5 -> 8 pH; daqp, N = 5, L_d = 0.1")."""
+    from ltv_lstm_mpc.plotting import signal_labels
+
+    unit = f" {signal_labels(entry.name, model).output_unit}"
+    shown = [f"({', '.join(t.split(','))})" if "," in str(t) else str(t) for t in setpoints]
+    return (
+        f"{entry.title}: set-points {' -> '.join(shown)}{unit}; {args.solver}, N = {args.N}, "
+        f"L_d = {args.L_d}"
+    )
 
 
 def _check_plant_size(entry: Any, model: LSTMModel) -> None:
@@ -563,11 +590,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: Modules whose ``register(subparsers)`` adds subcommands (train, bench, replay, campaign).
+#: Modules whose ``register(subparsers)`` adds subcommands (train, bench, replay, campaign,
+#: warmup).
 OPTIONAL_COMMAND_MODULES = (
     "ltv_lstm_mpc.training.cli",
     "ltv_lstm_mpc.solver_comparison.harness",
     "ltv_lstm_mpc.campaign.cli",
+    "ltv_lstm_mpc.cli.warmup",
 )
 
 

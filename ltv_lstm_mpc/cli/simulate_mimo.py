@@ -15,7 +15,7 @@ from __future__ import annotations
 import csv
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,7 +28,10 @@ from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 from ltv_lstm_mpc.plants.protocol import Plant
 
-__all__ = ["parse_vectors", "run_mimo"]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["mimo_figure", "parse_vectors", "run_mimo"]
 
 FloatArray = NDArray[np.float64]
 
@@ -122,7 +125,8 @@ def run_mimo(
     if out is not None:
         _write(out, sim, y0_schedule, d_schedule, summary)
         bounds = controller.input_bounds_phi
-        _plot(out / "simulate.png", sim, y0_schedule, model, bounds, labels, title)
+        _plot(out / "simulate.png", sim, y0_schedule, model, bounds, labels, title,
+              config.d_max)  # fmt: skip
     return summary, sim
 
 
@@ -157,14 +161,40 @@ def _plot(
     input_bounds: tuple[FloatArray, FloatArray],
     labels: tuple[tuple[str, ...], tuple[str, ...]],
     title: str,
+    d_max: float | None = None,
 ) -> None:
-    """Outputs with set-points and the output constraint, inputs with their bounds, and the
-    disturbance estimate, against time; signals named with units where the plant states
-    them."""
-    import matplotlib
+    """Save :func:`mimo_figure` as a PNG."""
+    mimo_figure(sim, y0, model, input_bounds, labels, title, d_max).savefig(path, dpi=110)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def mimo_figure(
+    sim: SimulationResult,
+    y0: FloatArray,
+    model: LSTMModel,
+    input_bounds: tuple[FloatArray, FloatArray],
+    labels: tuple[tuple[str, ...], tuple[str, ...]],
+    title: str,
+    d_max: float | None = None,
+) -> Figure:
+    """Outputs with set-points (a marker at the axis edge where one lies outside the plotted
+    range) and the output constraint, inputs with their bounds U, and the disturbance
+    estimate with +-``d_max``, against time; signals named with units where the plant
+    states them (``labels`` = (input labels, output labels))."""
+    from matplotlib.figure import Figure
+
+    from ltv_lstm_mpc.plotting import (
+        INPUT_BOUND_GID,
+        OUTPUT_CONSTRAINT_GID,
+        axis_label,
+        bounds_text,
+        draw_bounds,
+        draw_d_hat,
+        fit_ylim,
+        legend,
+        mark_clipped_setpoints,
+        name_of,
+        unit_of,
+    )
 
     p, m = sim.y_phi.shape[1], sim.u_phi.shape[1]
     inputs = labels[0] if len(labels[0]) == m else tuple(f"u_{j}" for j in range(m))
@@ -172,34 +202,39 @@ def _plot(
     Ts = model.Ts
     samples = np.arange(sim.y_phi.shape[0])
     t, unit = (samples * Ts / 60.0, "time (min)") if Ts else (samples, "sample k")
-    fig, axes = plt.subplots(3, 1, figsize=(9, 8.5), sharex=True)
+    fig = Figure(figsize=(9, 9), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
     constraint = model.y_phi_constraint
     for j in range(p):
         axes[0].plot(t, sim.y_phi[:, j], color=f"C{j}", label=outputs[j])
         axes[0].plot(t, y0[: samples.size, j], "--", color=f"C{j}", alpha=0.7,
-                     label=f"set-point {outputs[j]}")  # fmt: skip
-        signal = outputs[j].split(" (")[0]  # d_hat is normalized: no physical unit
-        axes[2].plot(t, sim.d_hat[:, j], color=f"C{j}", label=f"d_hat on {signal}")
+                     label=f"set-point {name_of(outputs[j])}")  # fmt: skip
     if constraint is not None:
+        output_unit = unit_of(outputs[0]) if len({unit_of(o) for o in outputs}) == 1 else ""
         low, high = (np.broadcast_to(np.asarray(v, dtype=float), (p,)) for v in constraint)
-        for value in sorted(set(low.tolist()) | set(high.tolist())):
-            axes[0].axhline(value, color="r", lw=0.8, ls="-", alpha=0.7)
-        axes[0].plot([], [], color="r", lw=0.8, label="output constraint")
+        draw_bounds(axes[0], low, high, gid=OUTPUT_CONSTRAINT_GID,
+                    label=f"output constraint {bounds_text(low, high, output_unit)}")  # fmt: skip
+    fit_ylim(axes[0], sim.y_phi, *(constraint or ()))
+    for j in range(p):
+        mark_clipped_setpoints(axes[0], t, y0[: samples.size, j], unit=unit_of(outputs[j]),
+                               color=f"C{j}", label=f"set-point {name_of(outputs[j])} outside "
+                               "the plotted range")  # fmt: skip
+    axes[0].set_ylabel(axis_label(outputs))
     u_low, u_high = input_bounds  # U in physical units (the controller's)
     for j in range(m):
         axes[1].plot(t, sim.u_phi[:, j], color=f"C{j}", label=inputs[j])
-        for bound in (u_low[j], u_high[j]):
-            axes[1].axhline(bound, color=f"C{j}", lw=0.8, ls=":")
-    axes[1].plot([], [], color="k", lw=0.8, ls=":", label="input bounds (U)")
-    panels = ("outputs, set-points and the output constraint", "inputs and their bounds",
-              "disturbance estimate d_hat (normalized output units)")  # fmt: skip
+        draw_bounds(axes[1], u_low[j], u_high[j], gid=INPUT_BOUND_GID, color=f"C{j}", ls=":",
+                    label=f"bounds U of {name_of(inputs[j])} "
+                    f"{bounds_text(u_low[j], u_high[j], unit_of(inputs[j]))}")  # fmt: skip
+    axes[1].set_ylabel(axis_label(inputs))
+    draw_d_hat(axes[2], t, sim.d_hat, outputs, d_max)
+    panels = ("outputs, set-points and the output constraint", "inputs and their bounds U",
+              "disturbance estimate $\\hat d$ (normalized output units)")  # fmt: skip
     for ax, panel in zip(axes, panels, strict=True):
         ax.set_title(panel, fontsize=10)
-        ax.legend(loc="best", fontsize=8)
+        legend(ax, loc="best", fontsize=8)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel(unit)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig

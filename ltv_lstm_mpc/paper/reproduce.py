@@ -2,7 +2,8 @@
 
 Used by ``ltv-lstm-mpc reproduce`` / ``ltv-lstm-mpc simulate`` and
 ``experiments/paper_scenarios.py``. Each scenario writes ``<name>.png`` (output vs
-set-point with the constraint, disturbance, input; grey bands where the FHOCP was
+set-point with the output constraint, input with its bounds U, disturbance, and the
+estimate d_hat, named with units from the plant registry; grey bands where the FHOCP was
 infeasible), ``<name>.csv`` (one row per sample) and ``<name>.json`` (its summary);
 ``summary.json`` collects all summaries and the certificate numbers next to the paper's.
 """
@@ -13,7 +14,7 @@ import csv
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,20 +22,23 @@ from ltv_lstm_mpc.benchmarks.benchmark import Benchmark
 from ltv_lstm_mpc.certificates.certify import CertificationSettings, certify
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.paper.scenarios import (
-    Y_PHI_MAX,
-    Y_PHI_MIN,
     Scenario,
     ScenarioResult,
     paper_scenarios,
     run_scenario,
 )
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = [
     "PAPER_BENCHMARK",
     "PAPER_VALUES",
     "certificate_comparison",
     "format_report",
+    "plot_scenario",
     "reproduce",
+    "scenario_figure",
     "write_scenario_outputs",
 ]
 
@@ -68,58 +72,128 @@ def certificate_comparison(model: LSTMModel) -> dict[str, Any]:
     return {"ours": ours, "paper": PAPER_VALUES}
 
 
-def _shade(ax: Any, mask: np.ndarray) -> None:
-    """Grey bands over the samples where ``mask`` is true."""
-    if not np.any(mask):
-        return
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
-    for start, stop in zip(edges[::2], edges[1::2], strict=True):
-        ax.axvspan(start - 0.5, stop - 0.5, color="0.8", lw=0, zorder=0)
+def scenario_figure(result: ScenarioResult) -> Figure:
+    """The figure of :func:`plot_scenario` (not saved): output with set-point, output
+    constraint and clipped set-point markers; input with its bounds U; the plant's
+    disturbance; the disturbance estimate :math:`\\hat d` with :math:`\\pm d_{max}`.
+    Names and units from the plant registry (:func:`ltv_lstm_mpc.plotting.signal_labels`)."""
+    from matplotlib.figure import Figure
 
-
-def plot_scenario(result: ScenarioResult, path: Path) -> Path:
-    """PNG like the paper's figures: output vs set-point, disturbance, input."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ltv_lstm_mpc.plotting import (
+        INPUT_BOUND_GID,
+        OUTPUT_CONSTRAINT_GID,
+        axis_label,
+        bounds_text,
+        draw_bounds,
+        draw_d_hat,
+        fit_ylim,
+        legend,
+        mark_clipped_setpoints,
+        name_of,
+        shade_infeasible,
+        signal_labels,
+        titled,
+        unit_of,
+    )
 
     sim, sc = result.simulation, result.scenario
-    model = result.controller.model
-    k = np.arange(sc.steps)
+    controller = result.controller
+    model = controller.model
+    labels = signal_labels(sc.plant, model)
+    output, unit = labels.outputs[0], unit_of(labels.outputs[0])
+    k = np.arange(sim.y_phi.shape[0])
     infeasible = ~sim.feasible
-    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True, height_ratios=[3, 1.3, 1.3])
+    fig = Figure(figsize=(8.5, 9.0), layout="constrained")
+    axes = fig.subplots(4, 1, sharex=True, height_ratios=[3, 1.5, 1.1, 1.3])
+    for ax in axes:
+        shade_infeasible(ax, k, infeasible)
+        ax.grid(alpha=0.3)
     ax = axes[0]
-    _shade(ax, infeasible)
-    ax.plot(k, sim.y_phi[:, 0], color="tab:blue", lw=1.3, label="output $y_\\phi$")
-    ax.plot(k, sc.setpoints, "k--", lw=1.0, label="set-point $y^0_\\phi$ (requested)")
+    y = sim.y_phi[:, 0]
+    ax.plot(k, y, color="tab:blue", lw=1.3, label=f"{name_of(output)} (plant output)")
+    ax.plot(k, sc.setpoints[: k.size], "k--", lw=1.0, label="set-point (requested)")
     if sc.setpoint_rate_limit is not None:
-        ax.plot(k, model.denormalize_y(sim.y0[:, 0]), color="0.4", lw=0.8, ls=":",
-                label="rate-limited set-point")  # fmt: skip
-    ax.axhline(Y_PHI_MIN, color="tab:red", lw=0.8)
-    ax.axhline(Y_PHI_MAX, color="tab:red", lw=0.8, label="constraint [6, 9] pH")
-    ax.set_ylabel("pH")
-    ax.set_ylim(min(Y_PHI_MIN, sim.y_phi.min()) - 0.2, max(Y_PHI_MAX, sim.y_phi.max()) + 0.2)
-    ax.legend(loc="upper right", fontsize=8, ncol=2)
+        ax.plot(
+            k,
+            model.denormalize_y(sim.y0[:, 0]),
+            color="0.4",
+            lw=0.8,
+            ls=":",
+            label="rate-limited set-point",
+        )
+    constraint = model.y_phi_constraint
+    if constraint is not None:
+        draw_bounds(
+            ax,
+            *constraint,
+            label=f"output constraint {bounds_text(*constraint, unit)}",
+            gid=OUTPUT_CONSTRAINT_GID,
+        )
+    fit_ylim(ax, y, *(constraint or ()))
+    mark_clipped_setpoints(ax, k, sc.setpoints, unit=unit)
+    ax.set_ylabel(output)
+    legend(ax, loc="best", ncol=2)
     summary = result.summary()
+    offset = summary["final_offset"]
+    title = titled(labels.plant, sc.title)
+    solver = controller.config.solver
+    settings = "" if solver in title else f"{solver}: "
     ax.set_title(
-        f"{sc.title}\ninfeasible steps {summary['infeasible_steps']}, max violation "
-        f"{summary['max_output_violation']:.2g} pH, final offset {summary['final_offset']:.1e} pH",
+        f"{title}\n{settings}infeasible steps {summary['infeasible_steps']}, max violation "
+        f"{summary['max_output_violation']:.2g} {unit}, final offset "
+        + ("-" if offset is None else f"{offset:.1e} {unit}"),
         fontsize=10,
     )
     ax = axes[1]
-    _shade(ax, infeasible)
-    label = "output disturbance $d$ (pH)" if sc.plant == "lstm" else "$q_2$ (mL/s)"
-    ax.plot(k, sc.disturbances, color="tab:orange", ls="-.", lw=1.2, label=label)
-    ax.legend(loc="upper right", fontsize=8)
+    u_low, u_high = controller.input_bounds_phi
+    u_unit = unit_of(labels.inputs[0])
+    ax.plot(k, sim.u_phi[:, 0], color="tab:green", lw=1.0, label=labels.inputs[0])
+    draw_bounds(
+        ax,
+        u_low,
+        u_high,
+        label=f"input bounds U {bounds_text(u_low, u_high, u_unit)}",
+        gid=INPUT_BOUND_GID,
+        color="tab:green",
+        ls=":",
+    )
+    ax.set_ylabel(axis_label(labels.inputs))
+    legend(ax, loc="best", ncol=2)
     ax = axes[2]
-    _shade(ax, infeasible)
-    ax.plot(k, sim.u_phi[:, 0], color="tab:green", lw=1.0, label="$q_3$ (mL/s)")
-    ax.set_xlabel(f"sample k (Ts = 10 s){'; grey: FHOCP infeasible' if infeasible.any() else ''}")
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    if np.all(np.isnan(sc.disturbances)):
+        ax.text(
+            0.5,
+            0.5,
+            "the plant's own default disturbance",
+            transform=ax.transAxes,
+            ha="center",
+            va="center",
+            fontsize=8,
+        )
+    else:
+        ax.plot(
+            k,
+            sc.disturbances[: k.size],
+            color="tab:orange",
+            ls="-.",
+            lw=1.2,
+            label=f"{labels.disturbance}, unmeasured",
+        )
+    disturbance = labels.disturbance
+    ax.set_ylabel(disturbance if len(disturbance) <= 22 else unit_of(disturbance))
+    legend(ax, loc="best")
+    ax = axes[3]
+    draw_d_hat(ax, k, sim.d_hat, labels.outputs, controller.config.d_max)
+    legend(ax, loc="best", ncol=2)
+    Ts = model.Ts
+    note = "; grey: FHOCP infeasible" if infeasible.any() else ""
+    ax.set_xlabel(f"sample k{f' (Ts = {Ts:g} s)' if Ts else ''}{note}")
+    return fig
+
+
+def plot_scenario(result: ScenarioResult, path: Path) -> Path:
+    """PNG like the paper's figures (see :func:`scenario_figure`)."""
+    scenario_figure(result).savefig(path, dpi=110)
     return path
 
 

@@ -40,7 +40,7 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,6 +55,9 @@ from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.rti import RobustMPC, resolve_transcription
 from ltv_lstm_mpc.validation import expect_int, expect_path, expect_real
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = [
     "CSV_COLUMNS",
@@ -480,44 +483,92 @@ def write_outputs(rows: list[dict[str, Any]], out: Path, notes: Sequence[str] = 
     _plots(rows, out)
 
 
+#: The parts of a controller step in the bench plot, (column, legend label).
+_STEP_PARTS = (
+    ("observer_median_us", "observer"),
+    ("reference_median_us", "reference calculator"),
+    ("build_median_us", "linearize + build"),
+    ("solve_median_us", "solve"),
+)
+
+
+def _log_floor(values: Sequence[float]) -> float:
+    """A power of ten at least 3x below the smallest positive finite value (so that the
+    shortest bar of a log axis is visible)."""
+    positive = [v for v in values if math.isfinite(v) and v > 0]
+    if not positive:
+        return 1.0
+    return float(10.0 ** math.floor(math.log10(min(positive) / 3.0)))
+
+
+def bench_figure(rows: Sequence[dict[str, Any]], N: int) -> Figure | None:
+    """The figure of ``bench_N<N>.png`` (None when no run of horizon N finished): per
+    backend of the first scenario, the median controller step with its p95 (left) and the
+    median time of every part of the step (observer, reference calculator, linearize +
+    build, solve) as its own bar (right); both axes logarithmic in microseconds with a floor
+    below the smallest value, so that a part of a few microseconds shows."""
+    from matplotlib.figure import Figure
+
+    sub = [r for r in rows if r["N"] == N and np.isfinite(r["step_median_us"])]
+    if not sub:
+        return None
+    scen = sorted({r["scenario"] for r in sub})
+    first = sorted((r for r in sub if r["scenario"] == scen[0]), key=lambda r: r["step_median_us"])
+    labels = [r["backend"] for r in first]
+    count = len(first)
+    fig = Figure(figsize=(13, 0.5 * count + 2.2), layout="constrained")
+    axes = fig.subplots(1, 2, sharey=True)
+    y = np.arange(count)
+    med = np.array([r["step_median_us"] for r in first], dtype=float)
+    p95 = np.array([r["step_p95_us"] for r in first], dtype=float)
+    floor = _log_floor([*med, *p95])
+    axes[0].barh(y, med - floor, left=floor, color="tab:blue", label="median", gid="step")
+    axes[0].scatter(p95, y, color="k", marker="|", s=80, label="p95", zorder=3)
+    axes[0].set_xscale("log")
+    axes[0].set_xlim(floor, 2.0 * float(np.nanmax(np.concatenate([med, p95]))))
+    axes[0].set_yticks(y, labels, fontsize=7)
+    axes[0].set_xlabel("controller step time (µs, log scale)")
+    axes[0].set_title("whole step: median and p95", fontsize=10)
+    axes[0].legend(fontsize=7, loc="lower right")
+    parts = {
+        column: np.array([_number(r.get(column)) for r in first], dtype=float)
+        for column, _ in _STEP_PARTS
+    }
+    floor = _log_floor([v for values in parts.values() for v in values])
+    height = 0.8 / len(_STEP_PARTS)
+    for index, (column, name) in enumerate(_STEP_PARTS):
+        values = parts[column]
+        shown = np.where(np.isfinite(values) & (values > floor), values, floor)
+        offset = (index - (len(_STEP_PARTS) - 1) / 2) * height
+        axes[1].barh(y - offset, shown - floor, left=floor, height=height, color=f"C{index}",
+                     label=name, gid=column)  # fmt: skip
+    top = max((float(np.nanmax(v)) for v in parts.values() if np.isfinite(v).any()), default=1.0)
+    axes[1].set_xscale("log")
+    axes[1].set_xlim(floor, 2.0 * top)
+    axes[1].set_xlabel("median time per part of the step (µs, log scale)")
+    axes[1].set_title("parts of the step, each from the axis floor (not stacked)", fontsize=10)
+    axes[1].legend(fontsize=7, loc="best")
+    for ax in axes:
+        ax.grid(axis="x", which="both", alpha=0.25)
+    axes[0].set_ylim(-0.6, count - 0.4)
+    steps = sorted({int(r["steps"]) for r in first if r.get("steps") is not None})
+    per_run = f", {'/'.join(str(v) for v in steps)} steps per backend" if steps else ""
+    fig.suptitle(f"solver comparison: scenario {scen[0]}, N = {N}{per_run}")
+    return fig
+
+
+def _number(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def _plots(rows: list[dict[str, Any]], out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     for N in sorted({r["N"] for r in rows}):
-        sub = [r for r in rows if r["N"] == N and np.isfinite(r["step_median_us"])]
-        if not sub:
-            continue
-        scen = sorted({r["scenario"] for r in sub})
-        first = [r for r in sub if r["scenario"] == scen[0]]
-        first.sort(key=lambda r: r["step_median_us"])
-        labels = [r["backend"] for r in first]
-        parts = ("observer_median_us", "reference_median_us", "build_median_us", "solve_median_us")
-        fig, axes = plt.subplots(1, 2, figsize=(13, 0.32 * len(first) + 2))
-        y = np.arange(len(first))
-        med = np.array([r["step_median_us"] for r in first])
-        p95 = np.array([r["step_p95_us"] for r in first])
-        axes[0].barh(y, med, color="tab:blue", label="median")
-        axes[0].scatter(p95, y, color="k", marker="|", s=80, label="p95")
-        axes[0].set_xscale("log")
-        axes[0].set_yticks(y, labels, fontsize=7)
-        axes[0].set_xlabel("controller step [µs] (log)")
-        axes[0].legend(fontsize=7)
-        left = np.zeros(len(first))
-        for part in parts:
-            values = np.nan_to_num(np.array([r[part] for r in first], dtype=float))
-            axes[1].barh(y, values, left=left, label=part.replace("_median_us", ""))
-            left += values
-        axes[1].set_xscale("log")
-        axes[1].set_yticks(y, [""] * len(first))
-        axes[1].set_xlabel("median split [µs] (stacked, log)")
-        axes[1].legend(fontsize=7)
-        fig.suptitle(f"{scen[0]}, N = {N}")
-        fig.tight_layout()
-        fig.savefig(out / f"bench_N{N}.png", dpi=110)
-        plt.close(fig)
+        fig = bench_figure(rows, N)
+        if fig is not None:
+            fig.savefig(out / f"bench_N{N}.png", dpi=110)
 
 
 # ------------------------------------------------------------------- replay subproblems
