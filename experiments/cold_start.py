@@ -1,13 +1,20 @@
 """Cold start of the controller: import, construction and first steps, empty and warm cache.
 
 Copies this checkout's ``ltv_lstm_mpc`` and ``solvers`` into a temporary folder (so numba's
-on-disk cache starts empty there), then runs the same child process twice: the first run
-compiles every kernel the configuration uses, the second loads them from the cache. Each run
-prints wall times of ``import ltv_lstm_mpc``, of the first use of the names, of the
-controller's construction (``OffsetFreeController(model, MPCConfig(solver=...))``), of its
-first step on the pH plant and of the next 20 steps.
+on-disk cache starts empty there), then runs one child process per row:
 
-    python experiments/cold_start.py [--solver daqp]
+1. empty cache, ``kernels="auto"`` (the default): the controller runs the numpy reference
+   while a background process compiles the kernels; the child then waits until the cache
+   holds them (the background compilation's wall time);
+2. warm cache, ``"auto"``: the compiled kernels, loaded from the cache;
+3. (``--blocking``) a second empty cache with ``kernels="compiled"``: the first step waits
+   for the compilation (the behaviour before ``"auto"``).
+
+Each row prints wall times of ``import ltv_lstm_mpc``, of the first use of the names, of
+the controller's construction (``OffsetFreeController(model, MPCConfig(solver=...))``), of
+its first step on the pH plant and of the next 20 steps, and the kernels it ran.
+
+    python experiments/cold_start.py [--solver daqp] [--blocking]
 """
 
 from __future__ import annotations
@@ -31,7 +38,8 @@ import numpy as np
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, PHNeutralizationPlant, load_model
 t2 = time.perf_counter()
 model = load_model("ph_lstm_n5.npz")
-controller = OffsetFreeController(model, MPCConfig(solver={solver!r}, L_d=0.1))
+config = MPCConfig(solver={solver!r}, L_d=0.1)
+controller = OffsetFreeController(model, config, kernels={kernels!r})
 t3 = time.perf_counter()
 plant = PHNeutralizationPlant()
 plant.reset()
@@ -41,35 +49,56 @@ for _ in range(20):
     u = controller.step(plant.step(u), np.array([7.2]))
 t5 = time.perf_counter()
 print(f"import {{t1 - t0:.3f}} s, names {{t2 - t1:.2f}} s, construction {{t3 - t2:.2f}} s, "
-      f"first step {{t4 - t3:.2f}} s, next 20 steps {{t5 - t4:.3f}} s")
+      f"first step {{t4 - t3:.2f}} s, next 20 steps {{t5 - t4:.3f}} s ({{controller.kernels}})")
+if {wait!r}:
+    from ltv_lstm_mpc.loop.kernels import choose_kernels
+    while choose_kernels(config)[1] and time.perf_counter() - t3 < 600:
+        time.sleep(0.5)
+    print(f"background compilation done {{time.perf_counter() - t3:.1f}} s after construction")
 """
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--solver", default="daqp")
+    parser.add_argument(
+        "--blocking", action="store_true", help="also: empty cache, kernels='compiled'"
+    )
     args = parser.parse_args()
+    runs = [("empty cache", "auto", True, True), ("warm cache", "auto", False, False)]
+    if args.blocking:
+        runs.append(("empty cache", "compiled", False, True))
     with tempfile.TemporaryDirectory() as tmp:
-        package = Path(tmp) / "ltv_lstm_mpc"
-        shutil.copytree(
-            ROOT / "ltv_lstm_mpc", package, ignore=shutil.ignore_patterns("__pycache__")
-        )
-        shutil.copytree(
-            ROOT / "solvers", package / "solvers", ignore=shutil.ignore_patterns("__pycache__")
-        )
-        env = {**os.environ, "PYTHONPATH": tmp}
-        for label in ("empty cache", "warm cache"):
+        for label, kernels, wait, fresh in runs:
+            folder = Path(tmp) / f"{label}-{kernels}".replace(" ", "-")
+            if fresh:
+                source = folder
+                package = source / "ltv_lstm_mpc"
+                shutil.copytree(
+                    ROOT / "ltv_lstm_mpc", package, ignore=shutil.ignore_patterns("__pycache__")
+                )
+                shutil.copytree(
+                    ROOT / "solvers",
+                    package / "solvers",
+                    ignore=shutil.ignore_patterns("__pycache__"),
+                )
+            env = {**os.environ, "PYTHONPATH": str(source)}
+            env.pop("LTV_LSTM_MPC_KERNEL", None)
             result = subprocess.run(
-                [sys.executable, "-c", CHILD.format(solver=args.solver)],
+                [
+                    sys.executable,
+                    "-c",
+                    CHILD.format(solver=args.solver, kernels=kernels, wait=wait),
+                ],
                 capture_output=True,
                 text=True,
                 env=env,
-                cwd=tmp,
+                cwd=source,
             )
-            notice = [line for line in result.stderr.splitlines() if "compiling" in line]
-            print(f"{label:>11}: {result.stdout.strip()}")
+            notice = [line for line in result.stderr.splitlines() if "ltv_lstm_mpc:" in line]
+            print(f"{label:>11} ({kernels}): {result.stdout.strip()}")
             if notice:
-                print(f"{'':>11}  stderr: {notice[0]}")
+                print(f"{'':>11}  stderr: {notice[0][:160]}...")
             if result.returncode:
                 print(result.stderr[-2000:])
 

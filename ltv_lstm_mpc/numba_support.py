@@ -16,6 +16,8 @@ __all__ = [
     "announce_compile",
     "build_workspace",
     "njit",
+    "ready",
+    "say_once",
     "uncached",
     "workspace_type",
 ]
@@ -114,6 +116,18 @@ def build_workspace(factory: Any, fields: Sequence[str], values: dict[str, Any])
 _compile_announced = False
 
 
+def ready(dispatchers: Sequence[Any]) -> bool:
+    """Every one of ``dispatchers`` runs without compiling: numba is installed and each is
+    compiled in this process or held by the on-disk cache. What the numpy fallbacks of
+    small helpers ask before their first call (no compile wait where a numpy twin exists).
+    """
+    if not AVAILABLE:
+        return False
+    if all(getattr(dispatcher, "signatures", None) for dispatcher in dispatchers):
+        return True
+    return not uncached(dispatchers)
+
+
 def uncached(dispatchers: Sequence[Any]) -> list[str]:
     """Names of the compiled functions among ``dispatchers`` that the on-disk cache cannot
     serve (no entry for their current source): they compile at their first call.
@@ -132,22 +146,25 @@ def uncached(dispatchers: Sequence[Any]) -> list[str]:
     return missing
 
 
-def announce_compile(dispatchers: Sequence[Any], what: str, seconds: str) -> bool:
-    """Say once per process, on stderr, that ``what`` compiles now (first run only) when
-    any of ``dispatchers`` is not in the on-disk cache; returns whether it said so."""
+def say_once(message: str) -> bool:
+    """Print ``message`` on stderr unless this process has already said one (the compile
+    notice and the controller's kernel choice share it); returns whether it printed."""
     global _compile_announced
-    if _compile_announced or not AVAILABLE:
-        return False
-    missing = uncached(dispatchers)
-    if not missing:
+    if _compile_announced:
         return False
     _compile_announced = True
     import sys
 
-    print(
-        f"ltv_lstm_mpc: compiling {what} (first run only, about {seconds} on 2 cores; "
-        "cached on disk for the next runs)...",
-        file=sys.stderr,
-        flush=True,
-    )
+    print(message, file=sys.stderr, flush=True)
     return True
+
+
+def announce_compile(dispatchers: Sequence[Any], what: str, seconds: str) -> bool:
+    """Say once per process, on stderr, that ``what`` compiles now (first run only) when
+    any of ``dispatchers`` is not in the on-disk cache; returns whether it said so."""
+    if _compile_announced or not AVAILABLE or not uncached(dispatchers):
+        return False
+    return say_once(
+        f"ltv_lstm_mpc: compiling {what} (first run only, about {seconds} on 2 cores; "
+        "cached on disk for the next runs)..."
+    )

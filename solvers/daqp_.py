@@ -225,11 +225,31 @@ class DaqpDense(DenseBackend):
         check_settings("daqp", settings, known_settings("daqp"))
         super().__init__(name, "daqp", solver_options("daqp", tolerance, settings))
         self._daqp_solve = daqp.solve
-        #: DAQP's C entry point for compiled callers (None: ``daqp.solve`` only; the reason
-        #: is ``daqp_native.unavailable_reason``).
         from . import daqp_native
 
-        self.native = daqp_native.native(self.options)
+        self._daqp_native = daqp_native
+        self._native: Any = None
+        self._native_bound = False
+        # The hot-loop solve_point goes through DAQP's C entry point where its compiled call
+        # is ready (compiled in this process or in numba's cache); else through daqp.solve,
+        # the same C function with the same results, so that a Python-only caller never
+        # waits for a compilation. Compiled callers bind it through `native`.
+        if daqp_native.ready():
+            self._bind_native()
+
+    def _bind_native(self) -> Any:
+        if not self._native_bound:
+            self._native = self._daqp_native.native(self.options)
+            self._native_bound = True
+        return self._native
+
+    @property
+    def native(self) -> Any:
+        """DAQP's C entry point for compiled callers (a
+        :class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative`; bound, and compiled on an
+        empty numba cache, at the first access), or None: ``daqp.solve`` only, the reason
+        in ``daqp_native.unavailable_reason``."""
+        return self._bind_native()
 
     def setup(self, qp: DenseQP) -> None:
         """Allocate the bound and sense buffers and store the data."""
@@ -309,7 +329,7 @@ class DaqpDense(DenseBackend):
     def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
         """One cold solve (DAQP's C entry point where bound, else ``daqp.solve``); the status
         mapped as in :meth:`solve`."""
-        native = self.native
+        native = self._native
         if native is not None:
             x, _lam, flag, iterations = native.solve(
                 self._H, self._f, self._A, self._bu, self._bl, self._cold

@@ -46,8 +46,10 @@ FloatArray = NDArray[np.float64]
 __all__ = [
     "BOUND_VERSIONS",
     "DaqpNative",
+    "bound",
     "native",
     "quadprog",
+    "ready",
     "solver_seconds",
     "unavailable_reason",
 ]
@@ -285,6 +287,20 @@ def _self_test() -> bool:
         and np.array_equal(x, x_ref)
         and np.array_equal(lam, info["lam"])
     )
+
+
+def bound() -> bool:
+    """DAQP's C library is bound (a release in :data:`BOUND_VERSIONS`); the self-test still
+    runs at the first :func:`native`."""
+    return _LOADED
+
+
+def ready() -> bool:
+    """:func:`native` would return without compiling: the library is bound and the compiled
+    :func:`quadprog` exists in this process or in numba's on-disk cache."""
+    from ltv_lstm_mpc.numba_support import ready as compiled_ready
+
+    return _LOADED and (_CHECKED is not None or compiled_ready([quadprog]))
 
 
 def native(options: Mapping[str, Any]) -> DaqpNative | None:

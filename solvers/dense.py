@@ -47,6 +47,7 @@ import numpy.typing as npt
 import scipy.sparse as sp
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
+from ltv_lstm_mpc.numba_support import ready
 from ltv_lstm_mpc.validation import real_array, real_scalar
 
 from ._base import FloatArray, RawResult, WarmStart
@@ -73,6 +74,17 @@ def _full_csc(M: FloatArray) -> sp.csc_matrix:
         ),
         shape=(r, c),
     )
+
+
+_VIOLATION_COMPILED: list[bool] = []
+
+
+def _violation_compiled() -> bool:
+    """Whether :meth:`DenseQP.max_violation` runs the compiled loops: decided at its first
+    call in a process, from whether they are compiled or cached (``numba_support.ready``)."""
+    if not _VIOLATION_COMPILED:
+        _VIOLATION_COMPILED.append(ready([bounds_rows_violation, cone_violation]))
+    return _VIOLATION_COMPILED[0]
 
 
 @dataclass(eq=False)
@@ -260,10 +272,18 @@ class DenseQP:
             raise DimensionError(f"x must have shape {self.f.shape}, got {xx.shape}")
         if not math.isfinite(float(xx.sum())) and not np.all(np.isfinite(xx)):
             return float("inf")
-        # compiled loops (solvers/_compiled.py); DenseCone.violation is the numpy reference
-        viol = bounds_rows_violation(xx, self.lb, self.ub, self.A, self.lo, self.up)
+        if _violation_compiled():  # the loops of solvers/_compiled.py
+            viol = bounds_rows_violation(xx, self.lb, self.ub, self.A, self.lo, self.up)
+            for cone in self.cones:
+                viol = max(viol, cone_violation(cone.F, cone.g, cone.e, cone.f, xx))
+            return float(viol)
+        # the numpy reference (no numba, or the loops not compiled yet: no compile wait)
+        viol = max(0.0, float(np.max(self.lb - xx)), float(np.max(xx - self.ub)))
+        if self.A.shape[0]:
+            rows = self.A @ xx
+            viol = max(viol, float(np.max(self.lo - rows)), float(np.max(rows - self.up)))
         for cone in self.cones:
-            viol = max(viol, cone_violation(cone.F, cone.g, cone.e, cone.f, xx))
+            viol = max(viol, cone.violation(xx))
         return float(viol)
 
     def to_convex_problem(self) -> ConvexProblem:

@@ -137,17 +137,10 @@ def _registry() -> dict[str, _Entry]:
             reg[name] = _Entry(info, qpsolvers_.factory(s), qpsolvers_.dense_factory(s))
     except ImportError:
         pass
-    for name, module, loader in _native_entries():
-        if not _installed(module):
-            continue
-        try:
-            factory, dense = loader()
-        except ImportError:
-            continue
-        family = name.split(":")[0]
-        cones = family in NATIVE_CONE_SOLVERS
-        info = SolverInfo(name, family, cones, dense is not None, family in FIRST_ORDER)
-        reg[name] = _Entry(info, factory, dense)
+    for name, _module, _loader in _native_entries():
+        entry = _native_entry(name)
+        if entry is not None:
+            reg[name] = entry
     return reg
 
 
@@ -169,7 +162,36 @@ def cone_solvers() -> list[str]:
     return [name for name, entry in _registry().items() if entry.info.supports_cones]
 
 
+@functools.cache
+def _native_entry(name: str) -> _Entry | None:
+    """The entry of the native backend ``name`` alone (None: not a native name, or not
+    installed): what :func:`_entry` answers before the full registry is built, so that
+    asking for ``daqp`` does not import cvxpy and qpsolvers (about 1 s)."""
+    for entry_name, module, loader in _native_entries():
+        if entry_name != name:
+            continue
+        if not _installed(module):
+            return None
+        try:
+            factory, dense = loader()
+        except ImportError:
+            return None
+        family = name.split(":")[0]
+        cones = family in NATIVE_CONE_SOLVERS
+        return _Entry(
+            SolverInfo(name, family, cones, dense is not None, family in FIRST_ORDER),
+            factory,
+            dense,
+        )
+    return None
+
+
 def _entry(name: str) -> _Entry:
+    if isinstance(name, str) and _registry.cache_info().currsize == 0:
+        # the full registry is not built: no backend was registered, replaced or removed
+        native = _native_entry(name)
+        if native is not None:
+            return native
     reg = _registry()
     entry = reg.get(name) if isinstance(name, str) else None
     if entry is not None:

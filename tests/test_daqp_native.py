@@ -82,7 +82,7 @@ def test_dense_backend_solves_the_same_with_and_without_the_binding() -> None:
     bound, plain = DenseSession("daqp"), DenseSession("daqp")
     bound.solve_point(qp)  # sets the workspaces up
     plain.solve_point(qp)
-    plain._backend.native = None  # daqp.solve from here on
+    plain._backend._native, plain._backend._native_bound = None, True  # daqp.solve from here on
     status_a, z_a, it_a, info_a = bound.solve_point(qp)
     status_b, z_b, it_b, info_b = plain.solve_point(qp)
     assert bound.native is not None and plain.native is None

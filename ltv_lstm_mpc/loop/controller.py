@@ -44,15 +44,34 @@ __all__ = ["ControllerStep", "OffsetFreeController"]
 FloatArray = NDArray[np.float64]
 
 
-def _announce_compile() -> None:
-    """Say once, before it happens, that the observer's and the reference calculator's
-    compiled kernels compile now (an empty numba cache). ``RobustMPC`` says it for its own
-    kernels when it is built (the message is said once per process)."""
-    from ltv_lstm_mpc.loop.compiled_observer import observer_update
-    from ltv_lstm_mpc.loop.compiled_reference import chord_newton
-    from ltv_lstm_mpc.numba_support import announce_compile
+def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
+    """Give ``model`` the kernel ``kernels`` asks for (:mod:`ltv_lstm_mpc.loop.kernels`):
+    compiled or the numpy reference; say once what happens (compiling now, or the numpy
+    reference while a background process compiles)."""
+    from ltv_lstm_mpc.loop.kernels import choose_kernels, start_background_compile
+    from ltv_lstm_mpc.lstm.kernel import LSTMKernel
+    from ltv_lstm_mpc.numba_support import say_once
 
-    announce_compile([observer_update, chord_newton], "the controller kernels", "20-40 s")
+    compiled, missing = choose_kernels(config, kernels)
+    if model.kernel.compiled != compiled and (kernels != "auto" or model.kernel.automatic):
+        model.kernel = LSTMKernel(model, compiled=compiled)
+        model.kernel.automatic = kernels == "auto"
+    if not missing:
+        return
+    if model.kernel.compiled:
+        say_once(
+            "ltv_lstm_mpc: compiling the controller kernels (first run only, about 20-40 s "
+            "on 2 cores; cached on disk for the next runs)..."
+        )
+    elif start_background_compile(model, config, missing):
+        say_once(
+            "ltv_lstm_mpc: the compiled controller kernels are not in numba's cache yet: "
+            "this controller runs the numpy reference kernels (the same numbers to about "
+            "1e-12, a few times slower per step) while a background process compiles them "
+            "(once, about 20-40 s on 2 cores); later controllers and runs use them. "
+            "OffsetFreeController(..., kernels='compiled') waits for the compilation "
+            "instead; `ltv-lstm-mpc warmup` compiles ahead of time"
+        )
 
 
 @dataclass(slots=True)  # one per control step: not frozen (2 us less to build)
@@ -152,6 +171,14 @@ class OffsetFreeController:
         model's normalization range (``measurement_status == "implausible"``): ``"flag"``
         (default) records it, warns once per run and uses it; ``"raise"`` refuses it with
         :class:`~ltv_lstm_mpc.InvalidValueError` before anything is updated.
+    kernels : {"auto", "compiled", "numpy"}
+        Compiled (numba) or numpy reference kernels (:mod:`ltv_lstm_mpc.loop.kernels`):
+        ``"auto"`` (default) runs the compiled ones where numba's on-disk cache holds them
+        and otherwise the numpy reference while a background process compiles them for
+        the next controllers and runs (no silent 20-40 s wait on a fresh install);
+        ``"compiled"`` compiles now if needed (benchmarks); ``"numpy"`` the reference.
+        Ignored with ``mpc`` (the model's kernel is used as it is). The choice made is
+        :attr:`kernels` (``"compiled"`` or ``"numpy"``).
 
     Notes
     -----
@@ -172,6 +199,7 @@ class OffsetFreeController:
         setpoint_rate_limit: float | None = None,
         mpc: MPCSolver | None = None,
         implausible_measurements: str = "flag",
+        kernels: str = "auto",
     ) -> None:
         model, config = require_model(model), require_config(config)
         if mpc is not None:
@@ -195,9 +223,11 @@ class OffsetFreeController:
         self.implausible_measurements = implausible_measurements
         self.model = model
         self.config = config = config or MPCConfig()
+        if mpc is None:
+            _choose_kernels(model, config, kernels)
+        #: ``"compiled"`` or ``"numpy"``: the kernels this controller runs (see ``kernels``).
+        self.kernels = "compiled" if model.kernel.compiled else "numpy"
         self.mpc: MPCSolver = mpc if mpc is not None else RobustMPC(model, config)
-        if model.kernel.compiled:
-            _announce_compile()
         self.certification = self.mpc.certification
         self.observer = Observer(model, self.certification.observer.gains, d_max=config.d_max)
         # tol 1e-10 (not 1e-12): the warm chord path then ends in one residual check at steady

@@ -187,6 +187,9 @@ class LSTMKernel:
         self.WU_raw = np.ascontiguousarray(np.hstack([model._U_gates, model._W_gates]))
         self.WU = np.ascontiguousarray(np.hstack([self.WU_raw, model._b_gates[:, None]]))
         self._scratch: dict[int, Trajectory] = {}
+        #: Chosen by default (``compiled=None``), not by the caller: a controller with
+        #: ``kernels="auto"`` may replace it (see :mod:`ltv_lstm_mpc.loop.kernels`).
+        self.automatic = compiled is None
         if compiled is None:
             compiled = os.environ.get("LTV_LSTM_MPC_KERNEL", "numba").lower() != "numpy"
         if compiled and not _compiled.AVAILABLE:

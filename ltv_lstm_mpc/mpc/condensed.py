@@ -201,8 +201,14 @@ class CondensedTranscription(TranscriptionBase):
         # The nominal feedback as one compiled call in the core where DAQP's C entry point is
         # bound (mpc/native_feedback.py); otherwise, and for the other problems, the session.
         self._daqp_workspace: Any = None  # DAQP's buffers of the one-call feedback
-        native = self._sessions["nominal"].native if "nominal" in self._sessions else None
-        if self.compiled and not self.exact_cones and native is not None:
+        # (`native` binds DAQP's compiled entry point at its first access: compiled kernels
+        # only, so that the numpy reference never waits for a compilation)
+        native = (
+            self._sessions["nominal"].native
+            if self.compiled and not self.exact_cones and "nominal" in self._sessions
+            else None
+        )
+        if native is not None:
             from ltv_lstm_mpc.mpc.native_feedback import new_daqp_workspace
 
             self._daqp_workspace = new_daqp_workspace(

@@ -118,24 +118,42 @@ def resolve_transcription(config: MPCConfig) -> str:
     return chosen
 
 
-def _announce_compile(problem: TranscriptionBase) -> None:
-    """Say once, before it happens, that the compiled kernels this configuration of the MPC
-    uses compile now (an empty numba cache: a fresh install, or changed sources);
-    ``OffsetFreeController`` adds the observer's and the reference calculator's."""
+def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list[Any]:
+    """The numba-compiled functions a :class:`RobustMPC` with ``config`` calls when its
+    model's kernel is compiled (workspace constructors included): what compiles on an
+    empty cache. Decided from ``config`` before anything is built, by the rules the
+    constructor follows (a test builds each configuration and compares the functions that
+    did compile with this list).
+
+    The LSTM loops (``lstm/compiled.py``) and the plan checks (``mpc/compiled_plan.py``)
+    for every transcription; the condensing and the one-call preparation for the
+    condensed one; DAQP's workspace where DAQP is bound natively (a QP-only condensed
+    problem), and the one-call feedback where it runs (one SQP iteration).
+    """
     from ltv_lstm_mpc.lstm import compiled as lstm_compiled
     from ltv_lstm_mpc.mpc import compiled_condensing, compiled_plan, compiled_prepare
-    from ltv_lstm_mpc.numba_support import announce_compile
 
     kernels: list[Any] = [
-        lstm_compiled.rollout, lstm_compiled.jacobians, compiled_plan.plan_metrics
+        lstm_compiled.rollout, lstm_compiled.pairs, lstm_compiled.jacobians,
+        compiled_plan.plan_metrics, compiled_plan._new_plan_workspace,
     ]  # fmt: skip
-    if problem.name == "condensed":
-        kernels += [compiled_condensing.condense, compiled_prepare.prepare_condensed]
-    if problem.daqp_workspace is not None:
-        from ltv_lstm_mpc.mpc.native_feedback import nominal_feedback
+    if resolve_transcription(config) != "condensed":
+        return kernels
+    kernels += [
+        compiled_condensing.condense, compiled_condensing.insert_state,
+        compiled_condensing.expand_point, compiled_condensing._new_condensing_workspace,
+        compiled_prepare.prepare_condensed, compiled_prepare._new_prepare_workspace,
+    ]  # fmt: skip
+    from ltv_lstm_mpc.solvers import daqp_native
 
-        kernels.append(nominal_feedback)
-    announce_compile(kernels, "the controller kernels", "20-40 s")
+    if config.solver != "daqp" or not daqp_native.bound():
+        return kernels
+    from ltv_lstm_mpc.mpc import native_feedback as native
+
+    kernels += [daqp_native.quadprog, native._new_daqp_workspace]
+    if config.sqp_iterations == 1 and native_feedback:
+        kernels.append(native.nominal_feedback)
+    return kernels
 
 
 class RobustMPC:
@@ -255,7 +273,13 @@ class RobustMPC:
         #: The plan checks of the feedback, chosen once: compiled twin or numpy reference.
         self._check_plan = self._check_plan_compiled if kernel.compiled else self._check_plan_numpy
         if kernel.compiled:
-            _announce_compile(self._problem)
+            from ltv_lstm_mpc.numba_support import announce_compile
+
+            announce_compile(
+                compiled_kernels(config, native_feedback=native_feedback),
+                "the controller kernels",
+                "20-40 s",
+            )
             plan, traj = self._plan, self._traj
             self._plan_workspace = new_plan_workspace(
                 WU=kernel.WU,

@@ -20,7 +20,15 @@ def numpy_violation(qp: DenseQP, x: np.ndarray) -> float:
 
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("rows", [0, 5])
-def test_max_violation_equals_the_numpy_expressions(seed: int, rows: int) -> None:
+@pytest.mark.parametrize("compiled", [True, False])
+def test_max_violation_equals_the_numpy_expressions(
+    seed: int, rows: int, compiled: bool, monkeypatch
+) -> None:
+    """Both of max_violation's paths: the compiled loops and the numpy fallback it takes
+    where they are not compiled yet."""
+    from ltv_lstm_mpc.solvers import dense
+
+    monkeypatch.setattr(dense, "_VIOLATION_COMPILED", [compiled])
     rng = np.random.default_rng(seed)
     n = 6
     G = rng.normal(size=(n, n))

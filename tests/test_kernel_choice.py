@@ -1,0 +1,279 @@
+"""The controller's kernel choice (ltv_lstm_mpc/loop/kernels.py): compiled where numba's
+cache holds the kernels, else the numpy reference while a background process compiles."""
+
+from __future__ import annotations
+
+import json
+import pickle
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from ltv_lstm_mpc import (
+    InvalidValueError,
+    MPCConfig,
+    OffsetFreeController,
+    PHNeutralizationPlant,
+    load_model,
+    numba_support,
+)
+from ltv_lstm_mpc.loop import kernels, warmup
+from ltv_lstm_mpc.lstm.kernel import LSTMKernel
+
+pytestmark = pytest.mark.skipif(not numba_support.AVAILABLE, reason="needs numba")
+
+CONFIG = MPCConfig(solver="daqp", L_d=0.1)
+
+
+@pytest.fixture
+def auto(monkeypatch):
+    """No environment override (the suite sets LTV_LSTM_MPC_KERNEL=numba), the once-per-
+    process notice not yet said."""
+    monkeypatch.delenv("LTV_LSTM_MPC_KERNEL", raising=False)
+    monkeypatch.setattr(numba_support, "_compile_announced", False)
+
+
+def test_modes_and_the_environment(monkeypatch, auto) -> None:
+    with pytest.raises(InvalidValueError, match=r"kernels must be one of .*'fast'"):
+        kernels.choose_kernels(CONFIG, "fast")
+    monkeypatch.setattr(kernels, "uncached", lambda dispatchers: ["condense"])
+    assert kernels.choose_kernels(CONFIG, "auto") == (False, ["condense"])
+    assert kernels.choose_kernels(CONFIG, "compiled") == (True, ["condense"])
+    assert kernels.choose_kernels(CONFIG, "numpy") == (False, [])
+    monkeypatch.setenv("LTV_LSTM_MPC_KERNEL", "numba")
+    assert kernels.choose_kernels(CONFIG, "auto") == (True, ["condense"])
+    monkeypatch.setenv("LTV_LSTM_MPC_KERNEL", "numpy")
+    assert kernels.choose_kernels(CONFIG, "auto") == (False, [])
+    monkeypatch.delenv("LTV_LSTM_MPC_KERNEL")
+    monkeypatch.setattr(kernels, "uncached", lambda dispatchers: [])
+    assert kernels.choose_kernels(CONFIG, "auto") == (True, [])
+
+
+def _closed_loop(controller: OffsetFreeController, steps: int = 40) -> np.ndarray:
+    plant = PHNeutralizationPlant()
+    plant.reset()
+    u = controller.step(plant.output(), np.array([7.2]))
+    inputs = [u]
+    for k in range(steps - 1):
+        u = controller.step(plant.step(u), np.array([7.2 if k < 20 else 6.8]))
+        inputs.append(u)
+    return np.array(inputs)
+
+
+def test_auto_runs_numpy_while_compiling_then_compiled(monkeypatch, capsys, auto) -> None:
+    """Missing kernels: numpy reference, one notice, one background compilation started;
+    the closed loop equals the compiled one; once cached, the next controller on the same
+    model is compiled again; a kernel the caller chose is kept."""
+    started: list[list[str]] = []
+    monkeypatch.setattr(kernels, "uncached", lambda dispatchers: ["condense"])
+    monkeypatch.setattr(
+        kernels, "start_background_compile", lambda m, c, missing: started.append(missing) or True
+    )
+    model = load_model("ph_lstm_n5.npz")
+    controller = OffsetFreeController(model, CONFIG)
+    assert controller.kernels == "numpy"
+    assert not model.kernel.compiled and model.kernel.automatic
+    assert started == [["condense"]]
+    err = capsys.readouterr().err
+    assert err.count("runs the numpy reference kernels") == 1
+    assert "kernels='compiled'" in err and "ltv-lstm-mpc warmup" in err
+    numpy_inputs = _closed_loop(controller)
+
+    reference = OffsetFreeController(load_model("ph_lstm_n5.npz"), CONFIG, kernels="compiled")
+    assert reference.kernels == "compiled"
+    compiled_inputs = _closed_loop(reference)
+    assert np.max(np.abs(numpy_inputs - compiled_inputs)) < 1e-9
+
+    monkeypatch.setattr(kernels, "uncached", lambda dispatchers: [])
+    again = OffsetFreeController(model, CONFIG)
+    assert again.kernels == "compiled" and model.kernel.compiled
+    assert capsys.readouterr().err == ""
+
+    chosen = load_model("ph_lstm_n5.npz")
+    chosen.kernel = LSTMKernel(chosen, compiled=False)
+    assert OffsetFreeController(chosen, CONFIG).kernels == "numpy"  # the caller's choice
+    assert OffsetFreeController(chosen, CONFIG, kernels="compiled").kernels == "compiled"
+
+
+def test_a_given_mpc_keeps_the_models_kernel(monkeypatch, auto) -> None:
+    from ltv_lstm_mpc import RobustMPC
+
+    monkeypatch.setattr(kernels, "uncached", lambda dispatchers: ["condense"])
+    model = load_model("ph_lstm_n5.npz")
+    controller = OffsetFreeController(model, CONFIG, mpc=RobustMPC(model, CONFIG))
+    assert controller.kernels == "compiled" and model.kernel.compiled
+
+
+#: Compiled functions called only from other compiled functions (never from Python): they
+#: compile with their caller, and are not on the kernel lists.
+CALLEES = {
+    "lstm_cell",
+    "_hessian_gram",
+    "_hessian_backward",
+    "_transpose_times",
+    "_weight_times",
+    "_equilibrium_residual",
+    "insert_state",
+    "expand_point",
+    "terminal_norm_of_squares",
+    "solver_seconds",
+}
+
+USED = """
+import json, sys
+import numba.core.registry
+from ltv_lstm_mpc import MPCConfig, load_model
+from ltv_lstm_mpc.loop.kernels import controller_kernels
+from ltv_lstm_mpc.loop.warmup import warm_up
+from ltv_lstm_mpc.numba_support import uncached
+config = MPCConfig(**json.loads(sys.argv[1]))
+listed = controller_kernels(config)
+missing_before = uncached(listed)
+warm_up(load_model("ph_lstm_n5.npz"), config)
+used = sorted({
+    value.__name__
+    for name, module in list(sys.modules.items()) if name.startswith("ltv_lstm_mpc")
+    for value in vars(module).values()
+    if isinstance(value, numba.core.registry.CPUDispatcher) and value.signatures
+})
+print(json.dumps({
+    "used": used,
+    "listed": [k.__name__ for k in listed],
+    "missing_before": missing_before,
+    "missing_after": uncached(listed),
+}))
+"""
+
+CONFIGURATIONS = [
+    {"solver": "daqp"},
+    {"solver": "daqp", "sqp_iterations": 2},
+    {"solver": "osqp"},
+    {"solver": "cvxpy:CLARABEL"},
+]
+
+
+def _used_and_listed(config: dict, environment: dict | None = None) -> dict:
+    from ltv_lstm_mpc.solvers import available_solvers
+
+    if config["solver"] not in available_solvers():
+        pytest.skip(f"{config['solver']} is not installed")
+    result = subprocess.run(
+        [sys.executable, "-c", USED, json.dumps(config)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env=environment,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("config", CONFIGURATIONS)
+def test_the_kernel_list_names_every_kernel_called(config) -> None:
+    """controller_kernels(config) names every compiled function a controller with config
+    calls from Python (else "auto" would choose compiled and then wait for one); checked
+    in a fresh process (functions called only from compiled code load with their caller)."""
+    found = _used_and_listed(config)
+    assert set(found["used"]) - CALLEES <= set(found["listed"])
+    assert found["missing_after"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", CONFIGURATIONS[::2])
+def test_warm_up_caches_every_listed_kernel_from_an_empty_cache(config, tmp_path) -> None:
+    """From an empty numba cache, warm_up leaves every listed function cached (else
+    "auto" would run numpy forever); about 30 s per configuration."""
+    import os
+
+    environment = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "LTV_LSTM_MPC_KERNEL": "numba"}
+    found = _used_and_listed(config, environment)
+    assert found["missing_before"]  # the cache was empty
+    assert found["missing_after"] == []
+    assert set(found["used"]) - CALLEES <= set(found["listed"])
+
+
+def test_the_background_process_compiles_and_cleans_up(tmp_path, monkeypatch) -> None:
+    """start_background_compile: a detached process that runs warm_up and removes its
+    folder (kept, with the traceback, on a failure); once per set of missing kernels."""
+    monkeypatch.setattr(kernels, "_started", set())
+    monkeypatch.setattr(kernels.tempfile, "mkdtemp", lambda prefix: str(tmp_path / "job"))
+    (tmp_path / "job").mkdir()
+    model = load_model("ph_lstm_n5.npz")
+    assert kernels.start_background_compile(model, CONFIG, ["condense"])
+    assert not kernels.start_background_compile(model, CONFIG, ["condense"])
+    deadline = time.monotonic() + 300
+    while (tmp_path / "job").exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    log = tmp_path / "job" / "log.txt"
+    assert not (tmp_path / "job").exists(), log.read_text() if log.exists() else "no log"
+
+    failing = tmp_path / "failing"
+    failing.mkdir()
+    with open(failing / "config.pickle", "wb") as handle:
+        pickle.dump(CONFIG, handle)
+    monkeypatch.setattr(warmup, "uncached", lambda dispatchers: ["condense"])
+    warmup.compile_in_background(str(failing))  # no model.npz: fails, folder kept
+    assert (failing / "config.pickle").exists()
+
+
+def test_warm_up_leaves_the_configuration_cached() -> None:
+    seconds = warmup.warm_up(load_model("ph_lstm_n5.npz"), CONFIG)
+    assert seconds > 0
+    assert kernels.choose_kernels(CONFIG, "auto") == (True, [])
+
+
+def test_the_warmup_command(capsys) -> None:
+    from ltv_lstm_mpc.cli import main
+
+    assert main(["warmup", "--solver", "daqp", "--N", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "daqp: 0 kernel(s) not in the cache" in out
+    assert "daqp: ready in" in out and "still missing" not in out
+
+
+def test_asking_for_a_native_solver_imports_no_modelling_layer() -> None:
+    """solver_info('daqp') before anything else builds the daqp entry alone (cvxpy and
+    qpsolvers take about a second to import); the full registry agrees with it."""
+    code = (
+        "import sys\n"
+        "from ltv_lstm_mpc.solvers import solver_info, available_solvers\n"
+        "info = solver_info('daqp')\n"
+        "print('cvxpy' in sys.modules, 'qpsolvers' in sys.modules)\n"
+        "available_solvers()\n"
+        "print(info == solver_info('daqp'))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["False", "False", "True"]
+
+
+def test_a_daqp_session_solves_alike_with_or_without_the_compiled_entry(monkeypatch) -> None:
+    """Where DAQP's compiled entry point is not ready (an empty cache), the session's hot
+    solve goes through daqp.solve: the same C function, the same numbers, bit for bit."""
+    from ltv_lstm_mpc.solvers import DenseQP, DenseSession, daqp_native
+
+    if not daqp_native.bound():
+        pytest.skip("DAQP's C library is not bound")
+    rng = np.random.default_rng(3)
+    M = rng.standard_normal((4, 4))
+    qp = DenseQP(
+        H=M @ M.T + np.eye(4),
+        f=rng.standard_normal(4),
+        A=rng.standard_normal((3, 4)),
+        lo=-np.ones(3),
+        up=np.ones(3) * 0.2,
+        lb=-np.full(4, 0.5),
+        ub=np.full(4, 0.5),
+    )
+    ready = DenseSession("daqp", tolerance=1e-9)
+    assert ready._backend._native is not None
+    monkeypatch.setattr(daqp_native, "ready", lambda: False)
+    python_only = DenseSession("daqp", tolerance=1e-9)
+    assert python_only._backend._native is None
+    first, second = ready.solve_point(qp), python_only.solve_point(qp)
+    assert first[0] == second[0] and first[2] == second[2]
+    assert np.array_equal(first[1], second[1])
+    assert python_only.native is not None  # compiled callers still bind it
