@@ -16,7 +16,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 project = "ltv_lstm_mpc"
 author = "the ltv_lstm_mpc developers"
-copyright = "2026, the ltv_lstm_mpc developers"  # noqa: A001 - Sphinx's name
+copyright = "2026, the ltv_lstm_mpc developers"
 
 from ltv_lstm_mpc import __version__  # noqa: E402
 
@@ -83,15 +83,19 @@ def _write_modules_page() -> None:
     their page there, so each object is documented once)."""
     import importlib
 
-    import ltv_lstm_mpc
     import ltv_lstm_mpc.solvers as solvers
+
+    import ltv_lstm_mpc
 
     exported: dict[int, str] = {}
     for package in (ltv_lstm_mpc, solvers):
         for name in package.__all__:
             exported[id(getattr(package, name))] = name
     names = []
-    for folder, prefix in ((ROOT / "ltv_lstm_mpc", "ltv_lstm_mpc"), (ROOT / "solvers", "ltv_lstm_mpc.solvers")):
+    for folder, prefix in (
+        (ROOT / "ltv_lstm_mpc", "ltv_lstm_mpc"),
+        (ROOT / "solvers", "ltv_lstm_mpc.solvers"),
+    ):
         for path in sorted(folder.rglob("*.py")):
             parts = list(path.relative_to(folder).with_suffix("").parts)
             if parts[-1] == "__init__":

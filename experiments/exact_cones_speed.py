@@ -43,7 +43,9 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
     runs = []
     for solver in SOLVERS:
         config = replace(scenario.config, N=N, solver=solver)
-        ctrl = OffsetFreeController(model, config, setpoint_rate_limit=scenario.setpoint_rate_limit)
+        ctrl = OffsetFreeController(
+            model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+        )
         runs.append((solver, ctrl, scenario.make_plant(model)))
     outputs = [plant.output() for _, _, plant in runs]
     times: list[list[float]] = [[] for _ in runs]

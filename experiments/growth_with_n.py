@@ -62,7 +62,7 @@ def _busy(stop: float) -> None:
 def _loop(n: int, m: int) -> tuple[OffsetFreeController, LSTMPlant, Any]:
     """Controller, plant and set-point schedule of the closed loop of one model size."""
     model = random_model(n, m)
-    controller = OffsetFreeController(model, MPCConfig(solver="daqp", N=20))
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp", N=20), kernels="compiled")
     plant = LSTMPlant(model)
     y_start = plant.output()
     low, high = controller.reference.reachable_output_range

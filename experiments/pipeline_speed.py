@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import os
 import re
 import shutil
@@ -94,7 +95,10 @@ def _controller(
     if fast is not None and not solver.startswith("cvxpy"):
         ctrl = fast.FastOffsetFreeController(model, config, solver=solver, setpoint_rate_limit=rate)
     else:
-        ctrl = lib.OffsetFreeController(model, config, setpoint_rate_limit=rate)
+        extra = {}  # compiled now, not the numpy reference while compiling (kernels="auto")
+        if "kernels" in inspect.signature(lib.OffsetFreeController).parameters:
+            extra["kernels"] = "numpy" if numpy_kernel else "compiled"
+        ctrl = lib.OffsetFreeController(model, config, setpoint_rate_limit=rate, **extra)
     return ctrl, scenario.make_plant(model), scenario
 
 

@@ -40,7 +40,9 @@ def loop(
     model = load_model("ph_lstm_n5.npz")
     scenario = bench_scenarios(model)[0]
     config = replace(scenario.config, N=N, solver=solver)
-    ctrl = OffsetFreeController(model, config, setpoint_rate_limit=scenario.setpoint_rate_limit)
+    ctrl = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+    )
     plant = scenario.make_plant(model)
     y = plant.output()
     times = []

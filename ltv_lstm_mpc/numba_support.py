@@ -15,6 +15,7 @@ __all__ = [
     "REDUCTIONS",
     "announce_compile",
     "build_workspace",
+    "compile_on_demand",
     "njit",
     "ready",
     "say_once",
@@ -116,13 +117,27 @@ def build_workspace(factory: Any, fields: Sequence[str], values: dict[str, Any])
 _compile_announced = False
 
 
+_compile_on_demand = False
+
+
+def compile_on_demand() -> None:
+    """This process runs compiled kernels (a controller chose them): from now on
+    :func:`ready` answers yes, so that the helpers with a Python fallback compile at their
+    first call too (and land in the cache for the next runs)."""
+    global _compile_on_demand
+    _compile_on_demand = True
+
+
 def ready(dispatchers: Sequence[Any]) -> bool:
-    """Every one of ``dispatchers`` runs without compiling: numba is installed and each is
-    compiled in this process or held by the on-disk cache. What the numpy fallbacks of
-    small helpers ask before their first call (no compile wait where a numpy twin exists).
+    """Every one of ``dispatchers`` may run compiled: numba is installed and each is
+    compiled in this process or held by the on-disk cache, or this process compiles on
+    demand (:func:`compile_on_demand`). What the helpers with a numpy or Python fallback
+    ask before their first call (no compile wait where a fallback exists).
     """
     if not AVAILABLE:
         return False
+    if _compile_on_demand:
+        return True
     if all(getattr(dispatcher, "signatures", None) for dispatcher in dispatchers):
         return True
     return not uncached(dispatchers)

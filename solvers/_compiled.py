@@ -13,9 +13,34 @@ from typing import Any
 
 import numpy as np
 
-from ltv_lstm_mpc.numba_support import njit  # without numba the loops run as Python
+from ltv_lstm_mpc.numba_support import (
+    njit,  # without numba the loops run as Python
+    ready,
+)
+
+
+class CompiledOrPython:
+    """A compiled helper called through its compiled code where that is ready
+    (:func:`~ltv_lstm_mpc.numba_support.ready`, decided at the first call in a process),
+    else through its Python loops (``py_func``: the same arithmetic, slower): a caller on
+    the numpy kernels never waits for a compilation."""
+
+    def __init__(self, dispatcher: Any) -> None:
+        self.dispatcher = dispatcher
+        self._call: Any = None
+
+    def __call__(self, *args: Any) -> Any:
+        if self._call is None:
+            self._call = (
+                self.dispatcher
+                if ready([self.dispatcher])
+                else getattr(self.dispatcher, "py_func", self.dispatcher)
+            )
+        return self._call(*args)
+
 
 __all__ = [
+    "CompiledOrPython",
     "bounds_rows_violation",
     "clarabel_cone_rows",
     "clarabel_fill",

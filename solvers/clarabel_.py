@@ -54,12 +54,18 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
-from ._compiled import clarabel_cone_rows, clarabel_fill
+from ._compiled import CompiledOrPython
+from ._compiled import clarabel_cone_rows as _clarabel_cone_rows
+from ._compiled import clarabel_fill as _clarabel_fill
 from .dense import DenseBackend, DenseQP
 from .problem import SolverStatus
 from .tolerances import known_settings, solver_options
 
 __all__ = ["STATUS_MAP", "ClarabelDense", "make_dense"]
+
+# the compiled fill where it is ready, else its Python loops (no compile wait on numpy)
+clarabel_cone_rows = CompiledOrPython(_clarabel_cone_rows)
+clarabel_fill = CompiledOrPython(_clarabel_fill)
 
 
 #: CLARABEL's ``SolverStatus`` name -> SolverStatus (also used by the qpsolvers backend).

@@ -152,6 +152,7 @@ CONFIGURATIONS = [
     {"solver": "daqp", "sqp_iterations": 2},
     {"solver": "osqp"},
     {"solver": "cvxpy:CLARABEL"},
+    {"solver": "clarabel"},
 ]
 
 
@@ -182,7 +183,7 @@ def test_the_kernel_list_names_every_kernel_called(config) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("config", CONFIGURATIONS[::2])
+@pytest.mark.parametrize("config", [CONFIGURATIONS[0], CONFIGURATIONS[2], CONFIGURATIONS[4]])
 def test_warm_up_caches_every_listed_kernel_from_an_empty_cache(config, tmp_path) -> None:
     """From an empty numba cache, warm_up leaves every listed function cached (else
     "auto" would run numpy forever); about 30 s per configuration."""
@@ -277,3 +278,25 @@ def test_a_daqp_session_solves_alike_with_or_without_the_compiled_entry(monkeypa
     assert first[0] == second[0] and first[2] == second[2]
     assert np.array_equal(first[1], second[1])
     assert python_only.native is not None  # compiled callers still bind it
+
+
+def test_a_helper_not_ready_runs_its_python_loops(monkeypatch) -> None:
+    """CompiledOrPython: the compiled helper where ready, else its py_func (the same
+    numbers); compile_on_demand (a controller on compiled kernels) makes every helper ready."""
+    from ltv_lstm_mpc.solvers import _compiled
+
+    x, lb, ub = np.array([0.5, -2.0]), -np.ones(2), np.ones(2)
+    A, lo, up = np.array([[1.0, 1.0]]), np.array([-1.0]), np.array([0.2])
+    monkeypatch.setattr(_compiled, "ready", lambda dispatchers: False)
+    python_loops = _compiled.CompiledOrPython(_compiled.bounds_rows_violation)
+    assert python_loops(x, lb, ub, A, lo, up) == pytest.approx(1.0, abs=1e-15)
+    assert python_loops._call is _compiled.bounds_rows_violation.py_func
+    monkeypatch.setattr(_compiled, "ready", lambda dispatchers: True)
+    compiled = _compiled.CompiledOrPython(_compiled.bounds_rows_violation)
+    assert compiled(x, lb, ub, A, lo, up) == python_loops(x, lb, ub, A, lo, up)
+    assert compiled._call is _compiled.bounds_rows_violation
+    monkeypatch.setattr(numba_support, "_compile_on_demand", False)
+    monkeypatch.setattr(numba_support, "uncached", lambda dispatchers: ["x"])
+    assert not numba_support.ready([_compiled.clarabel_fill])
+    numba_support.compile_on_demand()
+    assert numba_support.ready([_compiled.clarabel_fill])

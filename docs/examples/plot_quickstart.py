@@ -11,7 +11,13 @@ would leave.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ltv_lstm_mpc import MPCConfig, OffsetFreeController, PHNeutralizationPlant, load_model, simulate
+from ltv_lstm_mpc import (
+    MPCConfig,
+    OffsetFreeController,
+    PHNeutralizationPlant,
+    load_model,
+    simulate,
+)
 
 model = load_model("ph_lstm_n5.npz")
 controller = OffsetFreeController(

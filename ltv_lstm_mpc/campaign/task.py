@@ -21,7 +21,9 @@ Metrics (physical units; the true plant output, not the noisy measurement):
   ``optimal_steps``, ``failed_steps``, ``solver_error_steps`` and every FHOCP status in
   ``status_counts`` (JSON).
 * ``median_step_s``, ``p95_step_s``, ``max_step_s``, ``median_mpc_s``: controller step
-  times; ``setup_s`` (model, certificates, controller) and ``wall_s`` (the whole task);
+  times (``kernels``: ``"compiled"`` or ``"numpy"``, the kernels that ran: a worker with an
+  empty numba cache runs numpy until the background compilation is done); ``setup_s``
+  (model, certificates, controller) and ``wall_s`` (the whole task);
   ``transcription_used`` (what ``transcription = "auto"`` chose).
 * ``started_at``, ``finished_at`` (Unix times) and ``worker`` (``host:pid``), set by
   :func:`execute`.
@@ -100,6 +102,7 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "max_step_s",
     "median_mpc_s",
     "transcription_used",
+    "kernels",
     "warnings",
     "warning_messages",
     "setup_s",
@@ -332,6 +335,7 @@ def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatAr
         "max_step_s": float(np.max(times)) if done else None,
         "median_mpc_s": float(np.median(sim.time_mpc)) if done else None,
         "transcription_used": sim.transcription,
+        "kernels": loop.controller.kernels,
     }
     return row, violation
 

@@ -50,12 +50,14 @@ def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
     reference while a background process compiles)."""
     from ltv_lstm_mpc.loop.kernels import choose_kernels, start_background_compile
     from ltv_lstm_mpc.lstm.kernel import LSTMKernel
-    from ltv_lstm_mpc.numba_support import say_once
+    from ltv_lstm_mpc.numba_support import compile_on_demand, say_once
 
     compiled, missing = choose_kernels(config, kernels)
     if model.kernel.compiled != compiled and (kernels != "auto" or model.kernel.automatic):
         model.kernel = LSTMKernel(model, compiled=compiled)
         model.kernel.automatic = kernels == "auto"
+    if model.kernel.compiled:
+        compile_on_demand()  # the solver layer's helpers compile too
     if not missing:
         return
     if model.kernel.compiled:

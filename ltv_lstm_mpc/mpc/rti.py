@@ -61,6 +61,7 @@ __all__ = [
     "MPCSolution",
     "MPCSolver",
     "RobustMPC",
+    "compiled_kernels",
     "resolve_transcription",
 ]
 
@@ -144,8 +145,13 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
         compiled_condensing.expand_point, compiled_condensing._new_condensing_workspace,
         compiled_prepare.prepare_condensed, compiled_prepare._new_prepare_workspace,
     ]  # fmt: skip
-    from ltv_lstm_mpc.solvers import daqp_native
+    from ltv_lstm_mpc.solvers import _compiled, daqp_native, solver_info
 
+    if solver_info(config.solver).supports_cones:  # the native CLARABEL backend's loops
+        kernels += [
+            _compiled.clarabel_fill, _compiled.clarabel_cone_rows,
+            _compiled.bounds_rows_violation, _compiled.cone_violation,
+        ]  # fmt: skip
     if config.solver != "daqp" or not daqp_native.bound():
         return kernels
     from ltv_lstm_mpc.mpc import native_feedback as native
