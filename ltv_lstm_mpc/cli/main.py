@@ -393,7 +393,10 @@ def _add_simulate(subparsers: Any) -> None:
         "--transcription",
         choices=["auto", "condensed", "sparse", "nonlinear"],
         default="auto",
-        help="FHOCP transcription (auto: condensed for QP solvers, sparse for cone solvers)",
+        help=(
+            "FHOCP transcription (auto: sparse for cvxpy's solvers, nonlinear for ipopt, "
+            "condensed for every other solver, the native clarabel with exact cones included)"
+        ),
     )
     parser.add_argument("--N", type=positive_int, default=5, help="horizon (5)")
     parser.add_argument(
