@@ -14,6 +14,7 @@ __all__ = [
     "DimensionError",
     "InvalidValueError",
     "LtvMpcError",
+    "ModelFormatError",
     "NotDeltaISSError",
     "ObserverGainError",
     "SamplingTimeError",
@@ -90,6 +91,11 @@ class SolverNotFound(LtvMpcError, ImportError):
 
 class SolverError(LtvMpcError, RuntimeError):
     """A solver failed in a way the caller asked to be raised rather than recorded."""
+
+
+class ModelFormatError(LtvMpcError, ValueError):
+    """A model file, state dict or foreign graph (ONNX) lacks an array, holds an
+    unexpected one, or describes a network that is not eq. (lstm)."""
 
 
 class CampaignSpecError(LtvMpcError, ValueError):

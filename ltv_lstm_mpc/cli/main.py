@@ -53,7 +53,7 @@ from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
 from ltv_lstm_mpc.loop.statuses import SETPOINT_STATUSES
 from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.lstm.shipped import model_path
+from ltv_lstm_mpc.lstm.shipped import load_model, model_path
 
 __all__ = ["build_parser", "main"]
 
@@ -197,7 +197,7 @@ def _run_certify(args: argparse.Namespace) -> int:
     if (args.y_min is None) != (args.y_max is None):
         raise UsageError("give both --y-min and --y-max, or neither (the model's constraint)")
     path = model_path(args.model)
-    model = LSTMModel.load(path)
+    model = load_model(path)  # .npz or .onnx
     extrapolation = u_max_extrapolation(model, args.u_max)
     if extrapolation is not None:
         print(f"ltv-lstm-mpc certify: warning: {extrapolation}", file=sys.stderr)
@@ -297,7 +297,7 @@ def _benchmarks() -> dict[str, Any]:
 def _run_reproduce(args: argparse.Namespace) -> int:
     benchmark = _benchmarks()[args.benchmark]
     path = model_path(args.model or benchmark.model)
-    model = LSTMModel.load(path)
+    model = load_model(path)  # .npz or .onnx
     report = benchmark.reproduce(
         model,
         args.out,
@@ -434,7 +434,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
     model_name = args.model or entry.model
     if model_name is None:
         raise UsageError(f"the plant {entry.name} names no default model: give --model")
-    model = LSTMModel.load(model_path(model_name))
+    model = load_model(model_path(model_name))  # .npz or .onnx
     _check_plant_size(entry, model)
     config = MPCConfig(
         N=args.N,

@@ -26,7 +26,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.caller_warnings import warn_at_caller
-from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
+from ltv_lstm_mpc.exceptions import (
+    DimensionError,
+    InvalidValueError,
+    LtvMpcError,
+    ModelFormatError,
+)
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
 from ltv_lstm_mpc.validation import (
     expect_instance,
@@ -61,10 +66,6 @@ _NORMALIZATION_NAMES = ("u_phi_min", "u_phi_max", "y_phi_min", "y_phi_max")
 _CONSTRAINT_NAMES = ("y_phi_constraint_min", "y_phi_constraint_max")
 #: Optional scalar array of the file format: the sampling time in seconds.
 _TS_NAME = "Ts"
-
-
-class ModelFormatError(LtvMpcError, ValueError):
-    """A model file or state dict lacks an array or holds an unexpected one."""
 
 
 def _as_finite_array(name: str, value: ArrayLike, shape: tuple[int, ...]) -> FloatArray:
@@ -748,6 +749,38 @@ class LSTMModel:
             arrays[f"U_{gate}"] = w_hh[rows]
             arrays[f"b_{gate}"] = bias[rows]
         return cls(**arrays, normalization=normalization, y_phi_constraint=y_phi_constraint, Ts=Ts)
+
+    @classmethod
+    def from_onnx(
+        cls,
+        source: str | Path | Any,
+        *,
+        normalization: Normalization | None = None,
+        y_phi_constraint: tuple[ArrayLike, ArrayLike] | None = None,
+        Ts: float | None = None,
+    ) -> LSTMModel:
+        """Read the model from an ONNX graph holding one ``LSTM`` operator and a linear
+        output layer (:func:`~ltv_lstm_mpc.lstm.onnx_model.read_onnx`: ONNX's gate order
+        (i, o, f, c) and split biases mapped onto eq. (lstm); peepholes, clipping, other
+        activations, several layers and output activations refused by name).
+        ``normalization``, ``y_phi_constraint`` and ``Ts`` not given are read from the
+        graph's ``metadata_props``, else left unset (never guessed)."""
+        from ltv_lstm_mpc.lstm.onnx_model import read_onnx
+
+        found = read_onnx(source)
+        if normalization is None and found["normalization"] is not None:
+            normalization = Normalization(*found["normalization"])
+        weights = {f"{kind}_{gate}": found[f"{kind}_{gate}"] for kind in "WUb" for gate in "fioc"}
+        return cls(
+            **weights,
+            W_y=found["W_y"],
+            b_y=found["b_y"],
+            normalization=normalization,
+            y_phi_constraint=(
+                found["y_phi_constraint"] if y_phi_constraint is None else y_phi_constraint
+            ),
+            Ts=found["Ts"] if Ts is None else Ts,
+        )
 
     def __repr__(self) -> str:
         norm = "with" if self.normalization is not None else "without"
