@@ -240,3 +240,27 @@ def test_the_cli_takes_an_onnx_model(tmp_path, capsys) -> None:
     found = json.loads(capsys.readouterr().out)
     expected = certify(shipped).to_dict()
     assert found["rho_A_delta"] == pytest.approx(expected["rho_A_delta"], rel=1e-4)
+
+
+def test_convert_writes_the_npz_with_the_metadata_given(tmp_path, capsys) -> None:
+    from ltv_lstm_mpc.cli import main
+
+    shipped = load_model("ph_lstm_n5.npz")
+    source = _export(_net_from(shipped), tmp_path / "ph.onnx", m=1)
+    norm = shipped.normalization
+    argv = [
+        "convert", str(source), str(tmp_path / "ph.npz"),
+        "--u-phi", str(norm.u_phi_min[0]), str(norm.u_phi_max[0]),
+        "--y-phi", str(norm.y_phi_min[0]), str(norm.y_phi_max[0]),
+        "--y-phi-constraint", "6", "9", "--Ts", str(shipped.Ts),
+    ]  # fmt: skip
+    assert main(argv) == 0
+    assert "with normalization" in capsys.readouterr().out
+    model = load_model(tmp_path / "ph.npz")
+    np.testing.assert_allclose(model.W_f, shipped.W_f, atol=1e-6)
+    np.testing.assert_array_equal(model.normalization.u_phi_max, norm.u_phi_max)
+    np.testing.assert_array_equal(model.y_phi_constraint[1], [9.0])
+    assert model.Ts == shipped.Ts
+    assert main(["convert", str(source), str(tmp_path / "bare.npz")]) == 0
+    assert "WITHOUT normalization" in capsys.readouterr().out
+    assert main(["convert", str(source), str(tmp_path / "x.npz"), "--u-phi", "0", "1"]) == 2

@@ -13,6 +13,9 @@ generate-data, train
     Identification data and delta-ISS LSTM training (see ``ltv_lstm_mpc.training.cli``).
 campaign
     Many closed loops over a product of factors, on Dask (see ``ltv_lstm_mpc.campaign.cli``).
+convert
+    An ONNX model into the library's ``.npz`` with its metadata
+    (``ltv_lstm_mpc.cli.convert``).
 warmup
     Compile the controller kernels into numba's cache ahead of time
     (``ltv_lstm_mpc.cli.warmup``).
@@ -600,6 +603,7 @@ OPTIONAL_COMMAND_MODULES = (
     "ltv_lstm_mpc.solver_comparison.harness",
     "ltv_lstm_mpc.campaign.cli",
     "ltv_lstm_mpc.cli.warmup",
+    "ltv_lstm_mpc.cli.convert",
 )
 
 
