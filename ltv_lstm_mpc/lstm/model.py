@@ -782,6 +782,29 @@ class LSTMModel:
             Ts=found["Ts"] if Ts is None else Ts,
         )
 
+    @classmethod
+    def from_keras(
+        cls,
+        source: str | Path | Any,
+        *,
+        normalization: Normalization | None = None,
+        y_phi_constraint: tuple[ArrayLike, ArrayLike] | None = None,
+        Ts: float | None = None,
+    ) -> LSTMModel:
+        """Read the model from a Keras 3 model (or a saved ``.keras`` file) with one
+        ``LSTM`` layer and a linear ``Dense`` output layer
+        (:func:`~ltv_lstm_mpc.lstm.keras_model.read_keras`: Keras' gate order (i, f, c, o)
+        mapped onto eq. (lstm); ``hard_sigmoid``, other activations, ``go_backwards``,
+        bidirectional or stacked layers and output activations refused by name)."""
+        from ltv_lstm_mpc.lstm.keras_model import read_keras
+
+        return cls(
+            **read_keras(source),
+            normalization=normalization,
+            y_phi_constraint=y_phi_constraint,
+            Ts=Ts,
+        )
+
     def __repr__(self) -> str:
         norm = "with" if self.normalization is not None else "without"
         return f"LSTMModel(n={self.n}, m={self.m}, p={self.p}, {norm} normalization)"

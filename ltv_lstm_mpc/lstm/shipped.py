@@ -39,8 +39,9 @@ def model_path(name: str) -> Path:
 
 
 def load_model(name_or_path: str | Path) -> LSTMModel:
-    """Load a model from a path (the library's ``.npz``, or an ``.onnx`` graph read by
-    :meth:`LSTMModel.from_onnx`), or by the name of a shipped model.
+    """Load a model from a path (the library's ``.npz``, an ``.onnx`` graph read by
+    :meth:`LSTMModel.from_onnx`, a saved ``.keras`` model read by
+    :meth:`LSTMModel.from_keras`), or by the name of a shipped model.
 
     Raises
     ------
@@ -50,11 +51,13 @@ def load_model(name_or_path: str | Path) -> LSTMModel:
         No such file and no shipped model of that name (the message lists them).
     """
     path = expect_path(
-        "name_or_path", name_or_path, f"a .npz or .onnx file or one of {shipped_models()}"
+        "name_or_path", name_or_path, f"a .npz, .onnx or .keras file or one of {shipped_models()}"
     )
     if path.exists():
         if path.suffix.lower() == ".onnx":
             return LSTMModel.from_onnx(path)
+        if path.suffix.lower() == ".keras":
+            return LSTMModel.from_keras(path)
         return LSTMModel.load(path)
     candidate = resources.files("ltv_lstm_mpc") / "data" / str(name_or_path)
     if not candidate.is_file():
