@@ -806,13 +806,13 @@ def resolve_backends(backends: Sequence[str] | None) -> list[str]:
 
 def main_bench(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc bench``."""
-    from ltv_lstm_mpc.lstm.shipped import model_path
+    from ltv_lstm_mpc.lstm.shipped import load_model, model_path
 
     try:  # usage errors first, before any work
         resolve_backends(args.backends)
     except InvalidValueError as error:
         raise UsageError(str(error)) from None
-    model = LSTMModel.load(model_path(args.model))
+    model = load_model(model_path(args.model))  # .npz, .onnx or .keras
     scenarios = bench_scenarios(model, short=True)
     patterns = args.scenarios or list(DEFAULT_SCENARIOS)
     names = [s.name for s in scenarios]
