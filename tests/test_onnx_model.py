@@ -102,7 +102,9 @@ def test_metadata_carries_normalization_constraint_and_Ts(tmp_path) -> None:
     assert model.Ts == 15.0
     assert LSTMModel.from_onnx(path).normalization is None  # never guessed
     helper.set_model_props(graph, {"u_phi_min": "[0, 1]"})
-    with pytest.raises(ModelFormatError, match=r"part of the normalization.*u_phi_max"):
+    with pytest.raises(
+        ModelFormatError, match=r"normalization is incomplete: \[.*'u_phi_max'.*\] missing"
+    ):
         LSTMModel.from_onnx(graph)
     helper.set_model_props(graph, {"Ts": "ten"})
     with pytest.raises(ModelFormatError, match=r"metadata_props\['Ts'\].*not JSON"):

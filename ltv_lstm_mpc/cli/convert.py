@@ -1,8 +1,9 @@
 """``ltv-lstm-mpc convert``: a model from another format into the library's ``.npz``.
 
-Reads an ONNX graph (:meth:`~ltv_lstm_mpc.LSTMModel.from_onnx`) or the library's own
-``.npz``, adds the normalization, output constraint and sampling time given on the
-command line (else those the file carries), and writes ``OUT.npz``.
+Reads an ONNX graph (:meth:`~ltv_lstm_mpc.LSTMModel.from_onnx`), a Keras model
+(:meth:`~ltv_lstm_mpc.LSTMModel.from_keras`) or the library's own ``.npz``, adds the
+normalization, output constraint and sampling time given on the command line (else those
+the file carries), and writes ``OUT.npz``.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ def _run_convert(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ltv_lstm_mpc.command_arguments import UsageError
-    from ltv_lstm_mpc.lstm.model import LSTMModel, Normalization
+    from ltv_lstm_mpc.lstm.model import LSTMModel, Normalization, metadata_arrays
     from ltv_lstm_mpc.lstm.shipped import load_model
 
     if (args.u_phi is None) != (args.y_phi is None):
@@ -62,22 +63,11 @@ def _run_convert(args: argparse.Namespace) -> int:
         normalization = Normalization(u[0], u[1], y[0], y[1])
     constraint = None
     if args.y_phi_constraint is not None:
-        low, high = zip(*args.y_phi_constraint, strict=True)
-        constraint = (list(low), list(high))
-    if args.source.suffix.lower() == ".onnx":
-        model = LSTMModel.from_onnx(
-            args.source, normalization=normalization, y_phi_constraint=constraint, Ts=args.Ts
-        )
-    else:
-        found = load_model(args.source)
-        model = LSTMModel(
-            **{f"{k}_{g}": getattr(found, f"{k}_{g}") for k in "WUb" for g in "fioc"},
-            W_y=found.W_y,
-            b_y=found.b_y,
-            normalization=normalization or found.normalization,
-            y_phi_constraint=constraint or found.y_phi_constraint,
-            Ts=args.Ts if args.Ts is not None else found.Ts,
-        )
+        low, high = np.array(args.y_phi_constraint, dtype=float).T
+        constraint = (low, high)
+    arrays = load_model(args.source).to_arrays()  # .onnx, .keras or .npz, with its metadata
+    arrays.update(metadata_arrays(normalization, constraint, args.Ts))
+    model = LSTMModel.from_arrays(arrays)
     path = model.save(args.out)
     norm = "with" if model.normalization is not None else "WITHOUT"
     print(

@@ -4,6 +4,7 @@ background process that ``kernels="auto"`` starts on an empty numba cache."""
 
 from __future__ import annotations
 
+import copy
 import pickle
 import shutil
 import tempfile
@@ -32,8 +33,7 @@ def warm_up(model: LSTMModel, config: MPCConfig, *, steps: int = 3) -> float:
     import time
 
     start = time.perf_counter()
-    twin = LSTMModel.__new__(LSTMModel)
-    twin.__dict__.update(model.__dict__)  # the same weights, its own compiled kernel
+    twin = copy.copy(model)  # the same weights, its own compiled kernel
     twin.kernel = LSTMKernel(twin, compiled=True)
     controller = OffsetFreeController(twin, config, kernels="compiled")
     x_bar = twin.equilibrium(np.zeros(twin.m))

@@ -41,7 +41,7 @@ from ltv_lstm_mpc.validation import (
     real_array,
 )
 
-__all__ = ["WEIGHT_NAMES", "LSTMModel", "ModelFormatError", "Normalization"]
+__all__ = ["WEIGHT_NAMES", "LSTMModel", "ModelFormatError", "Normalization", "metadata_arrays"]
 
 FloatArray = NDArray[np.float64]
 
@@ -184,6 +184,25 @@ class Normalization:
     def denormalize_y(self, y: ArrayLike) -> FloatArray:
         """Normalized output -> physical output."""
         return (np.asarray(y, dtype=np.float64) + 1.0) * self.y_scale + self.y_phi_min
+
+
+def metadata_arrays(
+    normalization: Normalization | None = None,
+    y_phi_constraint: tuple[ArrayLike, ArrayLike] | None = None,
+    Ts: float | None = None,
+) -> dict[str, Any]:
+    """The file-format arrays (:meth:`LSTMModel.to_arrays` names) of the metadata given:
+    what replaces a file's own where a loader or ``convert`` is given them."""
+    arrays: dict[str, Any] = {}
+    if normalization is not None:
+        for name in _NORMALIZATION_NAMES:
+            arrays[name] = np.array(getattr(normalization, name))
+    if y_phi_constraint is not None:
+        for name, value in zip(_CONSTRAINT_NAMES, y_phi_constraint, strict=True):
+            arrays[name] = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    if Ts is not None:
+        arrays[_TS_NAME] = np.array(Ts, dtype=np.float64)
+    return arrays
 
 
 class LSTMModel:
@@ -655,15 +674,8 @@ class LSTMModel:
     def to_arrays(self) -> dict[str, FloatArray]:
         """All arrays of the file format (weights and, if present, normalization, output
         constraint and Ts)."""
-        arrays = self.weights()
-        if self.normalization is not None:
-            for name in _NORMALIZATION_NAMES:
-                arrays[name] = np.array(getattr(self.normalization, name))
-        if self.y_phi_constraint is not None:
-            for name, value in zip(_CONSTRAINT_NAMES, self.y_phi_constraint, strict=True):
-                arrays[name] = np.array(value)
-        if self.Ts is not None:
-            arrays[_TS_NAME] = np.array(self.Ts)
+        arrays: dict[str, FloatArray] = self.weights()
+        arrays.update(metadata_arrays(self.normalization, self.y_phi_constraint, self.Ts))
         return arrays
 
     def output_constraint(self) -> tuple[FloatArray, FloatArray] | None:
@@ -767,20 +779,9 @@ class LSTMModel:
         graph's ``metadata_props``, else left unset (never guessed)."""
         from ltv_lstm_mpc.lstm.onnx_model import read_onnx
 
-        found = read_onnx(source)
-        if normalization is None and found["normalization"] is not None:
-            normalization = Normalization(*found["normalization"])
-        weights = {f"{kind}_{gate}": found[f"{kind}_{gate}"] for kind in "WUb" for gate in "fioc"}
-        return cls(
-            **weights,
-            W_y=found["W_y"],
-            b_y=found["b_y"],
-            normalization=normalization,
-            y_phi_constraint=(
-                found["y_phi_constraint"] if y_phi_constraint is None else y_phi_constraint
-            ),
-            Ts=found["Ts"] if Ts is None else Ts,
-        )
+        arrays = read_onnx(source)
+        arrays.update(metadata_arrays(normalization, y_phi_constraint, Ts))
+        return cls.from_arrays(arrays)
 
     @classmethod
     def from_keras(
@@ -798,12 +799,9 @@ class LSTMModel:
         bidirectional or stacked layers and output activations refused by name)."""
         from ltv_lstm_mpc.lstm.keras_model import read_keras
 
-        return cls(
-            **read_keras(source),
-            normalization=normalization,
-            y_phi_constraint=y_phi_constraint,
-            Ts=Ts,
-        )
+        arrays: dict[str, Any] = dict(read_keras(source))
+        arrays.update(metadata_arrays(normalization, y_phi_constraint, Ts))
+        return cls.from_arrays(arrays)
 
     def __repr__(self) -> str:
         norm = "with" if self.normalization is not None else "without"

@@ -43,7 +43,8 @@ __all__ = ["METADATA_KEYS", "onnx_metadata", "read_onnx"]
 
 FloatArray = NDArray[np.float64]
 
-#: ``metadata_props`` keys read when the arguments do not give them (JSON values).
+#: ``metadata_props`` keys read when the arguments do not give them (JSON values): the
+#: names of the library's file format (``LSTMModel.to_arrays``).
 METADATA_KEYS = (
     "u_phi_min",
     "u_phi_max",
@@ -245,17 +246,18 @@ def _from_metadata(model: Any, key: str) -> Any:
 
 
 def read_onnx(source: str | Path | Any) -> dict[str, Any]:
-    """The weights of eq. (lstm) and the metadata of an ONNX file or ``onnx.ModelProto``
+    """The arrays of an ONNX file or ``onnx.ModelProto`` by the library's file-format names
     (see the module documentation for what the graph may hold): ``W_f`` ... ``b_y`` as
-    float64 arrays, and ``normalization`` (the four ranges, or None), ``y_phi_constraint``
-    (a pair, or None) and ``Ts`` (or None) from ``metadata_props``
-    (:data:`METADATA_KEYS`); :meth:`~ltv_lstm_mpc.LSTMModel.from_onnx` builds the model.
+    float64 arrays, and the :data:`METADATA_KEYS` that ``metadata_props`` states;
+    :meth:`~ltv_lstm_mpc.LSTMModel.from_onnx` builds the model with
+    :meth:`~ltv_lstm_mpc.LSTMModel.from_arrays` (which checks that the normalization and
+    the output constraint are complete).
 
     Raises
     ------
     ModelFormatError
         No or several LSTM operators, an attribute or input that eq. (lstm) does not have,
-        an output layer that is not linear, unreadable metadata; the message names it.
+        an output layer that is not linear, metadata that is not JSON; the message names it.
     """
     onnx = _onnx()
     model = source if hasattr(source, "graph") else onnx.load(str(source))
@@ -310,19 +312,8 @@ def read_onnx(source: str | Path | Any) -> dict[str, Any]:
         arrays[f"U_{gate}"] = R[rows]
         arrays[f"b_{gate}"] = bias[rows]
     result: dict[str, Any] = dict(arrays)
-    values = [_from_metadata(model, key) for key in METADATA_KEYS[:4]]
-    if any(value is not None for value in values) and not all(
-        value is not None for value in values
-    ):
-        missing = [k for k, v in zip(METADATA_KEYS[:4], values, strict=True) if v is None]
-        raise ModelFormatError(f"metadata_props gives part of the normalization: {missing} missing")
-    result["normalization"] = values if values[0] is not None else None
-    low = _from_metadata(model, "y_phi_constraint_min")
-    high = _from_metadata(model, "y_phi_constraint_max")
-    if (low is None) != (high is None):
-        raise ModelFormatError(
-            "metadata_props gives one of y_phi_constraint_min / y_phi_constraint_max only"
-        )
-    result["y_phi_constraint"] = None if low is None else (low, high)
-    result["Ts"] = _from_metadata(model, "Ts")
+    for key in METADATA_KEYS:  # the file format's names: LSTMModel.from_arrays checks them
+        value = _from_metadata(model, key)
+        if value is not None:
+            result[key] = value
     return result
