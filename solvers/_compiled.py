@@ -22,20 +22,19 @@ from ltv_lstm_mpc.numba_support import (
 class CompiledOrPython:
     """A compiled helper called through its compiled code where that is ready
     (:func:`~ltv_lstm_mpc.numba_support.ready`, decided at the first call in a process),
-    else through its Python loops (``py_func``: the same arithmetic, slower): a caller on
-    the numpy kernels never waits for a compilation."""
+    else through ``fallback`` (default: its Python loops, ``py_func``; or a numpy twin
+    with the same values): a caller on the numpy kernels never waits for a compilation."""
 
-    def __init__(self, dispatcher: Any) -> None:
+    def __init__(self, dispatcher: Any, fallback: Any = None) -> None:
         self.dispatcher = dispatcher
+        self.fallback = (
+            fallback if fallback is not None else getattr(dispatcher, "py_func", dispatcher)
+        )
         self._call: Any = None
 
     def __call__(self, *args: Any) -> Any:
         if self._call is None:
-            self._call = (
-                self.dispatcher
-                if ready([self.dispatcher])
-                else getattr(self.dispatcher, "py_func", self.dispatcher)
-            )
+            self._call = self.dispatcher if ready([self.dispatcher]) else self.fallback
         return self._call(*args)
 
 

@@ -47,11 +47,10 @@ import numpy.typing as npt
 import scipy.sparse as sp
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
-from ltv_lstm_mpc.numba_support import ready
 from ltv_lstm_mpc.validation import real_array, real_scalar
 
 from ._base import FloatArray, RawResult, WarmStart
-from ._compiled import bounds_rows_violation, cone_violation
+from ._compiled import CompiledOrPython, bounds_rows_violation, cone_violation
 from .problem import ConvexProblem, SecondOrderCone, SolverStatus, _check_bounds
 
 __all__ = ["DenseBackend", "DenseBackendFactory", "DenseCone", "DenseQP"]
@@ -76,15 +75,30 @@ def _full_csc(M: FloatArray) -> sp.csc_matrix:
     )
 
 
-_VIOLATION_COMPILED: list[bool] = []
+def _bounds_rows_violation_numpy(
+    x: FloatArray, lb: FloatArray, ub: FloatArray, A: FloatArray, lo: FloatArray, up: FloatArray
+) -> float:
+    """The numpy reference of ``_compiled.bounds_rows_violation``."""
+    violation = max(0.0, float(np.max(lb - x)), float(np.max(x - ub)))
+    if A.shape[0]:
+        rows = A @ x
+        violation = max(violation, float(np.max(lo - rows)), float(np.max(rows - up)))
+    return violation
 
 
-def _violation_compiled() -> bool:
-    """Whether :meth:`DenseQP.max_violation` runs the compiled loops: decided at its first
-    call in a process, from whether they are compiled or cached (``numba_support.ready``)."""
-    if not _VIOLATION_COMPILED:
-        _VIOLATION_COMPILED.append(ready([bounds_rows_violation, cone_violation]))
-    return _VIOLATION_COMPILED[0]
+def _cone_violation_numpy(
+    F: FloatArray, g: FloatArray, e: FloatArray, f: float, x: FloatArray
+) -> float:
+    r"""The numpy reference of ``_compiled.cone_violation``:
+    :math:`\|F x + g\| - e^\top x - f`."""
+    r = F @ x
+    r += g
+    return math.sqrt(float(r @ r)) - float(e @ x) - f
+
+
+# DenseQP.max_violation's loops: compiled where ready, else the numpy references above
+_bounds_rows_violation = CompiledOrPython(bounds_rows_violation, _bounds_rows_violation_numpy)
+_cone_violation = CompiledOrPython(cone_violation, _cone_violation_numpy)
 
 
 @dataclass(eq=False)
@@ -120,9 +134,7 @@ class DenseCone:
 
     def violation(self, x: FloatArray) -> float:
         r""":math:`\|F x + g\| - e^\top x - f` (positive where the cone is violated)."""
-        r = self.F @ x
-        r += self.g
-        return math.sqrt(float(r @ r)) - float(self.e @ x) - self.f
+        return _cone_violation_numpy(self.F, self.g, self.e, self.f, x)
 
     def check(self, index: int, n: int) -> None:
         """Validate shapes and values (``index`` names the cone in messages)."""
@@ -272,18 +284,9 @@ class DenseQP:
             raise DimensionError(f"x must have shape {self.f.shape}, got {xx.shape}")
         if not math.isfinite(float(xx.sum())) and not np.all(np.isfinite(xx)):
             return float("inf")
-        if _violation_compiled():  # the loops of solvers/_compiled.py
-            viol = bounds_rows_violation(xx, self.lb, self.ub, self.A, self.lo, self.up)
-            for cone in self.cones:
-                viol = max(viol, cone_violation(cone.F, cone.g, cone.e, cone.f, xx))
-            return float(viol)
-        # the numpy reference (no numba, or the loops not compiled yet: no compile wait)
-        viol = max(0.0, float(np.max(self.lb - xx)), float(np.max(xx - self.ub)))
-        if self.A.shape[0]:
-            rows = self.A @ xx
-            viol = max(viol, float(np.max(self.lo - rows)), float(np.max(rows - self.up)))
+        viol = _bounds_rows_violation(xx, self.lb, self.ub, self.A, self.lo, self.up)
         for cone in self.cones:
-            viol = max(viol, cone.violation(xx))
+            viol = max(viol, _cone_violation(cone.F, cone.g, cone.e, cone.f, xx))
         return float(viol)
 
     def to_convex_problem(self) -> ConvexProblem:
