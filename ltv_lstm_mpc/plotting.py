@@ -269,6 +269,29 @@ def draw_bounds(
     return lines
 
 
+def draw_inputs(
+    ax: Axes,
+    t: ArrayLike,
+    u_phi: ArrayLike,
+    bounds: tuple[ArrayLike, ArrayLike],
+    labels: Sequence[str],
+    colors: Sequence[str] | None = None,
+) -> None:
+    """Each input (a column of ``u_phi``) with its bounds U as dotted lines of its colour,
+    named ``"bounds U of <name> [low, high] <unit>"``; the y-label from ``labels``."""
+    u = np.asarray(u_phi, dtype=float).reshape(np.shape(t)[0], -1)
+    u_low, u_high = (np.ravel(np.asarray(v, dtype=float)) for v in bounds)
+    for j, label in enumerate(labels):
+        color = colors[j] if colors is not None else f"C{j}"
+        ax.plot(t, u[:, j], color=color, lw=1.0, label=label)
+        draw_bounds(
+            ax, u_low[j], u_high[j], gid=INPUT_BOUND_GID, color=color, ls=":",
+            label=f"bounds U of {name_of(label)} "
+            f"{bounds_text(u_low[j], u_high[j], unit_of(label))}",
+        )  # fmt: skip
+    ax.set_ylabel(axis_label(labels))
+
+
 def bounds_text(low: ArrayLike, high: ArrayLike, unit: str) -> str:
     """``"[6, 9] pH"`` (one interval) or ``"[4, 20] cm"``; per-entry intervals joined."""
     lows, highs = np.ravel(np.asarray(low, dtype=float)), np.ravel(np.asarray(high, dtype=float))

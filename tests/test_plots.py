@@ -142,7 +142,7 @@ def test_siso_plot_names_units_and_draws_bounds(ph_result: Any, tmp_path: Path) 
     (marker,) = lines_with(out, CLIPPED_SETPOINT_GID)
     assert float(marker.get_xdata()[0]) == 20.0 and out.get_ylim()[1] < 10.5
     assert any("output constraint [6, 9] pH" in t for t in legend_texts(out))
-    assert any("input bounds U" in t and "mL/s" in t for t in legend_texts(inp))
+    assert any("bounds U of q3 [12.5, 17] mL/s" in t for t in legend_texts(inp))
     assert "$\\hat d$ on pH" in legend_texts(dhat)
     assert any("buffer flow q2 (mL/s)" in t for t in legend_texts(dist))
     title = out.get_title()

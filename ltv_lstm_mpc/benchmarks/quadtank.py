@@ -268,12 +268,11 @@ def quadtank_figure(result: QuadTankResult) -> Figure:
     from matplotlib.figure import Figure
 
     from ltv_lstm_mpc.plotting import (
-        INPUT_BOUND_GID,
         OUTPUT_CONSTRAINT_GID,
-        axis_label,
         bounds_text,
         draw_bounds,
         draw_d_hat,
+        draw_inputs,
         fit_ylim,
         legend,
         mark_clipped_setpoints,
@@ -321,19 +320,10 @@ def quadtank_figure(result: QuadTankResult) -> Figure:
         f"{summary['constraint_violation_steps']}, infeasible steps {summary['infeasible_steps']}",
         fontsize=10,
     )
-    u_low, u_high = controller.input_bounds_phi
+    draw_inputs(axes[2], k, sim.u_phi, controller.input_bounds_phi, labels.inputs, ("C2", "C3"))
     for j in range(2):
-        color = f"C{j + 2}"
-        u_unit = unit_of(labels.inputs[j])
-        axes[2].plot(k, sim.u_phi[:, j], color=color, lw=1.0, label=labels.inputs[j])
-        draw_bounds(
-            axes[2], u_low[j], u_high[j], gid=INPUT_BOUND_GID, color=color, ls=":",
-            label=f"bounds U of {name_of(labels.inputs[j])} "
-            f"{bounds_text(u_low[j], u_high[j], u_unit)}",
-        )  # fmt: skip
         axes[3].plot(k, sc.leaks[: k.size, j], color=f"C{j}", lw=1.0, ls="-.",
                      label=f"leak tank {j + 1} (cm\u00b2), unmeasured")  # fmt: skip
-    axes[2].set_ylabel(axis_label(labels.inputs))
     axes[3].set_ylabel("leak area (cm\u00b2)")
     draw_d_hat(axes[4], k, sim.d_hat, labels.outputs, controller.config.d_max)
     for ax in axes[2:]:

@@ -183,12 +183,12 @@ def mimo_figure(
     from matplotlib.figure import Figure
 
     from ltv_lstm_mpc.plotting import (
-        INPUT_BOUND_GID,
         OUTPUT_CONSTRAINT_GID,
         axis_label,
         bounds_text,
         draw_bounds,
         draw_d_hat,
+        draw_inputs,
         fit_ylim,
         legend,
         mark_clipped_setpoints,
@@ -220,13 +220,7 @@ def mimo_figure(
                                color=f"C{j}", label=f"set-point {name_of(outputs[j])} outside "
                                "the plotted range")  # fmt: skip
     axes[0].set_ylabel(axis_label(outputs))
-    u_low, u_high = input_bounds  # U in physical units (the controller's)
-    for j in range(m):
-        axes[1].plot(t, sim.u_phi[:, j], color=f"C{j}", label=inputs[j])
-        draw_bounds(axes[1], u_low[j], u_high[j], gid=INPUT_BOUND_GID, color=f"C{j}", ls=":",
-                    label=f"bounds U of {name_of(inputs[j])} "
-                    f"{bounds_text(u_low[j], u_high[j], unit_of(inputs[j]))}")  # fmt: skip
-    axes[1].set_ylabel(axis_label(inputs))
+    draw_inputs(axes[1], t, sim.u_phi, input_bounds, inputs)  # U: the controller's
     draw_d_hat(axes[2], t, sim.d_hat, outputs, d_max)
     panels = ("outputs, set-points and the output constraint", "inputs and their bounds U",
               "disturbance estimate $\\hat d$ (normalized output units)")  # fmt: skip

@@ -80,12 +80,11 @@ def scenario_figure(result: ScenarioResult) -> Figure:
     from matplotlib.figure import Figure
 
     from ltv_lstm_mpc.plotting import (
-        INPUT_BOUND_GID,
         OUTPUT_CONSTRAINT_GID,
-        axis_label,
         bounds_text,
         draw_bounds,
         draw_d_hat,
+        draw_inputs,
         fit_ylim,
         legend,
         mark_clipped_setpoints,
@@ -145,19 +144,7 @@ def scenario_figure(result: ScenarioResult) -> Figure:
         fontsize=10,
     )
     ax = axes[1]
-    u_low, u_high = controller.input_bounds_phi
-    u_unit = unit_of(labels.inputs[0])
-    ax.plot(k, sim.u_phi[:, 0], color="tab:green", lw=1.0, label=labels.inputs[0])
-    draw_bounds(
-        ax,
-        u_low,
-        u_high,
-        label=f"input bounds U {bounds_text(u_low, u_high, u_unit)}",
-        gid=INPUT_BOUND_GID,
-        color="tab:green",
-        ls=":",
-    )
-    ax.set_ylabel(axis_label(labels.inputs))
+    draw_inputs(ax, k, sim.u_phi, controller.input_bounds_phi, labels.inputs, ("tab:green",))
     legend(ax, loc="best", ncol=2)
     ax = axes[2]
     if np.all(np.isnan(sc.disturbances)):
