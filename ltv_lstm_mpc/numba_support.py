@@ -15,6 +15,7 @@ __all__ = [
     "REDUCTIONS",
     "announce_compile",
     "build_workspace",
+    "compile_notice",
     "compile_on_demand",
     "njit",
     "ready",
@@ -179,7 +180,12 @@ def announce_compile(dispatchers: Sequence[Any], what: str, seconds: str) -> boo
     any of ``dispatchers`` is not in the on-disk cache; returns whether it said so."""
     if _compile_announced or not AVAILABLE or not uncached(dispatchers):
         return False
-    return say_once(
+    return say_once(compile_notice(what, seconds))
+
+
+def compile_notice(what: str, seconds: str) -> str:
+    """The one wording of the notice that ``what`` compiles now."""
+    return (
         f"ltv_lstm_mpc: compiling {what} (first run only, about {seconds} on 2 cores; "
         "cached on disk for the next runs)..."
     )

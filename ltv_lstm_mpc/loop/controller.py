@@ -50,7 +50,7 @@ def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
     reference while a background process compiles)."""
     from ltv_lstm_mpc.loop.kernels import choose_kernels, start_background_compile
     from ltv_lstm_mpc.lstm.kernel import LSTMKernel
-    from ltv_lstm_mpc.numba_support import compile_on_demand, say_once
+    from ltv_lstm_mpc.numba_support import compile_notice, compile_on_demand, say_once
 
     compiled, missing = choose_kernels(config, kernels)
     if model.kernel.compiled != compiled and (kernels != "auto" or model.kernel.automatic):
@@ -61,10 +61,7 @@ def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
     if not missing:
         return
     if model.kernel.compiled:
-        say_once(
-            "ltv_lstm_mpc: compiling the controller kernels (first run only, about 20-40 s "
-            "on 2 cores; cached on disk for the next runs)..."
-        )
+        say_once(compile_notice("the controller kernels", "20-40 s"))
     elif start_background_compile(model, config, missing):
         say_once(
             "ltv_lstm_mpc: the compiled controller kernels are not in numba's cache yet: "
