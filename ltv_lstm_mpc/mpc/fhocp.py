@@ -83,7 +83,18 @@ class MPCSolution:
         ``feedback`` (insert :math:`\\hat x_k`, solve, validate, re-simulate).
     reason : str
         Why the nominal solve failed in words (the solver's message, the exception it
-        raised, or the validation that rejected its point); empty when it succeeded.
+        raised, or the validation that rejected its point); empty when it succeeded
+        (with SQP, why an ``"optimal_inaccurate"`` answer did not converge).
+    kkt_residual : float
+        Globalized SQP (``sqp_iterations > 1``, :mod:`~ltv_lstm_mpc.mpc.sqp`): the KKT
+        residual of the nonlinear FHOCP at the last linearization point,
+        :math:`\\max(\\|d\\|_\\infty, \\theta)` (subproblem step, nonlinear constraint
+        violation); NaN for one iteration (RTI) or when no subproblem was solved.
+    feasibility_steps : int
+        SQP iterations that took the feasibility phase's step (linearized FHOCP
+        infeasible: the soft subproblem's step instead).
+    step_length : float
+        The last SQP line search's step length :math:`t` (1: full step).
     """
 
     u: FloatArray
@@ -105,6 +116,9 @@ class MPCSolution:
     prepare_time: float = 0.0
     feedback_time: float = 0.0
     reason: str = ""
+    kkt_residual: float = float("nan")
+    feasibility_steps: int = 0
+    step_length: float = 1.0
 
 
 def shifted_candidate(previous_u: FloatArray | None, u_bar: FloatArray, N: int) -> FloatArray:

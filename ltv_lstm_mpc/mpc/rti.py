@@ -3,8 +3,10 @@ r"""Robust MPC of eq. (optimization) by real-time iterations (paper notes sectio
 At step k the LSTM is linearized along the candidate of the proof of Theorem 3
 (Part 2b): the previous optimal inputs shifted by one, with :math:`\bar u_k` appended
 (:math:`\bar u_k` repeated at the first step). One convex subproblem
-(:class:`~ltv_lstm_mpc.mpc.sparse.FHOCPSubproblem`) is solved; optional SQP iterations
-re-linearize at the new iterate until the input step is small. Every plan is
+(:class:`~ltv_lstm_mpc.mpc.sparse.FHOCPSubproblem`) is solved; with
+``sqp_iterations > 1`` a globalized SQP (:mod:`~ltv_lstm_mpc.mpc.sqp`: merit line
+search, feasibility phase, KKT-residual stopping) iterates to the nonlinear FHOCP's
+solution. Every plan is
 re-simulated on the true LSTM and its nonlinear constraint residuals are recorded: a
 linearized solution is a proposal, not a certificate.
 
@@ -48,6 +50,7 @@ from ltv_lstm_mpc.mpc.fhocp import (
     precheck_status,
     shifted_candidate,
 )
+from ltv_lstm_mpc.mpc.sqp import SQPOutcome, Subproblem, globalized_sqp
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import ConvexProblem, DenseQP, SolverStatus
 from ltv_lstm_mpc.validation import expect_bool, expect_instance, expect_real, real_vector
@@ -233,6 +236,8 @@ class RobustMPC:
         kinds: tuple[str, ...] = ("nominal",)
         if config.infeasibility_policy != "shift":
             kinds = ("nominal", config.infeasibility_policy)
+        if config.sqp_iterations > 1 and "soft" not in kinds:
+            kinds += ("soft",)  # the globalized SQP's feasibility phase (mpc/sqp.py)
         self._problem: TranscriptionBase
         if kind == "condensed":
             from ltv_lstm_mpc.mpc.condensed import CondensedTranscription
@@ -621,30 +626,37 @@ class RobustMPC:
         step = 0.0
         u_plan: FloatArray | None = None
         x_linear: FloatArray | None = None
-        if not status:
-            u_lin = self._cand
-            for it in range(config.sqp_iterations):
-                if it:  # re-linearize from x_hat along the last iterate (SQP)
-                    self._relinearize(x_hat_a, u_lin)
-                result, name, why = self._checked_solve("nominal", x_hat_a)
-                solver_time += result.solver_time
-                iterations += result.iterations
-                if result.u is None:
-                    if it == 0:  # otherwise keep the last successful SQP iterate
-                        status, reason = name, why
-                    break
-                sqp += 1
+        kkt_residual = float("nan")
+        feasibility_steps = 0
+        step_length = 1.0
+        sqp_reason = ""
+        if not status and config.sqp_iterations == 1:  # RTI: one subproblem
+            result, name, why = self._checked_solve("nominal", x_hat_a)
+            solver_time += result.solver_time
+            iterations += result.iterations
+            if result.u is None:
+                status, reason = name, why
+            else:
+                sqp = 1
                 status = name
-                step = float(np.abs(result.u - u_lin).max())
-                u_plan, x_linear, u_lin = result.u, result.x_linear, result.u
-                if step < config.sqp_tolerance:
-                    break
+                step = float(np.abs(result.u - self._cand).max())
+                u_plan, x_linear = result.u, result.x_linear
+        elif not status:  # globalized SQP (mpc/sqp.py)
+            outcome, solver_time, iterations = self._globalized_sqp(x_hat_a)
+            status, sqp, step = outcome.status, outcome.iterations, outcome.step
+            kkt_residual, feasibility_steps = outcome.kkt_residual, outcome.feasibility_steps
+            step_length, sqp_reason = outcome.step_length, outcome.reason
+            reason = sqp_reason
+            if outcome.status != "infeasible":
+                u_plan, x_linear = outcome.u, outcome.x_linear
+            if outcome.iterations:  # the fallback below is posed on the candidate
+                self._relinearize(x_hat_a, self._cand)
         feasible = status in ("optimal", "optimal_inaccurate")
         policy = "nominal"
         if not feasible:
             u_plan = x_linear = None
             policy = config.infeasibility_policy
-            if policy != "shift":  # on the candidate's linearization (nominal failed at once)
+            if policy != "shift":  # on the candidate's linearization
                 result, _, _ = self._checked_solve(policy, x_hat_a)
                 solver_time += result.solver_time
                 iterations += result.iterations
@@ -689,7 +701,10 @@ class RobustMPC:
             transcription=self.transcription,
             prepare_time=self.prepare_time,
             feedback_time=self.feedback_time,
-            reason=reason if not feasible else "",
+            reason=reason if not feasible else sqp_reason,
+            kkt_residual=kkt_residual,
+            feasibility_steps=feasibility_steps,
+            step_length=step_length,
         )
 
     def _feedback_native(self, x_hat: FloatArray, start: float) -> MPCSolution | None:
@@ -741,6 +756,51 @@ class RobustMPC:
             feedback_time=feedback_time,
             reason="",
         )
+
+    def _globalized_sqp(self, x_hat: FloatArray) -> tuple[SQPOutcome, float, int]:
+        """:func:`~ltv_lstm_mpc.mpc.sqp.globalized_sqp` on this core from ``x_hat``:
+        (outcome, solver seconds, solver iterations)."""
+        N, n, m = self.N, self.model.n, self.model.m
+        n2 = 2 * n
+        alpha, x_bar, u_bar = self._alpha, self._x_bar, self._u_bar
+        bounds = (self._lower, self._upper)
+        spent = [0.0, 0]
+
+        def linearize(u: FloatArray) -> FloatArray:
+            self._relinearize(x_hat, u)
+            return self._traj.S[:, :n2].copy()
+
+        def solve(kind: str) -> Subproblem:
+            result, name, why = self._checked_solve(kind, x_hat)
+            spent[0] += result.solver_time
+            spent[1] += result.iterations
+            return Subproblem(result.u, result.x_linear, name, why, result.tolerance)
+
+        def evaluate(u: FloatArray) -> tuple[float, float]:
+            P = self._plan.S
+            P[0, :n2] = x_hat
+            P[:N, n2 : n2 + m] = u
+            _, cost, residuals = self._check_plan(u, None, alpha)
+            self._plan_valid = False  # not the applied plan
+            return cost, max(0.0, residuals["output_violation"], residuals["terminal_residual"])
+
+        def evaluate_linear(x: FloatArray, u: FloatArray) -> tuple[float, float]:
+            cost, terminal_norm = self._cost.evaluate(x, u, x_bar, u_bar)
+            y = x[:N, n:] @ self._W_y_T + self.model.b_y
+            residuals = plan_residuals(terminal_norm, x, y, None, bounds, alpha)
+            return cost, max(0.0, residuals["output_violation"], residuals["terminal_residual"])
+
+        outcome = globalized_sqp(
+            self._cand,
+            linearize=linearize,
+            solve=solve,
+            evaluate=evaluate,
+            evaluate_linear=evaluate_linear,
+            iterations=self.config.sqp_iterations,
+            tolerance=self.config.sqp_tolerance,
+            penalty=self.config.soft_penalty,
+        )
+        return outcome, float(spent[0]), int(spent[1])
 
     def _relinearize(self, x_hat: FloatArray, u_lin: FloatArray) -> None:
         """Roll out and linearize from ``x_hat`` along ``u_lin`` and rebuild (SQP step)."""
