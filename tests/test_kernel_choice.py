@@ -8,6 +8,7 @@ import pickle
 import subprocess
 import sys
 import time
+import types
 
 import numpy as np
 import pytest
@@ -297,6 +298,9 @@ def test_a_helper_not_ready_runs_its_python_loops(monkeypatch) -> None:
     assert compiled._call is _compiled.bounds_rows_violation
     monkeypatch.setattr(numba_support, "_compile_on_demand", False)
     monkeypatch.setattr(numba_support, "uncached", lambda dispatchers: ["x"])
-    assert not numba_support.ready([_compiled.clarabel_fill])
+    # a helper neither compiled in this process (no signatures, whatever ran before) nor
+    # held by the cache
+    not_compiled = types.SimpleNamespace(signatures=[])
+    assert not numba_support.ready([not_compiled])
     numba_support.compile_on_demand()
-    assert numba_support.ready([_compiled.clarabel_fill])
+    assert numba_support.ready([not_compiled])

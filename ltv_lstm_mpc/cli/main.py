@@ -482,6 +482,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
             f"{counts['d_hat_saturated_steps']}; infeasible {counts['infeasible_steps']}; median "
             f"step {1e6 * mimo['median_step_time_s']:.0f} us ({sim.transcription})"
         )
+        print(_guarantee_line(counts, mimo["steps"]))
         return _offset_status([mimo["final_offset"]], args.max_offset)
     tokens = args.setpoints or default_setpoints
     if not tokens:
@@ -533,7 +534,25 @@ def _run_simulate(args: argparse.Namespace) -> int:
         f"{counts['input_clipped_steps']} steps; implausible measurements "
         f"{counts['measurement_implausible_steps']} steps"
     )
+    print(_guarantee_line(counts, len(sim.feasible)))
     return _offset_status([summary["final_offset"]], args.max_offset)
+
+
+def _guarantee_line(counts: dict[str, int], steps: int) -> str:
+    """The run-time monitor's counts in one line (:mod:`ltv_lstm_mpc.loop.monitor`)."""
+    if "guarantee_held_steps" not in counts:
+        return "Theorem 3's guarantee: not monitored"
+    failed = ", ".join(
+        f"{name.removesuffix('_failed_steps')} {value}"
+        for name, value in counts.items()
+        if name.endswith("_failed_steps") and value
+    )
+    return (
+        f"Theorem 3's guarantee held on {counts['guarantee_held_steps']} of {steps} steps "
+        f"(hypotheses failed: {failed or 'none'}); where it held: plant outside the output "
+        f"constraint {counts.get('plant_violation_steps_guarantee_held', '-')} steps, "
+        f"infeasible {counts['infeasible_steps_guarantee_held']} steps"
+    )
 
 
 def _plot_labels(entry: Any, model: LSTMModel) -> tuple[tuple[str, ...], tuple[str, ...]]:

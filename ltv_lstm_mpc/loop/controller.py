@@ -30,6 +30,7 @@ from ltv_lstm_mpc.exceptions import (
     InvalidValueError,
     UnreachableSetpointError,
 )
+from ltv_lstm_mpc.loop.monitor import AssumptionCheck, AssumptionMonitor
 from ltv_lstm_mpc.loop.observer import Observer
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator, ReferenceSolution
 from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT
@@ -121,6 +122,10 @@ class ControllerStep:
         ``"outside_training_range"`` (up to one range width beyond it: the model
         extrapolates); ``"implausible"`` (further: ``|y|`` > ``IMPLAUSIBLE_MEASUREMENT_LIMIT``,
         most likely a sensor fault or wrong units).
+    assumptions : AssumptionCheck
+        Theorem 3's hypotheses at this step and whether its guarantee held
+        (``assumptions.guarantee``: ``"held"`` or ``"voided by ..."``; see
+        :mod:`ltv_lstm_mpc.loop.monitor`).
     """
 
     y: FloatArray
@@ -142,6 +147,7 @@ class ControllerStep:
     d_hat_saturated: NDArray[np.bool_] | None = None
     input_clipped: float = 0.0
     measurement_status: str = "ok"
+    assumptions: AssumptionCheck | None = None
 
     @property
     def time_total(self) -> float:
@@ -246,6 +252,8 @@ class OffsetFreeController:
         if u_max <= 1.0:
             np.maximum(self._u_phi_low, norm.u_phi_min, out=self._u_phi_low)
             np.minimum(self._u_phi_high, norm.u_phi_max, out=self._u_phi_high)
+        #: Watches Theorem 3's hypotheses per step (:mod:`ltv_lstm_mpc.loop.monitor`).
+        self.monitor = AssumptionMonitor(model, self.certification)
         self.warnings = RunWarnings()
         self.records: list[ControllerStep] = []
         self.reset()
@@ -272,6 +280,7 @@ class OffsetFreeController:
         self.e_hat = tightening.e_inf if self.config.e_hat0 is None else float(self.config.e_hat0)
         self.mpc.reset()
         self.reference.reset()
+        self.monitor.reset()
         self.records = []
         self.warnings.reset()
         self._interval: tuple[float, list[float], list[float]] = (math.nan, [], [])
@@ -497,6 +506,9 @@ class OffsetFreeController:
         if not inside:  # outside U, non-finite, or on its boundary
             u, input_clipped = self._gate_input(u, reference.u_bar)
         t3 = time.perf_counter()
+        assumptions = self.monitor.check(
+            y, x_hat, d_hat, y0, self.e_hat, setpoint_status, solution.feasible
+        )
         self._update_observer(y, u)
         e_hat_used = self.e_hat
         self.e_hat = self.certification.tightening.next_e_hat(self.e_hat)
@@ -525,6 +537,7 @@ class OffsetFreeController:
                 d_hat_saturated=saturated,
                 input_clipped=input_clipped,
                 measurement_status=measurement_status,
+                assumptions=assumptions,
             )
         )
         return u_phi

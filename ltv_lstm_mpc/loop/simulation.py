@@ -6,6 +6,7 @@ import contextlib
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -13,6 +14,7 @@ from tqdm.auto import tqdm
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.monitor import HYPOTHESES
 from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
 from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.protocol import check_sampling_time as sampling_time_contract
@@ -88,6 +90,11 @@ class SimulationResult:
         The controller's :attr:`~ltv_lstm_mpc.OffsetFreeController.warning_counts`
         for this run: steps on which each warned condition held (each warning is shown once
         per run).
+    guarantee : (steps,) str
+        Theorem 3's guarantee per step: ``"held"`` or ``"voided by ..."``
+        (:mod:`ltv_lstm_mpc.loop.monitor`).
+    hypotheses : dict of str to (steps,) bool
+        Each monitored hypothesis per step (names: :data:`~ltv_lstm_mpc.loop.monitor.HYPOTHESES`).
     """
 
     y_phi: FloatArray
@@ -117,10 +124,22 @@ class SimulationResult:
     input_clipped: FloatArray | None = None
     measurement_status: NDArray[np.str_] | None = None
     warning_counts: dict[str, int] | None = None
+    guarantee: NDArray[np.str_] | None = None
+    hypotheses: dict[str, NDArray[np.bool_]] | None = None
+
+    @property
+    def guarantee_held(self) -> NDArray[np.bool_]:
+        """Per step: whether Theorem 3's guarantee held (all False without a monitor)."""
+        if self.guarantee is None:
+            return np.zeros(len(self.feasible), dtype=bool)
+        return np.asarray(self.guarantee == "held", dtype=bool)
 
     def summary_counts(self) -> dict[str, int]:
         """Steps per set-point status, d_hat-saturated steps, infeasible steps, steps with
-        the input clipped, steps per measurement status."""
+        the input clipped, steps per measurement status; with the monitor, steps where
+        Theorem 3's guarantee held, steps where each hypothesis failed, and the infeasible
+        and plant-violation steps split by whether the guarantee held (the theorem
+        excludes them where it held)."""
         counts: dict[str, int] = {}
         if self.setpoint_status is not None:
             for name in SETPOINT_STATUSES:
@@ -135,6 +154,17 @@ class SimulationResult:
         if self.measurement_status is not None:
             for name in MEASUREMENT_STATUSES[1:]:
                 counts[f"measurement_{name}_steps"] = int(np.sum(self.measurement_status == name))
+        if self.guarantee is not None:
+            held = self.guarantee_held
+            counts["guarantee_held_steps"] = int(np.sum(held))
+            for name, flags in (self.hypotheses or {}).items():
+                counts[f"{name}_failed_steps"] = int(np.sum(~flags))
+            counts["infeasible_steps_guarantee_held"] = int(np.sum(~self.feasible & held))
+            if "plant_violation_steps" in counts:
+                assert self.plant_violation is not None
+                violated = self.plant_violation > 1e-9
+                counts["plant_violation_steps_guarantee_held"] = int(np.sum(violated & held))
+                counts["plant_violation_steps_guarantee_voided"] = int(np.sum(violated & ~held))
         return counts
 
 
@@ -333,7 +363,22 @@ def simulate(
         input_clipped=np.array([r.input_clipped for r in records], dtype=np.float64),
         measurement_status=np.array([r.measurement_status for r in records], dtype=str),
         warning_counts=controller.warning_counts,
+        **_monitor_arrays(records),
     )
+
+
+def _monitor_arrays(records: list[Any]) -> dict[str, Any]:
+    """``guarantee`` and ``hypotheses`` of :class:`SimulationResult` from the records
+    (None where the steps carry no monitor verdict)."""
+    checks = [r.assumptions for r in records]
+    if not checks or any(c is None for c in checks):
+        return {"guarantee": None, "hypotheses": None}
+    return {
+        "guarantee": np.array([c.guarantee for c in checks], dtype=str),
+        "hypotheses": {
+            name: np.array([getattr(c, name) for c in checks], dtype=bool) for name in HYPOTHESES
+        },
+    }
 
 
 def _check_arguments(

@@ -205,6 +205,7 @@ def write_scenario_outputs(
         "policy": sim.policy,
         "status": sim.status,
         "predicted_violation": sim.output_violation,
+        "guarantee": sim.guarantee if sim.guarantee is not None else np.full(sc.steps, ""),
         "time_observer_s": sim.time_observer,
         "time_reference_s": sim.time_reference,
         "time_mpc_s": sim.time_mpc,
@@ -226,12 +227,14 @@ def format_table(summaries: Sequence[dict[str, Any]]) -> str:
     ``segment offsets`` is :math:`|y_\phi - y^0_\phi|` (pH) at the end of each constant
     segment; ``final offset`` is their maximum. ``d_hat sat`` counts the steps with
     :math:`|\hat d| = d_{max}`, ``bad y0`` those whose set-point was not ``ok``
-    (outside the admissible interval or unreachable).
+    (outside the admissible interval or unreachable). ``held`` counts the steps where
+    Theorem 3's guarantee held (:mod:`ltv_lstm_mpc.loop.monitor`) and ``viol|held`` the
+    steps among them where the plant violated its output constraint (the theorem says 0).
     """
     header = (
         f"{'scenario':<16} {'steps':>5} {'final offset':>12} {'max viol':>8} {'infeas':>6} "
-        f"{'fallback':>8} {'d_hat sat':>9} {'bad y0':>6} {'median ms':>9} {'max ms':>7}  "
-        "segment offsets (pH)"
+        f"{'fallback':>8} {'d_hat sat':>9} {'bad y0':>6} {'held':>5} {'viol|held':>9} "
+        f"{'median ms':>9} {'max ms':>7}  segment offsets (pH)"
     )
     lines = [header, "-" * len(header)]
     for s in summaries:
@@ -242,6 +245,8 @@ def format_table(summaries: Sequence[dict[str, Any]]) -> str:
             f"{s['name']:<16} {s['steps']:>5} {offset:>12} {s['max_output_violation']:>8.2g} "
             f"{s['infeasible_steps']:>6} {s['fallback_steps']:>8} "
             f"{s.get('d_hat_saturated_steps', 0):>9} {bad_y0:>6} "
+            f"{s.get('guarantee_held_steps', '-'):>5} "
+            f"{s.get('plant_violation_steps_guarantee_held', '-'):>9} "
             f"{1e3 * s['median_step_time_s']:>9.2f} {1e3 * s['max_step_time_s']:>7.1f}  {segments}"
         )
     return "\n".join(lines)

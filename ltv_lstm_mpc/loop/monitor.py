@@ -1,0 +1,204 @@
+r"""Run-time monitor of Theorem 3's hypotheses: on which steps did the guarantee hold?
+
+Theorem 3 (recursive feasibility, constraint satisfaction, ISpS; with Theorem 4
+offset-free tracking) holds for the closed loop when, at every step from a start where
+the FHOCP of eq. (optimization) is feasible, the disturbance stays in
+:math:`\mathcal D = \{\|d\|_\infty \le d_{max}\}` and varies slowly, the set-point is
+admissible (Assumptions 4 and 5) and moves within the rate bound
+:math:`\Delta y^0_{max}`, and the observer error stays within :math:`\hat e_{o,k}`.
+The true disturbance and state are not measured; the monitor checks each hypothesis
+through what the loop knows at step k (normalized units):
+
+``d_in_bound``
+    :math:`|\hat d_{k(j)}| < d_{max}` for every output j (the saturation of eq.
+    d_lstm_observer is not active; with ``d_margin`` > 0: below
+    :math:`(1 - d_{margin})\, d_{max}`).
+``d_rate_in_bound``
+    :math:`\|\hat d_k - \hat d_{k-1}\|_\infty \le w_{max}`, the admissible disturbance
+    variation of Theorem 2 (:math:`w_{max} = \bar w / \sqrt{P_{o(3,3)}}`).
+``setpoint_rate_in_bound``
+    :math:`\|y^0_k - y^0_{k-1}\|_\infty \le \Delta y^0_{max}` (paper notes 2.10c, the
+    certification's ``rate_bound``); fails on every step when that bound is void.
+``output_error_in_bound``
+    :math:`\|y_k - \hat y_k\|_\infty \le \bar e_y`, the output-error bound the rate bound
+    assumes, with :math:`\hat y_k = W_y \hat h_k + b_y + \hat d_k`.
+``observer_error_consistent``
+    :math:`|y_{k(j)} - \hat y_{k(j)}| \le c_{o(j)}\, \hat e_{o,k}` for every j: eq.
+    (lyap_observer_constraint) bounds the output error by :math:`c_{o(j)} V_o`, so a
+    larger error proves :math:`V_o(\hat\chi_k, \chi_k) > \hat e_{o,k}` (a necessary
+    condition of :math:`\hat e_{o,k}` bounding the observer error).
+``setpoint_admissible``
+    the set-point used is in the admissible interval of Assumption 5 at
+    :math:`\hat e_{o,k}` and has an equilibrium with :math:`\bar u \in \mathcal U`
+    (Assumption 4): ``ControllerStep.setpoint_status`` is ``"ok"`` or
+    ``"target_outside_admissible"``.
+
+The guarantee **holds at step k** when every hypothesis held at every step since a step
+j <= k at which they all held and the nominal FHOCP was feasible (the start of Theorem
+3's induction): ``"held"``. Otherwise it is ``"voided by <names>"`` (the hypotheses that
+failed at this step) or ``"voided by infeasible_start"`` (they hold, but no feasible FHOCP
+has started the induction since they last failed). A step where the guarantee held and
+the FHOCP was nevertheless infeasible, or the plant violated its constraint, is what the
+theorem excludes: :class:`~ltv_lstm_mpc.SimulationResult` counts those separately.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ltv_lstm_mpc.certificates.certify import Certification
+from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.validation import expect_real
+
+__all__ = ["HYPOTHESES", "SETPOINT_STATUSES_ADMISSIBLE", "AssumptionCheck", "AssumptionMonitor"]
+
+FloatArray = NDArray[np.float64]
+
+#: The hypotheses checked per step, in the order of :class:`AssumptionCheck`.
+HYPOTHESES = (
+    "d_in_bound",
+    "d_rate_in_bound",
+    "setpoint_rate_in_bound",
+    "output_error_in_bound",
+    "observer_error_consistent",
+    "setpoint_admissible",
+)
+
+#: ``ControllerStep.setpoint_status`` values under which Assumptions 4 and 5 hold.
+SETPOINT_STATUSES_ADMISSIBLE = ("ok", "target_outside_admissible")
+
+
+@dataclass(slots=True, frozen=True)
+class AssumptionCheck:
+    """The monitor's verdict at one step (see the module docstring for each field).
+
+    Attributes
+    ----------
+    d_in_bound, d_rate_in_bound, setpoint_rate_in_bound, output_error_in_bound,
+    observer_error_consistent, setpoint_admissible : bool
+        Whether each hypothesis of Theorem 3 held at this step.
+    fhocp_feasible : bool
+        The nominal FHOCP was solved at this step.
+    guarantee : str
+        ``"held"``, ``"voided by <hypotheses>"`` or ``"voided by infeasible_start"``.
+    """
+
+    d_in_bound: bool
+    d_rate_in_bound: bool
+    setpoint_rate_in_bound: bool
+    output_error_in_bound: bool
+    observer_error_consistent: bool
+    setpoint_admissible: bool
+    fhocp_feasible: bool
+    guarantee: str
+
+    @property
+    def held(self) -> bool:
+        """Whether the guarantee of Theorem 3 held at this step."""
+        return self.guarantee == "held"
+
+    def failed(self) -> list[str]:
+        """Names of the hypotheses that failed at this step."""
+        return [name for name in HYPOTHESES if not getattr(self, name)]
+
+
+class AssumptionMonitor:
+    r"""Checks Theorem 3's hypotheses step by step (see the module docstring).
+
+    Parameters
+    ----------
+    model : LSTMModel
+    certification : Certification
+        Gives :math:`d_{max}`, :math:`w_{max}`, :math:`c_o`, :math:`\Delta y^0_{max}` and
+        :math:`\bar e_y`.
+    d_margin : float
+        Relative margin of ``d_in_bound`` in [0, 1): fails from
+        :math:`(1 - d_{margin})\, d_{max}` on (0: at the saturation).
+    """
+
+    def __init__(
+        self, model: LSTMModel, certification: Certification, *, d_margin: float = 0.0
+    ) -> None:
+        expect_real("d_margin", d_margin, low=0.0, high=1.0, high_open=True)
+        observer = certification.observer
+        rate = certification.rate_bound
+        self.n = model.n
+        self.d_limit = observer.d_max * (1.0 - max(float(d_margin), 1e-12))
+        self.w_max = float(observer.w_max)
+        #: :math:`\Delta y^0_{max}`, or -1 when the rate bound is void (fails every step).
+        self.delta_y0_max = float(rate.delta_y0_max) if rate.holds else -1.0
+        self.e_y_bar = float(rate.e_y_bar)
+        self.c_o = [float(v) for v in np.atleast_1d(observer.c_o)]
+        self._W_y = np.ascontiguousarray(model.W_y)
+        self._b_y = np.asarray(model.b_y, dtype=np.float64)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous step (a new run starts unarmed)."""
+        self._previous_d: list[float] | None = None
+        self._previous_y0: list[float] | None = None
+        self._armed = False
+
+    def check(
+        self,
+        y: FloatArray,
+        x_hat: FloatArray,
+        d_hat: FloatArray,
+        y0: FloatArray,
+        e_hat: float,
+        setpoint_status: str,
+        feasible: bool,
+    ) -> AssumptionCheck:
+        """The hypotheses at this step and the guarantee's status (updates the induction).
+
+        Parameters
+        ----------
+        y, y0 : (p,)
+            Normalized measurement and the set-point used.
+        x_hat, d_hat : (2n,), (p,)
+            Estimates at this step (before the observer update).
+        e_hat : float
+            :math:`\\hat e_{o,k}`.
+        setpoint_status : str
+            ``ControllerStep.setpoint_status``.
+        feasible : bool
+            The nominal FHOCP was solved.
+        """
+        d = d_hat.tolist()
+        y_hat = (self._W_y @ x_hat[self.n :] + self._b_y + d_hat).tolist()
+        error = [abs(a - b) for a, b in zip(y.tolist(), y_hat, strict=True)]
+        targets = y0.tolist()
+        limit = self.d_limit
+        d_in_bound = all(abs(v) < limit for v in d)
+        previous_d, previous_y0 = self._previous_d, self._previous_y0
+        d_rate = previous_d is None or (
+            max(abs(a - b) for a, b in zip(d, previous_d, strict=True)) <= self.w_max
+        )
+        if previous_y0 is None:
+            setpoint_rate = self.delta_y0_max >= 0.0
+        else:
+            change = max(abs(a - b) for a, b in zip(targets, previous_y0, strict=True))
+            setpoint_rate = change <= self.delta_y0_max
+        output_error = max(error) <= self.e_y_bar
+        consistent = all(
+            err <= c * e_hat for err, c in zip(error, self.c_o, strict=True)
+        ) and math.isfinite(e_hat)
+        admissible = setpoint_status in SETPOINT_STATUSES_ADMISSIBLE
+        self._previous_d, self._previous_y0 = d, targets
+        flags = (d_in_bound, d_rate, setpoint_rate, output_error, consistent, admissible)
+        if all(flags):
+            if self._armed or feasible:
+                self._armed = True
+                guarantee = "held"
+            else:
+                guarantee = "voided by infeasible_start"
+        else:
+            self._armed = False
+            guarantee = "voided by " + ", ".join(
+                name for name, flag in zip(HYPOTHESES, flags, strict=True) if not flag
+            )
+        return AssumptionCheck(*flags, fhocp_feasible=feasible, guarantee=guarantee)
