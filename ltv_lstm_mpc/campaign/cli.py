@@ -1,11 +1,13 @@
 """Sub-command ``campaign`` of the ``ltv-lstm-mpc`` command line.
 
 ``ltv-lstm-mpc campaign SPEC.toml --out DIR [--scheduler ADDRESS] [--workers N] [--serial]
-[--dry-run] [--retry-errors]``. A bad spec is a usage error (exit code 2, the message names
-the entry); a library error is exit code 1; tasks that fail are recorded, not fatal (exit
-code 0, their count on stderr). Dask is imported only when the tasks run on it. Ctrl-C
-prints one line (``interrupted; N of M tasks stored in DIR; resume with: ...``, exit code
-130) and no worker traceback.
+[--dry-run] [--retry-errors] [--beta BETA] [--offset-tolerance TOL]``, or
+``ltv-lstm-mpc campaign [SPEC.toml] --plan-epsilon EPS [--beta BETA]`` to size a campaign
+(:func:`~ltv_lstm_mpc.campaign.statements.loops_needed`) without running it. A bad spec
+is a usage error (exit code 2, the message names the entry); a library error is exit
+code 1; tasks that fail are recorded, not fatal (exit code 0, their count on stderr).
+Dask is imported only when the tasks run on it. Ctrl-C prints one line (``interrupted; N
+of M tasks stored in DIR; resume with: ...``, exit code 130) and no worker traceback.
 """
 
 from __future__ import annotations
@@ -46,8 +48,10 @@ def register(subparsers: Any) -> None:
             "for the spec's trace subset, report.md and plots."
         ),
     )
-    parser.add_argument("spec", type=Path, help="campaign spec (.toml)")
-    parser.add_argument("--out", type=output_folder, required=True, help="output folder")
+    parser.add_argument(
+        "spec", type=Path, nargs="?", help="campaign spec (.toml); optional with --plan-epsilon"
+    )
+    parser.add_argument("--out", type=output_folder, default=None, help="output folder")
     parser.add_argument(
         "--scheduler", default=None, metavar="ADDRESS", help="address of a running Dask scheduler"
     )
@@ -66,9 +70,91 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--retry-errors", action="store_true", help="rerun the tasks stored with an error"
     )
+    parser.add_argument(
+        "--plan-epsilon",
+        type=_probability,
+        default=None,
+        metavar="EPS",
+        help="print how many i.i.d. closed loops without a failure state P(failure) <= EPS "
+        "at confidence 1 - BETA (and how many the spec draws per stratum), run nothing",
+    )
+    parser.add_argument(
+        "--beta",
+        type=_probability,
+        default=0.05,
+        help="1 - confidence of the report's statistical statements (default 0.05)",
+    )
+    parser.add_argument(
+        "--offset-tolerance",
+        type=_nonnegative,
+        default=1e-3,
+        metavar="TOL",
+        help="final offset (output units) above which a loop counts as failed (default 1e-3)",
+    )
     parser.add_argument("--no-report", action="store_true", help="skip report.md and the plots")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(func=campaign_command)
+
+
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text}")
+    return value
+
+
+def _nonnegative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+    return value
+
+
+def _plan(args: argparse.Namespace) -> int:
+    """``--plan-epsilon``: the loops needed for the statement, and what the spec draws."""
+    from ltv_lstm_mpc.campaign.statements import clopper_pearson_upper, loops_needed
+
+    needed = loops_needed(args.plan_epsilon, args.beta)
+    print(
+        f"{needed} i.i.d. closed loops without a failure state P(failure) <= "
+        f"{args.plan_epsilon:g} with confidence {1 - args.beta:.4g} (one-sided "
+        f"Clopper-Pearson; one failure among them gives "
+        f"{clopper_pearson_upper(1, needed, args.beta):.3g})"
+    )
+    if args.spec is None:
+        return 0
+    spec = _load(args.spec)
+    strata = len(spec.tasks) // max(spec.random.samples, 1)
+    if not spec.random.distributions:
+        print(
+            f"{args.spec}: no [random] table, so its {len(spec.tasks)} tasks are not i.i.d. "
+            f"draws; add [random] with samples = {needed} (and the distributions of the "
+            "settings to sample)"
+        )
+        return 0
+    enough = "enough" if spec.random.samples >= needed else f"set samples = {needed}"
+    print(
+        f"{args.spec}: {spec.random.samples} draws per stratum, {strata} strata, "
+        f"{len(spec.tasks)} tasks: {enough}"
+    )
+    return 0
+
+
+def _load(path: Path) -> Any:
+    from ltv_lstm_mpc.campaign.spec import load_spec
+
+    if not path.is_file():
+        raise UsageError(f"no campaign spec file {str(path)!r}")
+    try:
+        return load_spec(path)
+    except CampaignSpecError as error:
+        raise UsageError(f"{path}: {error}") from None
 
 
 def _duration(seconds: float) -> str:
@@ -102,18 +188,18 @@ def _resume_command(args: argparse.Namespace) -> str:
 def campaign_command(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc campaign``: run (or estimate) a campaign; returns the exit status."""
     from ltv_lstm_mpc.campaign.runner import CampaignInterrupted, estimate_campaign, run_campaign
-    from ltv_lstm_mpc.campaign.spec import load_spec
 
+    if args.plan_epsilon is not None:
+        return _plan(args)
+    if args.spec is None:
+        raise UsageError("give a campaign spec (.toml), or --plan-epsilon EPS to size one")
+    if args.out is None:
+        raise UsageError("--out is required to run a campaign (or --dry-run estimate it)")
     if args.serial and (args.scheduler is not None or args.workers is not None):
         raise UsageError("--serial runs in this process: drop --scheduler / --workers")
     if args.scheduler is not None and args.workers is not None:
         raise UsageError("--workers sizes the LocalCluster; an existing --scheduler has its own")
-    if not args.spec.is_file():
-        raise UsageError(f"no campaign spec file {str(args.spec)!r}")
-    try:
-        spec = load_spec(args.spec)
-    except CampaignSpecError as error:
-        raise UsageError(f"{args.spec}: {error}") from None
+    spec = _load(args.spec)
     if args.dry_run:
         if args.serial:
             workers = 1
@@ -144,6 +230,8 @@ def campaign_command(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             report=not args.no_report,
             log=lambda message: print(message, file=sys.stderr),
+            beta=args.beta,
+            offset_tolerance=args.offset_tolerance,
         )
     except CampaignInterrupted as interrupted:
         # one line, printed by the command line's KeyboardInterrupt handler

@@ -8,11 +8,16 @@
 * ``violations_vs_noise.png`` when the measurement noise varies: violations (and their
   largest size) against ``noise_std``, one mean line per plant mismatch;
 * ``step_time_heatmap.png`` when the backend or the horizon varies: median step time per
-  backend x N.
+  backend x N;
+
+and the statistical statements (:mod:`~ltv_lstm_mpc.campaign.statements`): the
+Clopper-Pearson bound per stratum and outcome, in ``report.md`` and ``statements.csv``.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -21,6 +26,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from ltv_lstm_mpc.campaign.statements import Statement, campaign_statements, format_statements
 from ltv_lstm_mpc.campaign.store import atomic_write
 
 __all__ = ["factor_levels", "output_unit", "plant_title", "write_report"]
@@ -234,6 +240,28 @@ def _varying(rows: Sequence[Mapping[str, Any]], names: Sequence[str]) -> list[st
     return [n for n in names if len(factor_levels(rows, n)) > 1]
 
 
+def _write_statements(statements: Sequence[Statement], path: Path) -> Path:
+    """``statements.csv``: one row per stratum and outcome."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    strata = list(statements[0].stratum)
+    writer.writerow([*strata, "outcome", "failures", "loops", "beta", "upper_bound", "statement"])
+    for statement in statements:
+        writer.writerow(
+            [
+                *statement.stratum.values(),
+                statement.outcome,
+                statement.failures,
+                statement.loops,
+                statement.beta,
+                statement.upper_bound,
+                statement.sentence(),
+            ]
+        )
+    atomic_write(path, buffer.getvalue().encode("utf-8"))
+    return path
+
+
 def write_report(
     rows: Sequence[Mapping[str, Any]],
     factors: Sequence[str],
@@ -241,8 +269,11 @@ def write_report(
     *,
     title: str = "campaign",
     plots: bool = True,
+    strata: Sequence[str] | None = None,
+    beta: float = 0.05,
+    offset_tolerance: float = 1e-3,
 ) -> list[Path]:
-    """Write ``report.md`` (and the plots) for a results table.
+    """Write ``report.md`` (and the plots, and ``statements.csv``) for a results table.
 
     Parameters
     ----------
@@ -253,6 +284,13 @@ def write_report(
         The campaign's varying settings (columns to break the results down by).
     out : path
         The campaign folder.
+    strata : sequence of str, optional
+        Settings whose levels define the strata of the statistical statements
+        (:attr:`~ltv_lstm_mpc.campaign.spec.CampaignSpec.strata`; default ``factors``).
+    beta : float
+        1 - confidence of the statements (:mod:`~ltv_lstm_mpc.campaign.statements`).
+    offset_tolerance : float
+        Final offset above which a loop counts as a failure (output units).
 
     Returns
     -------
@@ -345,6 +383,27 @@ def write_report(
                 f"{_fmt(offset[2])} | {_fmt(violations[0])} | {_fmt(infeasible[0])} | "
                 f"{_fmt(step[1])} |"
             )
+    stated = campaign_statements(
+        rows,
+        [n for n in (factors if strata is None else strata) if n in _varying(rows, factors)],
+        beta=beta,
+        offset_tolerance=offset_tolerance,
+    )
+    if stated:
+        lines += [
+            "",
+            "## Statistical statements",
+            "",
+            f"One-sided Clopper-Pearson bounds at confidence {1 - beta:.0%} on the probability "
+            "of each outcome in a closed loop of each stratum (fixed settings), valid when the "
+            "loops of a stratum are i.i.d. draws of its random settings ([random] of the spec: "
+            f"sampled mismatch, noise, seeds); {len(errors)} task(s) with errors are left out. "
+            "Zero failures in N loops give 1 - beta^(1/N); `ltv-lstm-mpc campaign --plan-epsilon "
+            "EPS` sizes N.",
+            "",
+            *format_statements(stated),
+        ]
+        files.append(_write_statements(stated, root / "statements.csv"))
     if errors:
         lines += [
             "",

@@ -255,6 +255,8 @@ def run_campaign(
     report: bool = True,
     task_function: TaskFunction = run_task,
     log: Callable[[str], None] | None = None,
+    beta: float = 0.05,
+    offset_tolerance: float = 1e-3,
 ) -> CampaignRun:
     """Run every unfinished task of ``spec``, store each at once, then the tables and report.
 
@@ -274,7 +276,9 @@ def run_campaign(
     progress : bool
         Progress bar over the tasks.
     report : bool
-        Write ``report.md`` and the plots.
+        Write ``report.md``, the plots and ``statements.csv``.
+    beta, offset_tolerance : float
+        Of the report's statistical statements (:mod:`~ltv_lstm_mpc.campaign.statements`).
     task_function : callable
         What runs one task (default :func:`~ltv_lstm_mpc.campaign.task.run_task`); it
         must be picklable for Dask (see :mod:`ltv_lstm_mpc.campaign.testing`).
@@ -336,7 +340,17 @@ def run_campaign(
     if report and rows:
         from ltv_lstm_mpc.campaign.report import write_report
 
-        files.extend(write_report(rows, spec.varying, store.root, title=spec.name))
+        files.extend(
+            write_report(
+                rows,
+                spec.varying,
+                store.root,
+                title=spec.name,
+                strata=spec.strata,
+                beta=beta,
+                offset_tolerance=offset_tolerance,
+            )
+        )
     errors = sum(1 for row in rows if row.get("status") in ("error", "lost"))
     return CampaignRun(
         rows=rows,

@@ -22,9 +22,16 @@ A spec has three parts::
     [[cases]]
     mismatch = { W_a1 = 1.1 }
 
-The tasks are ``cases x product(factors)`` (one empty case when there are none), each
-one closed loop (:func:`ltv_lstm_mpc.campaign.task.run_task`). Every setting is checked
-when the spec is read: a bad entry raises
+    [random]                        # optional: i.i.d. draws, `samples` per stratum
+    samples = 59
+    sampling_seed = 7               # recorded: the same spec draws the same tasks
+    noise_std = { distribution = "uniform", low = 0.0, high = 0.02 }
+    mismatch.A1 = { distribution = "normal", mean = 1.0, std = 0.05 }
+
+The tasks are ``cases x product(factors) x draws`` (one empty case when there are none;
+one draw without ``[random]``), each one closed loop
+(:func:`ltv_lstm_mpc.campaign.task.run_task`). Every setting is checked when the spec is
+read: a bad entry raises
 :class:`~ltv_lstm_mpc.exceptions.CampaignSpecError` naming it (``[factors].noise_std[1]``)
 and the fix.
 
@@ -34,7 +41,16 @@ paper's scenarios, :data:`SCENARIO_NAMES`; it fixes plant, schedule and rate lim
 LSTM plant: output disturbance), ``y0_initial``, ``L_d``, ``N``, ``solver`` (``"installed"``
 in a factor list means every installed backend), ``transcription``, ``policy``,
 ``sqp_iterations``, ``rate_limit``, ``d_max``, ``noise_std``, ``seed``, ``mismatch``,
-``max_seconds``.
+``max_seconds`` (and ``sample``, the index of a ``[random]`` draw).
+
+``[random]`` samples the settings of :data:`RANDOM_SETTINGS` and pH-plant mismatch
+parameters (``mismatch.<parameter>``, scale factors) from :data:`DISTRIBUTIONS`
+(``uniform`` low/high, ``normal`` mean/std, ``log-uniform`` low/high); unless the spec sets
+``seed`` itself, every draw also draws its own measurement-noise seed. Draw j is the same
+in every stratum (common random numbers; :class:`RandomFactors`). The strata of the
+statistical statements (:mod:`~ltv_lstm_mpc.campaign.statements`) are the levels of the
+``[factors]`` and ``[[cases]]`` settings (:attr:`CampaignSpec.strata`): within one, the
+draws are i.i.d., which is what the Clopper-Pearson bound assumes.
 """
 
 from __future__ import annotations
@@ -58,10 +74,14 @@ from ltv_lstm_mpc.plants.registry import resolve_plant
 
 __all__ = [
     "DEFAULTS",
+    "DISTRIBUTIONS",
     "INSTALLED",
+    "RANDOM_SETTINGS",
     "SCENARIO_NAMES",
     "SETTINGS",
     "CampaignSpec",
+    "Distribution",
+    "RandomFactors",
     "Setting",
     "TraceSelector",
     "load_spec",
@@ -297,7 +317,75 @@ SETTINGS: dict[str, Setting] = {
     "max_seconds": Setting(
         _number(0.0, open_low=True), "stop a closed loop after this wall time, s"
     ),
+    "sample": Setting(_integer(0), "index of the draw of the [random] factors (set by them)"),
 }
+
+#: Settings a ``[random]`` table may sample (real numbers), besides ``mismatch.<parameter>``.
+RANDOM_SETTINGS = ("noise_std", "d_max", "L_d", "rate_limit", "y0_initial")
+#: Distributions of ``[random]`` and their parameters.
+DISTRIBUTIONS: dict[str, tuple[str, ...]] = {
+    "uniform": ("low", "high"),
+    "normal": ("mean", "std"),
+    "log-uniform": ("low", "high"),
+}
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """One sampled setting of ``[random]``: ``kind`` (:data:`DISTRIBUTIONS`) and parameters."""
+
+    kind: str
+    parameters: dict[str, float]
+
+    def draw(self, rng: Any) -> float:
+        """One value from ``rng`` (a numpy Generator)."""
+        p = self.parameters
+        if self.kind == "uniform":
+            return float(rng.uniform(p["low"], p["high"]))
+        if self.kind == "normal":
+            return float(rng.normal(p["mean"], p["std"]))
+        return float(math.exp(rng.uniform(math.log(p["low"]), math.log(p["high"]))))
+
+
+@dataclass(frozen=True)
+class RandomFactors:
+    """The ``[random]`` table: i.i.d. draws of some settings, ``samples`` per stratum.
+
+    Attributes
+    ----------
+    samples : int
+        Draws per stratum (combination of ``[[cases]]`` and ``[factors]`` levels).
+    sampling_seed : int
+        Seed of the draws: draw j uses ``numpy.random.default_rng([sampling_seed, j])``,
+        so every stratum gets the same j-th draw (common random numbers) and a rerun the
+        same tasks.
+    distributions : dict
+        Setting (or ``"mismatch.<parameter>"``) -> :class:`Distribution`.
+    noise_seed : bool
+        Each draw also draws the measurement-noise ``seed`` (True unless the spec sets
+        ``seed`` itself).
+    """
+
+    samples: int = 1
+    sampling_seed: int = 0
+    distributions: dict[str, Distribution] = field(default_factory=dict)
+    noise_seed: bool = False
+
+    def draw(self, sample: int) -> dict[str, Any]:
+        """The settings of draw ``sample`` (mismatch parameters gathered in ``mismatch``)."""
+        import numpy as np
+
+        rng = np.random.default_rng([self.sampling_seed, sample])
+        values: dict[str, Any] = {}
+        for name in sorted(self.distributions):
+            value = self.distributions[name].draw(rng)
+            if name.startswith("mismatch."):
+                values.setdefault("mismatch", {})[name.split(".", 1)[1]] = value
+            else:
+                values[name] = value
+        if self.noise_seed:
+            values["seed"] = int(rng.integers(0, 2**31 - 1))
+        return values
 
 
 @dataclass(frozen=True)
@@ -343,11 +431,14 @@ class CampaignSpec:
         The ``[[cases]]`` overrides (``[{}]`` when there are none).
     trace : TraceSelector
     tasks : tuple of Task
-        The product, in order (outer: cases; then the factors in the spec's order).
+        The product, in order (outer: cases; then the factors in the spec's order; inner:
+        the draws of ``[random]``).
     source : Path or None
         The spec file.
     text : str
         The spec's TOML text (copied into the output folder).
+    random : RandomFactors
+        The ``[random]`` table (no distributions: one draw, nothing sampled).
     """
 
     name: str
@@ -358,6 +449,15 @@ class CampaignSpec:
     tasks: tuple[Task, ...]
     source: Path | None = None
     text: str = ""
+    random: RandomFactors = field(default_factory=RandomFactors)
+
+    @property
+    def strata(self) -> list[str]:
+        """Settings whose levels define the strata of the statistical statements: the
+        varying settings without the ``[random]`` ones (:mod:`.statements`)."""
+        drawn = {name.split(".", 1)[0] for name in self.random.distributions}
+        drawn |= {"sample", "seed"} if self.random.noise_seed else {"sample"}
+        return [name for name in self.varying if name not in drawn]
 
     @property
     def varying(self) -> list[str]:
@@ -598,6 +698,121 @@ def _check_plant_sampling_time(model_file: _ModelFile, plant: str, field_name: s
         raise CampaignSpecError(field_name, str(error)) from None
 
 
+def _random_factors(
+    value: Any,
+    fixed: Mapping[str, Any],
+    factors: Mapping[str, Any],
+    cases: Sequence[Mapping[str, Any]],
+) -> RandomFactors:
+    """Check the ``[random]`` table (see the module docstring)."""
+    if value is None:
+        return RandomFactors()
+    table = _table(value, "[random]")
+    if "samples" not in table:
+        raise CampaignSpecError(
+            "[random].samples", "required: the number of draws per stratum, e.g. samples = 59"
+        )
+    try:
+        samples = _integer(1)(table["samples"])
+        sampling_seed = _integer(0)(table.get("sampling_seed", 0))
+    except _Bad as error:
+        key = "samples" if "sampling_seed" not in table else "samples/sampling_seed"
+        raise CampaignSpecError(f"[random].{key}", str(error)) from None
+    entries: dict[str, Any] = {}
+    for key, item in table.items():
+        if key in ("samples", "sampling_seed"):
+            continue
+        if key == "mismatch":
+            for parameter, spec in _table(item, "[random].mismatch").items():
+                if parameter not in _PH_PARAMETERS:
+                    raise CampaignSpecError(
+                        f"[random].mismatch.{parameter}",
+                        f"unknown pH-plant parameter; parameters: {list(_PH_PARAMETERS)}",
+                    )
+                entries[f"mismatch.{parameter}"] = spec
+        elif key in RANDOM_SETTINGS:
+            entries[key] = item
+        else:
+            raise CampaignSpecError(
+                f"[random].{key}",
+                f"not a setting that can be sampled; these can: {list(RANDOM_SETTINGS)} and "
+                "mismatch.<parameter> (or samples, sampling_seed)",
+            )
+    distributions = {name: _distribution(name, spec) for name, spec in entries.items()}
+    places = [("[campaign]", fixed), ("[factors]", factors)]
+    places += [(f"[[cases]][{index}]", case) for index, case in enumerate(cases)]
+    for name in distributions:
+        setting, _, mismatch_parameter = name.partition(".")
+        for where, settings in places:
+            if setting not in settings:
+                continue
+            values = settings[setting] if where == "[factors]" else [settings[setting]]
+            if not mismatch_parameter or any(mismatch_parameter in v for v in values):
+                raise CampaignSpecError(
+                    f"[random].{name}", f"also set in {where}: keep one of the two"
+                )
+    seed_set = "seed" in fixed or "seed" in factors or any("seed" in case for case in cases)
+    return RandomFactors(
+        samples, sampling_seed, distributions, bool(distributions) and not seed_set
+    )
+
+
+def _distribution(name: str, value: Any) -> Distribution:
+    where = f"[random].{name}"
+    table = _table(value, where)
+    kind = table.get("distribution")
+    if kind not in DISTRIBUTIONS:
+        raise CampaignSpecError(
+            where,
+            f"expected distribution = one of {list(DISTRIBUTIONS)}, got {kind!r}; e.g. "
+            '{ distribution = "uniform", low = 0.0, high = 0.02 }',
+        )
+    wanted = DISTRIBUTIONS[kind]
+    extra = sorted(set(table) - {"distribution", *wanted})
+    missing = [key for key in wanted if key not in table]
+    if extra or missing:
+        raise CampaignSpecError(
+            where, f"a {kind} distribution takes {list(wanted)}; missing {missing}, unknown {extra}"
+        )
+    parameters = {}
+    for key in wanted:
+        try:
+            parameters[key] = _real(table[key])
+        except _Bad as error:
+            raise CampaignSpecError(f"{where}.{key}", str(error)) from None
+    if kind in ("uniform", "log-uniform") and not parameters["low"] < parameters["high"]:
+        raise CampaignSpecError(where, f"needs low < high, got {parameters}")
+    if kind == "log-uniform" and parameters["low"] <= 0:
+        raise CampaignSpecError(
+            where, f"a log-uniform distribution needs low > 0, got {parameters}"
+        )
+    if kind == "normal" and not parameters["std"] > 0:
+        raise CampaignSpecError(where, f"needs std > 0, got {parameters}")
+    return Distribution(kind, parameters)
+
+
+def _drawn_settings(
+    drawn: dict[str, Any], mismatch: dict[str, float], sample: int
+) -> dict[str, Any]:
+    """The drawn values of one sample, checked like written ones (the mismatch merged
+    with the task's own)."""
+    settings: dict[str, Any] = {}
+    for name, value in drawn.items():
+        where = f"[random].{name}"
+        try:
+            if name == "mismatch":
+                settings[name] = _mismatch({**mismatch, **value})
+            else:
+                settings[name] = SETTINGS[name].check(value)
+        except _Bad as error:
+            raise CampaignSpecError(
+                where,
+                f"draw {sample} gave {value!r}: {error}; choose a distribution that stays "
+                "in the setting's range (e.g. uniform or log-uniform bounds)",
+            ) from None
+    return settings
+
+
 def parse_spec(
     data: Mapping[str, Any],
     *,
@@ -623,9 +838,10 @@ def parse_spec(
         The first bad entry, named (``[factors].L_d[2]``), with the fix.
     """
     for key in data:
-        if key not in ("campaign", "factors", "cases"):
+        if key not in ("campaign", "factors", "cases", "random"):
             raise CampaignSpecError(
-                f"[{key}]", "unknown table; a spec has [campaign], [factors] and [[cases]]"
+                f"[{key}]",
+                "unknown table; a spec has [campaign], [factors], [[cases]] and [random]",
             )
     campaign = _table(data.get("campaign", {}), "[campaign]")
     factors_table = _table(data.get("factors", {}), "[factors]")
@@ -661,17 +877,25 @@ def parse_spec(
                 raise CampaignSpecError(
                     f"[[cases]][{index}].{key}", "also a factor: keep one of the two"
                 )
+    random = _random_factors(data.get("random"), fixed, factors, cases)
 
     tasks: list[Task] = []
     seen: set[str] = set()
     models: dict[str, _ModelFile] = {}
     names = list(factors)
+    draws = [random.draw(j) for j in range(random.samples)] if random.distributions else [{}]
     for index, case in enumerate(cases):
-        for combination in itertools.product(*(factors[n] for n in names)):
+        for combination, (sample, drawn) in itertools.product(
+            itertools.product(*(factors[n] for n in names)), enumerate(draws)
+        ):
             given = {**fixed, **case, **dict(zip(names, combination, strict=True))}
             origin = {name: f"[campaign].{name}" for name in fixed}
             origin.update({name: f"[[cases]][{index}].{name}" for name in case})
             origin.update({name: f"[factors].{name}" for name in names})
+            if random.distributions:
+                given.update(_drawn_settings(drawn, given.get("mismatch", {}), sample))
+                origin.update({name: f"[random].{name}" for name in drawn})
+                given["sample"] = sample
             settings, model = _resolve_task(given, origin, base_dir)
             model_file = _model_file(model, origin.get("model", "[campaign].model"), models)
             scenario = settings.get("scenario")
@@ -700,6 +924,7 @@ def parse_spec(
         tasks=tuple(tasks),
         source=source,
         text=text,
+        random=random,
     )
     for name_ in spec.trace.match:
         if name_ not in fixed and name_ not in spec.varying and name_ not in DEFAULTS:

@@ -20,6 +20,10 @@ Metrics (physical units; the true plant output, not the noisy measurement):
   ``fallback_<policy>_steps``, ``d_hat_saturated_steps``, the set-point status counts,
   ``optimal_steps``, ``failed_steps``, ``solver_error_steps`` and every FHOCP status in
   ``status_counts`` (JSON).
+* ``guarantee_held_steps`` (steps where Theorem 3's guarantee held,
+  :mod:`ltv_lstm_mpc.loop.monitor`), ``violations_guarantee_held`` /
+  ``violations_guarantee_voided`` (the violation samples split by it; the theorem says 0
+  where it held) and ``infeasible_steps_guarantee_held``.
 * ``median_step_s``, ``p95_step_s``, ``max_step_s``, ``median_mpc_s``: controller step
   times (``kernels``: ``"compiled"`` or ``"numpy"``, the kernels that ran: a worker with an
   empty numba cache runs numpy until the background compilation is done); ``setup_s``
@@ -93,6 +97,10 @@ METRIC_COLUMNS: tuple[str, ...] = (
     *(f"setpoint_{name}_steps" for name in SETPOINT_STATUSES),
     "input_clipped_steps",
     *(f"measurement_{name}_steps" for name in MEASUREMENT_STATUSES[1:]),
+    "guarantee_held_steps",
+    "violations_guarantee_held",
+    "violations_guarantee_voided",
+    "infeasible_steps_guarantee_held",
     "optimal_steps",
     "failed_steps",
     "solver_error_steps",
@@ -326,6 +334,12 @@ def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatAr
             f"measurement_{name}_steps": counts.get(f"measurement_{name}_steps", 0)
             for name in MEASUREMENT_STATUSES[1:]
         },
+        # Theorem 3's monitor (loop/monitor.py): where the guarantee held, the theorem
+        # excludes violations and infeasible steps
+        "guarantee_held_steps": counts.get("guarantee_held_steps"),
+        "violations_guarantee_held": counts.get("plant_violation_steps_guarantee_held"),
+        "violations_guarantee_voided": counts.get("plant_violation_steps_guarantee_voided"),
+        "infeasible_steps_guarantee_held": counts.get("infeasible_steps_guarantee_held"),
         "optimal_steps": sum(n for k, n in statuses.items() if k.startswith("optimal")),
         "failed_steps": statuses.get("failed", 0),
         "solver_error_steps": statuses.get("solver_error", 0),
@@ -359,6 +373,7 @@ def _trace(loop: _Loop, sim: Any, model: Any, violation: FloatArray) -> dict[str
         "status": sim.status,
         "setpoint_status": sim.setpoint_status,
         "d_hat_saturated": sim.d_hat_saturated.any(axis=1),
+        "guarantee": sim.guarantee if sim.guarantee is not None else np.full(done, ""),
         "time_total_s": sim.time_total,
         "time_mpc_s": sim.time_mpc,
     }

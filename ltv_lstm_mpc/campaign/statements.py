@@ -1,0 +1,236 @@
+r"""(epsilon, beta) statements from campaigns: exact binomial bounds on failure probabilities.
+
+A campaign's closed loops are Bernoulli trials for a boolean outcome (a constraint
+violated, a final offset above a tolerance, an infeasible step). When the loops of a
+stratum are independent and identically distributed draws of the campaign's random
+factors (``[random]`` of the spec: sampled mismatch parameters, noise levels and noise
+seeds; the fixed settings and ``[factors]`` levels define the strata, each stated on its
+own), the number of failures :math:`k` among :math:`N` loops is binomial with the
+unknown probability :math:`p` of a failure in a loop of that family, and the one-sided
+Clopper-Pearson bound
+
+.. math::
+
+    \bar\varepsilon(k, N, \beta) = \max\{p : P(\mathrm{Bin}(N, p) \le k) \ge \beta\}
+    = F^{-1}_{\mathrm{Beta}(k + 1,\, N - k)}(1 - \beta) \quad (k < N), \qquad
+    \bar\varepsilon = 1 \quad (k = N)
+
+gives the statement: *with confidence* :math:`1 - \beta`, :math:`p \le \bar\varepsilon`
+(Clopper & Pearson, Biometrika 26, 1934). With no failures it is
+:math:`1 - \beta^{1/N}`, so :math:`N \ge \ln\beta / \ln(1 - \varepsilon)` loops without a
+failure state :math:`p \le \varepsilon` (:func:`loops_needed`). The statement is about
+the family the draws come from (the distributions of the spec), not about other plants.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.validation import expect_int, expect_real
+
+__all__ = [
+    "Outcome",
+    "Statement",
+    "campaign_statements",
+    "clopper_pearson_upper",
+    "default_outcomes",
+    "format_statements",
+    "loops_needed",
+]
+
+
+def _probability(name: str, value: float) -> float:
+    expect_real(name, value, low=0.0, high=1.0, low_open=True, high_open=True)
+    return float(value)
+
+
+def clopper_pearson_upper(failures: int, loops: int, beta: float) -> float:
+    r"""One-sided Clopper-Pearson upper bound :math:`\bar\varepsilon(k, N, \beta)` (see
+    the module docstring): with confidence :math:`1 - \beta` the failure probability is at
+    most this, after ``failures`` failures in ``loops`` i.i.d. loops."""
+    from scipy.stats import beta as beta_distribution
+
+    expect_int("loops", loops, minimum=1)
+    expect_int("failures", failures, minimum=0)
+    beta = _probability("beta", beta)
+    if failures > loops:
+        raise InvalidValueError(f"failures ({failures}) cannot exceed loops ({loops})")
+    if failures == loops:
+        return 1.0
+    if failures == 0:  # closed form, exact to rounding
+        return float(-math.expm1(math.log(beta) / loops))
+    return float(beta_distribution.ppf(1.0 - beta, failures + 1, loops - failures))
+
+
+def loops_needed(epsilon: float, beta: float) -> int:
+    r"""Smallest number :math:`N` of i.i.d. loops that, all without a failure, state
+    :math:`p \le \varepsilon` with confidence :math:`1 - \beta`:
+    :math:`N = \lceil \ln\beta / \ln(1 - \varepsilon) \rceil`."""
+    epsilon = _probability("epsilon", epsilon)
+    beta = _probability("beta", beta)
+    n = math.ceil(math.log(beta) / math.log1p(-epsilon))
+    while n > 1 and clopper_pearson_upper(0, n - 1, beta) <= epsilon:  # rounding of ceil
+        n -= 1
+    while clopper_pearson_upper(0, n, beta) > epsilon:
+        n += 1
+    return n
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """A boolean outcome of one closed loop (a campaign row).
+
+    Attributes
+    ----------
+    name : str
+        Short name (a column of ``statements.csv``).
+    description : str
+        What a failure is, in words.
+    failed : callable
+        ``failed(row)`` -> True (failure), False, or None (not measurable in this row,
+        e.g. a model without an output constraint): the row is then left out.
+    """
+
+    name: str
+    description: str
+    failed: Callable[[Mapping[str, Any]], bool | None]
+
+
+def _greater(column: str, threshold: float) -> Callable[[Mapping[str, Any]], bool | None]:
+    def failed(row: Mapping[str, Any]) -> bool | None:
+        value = row.get(column)
+        if value is None or (isinstance(value, float) and math.isnan(value)):
+            return None
+        return float(value) > threshold
+
+    return failed
+
+
+def default_outcomes(offset_tolerance: float = 1e-3) -> list[Outcome]:
+    """The outcomes stated by default; ``offset_tolerance`` in output units."""
+    return [
+        Outcome("violation", "the plant output violated its constraint", _greater("violations", 0)),
+        Outcome(
+            "violation_guarantee_held",
+            "a violation on a step where Theorem 3's guarantee held",
+            _greater("violations_guarantee_held", 0),
+        ),
+        Outcome(
+            "offset",
+            f"a final offset above {offset_tolerance:g} (output units)",
+            _greater("final_offset", offset_tolerance),
+        ),
+        Outcome("infeasible", "an infeasible FHOCP step", _greater("infeasible_steps", 0)),
+    ]
+
+
+@dataclass(frozen=True)
+class Statement:
+    """The bound for one outcome in one stratum.
+
+    Attributes
+    ----------
+    stratum : dict
+        The fixed settings of the stratum (varying settings of the spec -> level).
+    outcome : str
+        :attr:`Outcome.name`.
+    description : str
+    failures, loops : int
+        Failures among the loops that measured the outcome.
+    beta : float
+    upper_bound : float
+        :func:`clopper_pearson_upper`.
+    """
+
+    stratum: dict[str, Any]
+    outcome: str
+    description: str
+    failures: int
+    loops: int
+    beta: float
+    upper_bound: float
+
+    def sentence(self) -> str:
+        """The statement in words."""
+        return (
+            f"with confidence {1 - self.beta:.0%}, P({self.description}) <= "
+            f"{self.upper_bound:.3g} ({self.failures} of {self.loops} loops)"
+        )
+
+
+def campaign_statements(
+    rows: Sequence[Mapping[str, Any]],
+    strata: Sequence[str],
+    *,
+    beta: float = 0.05,
+    offset_tolerance: float = 1e-3,
+    outcomes: Sequence[Outcome] | None = None,
+) -> list[Statement]:
+    """Bounds for every outcome in every stratum of a campaign's rows.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        Campaign rows; rows whose status is not ``"ok"`` are left out (the report says
+        how many: an error is not a draw of the family).
+    strata : sequence of str
+        The settings whose levels define the strata (the spec's ``[factors]`` and
+        ``[[cases]]`` keys; not the random ones).
+    beta : float
+        1 - confidence.
+    offset_tolerance : float
+        Of the ``offset`` outcome, output units.
+    """
+    beta = _probability("beta", beta)
+    expect_real("offset_tolerance", offset_tolerance, low=0.0)
+    chosen = list(outcomes) if outcomes is not None else default_outcomes(offset_tolerance)
+    groups: dict[tuple[Any, ...], list[Mapping[str, Any]]] = {}
+    for row in rows:
+        if row.get("status") != "ok":
+            continue
+        groups.setdefault(tuple(row.get(name) for name in strata), []).append(row)
+    statements = []
+    for levels, members in groups.items():
+        stratum = dict(zip(strata, levels, strict=True))
+        for outcome in chosen:
+            verdicts = [outcome.failed(row) for row in members]
+            measured = [v for v in verdicts if v is not None]
+            if not measured:
+                continue
+            failures = sum(measured)
+            statements.append(
+                Statement(
+                    stratum,
+                    outcome.name,
+                    outcome.description,
+                    failures,
+                    len(measured),
+                    beta,
+                    clopper_pearson_upper(failures, len(measured), beta),
+                )
+            )
+    return statements
+
+
+def format_statements(statements: Sequence[Statement]) -> list[str]:
+    """Markdown table lines of the statements (for ``report.md``)."""
+    if not statements:
+        return []
+    strata = list(statements[0].stratum)
+    head = " | ".join(strata) if strata else "stratum"
+    lines = [
+        f"| {head} | outcome | failures / loops | upper bound (confidence "
+        f"{1 - statements[0].beta:.0%}) |",
+        "|---|" + "---|" * max(len(strata) - 1, 0) + "---|---|---|",
+    ]
+    for statement in statements:
+        cells = " | ".join(str(v) for v in statement.stratum.values()) if strata else "all"
+        lines.append(
+            f"| {cells} | {statement.description} | {statement.failures} / {statement.loops} "
+            f"| {statement.upper_bound:.3g} |"
+        )
+    return lines
