@@ -171,3 +171,20 @@ def test_closed_loop_records_and_counts(model) -> None:
     violated = sim.plant_violation > 1e-9
     assert counts["plant_violation_steps_guarantee_held"] == int((violated & held).sum())
     assert counts["plant_violation_steps_guarantee_voided"] == int((violated & ~held).sum())
+
+
+def test_verdicts_are_computed_on_first_read_in_step_order(model) -> None:
+    """The controller's step stores only the log and an index (nothing timed); reading a
+    record's verdict checks the records before it first; reset starts a new log."""
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp"), kernels="numpy")
+    plant = LSTMPlant(model, y0_phi=7.0)
+    y = plant.output()
+    for _ in range(6):
+        y = plant.step(controller.step(y, 7.1), 0.0)
+    log = controller.records[0].monitor_log
+    assert log is not None and log._verdicts == []
+    third = controller.records[2].assumptions
+    assert len(log._verdicts) == 3 and third is log._verdicts[2]
+    assert [v.guarantee for v in log.verdicts()] == ["held"] * 6
+    controller.reset()
+    assert controller.records == [] and controller._assumption_log is not log

@@ -30,7 +30,7 @@ from ltv_lstm_mpc.exceptions import (
     InvalidValueError,
     UnreachableSetpointError,
 )
-from ltv_lstm_mpc.loop.monitor import AssumptionCheck, AssumptionMonitor
+from ltv_lstm_mpc.loop.monitor import AssumptionCheck, AssumptionLog, AssumptionMonitor
 from ltv_lstm_mpc.loop.observer import Observer
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator, ReferenceSolution
 from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT
@@ -123,9 +123,11 @@ class ControllerStep:
         extrapolates); ``"implausible"`` (further: ``|y|`` > ``IMPLAUSIBLE_MEASUREMENT_LIMIT``,
         most likely a sensor fault or wrong units).
     assumptions : AssumptionCheck
-        Theorem 3's hypotheses at this step and whether its guarantee held
+        (property) Theorem 3's hypotheses at this step and whether its guarantee held
         (``assumptions.guarantee``: ``"held"`` or ``"voided by ..."``; see
-        :mod:`ltv_lstm_mpc.loop.monitor`).
+        :mod:`ltv_lstm_mpc.loop.monitor`), computed when first read (off the timed step).
+    monitor_log, index : AssumptionLog, int
+        Where ``assumptions`` comes from: the run's log and this step's index in it.
     """
 
     y: FloatArray
@@ -147,7 +149,17 @@ class ControllerStep:
     d_hat_saturated: NDArray[np.bool_] | None = None
     input_clipped: float = 0.0
     measurement_status: str = "ok"
-    assumptions: AssumptionCheck | None = None
+    monitor_log: AssumptionLog | None = None
+    index: int = -1
+
+    @property
+    def assumptions(self) -> AssumptionCheck | None:
+        """Theorem 3's hypotheses at this step and whether its guarantee held (computed
+        on first access, in step order; :mod:`ltv_lstm_mpc.loop.monitor`); None for a
+        record built outside a controller."""
+        if self.monitor_log is None:
+            return None
+        return self.monitor_log.verdict(self.index)
 
     @property
     def time_total(self) -> float:
@@ -280,8 +292,8 @@ class OffsetFreeController:
         self.e_hat = tightening.e_inf if self.config.e_hat0 is None else float(self.config.e_hat0)
         self.mpc.reset()
         self.reference.reset()
-        self.monitor.reset()
         self.records = []
+        self._assumption_log = AssumptionLog(self.monitor, self.records)
         self.warnings.reset()
         self._interval: tuple[float, list[float], list[float]] = (math.nan, [], [])
 
@@ -506,9 +518,6 @@ class OffsetFreeController:
         if not inside:  # outside U, non-finite, or on its boundary
             u, input_clipped = self._gate_input(u, reference.u_bar)
         t3 = time.perf_counter()
-        assumptions = self.monitor.check(
-            y, x_hat, d_hat, y0, self.e_hat, setpoint_status, solution.feasible
-        )
         self._update_observer(y, u)
         e_hat_used = self.e_hat
         self.e_hat = self.certification.tightening.next_e_hat(self.e_hat)
@@ -537,7 +546,8 @@ class OffsetFreeController:
                 d_hat_saturated=saturated,
                 input_clipped=input_clipped,
                 measurement_status=measurement_status,
-                assumptions=assumptions,
+                monitor_log=self._assumption_log,
+                index=len(self.records),
             )
         )
         return u_phi

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,7 +55,13 @@ from ltv_lstm_mpc.certificates.certify import Certification
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.validation import expect_real
 
-__all__ = ["HYPOTHESES", "SETPOINT_STATUSES_ADMISSIBLE", "AssumptionCheck", "AssumptionMonitor"]
+__all__ = [
+    "HYPOTHESES",
+    "SETPOINT_STATUSES_ADMISSIBLE",
+    "AssumptionCheck",
+    "AssumptionLog",
+    "AssumptionMonitor",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -72,7 +79,7 @@ HYPOTHESES = (
 SETPOINT_STATUSES_ADMISSIBLE = ("ok", "target_outside_admissible")
 
 
-@dataclass(slots=True, frozen=True)
+@dataclass(slots=True)  # one per control step: not frozen (about 2 us less to build)
 class AssumptionCheck:
     """The monitor's verdict at one step (see the module docstring for each field).
 
@@ -104,6 +111,45 @@ class AssumptionCheck:
     def failed(self) -> list[str]:
         """Names of the hypotheses that failed at this step."""
         return [name for name in HYPOTHESES if not getattr(self, name)]
+
+
+class AssumptionLog:
+    """The monitor's verdicts for one run's records, computed on first access.
+
+    The controller's step stores only a reference to this log and its index in each
+    :class:`~ltv_lstm_mpc.ControllerStep` (nothing on the timed path); reading
+    ``ControllerStep.assumptions`` (or :meth:`verdicts`) checks every record up to that
+    one in order, which is what the induction needs.
+
+    Parameters
+    ----------
+    monitor : AssumptionMonitor
+        Reset here: the log owns its sequence.
+    records : list of ControllerStep
+        The run's records (the controller's list, appended to as the run goes).
+    """
+
+    def __init__(self, monitor: AssumptionMonitor, records: list[Any]) -> None:
+        monitor.reset()
+        self.monitor = monitor
+        self.records = records
+        self._verdicts: list[AssumptionCheck] = []
+
+    def verdict(self, index: int) -> AssumptionCheck:
+        """The verdict of record ``index`` (checking the records before it first)."""
+        verdicts, check = self._verdicts, self.monitor.check
+        while len(verdicts) <= index:
+            r = self.records[len(verdicts)]
+            verdicts.append(
+                check(r.y, r.x_hat, r.d_hat, r.y0, r.e_hat, r.setpoint_status, r.mpc.feasible)
+            )
+        return verdicts[index]
+
+    def verdicts(self) -> list[AssumptionCheck]:
+        """Verdicts of every record so far."""
+        if self.records:
+            self.verdict(len(self.records) - 1)
+        return list(self._verdicts)
 
 
 class AssumptionMonitor:
@@ -168,29 +214,38 @@ class AssumptionMonitor:
         feasible : bool
             The nominal FHOCP was solved.
         """
+        # p is small (1-4): Python floats beat numpy's per-call overhead past the matvec
         d = d_hat.tolist()
-        y_hat = (self._W_y @ x_hat[self.n :] + self._b_y + d_hat).tolist()
-        error = [abs(a - b) for a, b in zip(y.tolist(), y_hat, strict=True)]
+        error = [abs(v) for v in (y - d_hat - self._b_y - self._W_y @ x_hat[self.n :]).tolist()]
         targets = y0.tolist()
         limit = self.d_limit
-        d_in_bound = all(abs(v) < limit for v in d)
+        d_in_bound = True
+        for v in d:
+            if not -limit < v < limit:
+                d_in_bound = False
         previous_d, previous_y0 = self._previous_d, self._previous_y0
-        d_rate = previous_d is None or (
-            max(abs(a - b) for a, b in zip(d, previous_d, strict=True)) <= self.w_max
-        )
-        if previous_y0 is None:
+        d_rate = setpoint_rate = True
+        if previous_d is None or previous_y0 is None:
             setpoint_rate = self.delta_y0_max >= 0.0
         else:
-            change = max(abs(a - b) for a, b in zip(targets, previous_y0, strict=True))
-            setpoint_rate = change <= self.delta_y0_max
-        output_error = max(error) <= self.e_y_bar
-        consistent = all(
-            err <= c * e_hat for err, c in zip(error, self.c_o, strict=True)
-        ) and math.isfinite(e_hat)
+            w_max, rate = self.w_max, self.delta_y0_max
+            for a, b in zip(d, previous_d, strict=True):
+                if not abs(a - b) <= w_max:
+                    d_rate = False
+            for a, b in zip(targets, previous_y0, strict=True):
+                if not abs(a - b) <= rate:
+                    setpoint_rate = False
+        output_error = consistent = e_hat < math.inf
+        e_y_bar = self.e_y_bar
+        for err, c in zip(error, self.c_o, strict=True):
+            if not err <= e_y_bar:
+                output_error = False
+            if not err <= c * e_hat:
+                consistent = False
         admissible = setpoint_status in SETPOINT_STATUSES_ADMISSIBLE
         self._previous_d, self._previous_y0 = d, targets
         flags = (d_in_bound, d_rate, setpoint_rate, output_error, consistent, admissible)
-        if all(flags):
+        if d_in_bound and d_rate and setpoint_rate and output_error and consistent and admissible:
             if self._armed or feasible:
                 self._armed = True
                 guarantee = "held"
@@ -201,4 +256,7 @@ class AssumptionMonitor:
             guarantee = "voided by " + ", ".join(
                 name for name, flag in zip(HYPOTHESES, flags, strict=True) if not flag
             )
-        return AssumptionCheck(*flags, fhocp_feasible=feasible, guarantee=guarantee)
+        return AssumptionCheck(
+            d_in_bound, d_rate, setpoint_rate, output_error, consistent, admissible, feasible,
+            guarantee,
+        )  # fmt: skip
