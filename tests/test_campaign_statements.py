@@ -202,6 +202,8 @@ def test_campaign_report_states_the_bounds(tmp_path) -> None:
         )
     report = (tmp_path / "report.md").read_text()
     assert "## Statistical statements" in report and "confidence 90%" in report
+    assert "![statistical statements](plots/statements.png)" in report
+    assert (tmp_path / "plots" / "statements.png").stat().st_size > 10_000
     with (tmp_path / "statements.csv").open() as handle:
         table = list(csv.DictReader(handle))
     violation = [r for r in table if r["outcome"] == "violation"]

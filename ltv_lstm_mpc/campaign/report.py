@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from ltv_lstm_mpc.campaign.statements import Statement, campaign_statements, format_statements
 from ltv_lstm_mpc.campaign.store import atomic_write
@@ -38,6 +39,9 @@ _METRICS = (
     ("violations", "violations (samples)", 1.0),
     ("median_step_s", "median step (ms)", 1e3),
 )
+
+#: Most lines (levels) a plot draws one by one; more (sampled values) are pooled.
+MAX_LINES = 12
 
 #: Units of the factors on a plot axis ("output units": the plant's output unit).
 _FACTOR_UNITS = {
@@ -165,6 +169,15 @@ def _factor_plot(
 def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path, title: str = "campaign") -> Path:
     noise = factor_levels(rows, "noise_std")
     groups = factor_levels(rows, "mismatch") if "mismatch" in rows[0] else [None]
+    if len(groups) > MAX_LINES:  # sampled mismatch ([random]): one cloud, no legend of draws
+        groups = [None]
+    if len(noise) > MAX_LINES:  # sampled noise: means over equal-width bins of it
+        values = [v for v in (_number(level) for level in noise) if math.isfinite(v)]
+        edges = np.linspace(min(values), max(values), 9)
+        noise = [float(v) for v in 0.5 * (edges[1:] + edges[:-1])]
+        binned = True
+    else:
+        edges, binned = np.zeros(0), False
     figure = Figure(figsize=(10, 4.0), layout="constrained")
     axes = figure.subplots(1, 2)
     unit = output_unit(rows)
@@ -176,11 +189,23 @@ def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path, title: str = "cam
         for group in groups:
             subset = [r for r in rows if group is None or r.get("mismatch") == group]
             means = []
-            for level in noise:
-                values = _values([r for r in subset if r.get("noise_std") == level], column)
+            for index, level in enumerate(noise):
+                if binned:
+                    low, high = edges[index], edges[index + 1]
+                    members = [
+                        r
+                        for r in subset
+                        if low <= _number(r.get("noise_std")) <= high
+                        and (index == len(noise) - 1 or _number(r.get("noise_std")) < high)
+                    ]
+                else:
+                    members = [r for r in subset if r.get("noise_std") == level]
+                values = _values(members, column)
                 means.append(float(np.mean(values)) if values else math.nan)
             ok = [r for r in subset if r.get("status") == "ok"]
             name = "all" if group is None else _label(group)
+            if binned:
+                name += " (mean per noise bin)"
             (line,) = ax.plot(noise, means, marker="o", label=name)
             ax.scatter(
                 [_number(r.get("noise_std")) for r in ok],
@@ -190,14 +215,53 @@ def _noise_plot(rows: Sequence[Mapping[str, Any]], path: Path, title: str = "cam
                 color=line.get_color(),
             )
         numeric = [v for v in (_number(level) for level in noise) if math.isfinite(v)]
-        if numeric and len(numeric) <= 12:
+        if numeric and len(numeric) <= 12 and not binned:
             ax.set_xticks(numeric, [f"{v:g}" for v in numeric])
+        elif binned:
+            ax.xaxis.set_major_locator(MaxNLocator(5))
         ax.set_xlabel(f"measurement noise std ({unit})")
         ax.set_ylabel(label)
         ax.set_title(label.split(" (")[0] + " of the true plant output")
         ax.grid(alpha=0.3)
     axes[0].legend(title="mismatch" if groups != [None] else None, fontsize=8)
     figure.suptitle(_suptitle(rows, title, "output-constraint violations vs measurement noise"))
+    return _save(figure, path)
+
+
+def _statements_plot(
+    statements: Sequence[Statement], rows: Sequence[Mapping[str, Any]], path: Path, title: str
+) -> Path:
+    """The Clopper-Pearson bound (bar) and the observed failure share (marker) per
+    outcome, one bar per stratum."""
+    outcomes = list(dict.fromkeys(s.outcome for s in statements))
+    strata = list(dict.fromkeys(tuple(s.stratum.items()) for s in statements))
+    figure = Figure(figsize=(10, 4.2), layout="constrained")
+    ax = figure.subplots()
+    width = 0.8 / max(len(strata), 1)
+    for j, stratum in enumerate(strata):
+        chosen = [s for s in statements if tuple(s.stratum.items()) == stratum]
+        by_outcome = {s.outcome: s for s in chosen}
+        x = np.arange(len(outcomes)) + (j - (len(strata) - 1) / 2) * width
+        bounds = [by_outcome[o].upper_bound if o in by_outcome else math.nan for o in outcomes]
+        shares = [
+            by_outcome[o].failures / by_outcome[o].loops if o in by_outcome else math.nan
+            for o in outcomes
+        ]
+        label = ", ".join(f"{k} = {_label(v)}" for k, v in stratum) or "all loops"
+        ax.bar(x, bounds, width * 0.9, label=f"{label}: bound", alpha=0.75)
+        ax.plot(x, shares, "k_", markersize=14, markeredgewidth=2)
+        for xi, bound in zip(x, bounds, strict=True):
+            if math.isfinite(bound):
+                ax.annotate(f"{bound:.3g}", (xi, bound), ha="center", va="bottom", fontsize=8)
+    ax.plot([], [], "k_", markersize=14, markeredgewidth=2, label="observed failure share")
+    ax.set_xticks(np.arange(len(outcomes)), [o.replace("_", " ") for o in outcomes])
+    ax.set_ylim(0, 1.08)
+    ax.set_ylabel("P(failure in a closed loop)")
+    beta = statements[0].beta
+    ax.set_title(f"one-sided Clopper-Pearson upper bounds, confidence {1 - beta:.0%}")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    figure.suptitle(_suptitle(rows, title, "statistical statements"))
     return _save(figure, path)
 
 
@@ -404,6 +468,13 @@ def write_report(
             *format_statements(stated),
         ]
         files.append(_write_statements(stated, root / "statements.csv"))
+        if plots:
+            figures.append(
+                (
+                    "statistical statements",
+                    _statements_plot(stated, rows, root / "plots" / "statements.png", title),
+                )
+            )
     if errors:
         lines += [
             "",
