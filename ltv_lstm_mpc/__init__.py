@@ -49,6 +49,7 @@ if TYPE_CHECKING:  # the names for type checkers and readers; loaded lazily belo
         UnreachableSetpointError,
     )
     from ltv_lstm_mpc.loop.controller import ControllerStep, OffsetFreeController
+    from ltv_lstm_mpc.loop.monitor import AssumptionCheck, AssumptionMonitor
     from ltv_lstm_mpc.loop.observer import Observer
     from ltv_lstm_mpc.loop.reference import (
         KBarEstimate,
@@ -73,6 +74,8 @@ if TYPE_CHECKING:  # the names for type checkers and readers; loaded lazily belo
 #: Public name -> the module that defines it (imported at first use).
 _LAZY: dict[str, str] = {
     "ArgumentTypeError": "ltv_lstm_mpc.exceptions",
+    "AssumptionCheck": "ltv_lstm_mpc.loop.monitor",
+    "AssumptionMonitor": "ltv_lstm_mpc.loop.monitor",
     "Certification": "ltv_lstm_mpc.certificates.certify",
     "CertificationSettings": "ltv_lstm_mpc.certificates.certify",
     "ControllerStep": "ltv_lstm_mpc.loop.controller",
@@ -131,6 +134,8 @@ _LAZY: dict[str, str] = {
 
 __all__ = [
     "ArgumentTypeError",
+    "AssumptionCheck",
+    "AssumptionMonitor",
     "Certification",
     "CertificationSettings",
     "ControllerStep",

@@ -7,7 +7,8 @@ task of their product is one closed loop of the one controller
 in this process or on Dask (:func:`~ltv_lstm_mpc.campaign.runner.run_campaign`); each
 finished task is stored at once under the output folder, keyed by a hash of its settings
 and the library version, so a rerun skips it (:mod:`ltv_lstm_mpc.campaign.store`).
-:func:`~ltv_lstm_mpc.campaign.report.write_report` writes the markdown summary and plots.
+:func:`~ltv_lstm_mpc.campaign.report.write_report` writes the markdown summary and plots,
+with the (epsilon, beta) statements of :mod:`ltv_lstm_mpc.campaign.statements`.
 
 Dask and pyarrow come with the extra ``campaign``; without them campaigns run serially and
 write CSV only.
@@ -23,6 +24,12 @@ from ltv_lstm_mpc.campaign.runner import (
     run_campaign,
 )
 from ltv_lstm_mpc.campaign.spec import CampaignSpec, load_spec, parse_spec
+from ltv_lstm_mpc.campaign.statements import (
+    Statement,
+    campaign_statements,
+    clopper_pearson_upper,
+    loops_needed,
+)
 from ltv_lstm_mpc.campaign.task import Task, TaskOutcome, execute, run_task
 
 __all__ = [
@@ -30,11 +37,15 @@ __all__ = [
     "CampaignRun",
     "CampaignSpec",
     "Estimate",
+    "Statement",
     "Task",
     "TaskOutcome",
+    "campaign_statements",
+    "clopper_pearson_upper",
     "estimate_campaign",
     "execute",
     "load_spec",
+    "loops_needed",
     "parse_spec",
     "run_campaign",
     "run_task",

@@ -52,8 +52,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.certify import Certification
-from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.validation import expect_real
+from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
+from ltv_lstm_mpc.validation import expect_instance, expect_real
 
 __all__ = [
     "HYPOTHESES",
@@ -169,6 +169,14 @@ class AssumptionMonitor:
     def __init__(
         self, model: LSTMModel, certification: Certification, *, d_margin: float = 0.0
     ) -> None:
+        model = require_model(model)
+        expect_instance(
+            "certification",
+            certification,
+            Certification,
+            "compute one with certify(model, config.certification_settings(model))",
+            expected="a Certification",
+        )
         expect_real("d_margin", d_margin, low=0.0, high=1.0, high_open=True)
         observer = certification.observer
         rate = certification.rate_bound
