@@ -8,8 +8,11 @@ linearization is infeasible although the nonlinear FHOCP is feasible.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
+from ltv_lstm_mpc.solvers import available_solvers, solver_info
 from scipy.optimize import minimize_scalar
 
 from ltv_lstm_mpc import MPCConfig, RobustMPC, load_model
@@ -220,3 +223,41 @@ def test_rti_unchanged_by_the_sqp(pH) -> None:
     assert solution.iterations == 1 and solution.feasible
     assert np.isnan(solution.kkt_residual) and solution.feasibility_steps == 0
     assert solution.step_length == 1.0
+
+
+# ------------------------------------------------------------------- every backend
+
+
+@pytest.fixture(scope="module")
+def interior_state():
+    """A feasible state whose converged first input is inside U (0.3155)."""
+    model = load_model("ph_lstm_n5.npz")
+    y0 = np.array([0.1])
+    ref = ReferenceCalculator(model, strict=False).solve(y0, np.zeros(1))
+    return model, model.equilibrium(ref.u_bar + 0.1), ref, y0
+
+
+def _converged(model, solver, state):
+    _, x, ref, y0 = state
+    config = MPCConfig(solver=solver, sqp_iterations=100, sqp_tolerance=1e-8, tolerance=1e-9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # cvxpy's "may be inaccurate" notes
+        return RobustMPC(model, config).solve(x, ref.x_bar, ref.u_bar, y0, 0.1)
+
+
+@pytest.mark.parametrize("solver", available_solvers())
+def test_every_backend_converges_to_its_nlp(solver, interior_state) -> None:
+    """Exact-cone backends reach eq. (optimization)'s KKT point, QP-only ones that of its
+    box reformulation: the same first input as clarabel / daqp, whatever the solver."""
+    model = interior_state[0]
+    exact = solver_info(solver).supports_cones
+    reference = _converged(model, "clarabel" if exact else "daqp", interior_state)
+    solution = _converged(model, solver, interior_state)
+    assert solution.feasible and reference.status == "optimal"
+    assert solution.residuals["output_violation"] <= 1e-9
+    assert solution.residuals["terminal_residual"] < 0
+    first_order = any(name in solver.lower() for name in ("osqp", "scs", "proxqp", "ecos"))
+    tolerance = 1e-4 if first_order else 1e-6
+    np.testing.assert_allclose(solution.u[0], reference.u[0], atol=tolerance)
+    if solution.status == "optimal":
+        assert solution.kkt_residual <= 1e-4

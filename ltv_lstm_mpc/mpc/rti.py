@@ -776,19 +776,37 @@ class RobustMPC:
             spent[1] += result.iterations
             return Subproblem(result.u, result.x_linear, name, why, result.tolerance)
 
+        terminal = self._cost.terminal_set
+        box = self.reformulation is not None  # QP-only: the subproblem's terminal box
+        half_widths = alpha * terminal.unit_half_widths
+
+        def merit_terms(
+            x: FloatArray, cost: float, terminal_norm: float, output_violation: float
+        ) -> tuple[float, float]:
+            """(J, theta) of the NLP the subproblems linearize: eq. (optimization), or with
+            a QP-only backend its box reformulation (mpc/terminal.py: the terminal cost
+            bound and the box inside X_f)."""
+            if not box:
+                return cost, max(0.0, output_violation, terminal_norm - alpha)
+            deviation = x[N] - x_bar
+            cost += float(terminal.box_weights @ deviation**2) - terminal_norm**2
+            outside = float((np.abs(deviation) - half_widths).max())
+            return cost, max(0.0, output_violation, outside)
+
         def evaluate(u: FloatArray) -> tuple[float, float]:
             P = self._plan.S
             P[0, :n2] = x_hat
             P[:N, n2 : n2 + m] = u
-            _, cost, residuals = self._check_plan(u, None, alpha)
+            x, cost, residuals = self._check_plan(u, None, alpha)
             self._plan_valid = False  # not the applied plan
-            return cost, max(0.0, residuals["output_violation"], residuals["terminal_residual"])
+            terminal_norm = residuals["terminal_residual"] + alpha
+            return merit_terms(x, cost, terminal_norm, residuals["output_violation"])
 
         def evaluate_linear(x: FloatArray, u: FloatArray) -> tuple[float, float]:
             cost, terminal_norm = self._cost.evaluate(x, u, x_bar, u_bar)
             y = x[:N, n:] @ self._W_y_T + self.model.b_y
             residuals = plan_residuals(terminal_norm, x, y, None, bounds, alpha)
-            return cost, max(0.0, residuals["output_violation"], residuals["terminal_residual"])
+            return merit_terms(x, cost, terminal_norm, residuals["output_violation"])
 
         outcome = globalized_sqp(
             self._cand,

@@ -43,8 +43,10 @@ is positive definite and its gradient at :math:`d = 0` is the gradient of :math:
 of the nonlinear FHOCP (the subproblem's multipliers are then the NLP's). Hence
 :math:`\|d^j\|_\infty` measures stationarity and complementarity together, and
 :math:`\theta(u^j)` primal feasibility. With a QP-only backend the subproblem carries
-the conservative terminal box (:class:`~ltv_lstm_mpc.mpc.terminal.TerminalBoxReformulation`):
-the point reached is a KKT point of the FHOCP with that box.
+the conservative terminal box (:class:`~ltv_lstm_mpc.mpc.terminal.TerminalBoxReformulation`),
+and :math:`J`, :math:`\theta` are those of the FHOCP with that box (the terminal cost bound
+:math:`\sum_j w_j (x_{N,j} - \bar x_j)^2`, :math:`\theta` measured against the box): the
+point reached is a KKT point of that conservative problem.
 
 **The answer.** Converged: the last subproblem's solution, status ``"optimal"`` (or
 ``"optimal_inaccurate"`` from the solver). Iterations spent (or the line search stalled)
