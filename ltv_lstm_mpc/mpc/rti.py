@@ -649,7 +649,7 @@ class RobustMPC:
             reason = sqp_reason
             if outcome.status != "infeasible":
                 u_plan, x_linear = outcome.u, outcome.x_linear
-            if outcome.iterations:  # the fallback below is posed on the candidate
+            elif outcome.iterations:  # the fallback below is posed on the candidate
                 self._relinearize(x_hat_a, self._cand)
         feasible = status in ("optimal", "optimal_inaccurate")
         policy = "nominal"
