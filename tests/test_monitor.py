@@ -188,3 +188,34 @@ def test_verdicts_are_computed_on_first_read_in_step_order(model) -> None:
     assert [v.guarantee for v in log.verdicts()] == ["held"] * 6
     controller.reset()
     assert controller.records == [] and controller._assumption_log is not log
+
+
+def test_a_custom_mpc_with_its_own_certification_type_is_not_monitored(model) -> None:
+    """A duck-typed MPC whose certification is not a Certification (the same attributes
+    in another type): the loop runs, its records say None, the simulation counts nothing."""
+    import types
+    from dataclasses import fields
+
+    from ltv_lstm_mpc import RobustMPC
+
+    inner = RobustMPC(model, MPCConfig(solver="daqp"))
+    real = inner.certification
+    own = types.SimpleNamespace(**{f.name: getattr(real, f.name) for f in fields(real)})
+
+    class Wrapped:
+        certification = own
+        tightening = inner.tightening
+
+        def solve(self, *args, **kwargs):
+            return inner.solve(*args, **kwargs)
+
+        def reset(self) -> None:
+            inner.reset()
+
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp"), mpc=Wrapped())
+    assert controller.monitor is None
+    sim = simulate(LSTMPlant(model, y0_phi=7.0), controller, setpoints=7.1, steps=5)
+    assert all(r.assumptions is None for r in controller.records)
+    assert sim.guarantee is None and sim.hypotheses is None
+    assert "guarantee_held_steps" not in sim.summary_counts()
+    assert sim.feasible.all()

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.caller_warnings import RunWarnings
+from ltv_lstm_mpc.certificates.certify import Certification
 from ltv_lstm_mpc.exceptions import (
     ArgumentTypeError,
     InvalidValueError,
@@ -265,7 +266,12 @@ class OffsetFreeController:
             np.maximum(self._u_phi_low, norm.u_phi_min, out=self._u_phi_low)
             np.minimum(self._u_phi_high, norm.u_phi_max, out=self._u_phi_high)
         #: Watches Theorem 3's hypotheses per step (:mod:`ltv_lstm_mpc.loop.monitor`).
-        self.monitor = AssumptionMonitor(model, self.certification)
+        # (None when a custom mpc brings a certification of its own kind: nothing to check)
+        self.monitor: AssumptionMonitor | None = (
+            AssumptionMonitor(model, self.certification)
+            if isinstance(self.certification, Certification)
+            else None
+        )
         self.warnings = RunWarnings()
         self.records: list[ControllerStep] = []
         self.reset()
@@ -293,7 +299,9 @@ class OffsetFreeController:
         self.mpc.reset()
         self.reference.reset()
         self.records = []
-        self._assumption_log = AssumptionLog(self.monitor, self.records)
+        self._assumption_log = (
+            None if self.monitor is None else AssumptionLog(self.monitor, self.records)
+        )
         self.warnings.reset()
         self._interval: tuple[float, list[float], list[float]] = (math.nan, [], [])
 
