@@ -179,6 +179,51 @@ def test_random_errors_name_the_entry(random: dict[str, Any], where: str, hint: 
     assert where in str(caught.value) and hint in str(caught.value)
 
 
+def test_seeds_only_draws_and_nothing_to_draw() -> None:
+    """[random] with samples only: the draws differ by their noise seed (a seeds-only
+    i.i.d. campaign); with the seed fixed as well there is nothing to draw: refused."""
+    data = tiny_random()
+    data["random"] = {"samples": 5}
+    spec = parse_spec(data)
+    assert len(spec.tasks) == 2 * 5 and spec.random.noise_seed
+    seeds = [t.settings["seed"] for t in spec.tasks if t.settings["L_d"] == 0.01]
+    assert len(set(seeds)) == 5
+    assert spec.strata == ["L_d"]
+    data["campaign"]["seed"] = 3
+    with pytest.raises(CampaignSpecError, match="nothing to draw"):
+        parse_spec(data)
+
+
+def test_drawn_mismatch_with_mismatch_levels_is_refused() -> None:
+    """A mismatch factor and drawn mismatch parameters would blur the factor's levels
+    (the strata): refused, naming the entry."""
+    data = tiny_random()
+    data["factors"]["mismatch"] = [{}, {"W_b3": 1.1}]
+    with pytest.raises(CampaignSpecError, match=r"\[random\].mismatch.*blur its levels"):
+        parse_spec(data)
+
+
+def test_a_stratum_of_errors_only_is_stated_with_bound_one() -> None:
+    rows = [
+        {
+            "status": "ok",
+            "L_d": "a",
+            "violations": 0,
+            "final_offset": 0.0,
+            "infeasible_steps": 0,
+            "violations_guarantee_held": 0,
+        }
+    ] * 3
+    rows += [{"status": "error", "L_d": "b"}] * 2 + [{"status": "error", "L_d": "a"}]
+    statements = campaign_statements(rows, ["L_d"], beta=0.05)
+    b = [s for s in statements if s.stratum["L_d"] == "b"]
+    assert len(b) == 4 and all(s.loops == 0 and s.upper_bound == 1.0 for s in b)
+    assert all(s.errors == 2 for s in b)
+    a = next(s for s in statements if s.stratum["L_d"] == "a" and s.outcome == "violation")
+    assert (a.failures, a.loops, a.errors) == (0, 3, 1)
+    assert "1 task(s) with errors left out" in a.sentence()
+
+
 def test_random_setting_also_fixed_is_refused() -> None:
     data = tiny_random()
     data["campaign"]["noise_std"] = 0.01

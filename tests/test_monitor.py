@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, certify, load_model, simulate
-from ltv_lstm_mpc.loop.monitor import HYPOTHESES, AssumptionMonitor
+from ltv_lstm_mpc.loop.monitor import HYPOTHESES, AssumptionLog, AssumptionMonitor
 from ltv_lstm_mpc.plants import LSTMPlant
 
 
@@ -76,10 +76,8 @@ def test_each_hypothesis_out_of_its_bound_is_flagged(model, certification, monit
             "y": step["y"] + 2 * ob.w_max,
         },
         "setpoint_rate_in_bound": {"y0": step["y0"] + 2 * rate.delta_y0_max},
-        "output_error_in_bound": {  # with e_hat large enough not to be contradicted
-            "y": step["y"] + 2 * rate.e_y_bar,
-            "e_hat": 4 * rate.e_y_bar / float(ob.c_o[0]),
-        },
+        # above e_y_bar, below c_o e_inf (0.0386 > e_y_bar = 0.03 for this model)
+        "output_error_in_bound": {"y": step["y"] + 1.1 * rate.e_y_bar},
         # below e_y_bar, above c_o e_hat: only the observer-error bound is contradicted
         "observer_error_consistent": {
             "y": step["y"] + 0.5 * rate.e_y_bar,
@@ -87,6 +85,7 @@ def test_each_hypothesis_out_of_its_bound_is_flagged(model, certification, monit
         },
         "setpoint_admissible": {"setpoint_status": "outside_admissible"},
     }
+    assert 1.1 * rate.e_y_bar < float(ob.c_o[0]) * step["e_hat"]
     assert set(cases) == set(HYPOTHESES)
     for name, change in cases.items():
         monitor.reset()
@@ -95,7 +94,7 @@ def test_each_hypothesis_out_of_its_bound_is_flagged(model, certification, monit
             first = {**second}
         else:
             first = step
-        if name in ("observer_error_consistent", "output_error_in_bound"):
+        if name == "observer_error_consistent":
             first = {**step, "e_hat": second["e_hat"]}
         assert _flagged(monitor, first, second) == [name], name
 
@@ -125,6 +124,46 @@ def test_induction_starts_at_a_feasible_step(model, certification, monitor) -> N
     # the hypotheses hold again, but the induction needs a feasible start again
     assert monitor.check(**{**step, "feasible": False}).guarantee == "voided by infeasible_start"
     assert monitor.check(**step).held
+
+
+def test_rate_bound_only_where_it_was_certified(model, certification, monitor) -> None:
+    """The rate bound holds for set-points in its operating range and e_hat up to the one
+    it was computed with: outside either, the set-point hypothesis is not established."""
+    step = _nominal(model, certification)
+    high = certification.rate_bound_y0_range[1]
+    outside = {**step, "y0": np.array([float(high[0]) + 0.01])}
+    assert monitor.check(**outside).failed() == ["setpoint_rate_in_bound"]
+    monitor.reset()
+    larger = {**step, "e_hat": 1.5 * certification.rate_bound.e_hat}
+    assert monitor.check(**larger).failed() == ["setpoint_rate_in_bound"]
+    monitor.reset()
+    assert monitor.check(**step).held
+
+
+def test_two_outputs_use_the_papers_norms() -> None:
+    """With p = 2 (the quadruple tank): |Delta d_hat| is a 2-norm, as w in the paper, so two
+    outputs each moving by 0.8 w_max (1.13 w_max together) void the guarantee, while d in
+    D is the inf-norm ball."""
+    model = load_model("quadtank_lstm_n8.npz")
+    certification = certify(model, MPCConfig().certification_settings(model))
+    monitor = AssumptionMonitor(model, certification)
+    w_max = certification.observer.w_max
+    low, high = certification.rate_bound_y0_range
+    x_hat = model.equilibrium(np.array([0.1, 0.1]))
+    d_hat = np.array([0.02, -0.02])
+    y = model.W_y @ x_hat[model.n :] + model.b_y + d_hat
+    step = {
+        "y": y, "x_hat": x_hat, "d_hat": d_hat, "y0": 0.5 * (low + high),
+        "e_hat": certification.tightening.e_inf, "setpoint_status": "ok", "feasible": True,
+    }  # fmt: skip
+    assert monitor.check(**step).held
+    moved = d_hat + 0.8 * w_max
+    check = monitor.check(**{**step, "d_hat": moved, "y": y + 0.8 * w_max})
+    assert check.failed() == ["d_rate_in_bound"]
+    monitor.reset()
+    near = np.array([0.9, -0.9]) * certification.observer.d_max  # inside the inf-norm ball
+    y_near = model.W_y @ x_hat[model.n :] + model.b_y + near
+    assert monitor.check(**{**step, "d_hat": near, "y": y_near}).held
 
 
 def test_void_rate_bound_voids_every_step(model, certification) -> None:
@@ -219,3 +258,28 @@ def test_a_custom_mpc_with_its_own_certification_type_is_not_monitored(model) ->
     assert sim.guarantee is None and sim.hypotheses is None
     assert "guarantee_held_steps" not in sim.summary_counts()
     assert sim.feasible.all()
+
+
+def test_logs_of_two_runs_do_not_share_their_induction(model) -> None:
+    """Reading an earlier run's records after a reset (and a new run) gives the verdicts
+    that run has on its own; the new run's are not disturbed either."""
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp"), kernels="numpy")
+
+    def run(jump: float) -> list:
+        plant = LSTMPlant(model, y0_phi=7.0)
+        y = plant.output()
+        for k in range(8):
+            y = plant.step(controller.step(y, 7.0 + (jump if k >= 4 else 0.0)), 0.0)
+        return list(controller.records)
+
+    first = run(0.3)  # a set-point jump at step 4: voided there
+    controller.reset()
+    second = run(0.0)
+    second_verdicts = [r.assumptions.guarantee for r in second]
+    first_verdicts = [r.assumptions.guarantee for r in first]  # read after the second run
+    fresh = AssumptionLog(controller.monitor, first).verdicts()
+    assert first_verdicts == [v.guarantee for v in fresh]
+    assert second_verdicts == [
+        v.guarantee for v in AssumptionLog(controller.monitor, second).verdicts()
+    ]
+    assert first_verdicts != second_verdicts

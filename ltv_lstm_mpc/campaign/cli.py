@@ -131,7 +131,7 @@ def _plan(args: argparse.Namespace) -> int:
         return 0
     spec = _load(args.spec)
     strata = len(spec.tasks) // max(spec.random.samples, 1)
-    if not spec.random.distributions:
+    if not spec.random.active:
         print(
             f"{args.spec}: no [random] table, so its {len(spec.tasks)} tasks are not i.i.d. "
             f"draws; add [random] with samples = {needed} (and the distributions of the "

@@ -244,7 +244,9 @@ def _statements_plot(
         x = np.arange(len(outcomes)) + (j - (len(strata) - 1) / 2) * width
         bounds = [by_outcome[o].upper_bound if o in by_outcome else math.nan for o in outcomes]
         shares = [
-            by_outcome[o].failures / by_outcome[o].loops if o in by_outcome else math.nan
+            by_outcome[o].failures / by_outcome[o].loops
+            if o in by_outcome and by_outcome[o].loops
+            else math.nan
             for o in outcomes
         ]
         label = ", ".join(f"{k} = {_label(v)}" for k, v in stratum) or "all loops"
@@ -309,7 +311,9 @@ def _write_statements(statements: Sequence[Statement], path: Path) -> Path:
     buffer = io.StringIO()
     writer = csv.writer(buffer)
     strata = list(statements[0].stratum)
-    writer.writerow([*strata, "outcome", "failures", "loops", "beta", "upper_bound", "statement"])
+    writer.writerow(
+        [*strata, "outcome", "failures", "loops", "errors", "beta", "upper_bound", "statement"]
+    )
     for statement in statements:
         writer.writerow(
             [
@@ -317,6 +321,7 @@ def _write_statements(statements: Sequence[Statement], path: Path) -> Path:
                 statement.outcome,
                 statement.failures,
                 statement.loops,
+                statement.errors,
                 statement.beta,
                 statement.upper_bound,
                 statement.sentence(),
@@ -461,7 +466,7 @@ def write_report(
             f"One-sided Clopper-Pearson bounds at confidence {1 - beta:.0%} on the probability "
             "of each outcome in a closed loop of each stratum (fixed settings), valid when the "
             "loops of a stratum are i.i.d. draws of its random settings ([random] of the spec: "
-            f"sampled mismatch, noise, seeds); {len(errors)} task(s) with errors are left out. "
+            f"sampled mismatch, noise, seeds); tasks with errors are left out (column `errors`). "
             "Zero failures in N loops give 1 - beta^(1/N); `ltv-lstm-mpc campaign --plan-epsilon "
             "EPS` sizes N.",
             "",

@@ -363,13 +363,16 @@ class RandomFactors:
         Setting (or ``"mismatch.<parameter>"``) -> :class:`Distribution`.
     noise_seed : bool
         Each draw also draws the measurement-noise ``seed`` (True unless the spec sets
-        ``seed`` itself).
+        ``seed`` itself); with no distributions the draws differ by their noise only.
+    active : bool
+        The spec has a ``[random]`` table (False: one task per stratum, nothing drawn).
     """
 
     samples: int = 1
     sampling_seed: int = 0
     distributions: dict[str, Distribution] = field(default_factory=dict)
     noise_seed: bool = False
+    active: bool = False
 
     def draw(self, sample: int) -> dict[str, Any]:
         """The settings of draw ``sample`` (mismatch parameters gathered in ``mismatch``)."""
@@ -751,10 +754,23 @@ def _random_factors(
                 raise CampaignSpecError(
                     f"[random].{name}", f"also set in {where}: keep one of the two"
                 )
+    if any(name.startswith("mismatch.") for name in distributions) and (
+        "mismatch" in factors or any("mismatch" in case for case in cases)
+    ):
+        raise CampaignSpecError(
+            "[random].mismatch",
+            "the mismatch also varies in [factors] or [[cases]]: the drawn parameters would "
+            "blur its levels (the strata of the statements). Fix the other parameters in "
+            "[campaign].mismatch, or draw them all in [random]",
+        )
     seed_set = "seed" in fixed or "seed" in factors or any("seed" in case for case in cases)
-    return RandomFactors(
-        samples, sampling_seed, distributions, bool(distributions) and not seed_set
-    )
+    if not distributions and seed_set:
+        raise CampaignSpecError(
+            "[random]",
+            "nothing to draw: no distributions and the noise seed is set in the spec; add a "
+            "distribution, or drop seed so that every draw gets its own noise seed",
+        )
+    return RandomFactors(samples, sampling_seed, distributions, not seed_set, active=True)
 
 
 def _distribution(name: str, value: Any) -> Distribution:
@@ -883,7 +899,7 @@ def parse_spec(
     seen: set[str] = set()
     models: dict[str, _ModelFile] = {}
     names = list(factors)
-    draws = [random.draw(j) for j in range(random.samples)] if random.distributions else [{}]
+    draws = [random.draw(j) for j in range(random.samples)] if random.active else [{}]
     for index, case in enumerate(cases):
         for combination, (sample, drawn) in itertools.product(
             itertools.product(*(factors[n] for n in names)), enumerate(draws)
@@ -892,7 +908,7 @@ def parse_spec(
             origin = {name: f"[campaign].{name}" for name in fixed}
             origin.update({name: f"[[cases]][{index}].{name}" for name in case})
             origin.update({name: f"[factors].{name}" for name in names})
-            if random.distributions:
+            if random.active:
                 given.update(_drawn_settings(drawn, given.get("mismatch", {}), sample))
                 origin.update({name: f"[random].{name}" for name in drawn})
                 given["sample"] = sample

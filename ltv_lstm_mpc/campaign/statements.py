@@ -50,8 +50,23 @@ def _probability(name: str, value: float) -> float:
 
 def clopper_pearson_upper(failures: int, loops: int, beta: float) -> float:
     r"""One-sided Clopper-Pearson upper bound :math:`\bar\varepsilon(k, N, \beta)` (see
-    the module docstring): with confidence :math:`1 - \beta` the failure probability is at
-    most this, after ``failures`` failures in ``loops`` i.i.d. loops."""
+    the module docstring).
+
+    Parameters
+    ----------
+    failures : int
+        :math:`k`, failures observed (0 <= k <= N).
+    loops : int
+        :math:`N` >= 1 i.i.d. loops.
+    beta : float
+        :math:`\beta` in (0, 1): 1 - confidence.
+
+    Returns
+    -------
+    float
+        The bound: with confidence :math:`1 - \beta` the failure probability is at most
+        this (1 when every loop failed).
+    """
     from scipy.stats import beta as beta_distribution
 
     expect_int("loops", loops, minimum=1)
@@ -68,8 +83,21 @@ def clopper_pearson_upper(failures: int, loops: int, beta: float) -> float:
 
 def loops_needed(epsilon: float, beta: float) -> int:
     r"""Smallest number :math:`N` of i.i.d. loops that, all without a failure, state
-    :math:`p \le \varepsilon` with confidence :math:`1 - \beta`:
-    :math:`N = \lceil \ln\beta / \ln(1 - \varepsilon) \rceil`."""
+    :math:`p \le \varepsilon` with confidence :math:`1 - \beta`.
+
+    Parameters
+    ----------
+    epsilon : float
+        :math:`\varepsilon` in (0, 1), the failure probability to state.
+    beta : float
+        :math:`\beta` in (0, 1): 1 - confidence.
+
+    Returns
+    -------
+    int
+        :math:`N = \lceil \ln\beta / \ln(1 - \varepsilon) \rceil` (checked against
+        :func:`clopper_pearson_upper` for rounding).
+    """
     epsilon = _probability("epsilon", epsilon)
     beta = _probability("beta", beta)
     n = math.ceil(math.log(beta) / math.log1p(-epsilon))
@@ -143,7 +171,11 @@ class Statement:
         Failures among the loops that measured the outcome.
     beta : float
     upper_bound : float
-        :func:`clopper_pearson_upper`.
+        :func:`clopper_pearson_upper`; 1 when no loop of the stratum finished (nothing
+        is known).
+    errors : int
+        Tasks of the stratum left out because they raised (not draws of the family's
+        closed loops; count them as failures to be pessimistic).
     """
 
     stratum: dict[str, Any]
@@ -153,12 +185,14 @@ class Statement:
     loops: int
     beta: float
     upper_bound: float
+    errors: int = 0
 
     def sentence(self) -> str:
         """The statement in words."""
+        left_out = f"; {self.errors} task(s) with errors left out" if self.errors else ""
         return (
             f"with confidence {1 - self.beta:.0%}, P({self.description}) <= "
-            f"{self.upper_bound:.3g} ({self.failures} of {self.loops} loops)"
+            f"{self.upper_bound:.3g} ({self.failures} of {self.loops} loops{left_out})"
         )
 
 
@@ -175,8 +209,8 @@ def campaign_statements(
     Parameters
     ----------
     rows : sequence of dict
-        Campaign rows; rows whose status is not ``"ok"`` are left out (the report says
-        how many: an error is not a draw of the family).
+        Campaign rows; rows whose status is not ``"ok"`` are left out and counted in
+        :attr:`Statement.errors` (a stratum with no finished row gets the bound 1).
     strata : sequence of str
         The settings whose levels define the strata (the spec's ``[factors]`` and
         ``[[cases]]`` keys; not the random ones).
@@ -190,18 +224,18 @@ def campaign_statements(
     chosen = list(outcomes) if outcomes is not None else default_outcomes(offset_tolerance)
     groups: dict[tuple[Any, ...], list[Mapping[str, Any]]] = {}
     for row in rows:
-        if row.get("status") != "ok":
-            continue
         groups.setdefault(tuple(row.get(name) for name in strata), []).append(row)
     statements = []
     for levels, members in groups.items():
         stratum = dict(zip(strata, levels, strict=True))
+        finished = [row for row in members if row.get("status") == "ok"]
+        errors = len(members) - len(finished)
         for outcome in chosen:
-            verdicts = [outcome.failed(row) for row in members]
-            measured = [v for v in verdicts if v is not None]
-            if not measured:
+            measured = [v for v in (outcome.failed(row) for row in finished) if v is not None]
+            if finished and not measured:  # not measurable here (e.g. no output constraint)
                 continue
             failures = sum(measured)
+            bound = clopper_pearson_upper(failures, len(measured), beta) if measured else 1.0
             statements.append(
                 Statement(
                     stratum,
@@ -210,7 +244,8 @@ def campaign_statements(
                     failures,
                     len(measured),
                     beta,
-                    clopper_pearson_upper(failures, len(measured), beta),
+                    bound,
+                    errors,
                 )
             )
     return statements
@@ -223,14 +258,14 @@ def format_statements(statements: Sequence[Statement]) -> list[str]:
     strata = list(statements[0].stratum)
     head = " | ".join(strata) if strata else "stratum"
     lines = [
-        f"| {head} | outcome | failures / loops | upper bound (confidence "
+        f"| {head} | outcome | failures / loops | errors left out | upper bound (confidence "
         f"{1 - statements[0].beta:.0%}) |",
-        "|---|" + "---|" * max(len(strata) - 1, 0) + "---|---|---|",
+        "|---|" + "---|" * max(len(strata) - 1, 0) + "---|---|---|---|",
     ]
     for statement in statements:
         cells = " | ".join(str(v) for v in statement.stratum.values()) if strata else "all"
         lines.append(
             f"| {cells} | {statement.description} | {statement.failures} / {statement.loops} "
-            f"| {statement.upper_bound:.3g} |"
+            f"| {statement.errors} | {statement.upper_bound:.3g} |"
         )
     return lines

@@ -22,8 +22,9 @@ Metrics (physical units; the true plant output, not the noisy measurement):
   ``status_counts`` (JSON).
 * ``guarantee_held_steps`` (steps where Theorem 3's guarantee held,
   :mod:`ltv_lstm_mpc.loop.monitor`), ``violations_guarantee_held`` /
-  ``violations_guarantee_voided`` (the violation samples split by it; the theorem says 0
-  where it held) and ``infeasible_steps_guarantee_held``.
+  ``violations_guarantee_voided`` (the violation samples split by it: Theorem 3
+  excludes them where its hypotheses hold; the monitor sees those through the
+  estimates) and ``infeasible_steps_guarantee_held``.
 * ``median_step_s``, ``p95_step_s``, ``max_step_s``, ``median_mpc_s``: controller step
   times (``kernels``: ``"compiled"`` or ``"numpy"``, the kernels that ran: a worker with an
   empty numba cache runs numpy until the background compilation is done); ``setup_s``

@@ -39,7 +39,7 @@ from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
 from ltv_lstm_mpc.mpc.rti import RobustMPC
-from ltv_lstm_mpc.validation import expect_methods, expect_real, real_vector
+from ltv_lstm_mpc.validation import expect_instance, expect_methods, expect_real, real_vector
 
 __all__ = ["ControllerStep", "OffsetFreeController"]
 
@@ -197,6 +197,11 @@ class OffsetFreeController:
         ``"compiled"`` compiles now if needed (benchmarks); ``"numpy"`` the reference.
         Ignored with ``mpc`` (the model's kernel is used as it is). The choice made is
         :attr:`kernels` (``"compiled"`` or ``"numpy"``).
+    monitor : AssumptionMonitor, optional
+        Checks Theorem 3's hypotheses on every record (:mod:`ltv_lstm_mpc.loop.monitor`);
+        default: one on this controller's certification. Give one built on a certification
+        whose rate bound covers your set-point range (``y0_operating_range`` of
+        :class:`~ltv_lstm_mpc.CertificationSettings`) when the limiter uses that bound.
 
     Notes
     -----
@@ -218,6 +223,7 @@ class OffsetFreeController:
         mpc: MPCSolver | None = None,
         implausible_measurements: str = "flag",
         kernels: str = "auto",
+        monitor: AssumptionMonitor | None = None,
     ) -> None:
         model, config = require_model(model), require_config(config)
         if mpc is not None:
@@ -267,11 +273,13 @@ class OffsetFreeController:
             np.minimum(self._u_phi_high, norm.u_phi_max, out=self._u_phi_high)
         #: Watches Theorem 3's hypotheses per step (:mod:`ltv_lstm_mpc.loop.monitor`).
         # (None when a custom mpc brings a certification of its own kind: nothing to check)
-        self.monitor: AssumptionMonitor | None = (
-            AssumptionMonitor(model, self.certification)
-            if isinstance(self.certification, Certification)
-            else None
-        )
+        if monitor is not None:
+            expect_instance(
+                "monitor", monitor, AssumptionMonitor, "or None", expected="an AssumptionMonitor"
+            )
+        elif isinstance(self.certification, Certification):
+            monitor = AssumptionMonitor(model, self.certification)
+        self.monitor: AssumptionMonitor | None = monitor
         self.warnings = RunWarnings()
         self.records: list[ControllerStep] = []
         self.reset()

@@ -134,7 +134,10 @@ class SQPOutcome:
         ``"optimal"``, ``"optimal_inaccurate"`` or ``"infeasible"`` (or the failure of
         the first subproblem when nothing was solved).
     converged : bool
-        Whether the KKT residual reached the tolerance.
+        Whether the iteration stopped at a stationary point: the KKT residual reached the
+        tolerance, or the nominal step promised no decrease of the merit function beyond
+        rounding at a feasible point (stationary to the subproblem solver's accuracy;
+        ``kkt_residual`` then says how far that is).
     iterations : int
         Subproblems solved (linearizations).
     feasibility_steps : int
@@ -172,10 +175,24 @@ def required_penalty(
 ) -> float:
     r"""The merit penalty :math:`\mu` after the update of Nocedal & Wright eq. (18.36).
 
-    Returns the smallest :math:`\mu' \ge \mu` (``penalty``) with
-    :math:`\Delta J + \mu' \Delta\theta \ge \rho\, \mu' \Delta\theta` (times 1.1 when it
-    grows), where :math:`\Delta J` = ``cost_decrease`` and :math:`\Delta\theta` =
-    ``infeasibility_decrease`` are the decreases the linearized model predicts.
+    Parameters
+    ----------
+    cost_decrease : float
+        :math:`\Delta J = J(u^j) - J_{lin}(u^j + d^j)`, predicted by the linearized model.
+    infeasibility_decrease : float
+        :math:`\Delta\theta = \theta(u^j) - \theta_{lin}(u^j + d^j)`.
+    penalty : float
+        The current :math:`\mu`.
+    rho : float
+        :math:`\rho` in (0, 1).
+
+    Returns
+    -------
+    float
+        The smallest :math:`\mu' \ge \mu` with
+        :math:`\Delta J + \mu' \Delta\theta \ge \rho\, \mu' \Delta\theta`, times 1.1 when
+        it has to grow (:math:`\mu` itself when :math:`\Delta\theta \le 0` or
+        :math:`\Delta J \ge 0`).
     """
     if infeasibility_decrease <= 0.0 or cost_decrease >= 0.0:
         return penalty
@@ -216,6 +233,11 @@ def globalized_sqp(
         Stop when the KKT residual is at most this.
     penalty : float
         Initial :math:`\mu` (> 0).
+
+    Returns
+    -------
+    SQPOutcome
+        The plan, its status and the iteration's figures.
     """
     u = np.array(u_start, dtype=np.float64)
     cost, theta = evaluate(u)

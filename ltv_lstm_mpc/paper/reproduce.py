@@ -229,7 +229,8 @@ def format_table(summaries: Sequence[dict[str, Any]]) -> str:
     :math:`|\hat d| = d_{max}`, ``bad y0`` those whose set-point was not ``ok``
     (outside the admissible interval or unreachable). ``held`` counts the steps where
     Theorem 3's guarantee held (:mod:`ltv_lstm_mpc.loop.monitor`) and ``viol|held`` the
-    steps among them where the plant violated its output constraint (the theorem says 0).
+    steps among them where the plant violated its output constraint (Theorem 3 excludes
+    them where its hypotheses hold; the monitor sees those through the estimates).
     """
     header = (
         f"{'scenario':<16} {'steps':>5} {'final offset':>12} {'max viol':>8} {'infeas':>6} "

@@ -27,9 +27,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ltv_lstm_mpc.certificates.certify import certify
+from ltv_lstm_mpc.certificates.certify import Certification, certify
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
+from ltv_lstm_mpc.loop.monitor import AssumptionMonitor
 from ltv_lstm_mpc.loop.schedules import piecewise_constant
 from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
 from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
@@ -91,6 +92,12 @@ class Scenario:
         ``final_offset`` is evaluated at their last sample.
     y0_phi_initial : float
         Initial plant output (pH); the plant starts at the equilibrium giving it.
+    notes : str
+        What the scenario's numbers come from, in words.
+    rate_certification : Certification, optional
+        The certification whose rate bound the limiter uses (its own set-point range);
+        the controller's assumption monitor checks against it
+        (:mod:`ltv_lstm_mpc.loop.monitor`). None: the controller's own.
     """
 
     name: str
@@ -103,6 +110,7 @@ class Scenario:
     segments: list[tuple[int, int]] = field(default_factory=list)
     y0_phi_initial: float = 7.0
     notes: str = ""
+    rate_certification: Certification | None = None
 
     @property
     def steps(self) -> int:
@@ -129,8 +137,11 @@ class Scenario:
             config = replace(config, solver=solver)
         if N is not None:
             config = replace(config, N=N)
+        monitor = None
+        if self.rate_certification is not None:
+            monitor = AssumptionMonitor(model, self.rate_certification)
         return OffsetFreeController(
-            model, config, setpoint_rate_limit=self.setpoint_rate_limit, mpc=mpc
+            model, config, setpoint_rate_limit=self.setpoint_rate_limit, mpc=mpc, monitor=monitor
         )
 
 
@@ -224,6 +235,7 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
                 f"rate limit {rate:.4g} (normalized/step, paper notes 2.10c, valid over "
                 f"[{range1[0]}, {range1[1]}] pH); |w| <= 0.8 w_max"
             ),
+            rate_certification=slow_cert,
         )
     )
     # 2: larger changes: 10x faster set-point, disturbance steps.
