@@ -176,7 +176,7 @@ def test_schedule_selection_and_report(tiny_dataset: IdentificationDataset, tmp_
         epochs=15,
         delta_iss_margin=0.3,
         lr_warmup_epochs=3,
-        lr_final_factor=0.1,
+        lr_final_factor=0.5,
         grad_clip_norm=1.0,
         selection_rho_s_max=0.999,
     )

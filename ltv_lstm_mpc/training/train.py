@@ -38,9 +38,19 @@ Design choices the paper leaves open
   epoch makes several optimizer steps.
 * **Stopping rule (paper).** After ``epochs`` epochs training stops only if the current weights
   are certified delta-ISS (numpy certificate on the exported float64 weights,
-  :math:`\rho(A_\delta) < 1`); otherwise it continues, at most ``max_extra_epochs`` more.
-  The exported model is the certified one with the best validation FIT seen at any evaluation;
-  if no evaluated weights were ever certified, :class:`TrainingError` is raised.
+  :math:`\rho(A_\delta) < 1`) and an eligible checkpoint exists; otherwise it continues, at
+  most ``max_extra_epochs`` more. If no evaluated weights were ever eligible,
+  :class:`TrainingError` is raised.
+* **Model selection.** At every evaluation the exported float64 model is simulated on the
+  validation split from its exact equilibrium (the FIT below). A checkpoint is eligible if
+  it passes :func:`~ltv_lstm_mpc.certificates.certify.certify` with the paper's settings
+  (Assumption 2, Lemma 2, Theorem 2, tightening) and, with ``selection_rho_s_max``, has
+  :math:`\rho_s` at most that; the exported model is the eligible one with the best
+  validation FIT. The test split is evaluated once, on the exported model.
+* **Loss schedule.** ``delta_iss_margin`` switches the :math:`\lambda_2` margin term off
+  while :math:`\rho(A_\delta) \le 1 - margin` (issue 24: with it always on, the margin
+  keeps growing at the expense of the fit); ``lr_warmup_epochs``, ``lr_final_factor``
+  (cosine) and ``grad_clip_norm`` shape the optimizer steps.
 * **FIT.** :math:`100 (1 - \|y_{real} - y\| / \|y_{real} - \bar y_{real}\|)` on the physical
   outputs of all sequences of a split concatenated (one number per split), simulated with
   :meth:`~ltv_lstm_mpc.LSTMModel.simulate` on the exported model from the equilibrium
