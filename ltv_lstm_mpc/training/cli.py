@@ -254,7 +254,7 @@ def train_command(args: argparse.Namespace) -> int:
     }
     try:
         config = dataclasses.replace(
-            TrainingConfig(),
+            TrainingConfig.fidelity() if args.preset == "fidelity" else TrainingConfig(),
             **{k: v for k, v in overrides.items() if v is not None},
         )
         if dataset is None:
@@ -473,6 +473,17 @@ def register(subparsers: Any) -> None:
         action=argparse.BooleanOptionalAction,
         default=True,
         help="continue from <out>/checkpoint.pt when present (default on)",
+    )
+    tr.add_argument(
+        "--preset",
+        choices=("paper", "fidelity"),
+        default="paper",
+        help=(
+            "paper (default): the paper's settings; fidelity: 2000 epochs, lr 3e-3 with "
+            "warm-up and cosine decay, the lambda2 margin term off while rho(A_delta) <= "
+            "0.88, selection among checkpoints with rho_s <= 0.92 (TrainingConfig.fidelity); "
+            "the other options override either"
+        ),
     )
     tr.add_argument(
         "--restarts",
