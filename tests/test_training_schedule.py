@@ -44,7 +44,7 @@ def test_learning_rate_warm_up_and_cosine() -> None:
 
 def test_fidelity_preset() -> None:
     config = TrainingConfig.fidelity(seed=3)
-    assert (config.epochs, config.lr, config.lr_warmup_epochs) == (2000, 3e-3, 20)
+    assert (config.epochs, config.lr, config.lr_warmup_epochs) == (1500, 3e-3, 20)
     assert config.delta_iss_margin == 0.12 and config.selection_rho_s_max == 0.92
     assert config.seed == 3 and config.n == 5 and config.lambda2 == 0.02
     args = _parser().parse_args(["train", "--preset", "fidelity"])
@@ -260,7 +260,7 @@ def test_restarts_in_a_process_pool(tiny_dataset: IdentificationDataset, tmp_pat
 @pytest.mark.slow
 @pytest.mark.torch
 def test_fidelity_preset_reaches_the_issue_targets(tmp_path: Path) -> None:
-    """About 10 minutes on one core (experiments/training_log.md, run r04): the 11-level
+    """About 8 minutes on one core (experiments/training_log.md, run r06): the 11-level
     data with hold times from the plant and the fidelity preset give test FIT >= 97 %
     with rho_s <= 0.92 at n = 5, and the admissible set-point interval for the estimated
     d_max still contains the paper's set-points 7-8 pH."""

@@ -479,7 +479,7 @@ def register(subparsers: Any) -> None:
         choices=("paper", "fidelity"),
         default="paper",
         help=(
-            "paper (default): the paper's settings; fidelity: 2000 epochs, lr 3e-3 with "
+            "paper (default): the paper's settings; fidelity: 1500 epochs, lr 3e-3 with "
             "warm-up and cosine decay, the lambda2 margin term off while rho(A_delta) <= "
             "0.88, selection among checkpoints with rho_s <= 0.92 (TrainingConfig.fidelity); "
             "the other options override either"
