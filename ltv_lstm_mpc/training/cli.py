@@ -26,9 +26,14 @@ from ltv_lstm_mpc.command_arguments import (
 )
 from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.plants.registry import plant_name_of, resolve_plant
-from ltv_lstm_mpc.training.datasets import IdentificationDataset, generate_dataset
+from ltv_lstm_mpc.training.datasets import (
+    IdentificationDataset,
+    generate_dataset,
+    hold_range_for,
+    input_coverage,
+)
 
-__all__ = ["generate_data_command", "register", "train_command"]
+__all__ = ["coverage_summary", "generate_data_command", "register", "train_command"]
 
 _DEFAULT_DATA = "ph_identification_data.npz"
 #: Default LSTM size for ``--plant quadtank`` (the shipped ``quadtank_lstm_n8.npz``).
@@ -69,6 +74,36 @@ def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
         metavar=("TRAIN", "VAL", "TEST"),
         default=None,
         help="sequences per split (default 10 3 2, scaled to --sequences when it differs)",
+    )
+    parser.add_argument(
+        "--min-hold",
+        type=positive_int,
+        default=None,
+        help="shortest hold of a level, samples (default 10, the paper's)",
+    )
+    parser.add_argument(
+        "--max-hold",
+        type=positive_int,
+        default=None,
+        help="longest hold of a level, samples (default 100, the paper's)",
+    )
+    parser.add_argument(
+        "--hold-from-plant",
+        action="store_true",
+        help=(
+            "hold range matched to the plant's step responses: shortest = fastest time "
+            "constant, longest = 2 x slowest settling time (pH: 8..76 samples; overrides "
+            "--min-hold/--max-hold)"
+        ),
+    )
+    parser.add_argument(
+        "--levels",
+        type=int,
+        default=0,
+        help=(
+            "amplitudes from this many equally spaced values of the input range, its edges "
+            "included (default 0: uniform in the range, the paper's)"
+        ),
     )
 
 
@@ -116,14 +151,43 @@ def _generate(args: argparse.Namespace) -> IdentificationDataset:
         file=sys.stderr,
     )
     plant = entry.build()
-    return generate_dataset(
+    min_hold = args.min_hold if args.min_hold is not None else 10
+    max_hold = args.max_hold if args.max_hold is not None else 100
+    if args.hold_from_plant:
+        min_hold, max_hold = hold_range_for(plant)
+    if min_hold > max_hold:
+        raise UsageError(f"--min-hold {min_hold} is longer than --max-hold {max_hold}")
+    if args.levels == 1 or args.levels < 0:
+        raise UsageError(f"--levels must be 0 (uniform) or >= 2, got {args.levels}")
+    dataset = generate_dataset(
         seed=args.data_seed,
         sequences=args.sequences,
         steps=args.steps,
         split_sizes=_split_sizes(args),
         plant=plant,
+        min_hold=min_hold,
+        max_hold=max_hold,
+        levels=args.levels,
         progress=not getattr(args, "no_progress", False),
     )
+    print(coverage_summary(dataset), file=sys.stderr)
+    return dataset
+
+
+def coverage_summary(dataset: IdentificationDataset) -> str:
+    """Lines describing the data's input coverage (:func:`input_coverage`) per split."""
+    lines = [f"input coverage (hold range {dataset.metadata.get('hold_range')} samples):"]
+    for split, per_input in input_coverage(dataset).items():
+        for j, c in enumerate(per_input):
+            lines.append(
+                f"  {split} input {j}: reached [{c['min']:.4g}, {c['max']:.4g}] of "
+                f"[{c['range'][0]:.4g}, {c['range'][1]:.4g}], {c['empty_bins']} of "
+                f"{len(c['bin_fractions'])} amplitude bins empty, "
+                f"{100 * c['low_edge_fraction']:.1f} % / {100 * c['high_edge_fraction']:.1f} % "
+                f"of samples at the low / high edge (5 %), {c['holds']['count']} holds of "
+                f"{c['holds']['min']}..{c['holds']['max']} samples"
+            )
+    return "\n".join(lines)
 
 
 def generate_data_command(args: argparse.Namespace) -> int:
@@ -183,10 +247,14 @@ def train_command(args: argparse.Namespace) -> int:
         "dtype": args.dtype,
         "forget_bias_init": args.forget_bias_init,
         "lr_final_factor": args.lr_final_factor,
+        "lr_warmup_epochs": args.lr_warmup_epochs,
+        "delta_iss_margin": args.delta_iss_margin,
+        "grad_clip_norm": args.grad_clip_norm,
+        "selection_rho_s_max": args.selection_rho_s_max,
     }
     try:
         config = dataclasses.replace(
-            TrainingConfig(),
+            TrainingConfig.fidelity() if args.preset == "fidelity" else TrainingConfig(),
             **{k: v for k, v in overrides.items() if v is not None},
         )
         if dataset is None:
@@ -195,20 +263,42 @@ def train_command(args: argparse.Namespace) -> int:
             out.mkdir(parents=True, exist_ok=True)
             data_name = resolve_plant(plant_name).data_file
             print(f"wrote {dataset.save(out / data_name)}", file=sys.stderr)
-        result = train(
-            dataset,
-            config,
-            args.out,
-            progress=not args.no_progress,
-            resume=args.resume,
-        )
+        if args.restarts > 1:
+            from ltv_lstm_mpc.training.restarts import train_restarts
+
+            restarts = train_restarts(
+                dataset,
+                config,
+                seeds=range(config.seed, config.seed + args.restarts),
+                out_dir=args.out,
+                workers=args.workers,
+            )
+            for run in restarts.runs:
+                outcome = (
+                    f"FIT(val) {run['fit_val']:.2f} %"
+                    if "error" not in run
+                    else "no certified model"
+                )
+                print(f"seed {run['seed']}: {outcome}")
+            print(f"kept seed {restarts.best_seed} (best validation FIT)")
+            paths: tuple[Path | None, ...] = (restarts.model_path, restarts.report_path)
+            report = restarts.report
+        else:
+            result = train(
+                dataset,
+                config,
+                args.out,
+                progress=not args.no_progress,
+                resume=args.resume,
+            )
+            paths = (result.model_path, result.report_path, result.plot_path, result.curves_path)
+            report = result.report
     except ImportError as error:  # pragma: no cover - torch missing
         print(f"error: {error}", file=sys.stderr)
         return 1
     except (LtvMpcError, OSError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
-    report = result.report
     fit = report["fit"]
     per_output = report.get("fit_per_output", {})
     if any(len(v) > 1 for v in per_output.values()):
@@ -226,7 +316,7 @@ def train_command(args: argparse.Namespace) -> int:
         f"r1 = {report['r1']:.4f}, r2 = {report['r2']:.4f}; {report['epochs_run']} epochs in "
         f"{report['wall_time_s']:.0f} s"
     )
-    for path in (result.model_path, result.report_path, result.plot_path):
+    for path in paths:
         if path is not None:
             print(f"wrote {path}")
     return 0
@@ -339,6 +429,36 @@ def register(subparsers: Any) -> None:
         help="cosine learning-rate decay to lr * factor over the epochs (default 1: constant)",
     )
     tr.add_argument(
+        "--lr-warmup-epochs",
+        type=int,
+        default=None,
+        help="linear learning-rate warm-up over these first epochs (default 0: none)",
+    )
+    tr.add_argument(
+        "--delta-iss-margin",
+        type=float,
+        default=None,
+        help=(
+            "switch the lambda2 margin term off while rho(A_delta) <= 1 - margin, on again "
+            "if the margin is lost (default: always on, the paper)"
+        ),
+    )
+    tr.add_argument(
+        "--grad-clip-norm",
+        type=nonnegative_float,
+        default=None,
+        help="clip the gradient norm of each step to this value (default 0: no clipping)",
+    )
+    tr.add_argument(
+        "--selection-rho-s-max",
+        type=float,
+        default=None,
+        help=(
+            "select only checkpoints with rho_s (Lemma 2, Q_s = 1000 I) at most this "
+            "(default: any certified checkpoint)"
+        ),
+    )
+    tr.add_argument(
         "--threads",
         type=int,
         default=None,
@@ -353,6 +473,35 @@ def register(subparsers: Any) -> None:
         action=argparse.BooleanOptionalAction,
         default=True,
         help="continue from <out>/checkpoint.pt when present (default on)",
+    )
+    tr.add_argument(
+        "--preset",
+        choices=("paper", "fidelity"),
+        default="paper",
+        help=(
+            "paper (default): the paper's settings; fidelity: 1500 epochs, lr 3e-3 with "
+            "warm-up and cosine decay, the lambda2 margin term off while rho(A_delta) <= "
+            "0.88, selection among checkpoints with rho_s <= 0.92 (TrainingConfig.fidelity); "
+            "the other options override either"
+        ),
+    )
+    tr.add_argument(
+        "--restarts",
+        type=positive_int,
+        default=1,
+        help=(
+            "train this many models, seeds --seed, --seed + 1, ..., each in <out>/seed_<s>, "
+            "and keep the best validation FIT (default 1)"
+        ),
+    )
+    tr.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help=(
+            "processes for --restarts (default 0: one after the other); keep workers x "
+            "--threads within the cores"
+        ),
     )
     tr.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     tr.set_defaults(func=train_command)

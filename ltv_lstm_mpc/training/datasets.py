@@ -64,10 +64,14 @@ __all__ = [
     "IdentificationDataset",
     "generate_dataset",
     "generate_split",
+    "hold_range_for",
     "initial_input",
+    "input_coverage",
     "multilevel_signal",
     "sequence_rng",
     "split_indices",
+    "step_settling_times",
+    "step_time_constants",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -144,6 +148,7 @@ def _simulate_stepped(
     min_hold: int,
     max_hold: int,
     progress: bool = False,
+    levels: int = 0,
 ) -> tuple[FloatArray, FloatArray]:
     """(u_phi, y_phi) of any plant, one sample at a time: ``reset()``, then ``step(u)``.
 
@@ -160,8 +165,9 @@ def _simulate_stepped(
         rng = sequence_rng(seed, index, sequences)
         for j in range(m):
             u[row, :, j] = multilevel_signal(
-                rng, steps, float(low[j]), float(high[j]), min_hold=min_hold, max_hold=max_hold
-            )
+                rng, steps, float(low[j]), float(high[j]), min_hold=min_hold, max_hold=max_hold,
+                levels=levels,
+            )  # fmt: skip
     outputs: list[FloatArray] = []
     for row in tqdm(range(len(indices)), disable=not progress, desc="sequences", leave=False):
         plant.reset()
@@ -182,11 +188,17 @@ def multilevel_signal(
     *,
     min_hold: int = 10,
     max_hold: int = 100,
+    levels: int = 0,
 ) -> FloatArray:
     """Multilevel pseudo-random signal of ``steps`` samples.
 
-    Levels are uniform in [low, high]; each is held ``rng.integers(min_hold, max_hold + 1)``
-    samples (the last one is truncated at the end of the sequence).
+    Levels are uniform in [low, high] (``levels = 0``, the paper) or drawn uniformly from
+    ``levels`` equally spaced values ``low + (high - low) i / (levels - 1)``, the edges
+    ``low`` and ``high`` included (``levels >= 2``: amplitude coverage of the whole input
+    range; each level differs from the previous one, so about 1 / levels of the levels
+    sit at each edge); each is held
+    ``rng.integers(min_hold, max_hold + 1)`` samples (the last one is truncated at the end
+    of the sequence).
     """
     if steps < 1:
         raise InvalidValueError(f"steps must be >= 1, got {steps}")
@@ -194,10 +206,21 @@ def multilevel_signal(
         raise InvalidValueError(f"need 1 <= min_hold <= max_hold, got {min_hold}, {max_hold}")
     if not high > low:
         raise InvalidValueError(f"need high > low, got low={low}, high={high}")
+    if levels == 1 or levels < 0:
+        raise InvalidValueError(f"levels must be 0 (uniform) or >= 2, got {levels}")
     out = np.empty(steps)
     k = 0
+    previous = -1
     while k < steps:
-        level = rng.uniform(low, high)
+        if levels:
+            # a level different from the previous one, so the holds are as drawn
+            index = int(rng.integers(0, levels if previous < 0 else levels - 1))
+            if 0 <= previous <= index:
+                index += 1
+            previous = index
+            level = low + (high - low) * index / (levels - 1)
+        else:
+            level = rng.uniform(low, high)
         hold = int(rng.integers(min_hold, max_hold + 1))
         out[k : k + hold] = level
         k += hold
@@ -236,6 +259,7 @@ def _simulate_quadtank(
     plant: QuadrupleTankPlant,
     min_hold: int,
     max_hold: int,
+    levels: int = 0,
 ) -> tuple[FloatArray, FloatArray]:
     """(u_phi, y_phi) of shape (len(indices), steps, 2) for the quadruple tank."""
     u = np.empty((len(indices), steps, 2))
@@ -243,16 +267,17 @@ def _simulate_quadtank(
         rng = sequence_rng(seed, index, sequences)
         for j in range(2):
             u[row, :, j] = multilevel_signal(
-                rng, steps, plant.u_phi_min, plant.u_phi_max, min_hold=min_hold, max_hold=max_hold
-            )
+                rng, steps, plant.u_phi_min, plant.u_phi_max, min_hold=min_hold, max_hold=max_hold,
+                levels=levels,
+            )  # fmt: skip
     if not indices:
         return u, np.empty((0, steps, 2))
     h0 = np.tile(plant.steady_state(plant.v_nominal), (len(indices), 1))
-    levels = simulate_quadtank_batch(
+    tank_levels = simulate_quadtank_batch(
         h0, plant.saturate(u[:, : steps - 1]), Ts=plant.Ts, substeps=plant.substeps,
         params=plant.params,
     )  # fmt: skip
-    return u, np.ascontiguousarray(levels[..., :2])
+    return u, np.ascontiguousarray(tank_levels[..., :2])
 
 
 def _simulate(
@@ -265,25 +290,27 @@ def _simulate(
     min_hold: int,
     max_hold: int,
     progress: bool = False,
+    levels: int = 0,
 ) -> tuple[FloatArray, FloatArray]:
     """(u_phi, y_phi) of shape (len(indices), steps) (pH) or (len(indices), steps, 2)
     (quadruple tank) for the given sequence indices."""
     if isinstance(plant, QuadrupleTankPlant):
         return _simulate_quadtank(
             indices, seed=seed, sequences=sequences, steps=steps, plant=plant,
-            min_hold=min_hold, max_hold=max_hold,
+            min_hold=min_hold, max_hold=max_hold, levels=levels,
         )  # fmt: skip
     if not isinstance(plant, PHNeutralizationPlant):
         return _simulate_stepped(
             indices, seed=seed, sequences=sequences, steps=steps, plant=plant,
-            min_hold=min_hold, max_hold=max_hold, progress=progress,
+            min_hold=min_hold, max_hold=max_hold, progress=progress, levels=levels,
         )  # fmt: skip
     u = np.empty((len(indices), steps))
     for row, index in enumerate(indices):
         rng = sequence_rng(seed, index, sequences)
         u[row] = multilevel_signal(
-            rng, steps, plant.u_phi_min, plant.u_phi_max, min_hold=min_hold, max_hold=max_hold
-        )
+            rng, steps, plant.u_phi_min, plant.u_phi_max, min_hold=min_hold, max_hold=max_hold,
+            levels=levels,
+        )  # fmt: skip
     if not indices:
         return u, np.empty((0, steps))
     x0 = np.tile(plant.steady_state_state(plant.q3_nominal, plant.q2_nominal), (len(indices), 1))
@@ -484,6 +511,7 @@ def _metadata(
     plant: IdentificationPlant,
     min_hold: int,
     max_hold: int,
+    levels: int = 0,
 ) -> dict[str, Any]:
     common: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
@@ -498,6 +526,8 @@ def _metadata(
         "hold_range": [int(min_hold), int(max_hold)],
         "alignment": "y_phi[k] measured at k*Ts, before u_phi[k] acts",
     }
+    if levels:  # the paper's uniform levels leave the metadata as they were
+        common["levels"] = int(levels)
     if isinstance(plant, QuadrupleTankPlant):
         return {
             "plant": "QuadrupleTankPlant",
@@ -567,6 +597,7 @@ def generate_split(
     plant: IdentificationPlant | None = None,
     min_hold: int = 10,
     max_hold: int = 100,
+    levels: int = 0,
 ) -> tuple[FloatArray, FloatArray]:
     """Regenerate one split alone; identical to the same split of :func:`generate_dataset`.
 
@@ -585,6 +616,7 @@ def generate_split(
         plant=plant,
         min_hold=min_hold,
         max_hold=max_hold,
+        levels=levels,
     )
 
 
@@ -597,6 +629,7 @@ def generate_dataset(
     plant: IdentificationPlant | None = None,
     min_hold: int = 10,
     max_hold: int = 100,
+    levels: int = 0,
     progress: bool = False,
 ) -> IdentificationDataset:
     """Simulate the identification experiment of the paper (defaults reproduce it).
@@ -617,7 +650,11 @@ def generate_dataset(
         record ``"package.module:Class"``, its ``u_phi_initial`` (default: the middle of
         the range) and its ``y_phi_constraint`` where it states them.
     min_hold, max_hold : int
-        Range of the number of samples each level is held (paper: 10..100).
+        Range of the number of samples each level is held (paper: 10..100;
+        :func:`hold_range_for` matches it to the plant's time constants).
+    levels : int
+        0 (the paper): levels uniform in the input range; ``levels >= 2``: drawn from that
+        many equally spaced values, the range's edges included (:func:`multilevel_signal`).
     progress : bool
         Show a tqdm progress bar over the simulated time steps.
     """
@@ -633,10 +670,217 @@ def generate_dataset(
         min_hold=min_hold,
         max_hold=max_hold,
         progress=progress,
+        levels=levels,
     )
     idx = split_indices(split_sizes)
     return IdentificationDataset(
         u_phi={name: u_all[idx[name]] for name in SPLITS},
         y_phi={name: y_all[idx[name]] for name in SPLITS},
-        metadata=_metadata(seed, sequences, steps, split_sizes, plant, min_hold, max_hold),
+        metadata=_metadata(seed, sequences, steps, split_sizes, plant, min_hold, max_hold, levels),
     )
+
+
+# ------------------------------------------------------------------ experiment design
+def _step_responses(
+    plant: PHNeutralizationPlant | QuadrupleTankPlant, targets: FloatArray, steps: int
+) -> tuple[FloatArray, FloatArray]:
+    """Outputs (S, steps, p) of steps from the nominal steady state to each constant input
+    of ``targets`` (S, m), and the initial outputs (p,)."""
+    if isinstance(plant, QuadrupleTankPlant):
+        h0 = plant.steady_state(plant.v_nominal)
+        u = np.repeat(targets[:, None, :], steps, axis=1)
+        levels = simulate_quadtank_batch(
+            np.tile(h0, (targets.shape[0], 1)), plant.saturate(u), Ts=plant.Ts,
+            substeps=plant.substeps, params=plant.params,
+        )  # fmt: skip
+        return np.asarray(levels[..., :2]), np.asarray(h0[:2])
+    x0 = plant.steady_state_state(plant.q3_nominal, plant.q2_nominal)
+    u = np.repeat(targets[:, :1], steps, axis=1)
+    states = simulate_ph_batch(
+        np.tile(x0, (targets.shape[0], 1)), plant.saturate(u), plant.q2_nominal, Ts=plant.Ts,
+        substeps=plant.substeps, params=plant.params,
+    )  # fmt: skip
+    y = ph_from_state(states[..., 0], states[..., 1], pK1=plant.params.pK1, pK2=plant.params.pK2)
+    y0 = ph_from_state(x0[0], x0[1], pK1=plant.params.pK1, pK2=plant.params.pK2)
+    return np.asarray(y, dtype=np.float64)[..., None], np.atleast_1d(np.asarray(y0, dtype=float))
+
+
+def step_time_constants(
+    plant: IdentificationPlant | None = None,
+    *,
+    amplitudes: int = 6,
+    steps: int = 600,
+) -> FloatArray:
+    """Time constants (in samples) of the plant's step responses over its input range.
+
+    From the nominal steady state the plant receives constant inputs at ``amplitudes``
+    equally spaced values of its input range (all inputs together, the edges included);
+    the time constant of each response and output is the first sample where the output
+    has covered 63.2 % of its final change (responses that change by less than 1e-6 are
+    skipped). The pH plant (six steps from q3 = 15.6 mL/s to 12.5 ... 17 mL/s): 8-12
+    samples (80-120 s at Ts = 10 s); the quadruple tank: 5-13 samples.
+
+    Parameters
+    ----------
+    plant : PHNeutralizationPlant or QuadrupleTankPlant, optional
+        Default the pH plant of Table I.
+    amplitudes : int
+        Number of step sizes (>= 2).
+    steps : int
+        Length of each response (samples); long enough to settle.
+
+    Returns
+    -------
+    ndarray
+        The time constants found (samples), sorted.
+    """
+    plant = plant if plant is not None else PHNeutralizationPlant()
+    return _step_times(plant, amplitudes, steps)[0]
+
+
+def step_settling_times(
+    plant: IdentificationPlant | None = None,
+    *,
+    amplitudes: int = 6,
+    steps: int = 600,
+    band: float = 0.02,
+) -> FloatArray:
+    """Settling times (in samples) of the same step responses as
+    :func:`step_time_constants`: the first sample after which the output stays within
+    ``band`` (relative) of its final change. Sorted."""
+    plant = plant if plant is not None else PHNeutralizationPlant()
+    return _step_times(plant, amplitudes, steps, band)[1]
+
+
+def _step_times(
+    plant: Any, amplitudes: int, steps: int, band: float = 0.02
+) -> tuple[FloatArray, FloatArray]:
+    if not isinstance(plant, (PHNeutralizationPlant, QuadrupleTankPlant)):
+        raise InvalidValueError(
+            "step responses are simulated for the pH and quadruple-tank plants; for another "
+            "plant choose min_hold / max_hold from its known time constants"
+        )
+    if amplitudes < 2 or steps < 10:
+        raise InvalidValueError(f"need amplitudes >= 2 and steps >= 10, got {amplitudes}, {steps}")
+    m = 2 if isinstance(plant, QuadrupleTankPlant) else 1
+    low, high = (np.broadcast_to(v, (m,)) for v in _input_range(plant))
+    targets = low + np.linspace(0.0, 1.0, amplitudes)[:, None] * (high - low)
+    y, y0 = _step_responses(plant, targets, steps)
+    tau: list[float] = []
+    settle: list[float] = []
+    for row in range(y.shape[0]):
+        for j in range(y.shape[2]):
+            change = y[row, :, j] - y0[j]
+            final = change[-1]
+            if abs(final) < 1e-6:
+                continue
+            relative = change / final
+            reached = np.nonzero(relative >= 1.0 - np.exp(-1.0))[0]
+            if reached.size:
+                tau.append(float(reached[0]))
+            outside = np.nonzero(np.abs(relative - 1.0) > band)[0]
+            settle.append(float(outside[-1] + 1) if outside.size else 0.0)
+    return np.sort(np.array(tau)), np.sort(np.array(settle))
+
+
+def hold_range_for(
+    plant: IdentificationPlant | None = None, *, settling: float = 2.0
+) -> tuple[int, int]:
+    """Hold-time range (samples) matched to the plant's time constants.
+
+    The shortest hold is the fastest time constant of :func:`step_time_constants` (the
+    fast dynamics are excited), the longest ``settling`` times the slowest 2 % settling
+    time of :func:`step_settling_times` (the responses settle, so the static gain over the
+    whole range is seen). The pH plant: (8, 76); the quadruple tank: (5, 96); the paper's
+    pH design holds 10-100 samples.
+
+    Parameters
+    ----------
+    plant : PHNeutralizationPlant or QuadrupleTankPlant, optional
+        Default the pH plant.
+    settling : float
+        Longest hold in units of the slowest settling time (> 0).
+
+    Returns
+    -------
+    (min_hold, max_hold) : (int, int)
+    """
+    plant = plant if plant is not None else PHNeutralizationPlant()
+    if not settling > 0:
+        raise InvalidValueError(f"settling must be > 0, got {settling}")
+    tau, settle = _step_times(plant, 6, 600)
+    if tau.size == 0:
+        raise InvalidValueError("no step response of the plant changed its output")
+    min_hold = max(1, int(np.floor(tau[0])))
+    return min_hold, max(min_hold, int(np.ceil(settling * settle[-1])))
+
+
+def input_coverage(
+    dataset: IdentificationDataset, *, bins: int = 10, edge_fraction: float = 0.05
+) -> dict[str, Any]:
+    """How the identification inputs cover the input range, per split and input.
+
+    Parameters
+    ----------
+    dataset : IdentificationDataset
+    bins : int
+        Equal-width amplitude bins over the input range of the data (``u_phi_range`` of the
+        metadata, else the data's min/max).
+    edge_fraction : float
+        Width of the edge bands, as a fraction of the range.
+
+    Returns
+    -------
+    dict
+        ``{split: [per input: {"min", "max", "bin_fractions", "empty_bins",
+        "low_edge_fraction", "high_edge_fraction", "holds": {"count", "min", "median",
+        "max"}}]}``: the fraction of samples in each bin and in the bands within
+        ``edge_fraction`` of the range's ends, and the hold times (samples) of the levels
+        (the truncated first and last of each sequence included).
+    """
+    if bins < 1 or not 0.0 < edge_fraction < 0.5:
+        raise InvalidValueError(
+            f"need bins >= 1 and 0 < edge_fraction < 0.5, got {bins}, {edge_fraction}"
+        )
+    stated = dataset.metadata.get("u_phi_range")
+    result: dict[str, Any] = {}
+    for name in SPLITS:
+        u, _ = dataset.channels(name)
+        if u.shape[0] == 0:
+            continue
+        per_input: list[dict[str, Any]] = []
+        for j in range(u.shape[2]):
+            values = u[..., j]
+            if stated is not None:
+                lows = np.atleast_1d(np.asarray(stated[0], dtype=float))
+                highs = np.atleast_1d(np.asarray(stated[1], dtype=float))
+                low, high = float(lows[min(j, lows.size - 1)]), float(highs[min(j, highs.size - 1)])
+            else:
+                low, high = float(values.min()), float(values.max())
+            width = max(high - low, 1e-12)
+            counts, _ = np.histogram(np.clip(values, low, high), bins=bins, range=(low, high))
+            fractions = counts / values.size
+            holds: list[int] = []
+            for row in values:
+                changes = np.flatnonzero(np.diff(row) != 0.0) + 1
+                edges = np.concatenate(([0], changes, [row.size]))
+                holds.extend(np.diff(edges).tolist())
+            per_input.append(
+                {
+                    "min": float(values.min()),
+                    "max": float(values.max()),
+                    "range": [low, high],
+                    "bin_fractions": fractions.tolist(),
+                    "empty_bins": int(np.sum(counts == 0)),
+                    "low_edge_fraction": float(np.mean(values <= low + edge_fraction * width)),
+                    "high_edge_fraction": float(np.mean(values >= high - edge_fraction * width)),
+                    "holds": {
+                        "count": len(holds),
+                        "min": int(min(holds)),
+                        "median": float(np.median(holds)),
+                        "max": int(max(holds)),
+                    },
+                }
+            )
+        result[name] = per_input
+    return result
