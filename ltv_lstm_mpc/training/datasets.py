@@ -46,10 +46,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
-from ltv_lstm_mpc.lstm.model import Normalization
+from ltv_lstm_mpc.lstm.model import LSTMModel, Normalization
 from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant, ph_from_state, simulate_ph_batch
 from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.quadtank import (
@@ -69,6 +69,7 @@ __all__ = [
     "input_coverage",
     "multilevel_signal",
     "sequence_rng",
+    "simulate_sequences",
     "split_indices",
     "step_settling_times",
     "step_time_constants",
@@ -884,3 +885,25 @@ def input_coverage(
             )
         result[name] = per_input
     return result
+
+
+def simulate_sequences(
+    model: LSTMModel, u_phi: ArrayLike, q3_initial: float | ArrayLike
+) -> FloatArray:
+    """Physical outputs of ``model`` for each sequence of ``u_phi``, from the equilibrium of
+    the constant physical input ``q3_initial`` (the data's initial steady state, one value
+    per input); uses :meth:`LSTMModel.simulate`.
+
+    ``u_phi`` of shape (S, T) (one input) gives (S, T) outputs (one output); (S, T, m) gives
+    (S, T, p). Entry k is the output before ``u_phi[k]`` acts.
+    """
+    u_arr = np.asarray(u_phi, dtype=np.float64)
+    channels = u_arr.ndim == 3
+    u3 = u_arr if channels else np.atleast_2d(u_arr)[..., None]
+    x0 = model.equilibrium(model.normalize_u(np.atleast_1d(np.asarray(q3_initial, dtype=float))))
+    out = np.empty((u3.shape[0], u3.shape[1], model.p))
+    for row in range(u3.shape[0]):
+        u_norm = model.normalize_u(u3[row])
+        _, y = model.simulate(x0, u_norm[:-1])
+        out[row] = model.denormalize_y(y)
+    return out if channels else out[..., 0]

@@ -94,8 +94,7 @@ def estimate_d_max(
     DMaxEstimate
     """
     model = require_model(model)
-    from ltv_lstm_mpc.training.datasets import IdentificationDataset
-    from ltv_lstm_mpc.training.train import simulate_sequences
+    from ltv_lstm_mpc.training.datasets import IdentificationDataset, simulate_sequences
 
     if model.normalization is None:
         raise InvalidValueError("estimate_d_max needs a model with a normalization")

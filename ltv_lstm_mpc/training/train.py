@@ -91,6 +91,7 @@ from ltv_lstm_mpc.training.datasets import (
     IdentificationDataset,
     initial_input,
     input_coverage,
+    simulate_sequences,
 )
 
 __all__ = [
@@ -371,28 +372,6 @@ def fit_index(y_real: ArrayLike, y: ArrayLike) -> float:
     if denominator == 0.0:
         raise InvalidValueError("FIT is undefined for a constant y_real")
     return 100.0 * (1.0 - float(np.linalg.norm(real - pred)) / denominator)
-
-
-def simulate_sequences(
-    model: LSTMModel, u_phi: ArrayLike, q3_initial: float | ArrayLike
-) -> FloatArray:
-    """Physical outputs of ``model`` for each sequence of ``u_phi``, from the equilibrium of
-    the constant physical input ``q3_initial`` (the data's initial steady state, one value
-    per input); uses :meth:`LSTMModel.simulate`.
-
-    ``u_phi`` of shape (S, T) (one input) gives (S, T) outputs (one output); (S, T, m) gives
-    (S, T, p). Entry k is the output before ``u_phi[k]`` acts.
-    """
-    u_arr = np.asarray(u_phi, dtype=np.float64)
-    channels = u_arr.ndim == 3
-    u3 = u_arr if channels else np.atleast_2d(u_arr)[..., None]
-    x0 = model.equilibrium(model.normalize_u(np.atleast_1d(np.asarray(q3_initial, dtype=float))))
-    out = np.empty((u3.shape[0], u3.shape[1], model.p))
-    for row in range(u3.shape[0]):
-        u_norm = model.normalize_u(u3[row])
-        _, y = model.simulate(x0, u_norm[:-1])
-        out[row] = model.denormalize_y(y)
-    return out if channels else out[..., 0]
 
 
 def evaluate_model(
