@@ -43,7 +43,7 @@ Design choices the paper leaves open
   :class:`TrainingError` is raised.
 * **Model selection.** At every evaluation the exported float64 model is simulated on the
   validation split from its exact equilibrium (the FIT below). A checkpoint is eligible if
-  it passes :func:`~ltv_lstm_mpc.certificates.certify.certify` with the paper's settings
+  it passes :func:`~ltv_lstm_mpc.certify` with the paper's settings
   (Assumption 2, Lemma 2, Theorem 2, tightening) and, with ``selection_rho_s_max``, has
   :math:`\rho_s` at most that; the exported model is the eligible one with the best
   validation FIT. The test split is evaluated once, on the exported model.
@@ -193,7 +193,7 @@ class TrainingConfig:
         Model selection: a checkpoint is eligible only if its :math:`\\rho_s` (Lemma 2, eq.
         incremental_lyap_neg_def, with ``Q_s``) is at most this value (None: any
         :math:`\\rho_s`). Every eligible checkpoint must also pass the library's
-        :func:`~ltv_lstm_mpc.certificates.certify.certify` with the paper's settings
+        :func:`~ltv_lstm_mpc.certify` with the paper's settings
         (Assumption 2 :math:`\\rho(A_\\delta) < 1`, Lemma 2, Theorem 2, tightening); among
         them the best validation FIT is kept. Training goes on after the planned epochs
         (at most ``max_extra_epochs``) until the current weights are delta-ISS and an
@@ -517,7 +517,7 @@ def learning_rate(epoch: int, config: TrainingConfig) -> float:
 
 def selection_certificate(model: LSTMModel, config: TrainingConfig) -> tuple[bool, str]:
     r"""Whether a checkpoint may be selected: the library's
-    :func:`~ltv_lstm_mpc.certificates.certify.certify` with the paper's settings
+    :func:`~ltv_lstm_mpc.certify` with the paper's settings
     (``u_max`` and ``Q_s`` of the config) succeeds (Assumption 2, Lemma 2, Theorem 2 and
     the tightening of eq. constraint_tightening_parameters) and, with
     ``selection_rho_s_max``, :math:`\rho_s` is at most that. The admissible set-point
@@ -646,11 +646,11 @@ def guarantee_numbers(
 ) -> dict[str, Any]:
     r"""What the robust guarantees need from the model, for the training report.
 
-    * ``d_max_estimate``: :func:`~ltv_lstm_mpc.training.mismatch.estimate_d_max` of the
+    * ``d_max_estimate``: :func:`~ltv_lstm_mpc.estimate_d_max` of the
       model on the validation split (training split when there is none), 10 % margin;
       single-input single-output models only (else None).
     * ``setpoint_interval_phi``: the admissible set-point interval of Assumption 5
-      (physical units, from :func:`~ltv_lstm_mpc.certificates.certify.certify` with the
+      (physical units, from :func:`~ltv_lstm_mpc.certify` with the
       paper's settings) for the paper's :math:`d_{max} = 0.1` (``"paper_d_max"``) and for
       the estimated one (``"estimated_d_max"``); None where certify fails or the interval
       is empty, with the reason under ``setpoint_interval_errors``.
