@@ -41,6 +41,7 @@ from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.registry import resolve_plant
 
 __all__ = [
+    "SETTLE_SAMPLES",
     "Scenario",
     "ScenarioResult",
     "paper_scenarios",
@@ -188,6 +189,10 @@ class ScenarioResult:
         }
 
 
+#: Samples scenario 1 leaves after the rate-limited set-point has arrived (to settle).
+SETTLE_SAMPLES = 200
+
+
 def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
     """The five scenarios of the paper's Section V for ``model`` (the shipped pH model).
 
@@ -217,8 +222,14 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
     w_max_phi = slow_cert.observer.w_max * y_scale  # pH per step
     scenarios: list[Scenario] = []
 
-    # 1: Theorem 3's conditions (rate-limited set-point, |w| <= w_max).
+    # 1: Theorem 3's conditions (rate-limited set-point, |w| <= w_max). Each segment is
+    # long enough for the limited set-point to arrive and settle: a model with a smaller
+    # rate bound (larger K_bar, Lemma 5) gets longer segments, the shipped one 900/600.
     L = [900 // scale, 900 // scale, 900 // scale, 600 // scale]
+    if not short:
+        steps_normalized = np.abs(np.diff(model.normalize_y(np.array([7.0, *levels1]))))
+        ramps = np.ceil(steps_normalized.ravel() / rate).astype(int)
+        L = [max(length, int(ramp) + SETTLE_SAMPLES) for length, ramp in zip(L, ramps, strict=True)]
     d_ramp = np.clip(np.arange(sum(L)) - 50 // scale, 0, None) * 0.8 * w_max_phi
     d_ramp = np.minimum(d_ramp, 0.02)
     scenarios.append(
