@@ -10,8 +10,8 @@ controller with its own plant) for
 
 and prints per controller the median / p95 / p99 of the full ``step`` and the jitter
 p95/median, the medians of ``prepare``, ``feedback`` and the solver call (microseconds),
-the ratios of the median step to ``daqp`` (the QP path: issue 25's "exact cones within 2x"
-is the ``clarabel`` row) and to ``cvxpy:CLARABEL``, and the largest difference of the
+the ratios of the median step to ``daqp`` (the QP path; the ``clarabel`` row is the cost
+of exact cones relative to it) and to ``cvxpy:CLARABEL``, and the largest difference of the
 applied input to the latter (mL/s).
 
     python experiments/exact_cones_speed.py --steps 200 --N 5 20 50

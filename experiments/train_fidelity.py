@@ -1,4 +1,4 @@
-"""Training experiments for issue 24 (model fidelity): one run, one row of the training log.
+"""Training experiments for model fidelity: one run, one row of the training log.
 
 Trains a delta-ISS LSTM with :func:`ltv_lstm_mpc.training.train.train` on identification
 data (a saved ``.npz`` or generated with the given design), then appends one row to
@@ -96,7 +96,7 @@ def row(tag: str, run_dir: Path, dataset: IdentificationDataset) -> str:
 def append_row(text: str) -> None:
     if not LOG.exists():
         LOG.write_text(
-            "# Training experiments (issue 24)\n\nEach row: one run of "
+            "# Training experiments (model fidelity)\n\nEach row: one run of "
             "`experiments/train_fidelity.py` on one core (torch threads = 1, nice 10) of a "
             "2-core VM shared with another job; FIT as the training report defines it "
             "(physical pH, open-loop simulation from the equilibrium of the first input).\n\n"
