@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import training_factories
 
 from ltv_lstm_mpc.certificates.stability import delta_iss_certificate
 from ltv_lstm_mpc.exceptions import InvalidValueError
@@ -152,15 +153,10 @@ def test_torch_residuals_from_nn_lstm_are_differentiable_and_match_export() -> N
 
 @pytest.fixture(scope="module")
 def tiny_dataset() -> IdentificationDataset:
-    return generate_dataset(seed=1, sequences=4, steps=200, split_sizes=(2, 1, 1))
+    return training_factories.tiny_dataset()
 
 
-def _tiny_config(**overrides: object) -> TrainingConfig:
-    values: dict[str, object] = dict(
-        epochs=5, max_extra_epochs=300, lr=0.02, checkpoint_every=0, equilibrium_steps=100
-    )
-    values.update(overrides)
-    return TrainingConfig(**values)  # type: ignore[arg-type]
+_tiny_config = training_factories.tiny_config
 
 
 @pytest.mark.torch

@@ -19,7 +19,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ltv_lstm_mpc.command_arguments import UsageError, output_folder, positive_int
+from ltv_lstm_mpc.command_arguments import (
+    UsageError,
+    fraction_open,
+    nonnegative_float,
+    output_folder,
+    positive_int,
+)
 from ltv_lstm_mpc.exceptions import CampaignSpecError
 
 __all__ = ["campaign_command", "register"]
@@ -72,7 +78,7 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--plan-epsilon",
-        type=_probability,
+        type=fraction_open(0.0, 1.0),
         default=None,
         metavar="EPS",
         help="print how many i.i.d. closed loops without a failure state P(failure) <= EPS "
@@ -80,13 +86,13 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--beta",
-        type=_probability,
+        type=fraction_open(0.0, 1.0),
         default=0.05,
         help="1 - confidence of the report's statistical statements (default 0.05)",
     )
     parser.add_argument(
         "--offset-tolerance",
-        type=_nonnegative,
+        type=nonnegative_float,
         default=1e-3,
         metavar="TOL",
         help="final offset (output units) above which a loop counts as failed (default 1e-3)",
@@ -94,26 +100,6 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--no-report", action="store_true", help="skip report.md and the plots")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(func=campaign_command)
-
-
-def _probability(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text}")
-    return value
-
-
-def _nonnegative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not value >= 0.0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
-    return value
 
 
 def _plan(args: argparse.Namespace) -> int:

@@ -48,9 +48,10 @@ Design choices the paper leaves open
   :math:`\rho_s` at most that; the exported model is the eligible one with the best
   validation FIT. The test split is evaluated once, on the exported model.
 * **Loss schedule.** ``delta_iss_margin`` switches the :math:`\lambda_2` margin term off
-  while :math:`\rho(A_\delta) \le 1 - margin` (issue 24: with it always on, the margin
-  keeps growing at the expense of the fit); ``lr_warmup_epochs``, ``lr_final_factor``
-  (cosine) and ``grad_clip_norm`` shape the optimizer steps.
+  while :math:`\rho(A_\delta) \le 1 - margin` (with it always on, the margin keeps
+  growing at the expense of the fit: measured in ``experiments/training_log.md``);
+  ``lr_warmup_epochs``, ``lr_final_factor`` (cosine) and ``grad_clip_norm`` shape the
+  optimizer steps.
 * **FIT.** :math:`100 (1 - \|y_{real} - y\| / \|y_{real} - \bar y_{real}\|)` on the physical
   outputs of all sequences of a split concatenated (one number per split), simulated with
   :meth:`~ltv_lstm_mpc.LSTMModel.simulate` on the exported model from the equilibrium
@@ -770,6 +771,13 @@ def plot_training_curves(
         for ax in (ax_f, ax_r):
             ax.axvline(best_epoch, color="k", lw=0.8, ls="--")
         ax_f.set_title(f"selected epoch {best_epoch}")
+    return _save_figure(fig, path)
+
+
+def _save_figure(fig: Any, path: str | Path) -> Path:
+    """Lay out ``fig``, write it as PNG to ``path`` (folders created) and close it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -811,12 +819,7 @@ def plot_prediction(
         ax_u.set_ylabel("q3 (mL/s)")
     axes[-1, 0].set_xlabel("time (min)")
     fig.suptitle(f"Open-loop prediction on the {split} set: FIT {fit_index(y, pred):.2f} %")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _save_figure(fig, path)
 
 
 def _plot_prediction_channels(
@@ -854,11 +857,7 @@ def _plot_prediction_channels(
     axes[-1, 0].set_xlabel("time (min)")
     fits = ", ".join(f"{fit_index(y[..., j], pred[..., j]):.2f} %" for j in range(p))
     fig.suptitle(f"Open-loop prediction on the {split} set: FIT per output {fits}")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _save_figure(fig, path)
 
 
 # --------------------------------------------------------------------------- train
