@@ -69,13 +69,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ltv_lstm_mpc.certificates.certify import Certification
+from ltv_lstm_mpc.loop.statuses import SETPOINT_STATUSES_ADMISSIBLE
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import expect_instance, expect_real
 
 __all__ = [
     "HYPOTHESES",
     "PLAN_TOLERANCE",
-    "SETPOINT_STATUSES_ADMISSIBLE",
     "AssumptionCheck",
     "AssumptionLog",
     "AssumptionMonitor",
@@ -96,9 +96,6 @@ HYPOTHESES = (
 #: Largest nonlinear residual (output rows, terminal level; normalized) of a plan that may
 #: start the induction.
 PLAN_TOLERANCE = 1e-8
-
-#: ``ControllerStep.setpoint_status`` values under which Assumptions 4 and 5 hold.
-SETPOINT_STATUSES_ADMISSIBLE = ("ok", "target_outside_admissible")
 
 
 @dataclass(slots=True)  # one per control step: not frozen (about 2 us less to build)

@@ -5,7 +5,12 @@ See :class:`~ltv_lstm_mpc.ControllerStep` for what each value means.
 
 from __future__ import annotations
 
-__all__ = ["IMPLAUSIBLE_MEASUREMENT_LIMIT", "MEASUREMENT_STATUSES", "SETPOINT_STATUSES"]
+__all__ = [
+    "IMPLAUSIBLE_MEASUREMENT_LIMIT",
+    "MEASUREMENT_STATUSES",
+    "SETPOINT_STATUSES",
+    "SETPOINT_STATUSES_ADMISSIBLE",
+]
 
 #: ``ControllerStep.setpoint_status`` values.
 SETPOINT_STATUSES = (
@@ -15,6 +20,10 @@ SETPOINT_STATUSES = (
     "unreachable_stale",
     "unreachable",
 )
+
+#: The set-point statuses under which Assumptions 4 and 5 hold at the step (the set-point
+#: used is admissible; with ``"target_outside_admissible"`` only the requested one is not).
+SETPOINT_STATUSES_ADMISSIBLE = ("ok", "target_outside_admissible")
 
 #: ``ControllerStep.measurement_status`` values.
 MEASUREMENT_STATUSES = ("ok", "outside_training_range", "implausible")
