@@ -152,9 +152,10 @@ def test_condensed_cones_equal_sparse_cones_on_fixed_subproblems(
 ) -> None:
     """Same FHOCP (exact terminal cones) in fewer variables: the same plan as cvxpy's sparse
     transcription within the solvers' tolerance (at tolerance 1e-8 these plans are weakly
-    determined: cvxpy's ECOS and CLARABEL differ by 1.2e-4 on the same sparse problem; the
-    gap to cvxpy:CLARABEL shrinks with the tolerance, 1.4e-5 / 3.3e-6 / 2.5e-7 at 1e-8 /
-    1e-10 / 1e-12)."""
+    determined: the costs agree to 1e-5 while the inputs differ by up to 6.7e-5 (clarabel)
+    and 7.3e-5 (cvxpy:CLARABEL) with the shipped model; cvxpy's ECOS and CLARABEL differed
+    by 1.2e-4 on the same sparse problem with an earlier model, and the gap shrank with the
+    tolerance)."""
     config = MPCConfig(solver=solver, transcription="condensed")
     condensed = RobustMPC(model, config, certification=sparse.certification)
     assert condensed.reformulation is None
@@ -173,7 +174,7 @@ def test_condensed_cones_equal_sparse_cones_on_fixed_subproblems(
             worst = max(worst, float(np.max(np.abs(b.u - a.u))))
             assert b.cost == pytest.approx(a.cost, rel=1e-5, abs=1e-8)
             x = a.x[1]
-    assert worst < 5e-5
+    assert worst < 1e-4
 
 
 @pytest.mark.parametrize("policy", ["paper", "soft", "shift"])
@@ -233,8 +234,8 @@ def test_closed_loop_same_inputs_native_condensed_and_cvxpy_sparse(model) -> Non
 def test_policies_on_the_states_of_scenario_3_with_exact_cones(model, policy) -> None:
     """Scenario 3 (short) on the exact-cone condensed path: every infeasible instant is
     handled by the policy itself (the soft SOCP is feasible by construction: no +shift), as
-    many infeasible instants as cvxpy's sparse cones give under the paper policy (50), and no
-    output violation."""
+    many infeasible instants as cvxpy's sparse cones give under the paper policy (82 with
+    the shipped model, at the same steps), and no output violation."""
     from ltv_lstm_mpc.paper.scenarios import paper_scenarios, run_scenario
 
     scenario = next(s for s in paper_scenarios(model, short=True) if s.name.startswith("3"))
@@ -243,7 +244,7 @@ def test_policies_on_the_states_of_scenario_3_with_exact_cones(model, policy) ->
     infeasible = [r.mpc for r in result.controller.records if not r.mpc.feasible]
     assert len(infeasible) >= 50
     if policy == "paper":
-        assert len(infeasible) == 50
+        assert len(infeasible) == 82
     assert {s.policy for s in infeasible} == {policy}
     assert {s.reformulation for s in infeasible} == {None}
     assert result.summary()["max_output_violation"] == 0.0

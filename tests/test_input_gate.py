@@ -58,7 +58,7 @@ def _controller(model, certification, solver: str, policy: str = "paper"):
     return OffsetFreeController(model, config, mpc=mpc)
 
 
-@pytest.mark.parametrize("setpoint", [9.3, 10.0])
+@pytest.mark.parametrize("setpoint", [9.3, 9.45])
 def test_failing_solver_and_unreachable_setpoint_keep_the_input_in_u(
     model, certification, setpoint
 ) -> None:
@@ -78,11 +78,23 @@ def test_failing_solver_and_unreachable_setpoint_keep_the_input_in_u(
     assert "u_bar projected onto U" in controller.records[0].mpc.reason
 
 
+def test_setpoint_beyond_every_equilibrium_of_the_model_stops_with_its_value(
+    model, certification
+) -> None:
+    """10 pH lies above every equilibrium output of the shipped model (about 9.5 pH at
+    most): no equilibrium, not even one outside U, exists to fall back on, so the first
+    step raises and names the set-point and the fix."""
+    controller = _controller(model, certification, "daqp")
+    with pytest.raises(UnreachableSetpointError, match=r"set-point \[10\.0\] \(physical") as info:
+        simulate(PHNeutralizationPlant(), controller, np.full(5, 10.0), progress=False)
+    assert "setpoint_rate_limit" in str(info.value) and "y0_interval" in str(info.value)
+
+
 def test_shift_policy_applies_the_projected_candidate(model, certification) -> None:
     controller = _controller(model, certification, faulty("daqp", "infeasible"), "shift")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        result = simulate(PHNeutralizationPlant(), controller, np.full(10, 10.0), progress=False)
+        result = simulate(PHNeutralizationPlant(), controller, np.full(10, 9.45), progress=False)
     low, high = _bounds(model)
     assert set(result.policy) == {"shift"}
     assert np.all(result.u_phi >= low) and np.all(result.u_phi <= high)
@@ -98,7 +110,7 @@ def test_user_plant_with_its_own_input_range_never_sees_an_input_outside_u() -> 
     plant = LSTMPlant(model, y0_phi=7.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        result = simulate(plant, controller, np.full(40, 10.0), progress=False)
+        result = simulate(plant, controller, np.full(40, 9.45), progress=False)
     assert np.all(result.u_phi >= 0.0) and np.all(result.u_phi <= 10.0)
 
 

@@ -104,7 +104,7 @@ def test_warnings_are_shown_once_per_run_and_again_in_the_next_run(model) -> Non
     for run in range(2):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("default")  # the registry decides, as outside pytest
-            result = simulate(PHNeutralizationPlant(), controller, np.full(8, 10.0), progress=False)
+            result = simulate(PHNeutralizationPlant(), controller, np.full(8, 9.45), progress=False)
         shown = [w for w in caught if "set-point" in str(w.message)]
         assert len(shown) == 1, run
         assert shown[0].filename == __file__

@@ -70,6 +70,8 @@ def test_shipped_model_reaches_its_reported_fit_on_regenerated_test_data(model) 
     u, y = generate_split(
         "test", seed=meta["seed"], sequences=meta["sequences"], steps=meta["steps"],
         split_sizes=tuple(meta["split_sizes"]), plant=QuadrupleTankPlant(),
+        min_hold=meta["hold_range"][0], max_hold=meta["hold_range"][1],
+        levels=meta.get("levels", 0),
     )  # fmt: skip
     pred = simulate_sequences(model, u, meta["u_phi_initial"])
     fits = [fit_index(y[..., j], pred[..., j]) for j in range(2)]

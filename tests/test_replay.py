@@ -86,8 +86,11 @@ def test_last_problem_is_the_problem_the_controller_solved() -> None:
     np.testing.assert_allclose(
         np.asarray(same.z)[layout.u_start : layout.t_start], applied, rtol=0, atol=1e-9
     )
-    other = solve_problem(problem, cones[1])  # another: the same first input
-    assert abs(float(np.asarray(other.z)[layout.u_start]) - applied[0]) <= 1e-5
+    other = solve_problem(problem, cones[1])  # another: the same optimum, the same first input
+    assert other.objective == pytest.approx(same.objective, rel=1e-8)
+    # each backend within its own accuracy of the optimizer (ECOS: 1.4e-5 from CLARABEL)
+    tolerance = _tol(cones[0]) + _tol(cones[1])
+    assert abs(float(np.asarray(other.z)[layout.u_start]) - applied[0]) <= tolerance
     # the condensed transcription keeps its dense QP on the general feedback path
     general = RobustMPC(model, MPCConfig(solver="daqp", L_d=0.1), native_feedback=False)
     dense = OffsetFreeController(model, general.config, mpc=general)
