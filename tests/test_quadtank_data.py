@@ -140,7 +140,7 @@ def test_cli_train_quadtank_tiny(tmp_path: Path, capsys: pytest.CaptureFixture[s
         ["train", "--plant", "quadtank", "--out", str(tmp_path), "--sequences", "3", "--steps",
          "120", "--split", "1", "1", "1", "--neurons", "3", "--epochs", "3", "--lr", "0.01",
          "--lambda1", "0.3", "--forget-bias-init", "0", "--checkpoint-every", "0",
-         "--no-progress"]
+         "--preset", "paper", "--no-progress"]
     )  # fmt: skip
     assert code == 0
     out = capsys.readouterr().out

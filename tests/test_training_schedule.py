@@ -48,8 +48,8 @@ def test_fidelity_preset() -> None:
     assert (config.epochs, config.lr, config.lr_warmup_epochs) == (1500, 3e-3, 20)
     assert config.delta_iss_margin == 0.12 and config.selection_rho_s_max == 0.92
     assert config.seed == 3 and config.n == 5 and config.lambda2 == 0.02
-    args = _parser().parse_args(["train", "--preset", "fidelity"])
-    assert args.preset == "fidelity"
+    assert _parser().parse_args(["train"]).preset == "fidelity"
+    assert _parser().parse_args(["train", "--preset", "paper"]).preset == "paper"
 
 
 def test_margin_term_switches_at_the_chosen_margin() -> None:

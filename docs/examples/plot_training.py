@@ -12,9 +12,10 @@ the delta-ISS region; it stops only on weights certified delta-ISS (:math:`\rho(
 < 1` on the exported float64 model). The model is then certified for the controller,
 compared with test data it has not seen, and put in the loop.
 
-The paper trains on 15 sequences of 1500 samples for 1000 epochs (that is how the shipped
-``ph_lstm_n5.npz`` was made: ``ltv-lstm-mpc train``); this example uses 6 sequences of 600
-samples and 80 epochs. The model, its JSON report and a plot are written to a temporary
+The paper trains on 15 sequences of 1500 samples for 1000 epochs; the shipped
+``ph_lstm_n5.npz`` comes from the same data and 1500 epochs of the fidelity preset
+(``ltv-lstm-mpc train``, about 10 minutes); this example uses 6 sequences of 600 samples
+and 80 epochs. The model, its JSON report and a plot are written to a temporary
 folder.
 """
 
