@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from ltv_lstm_mpc import CertificationSettings, certify, load_model
+from ltv_lstm_mpc.exceptions import ArgumentTypeError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
 from ltv_lstm_mpc.loop.simulation import simulate
 from ltv_lstm_mpc.mpc.config import MPCConfig
@@ -141,3 +142,69 @@ def test_plant_violation_of_the_true_output_is_recorded() -> None:
     counts = result.summary_counts()
     assert counts["plant_violation_steps"] == int(np.sum(expected > 1e-9)) >= 50
     assert counts["d_hat_saturated_steps"] > 0  # and the cause is flagged
+
+
+class _RecordingPlant(LSTMPlant):
+    """Records whether the garbage collector was enabled at each step; may fail at a step."""
+
+    def __init__(self, model, fail_at: int | None = None) -> None:
+        super().__init__(model, y0_phi=7.0)
+        self.collector_enabled: list[bool] = []
+        self.fail_at = fail_at
+
+    def step(self, u_phi, d_phi=None):  # type: ignore[no-untyped-def]
+        import gc
+
+        self.collector_enabled.append(gc.isenabled())
+        if self.fail_at is not None and len(self.collector_enabled) > self.fail_at:
+            raise RuntimeError("plant failure")
+        return super().step(u_phi, d_phi)
+
+
+def test_simulate_pauses_the_garbage_collector_and_restores_it(model) -> None:
+    import gc
+
+    from ltv_lstm_mpc.loop.simulation import garbage_collection_paused
+
+    controller = OffsetFreeController(model, MPCConfig(L_d=0.1, solver="daqp"))
+    assert gc.isenabled()
+    paused = _RecordingPlant(model)
+    simulate(paused, controller, 7.2, steps=5, progress=False)
+    assert paused.collector_enabled == [False] * 5 and gc.isenabled()
+    running = _RecordingPlant(model)
+    simulate(running, controller, 7.2, steps=5, progress=False, pause_garbage_collection=False)
+    assert running.collector_enabled == [True] * 5 and gc.isenabled()
+    # an exception inside the loop re-enables it; a collector the caller disabled stays off
+    failing = _RecordingPlant(model, fail_at=2)
+    with pytest.raises(RuntimeError, match="plant failure"):
+        simulate(failing, controller, 7.2, steps=5, progress=False)
+    assert failing.collector_enabled == [False] * 3 and gc.isenabled()
+    gc.disable()
+    try:
+        with garbage_collection_paused():
+            assert not gc.isenabled()
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    with pytest.raises(ArgumentTypeError, match="pause_garbage_collection"):
+        simulate(paused, controller, 7.2, steps=2, pause_garbage_collection="yes")  # type: ignore[arg-type]
+
+
+def test_a_closed_loop_creates_no_reference_cycles_per_step(model) -> None:
+    """Why pausing the collector is safe: what a step allocates and does not keep in its
+    record is freed by reference counting alone. (The records of a run form one cycle
+    with the monitor's log; the collector frees them once it runs again.)"""
+    import gc
+
+    controller = OffsetFreeController(model, MPCConfig(L_d=0.1, solver="daqp"))
+    plant = LSTMPlant(model, y0_phi=7.0)
+    simulate(plant, controller, 7.2, steps=20, progress=False)
+    controller.reset()  # the first run's records become garbage: collected now
+    gc.collect()
+    gc.disable()
+    try:
+        simulate(plant, controller, 7.2, steps=300, progress=False)
+        found = gc.collect()  # the controller and its records still alive
+    finally:
+        gc.enable()
+    assert found <= 50, found  # not one per step
