@@ -29,6 +29,8 @@ WORKSPACES = [
     ("ltv_lstm_mpc.mpc.compiled_plan", "PLAN_FIELDS", "_new_plan_workspace"),
     ("ltv_lstm_mpc.mpc.compiled_prepare", "PREPARE_FIELDS", "_new_prepare_workspace"),
     ("ltv_lstm_mpc.mpc.native_feedback", "DAQP_FIELDS", "_new_daqp_workspace"),
+    ("ltv_lstm_mpc.loop.compiled_step", "STEP_FIELDS", "_new_step_workspace"),
+    ("ltv_lstm_mpc.loop.compiled_step", "RECORD_FIELDS", "_new_record_arrays"),
 ]
 
 #: The most positional parameters a function of the library may take ("about a dozen").

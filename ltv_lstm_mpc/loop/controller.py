@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,19 +33,32 @@ from ltv_lstm_mpc.exceptions import (
     InvalidValueError,
     UnreachableSetpointError,
 )
+from ltv_lstm_mpc.loop import compiled_step as one_call
 from ltv_lstm_mpc.loop.monitor import AssumptionCheck, AssumptionLog, AssumptionMonitor
 from ltv_lstm_mpc.loop.observer import Observer
+from ltv_lstm_mpc.loop.records import ControllerRecords
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator, ReferenceSolution
 from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
 from ltv_lstm_mpc.mpc.rti import RobustMPC
-from ltv_lstm_mpc.validation import expect_instance, expect_methods, expect_real, real_vector
+from ltv_lstm_mpc.validation import (
+    expect_bool,
+    expect_instance,
+    expect_methods,
+    expect_real,
+    real_vector,
+)
 
 __all__ = ["ControllerStep", "OffsetFreeController"]
 
 FloatArray = NDArray[np.float64]
+
+#: ``_last_reference`` kept by a one-call step: built from its record row when needed.
+_RECORDED = object()
+#: An empty vector: "none" for the one-call step's optional vector arguments.
+_NO_VALUES = np.zeros(0)
 
 
 def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
@@ -202,6 +217,13 @@ class OffsetFreeController:
         default: one on this controller's certification. Give one built on a certification
         whose rate bound covers your set-point range (``y0_operating_range`` of
         :class:`~ltv_lstm_mpc.CertificationSettings`) when the limiter uses that bound.
+    one_call_step : bool
+        Run each step after the first as one compiled call where the configuration allows
+        it (default True; the condensed transcription with DAQP bound natively, compiled
+        kernels, one SQP iteration, no ``mpc`` given: :mod:`ltv_lstm_mpc.loop.compiled_step`),
+        falling back to the general path on any step that call does not accept. False:
+        the general path on every step (the tested reference; same numbers to 1e-12).
+        :attr:`one_call` says whether it applies.
 
     Notes
     -----
@@ -224,8 +246,10 @@ class OffsetFreeController:
         implausible_measurements: str = "flag",
         kernels: str = "auto",
         monitor: AssumptionMonitor | None = None,
+        one_call_step: bool = True,
     ) -> None:
         model, config = require_model(model), require_config(config)
+        expect_bool("one_call_step", one_call_step)
         if mpc is not None:
             _check_mpc(mpc)
         if setpoint_rate_limit is not None:
@@ -281,7 +305,10 @@ class OffsetFreeController:
             monitor = AssumptionMonitor(model, self.certification)
         self.monitor: AssumptionMonitor | None = monitor
         self.warnings = RunWarnings()
-        self.records: list[ControllerStep] = []
+        #: The one-call step's constants and buffers (None: the general path only).
+        self._one_call: Any = self._one_call_workspace() if mpc is None and one_call_step else None
+        #: This run's records (a read-only sequence of :class:`ControllerStep`).
+        self.records: ControllerRecords = ControllerRecords(self._recorded_step)
         self.reset()
 
     @property
@@ -292,6 +319,11 @@ class OffsetFreeController:
         return dict(self.warnings.counts)
 
     @property
+    def one_call(self) -> bool:
+        """Whether steps after the first run as one compiled call (``one_call_step``)."""
+        return self._one_call is not None
+
+    @property
     def input_bounds_phi(self) -> tuple[FloatArray, FloatArray]:
         """U in physical units: (low, high), each (m,)."""
         return self._u_phi_low.copy(), self._u_phi_high.copy()
@@ -300,16 +332,22 @@ class OffsetFreeController:
         """Back to the uninitialized state (the next step initializes the observer)."""
         self._initialized = False
         self._y0: FloatArray | None = None
-        self._last_reference: ReferenceSolution | None = None  # the last admissible one
+        self._last_reference: Any = None  # the last admissible one (or _RECORDED)
         self._last_converged: ReferenceSolution | None = None  # before any admissible one
         tightening = self.certification.tightening
         self.e_hat = tightening.e_inf if self.config.e_hat0 is None else float(self.config.e_hat0)
         self.mpc.reset()
         self.reference.reset()
-        self.records = []
+        model = self.model
+        self.records = ControllerRecords(
+            self._recorded_step,
+            None if self._one_call is None else (model.p, model.m, 2 * model.n, self.config.N),
+        )
+        self._last_reference_row = -1  # the record row of _last_reference, when it is _RECORDED
         self._assumption_log = (
             None if self.monitor is None else AssumptionLog(self.monitor, self.records)
         )
+        self.records.log = self._assumption_log
         self.warnings.reset()
         self._interval: tuple[float, list[float], list[float]] = (math.nan, [], [])
 
@@ -334,6 +372,8 @@ class OffsetFreeController:
             self._last_reference = reference
             return reference, y0, False
         last = self._last_reference
+        if last is _RECORDED:  # kept by a one-call step: its record's reference
+            last = self._recorded_reference(self._last_reference_row)
         if last is None:  # no admissible equilibrium yet
             if reference.converged:  # nothing better to keep
                 self._last_converged = reference
@@ -366,19 +406,6 @@ class OffsetFreeController:
         limit = self.config.d_max * (1.0 - 1e-12)
         flags = [abs(d) >= limit for d in d_hat.tolist()]  # p scalars: lists beat numpy here
         saturated = np.array(flags)
-        k = len(self.records)
-        if any(flags) and self.warnings.first("d_hat_saturated"):
-            j = int(np.flatnonzero(saturated)[0])
-            scale = float(self._y_scale[j])
-            self.warnings.warn(
-                f"d_hat reached its bound d_max = {self.config.d_max} (normalized; "
-                f"{self.config.d_max * scale:.4g} in physical output units) on output {j} at "
-                f"step {k}: the plant-model mismatch exceeds the disturbance bound the "
-                "guarantees assume (|d| <= d_max), and offsets may remain. Raise d_max "
-                "(MPCConfig d_max; estimate_d_max(model, data) measures the mismatch), which "
-                "shrinks the admissible set-point interval, or use a model that fits this "
-                "operating point better"
-            )
         if stale or not reference.u_admissible:
             status = "unreachable_stale" if stale else "unreachable"
         else:
@@ -392,6 +419,33 @@ class OffsetFreeController:
                 target = y0_target.tolist()
                 if not all(a < y < b for a, y, b in zip(lows, target, highs, strict=True)):
                     status = "target_outside_admissible"
+        self._warn_diagnosis(status, saturated, y0, y0_target, stale)
+        return status, saturated
+
+    def _warn_diagnosis(
+        self,
+        status: str,
+        saturated: NDArray[np.bool_],
+        y0: FloatArray,
+        y0_target: FloatArray,
+        stale: bool,
+    ) -> None:
+        """Count (and show once per run) the saturation of d_hat and a set-point status
+        other than ``"ok"`` (both paths of :meth:`step`)."""
+        ti = self.certification.tightening
+        k = len(self.records)
+        if saturated.any() and self.warnings.first("d_hat_saturated"):
+            j = int(np.flatnonzero(saturated)[0])
+            scale = float(self._y_scale[j])
+            self.warnings.warn(
+                f"d_hat reached its bound d_max = {self.config.d_max} (normalized; "
+                f"{self.config.d_max * scale:.4g} in physical output units) on output {j} at "
+                f"step {k}: the plant-model mismatch exceeds the disturbance bound the "
+                "guarantees assume (|d| <= d_max), and offsets may remain. Raise d_max "
+                "(MPCConfig d_max; estimate_d_max(model, data) measures the mismatch), which "
+                "shrinks the admissible set-point interval, or use a model that fits this "
+                "operating point better"
+            )
         if status != "ok" and self.warnings.first("setpoint"):
             low, high = ti.setpoint_interval(self.e_hat)
             interval = (
@@ -416,7 +470,6 @@ class OffsetFreeController:
             self.warnings.warn(
                 f"set-point {self._physical_y(requested)} (physical units) at step {k} is {where}"
             )
-        return status, saturated
 
     def _measurement_status(self, y: FloatArray, y_phi: ArrayLike) -> str:
         """``"ok"``, ``"outside_training_range"`` or ``"implausible"`` (see
@@ -461,18 +514,22 @@ class OffsetFreeController:
                 gated = np.clip(u_bar, -u_max, u_max)
             moved = math.inf
         if self.warnings.first("input_clipped"):
-            what = (
-                f"was projected onto U (moved by {moved:.3e}, normalized)"
-                if math.isfinite(moved)
-                else "was not finite and was replaced by "
-                + ("the last applied input" if self.records else "u_bar projected onto U")
-            )
-            self.warnings.warn(
-                f"the MPC's input {u.tolist()} (normalized) at step {len(self.records)} "
-                f"{what}: U = [{self._u_phi_low.tolist()}, {self._u_phi_high.tolist()}] in "
-                "physical units. Every such step is recorded in ControllerStep.input_clipped"
-            )
+            self._warn_clipped(u, moved)
         return gated, moved
+
+    def _warn_clipped(self, u: FloatArray, moved: float) -> None:
+        """Show that the MPC's input ``u`` was moved onto U (once per run)."""
+        what = (
+            f"was projected onto U (moved by {moved:.3e}, normalized)"
+            if math.isfinite(moved)
+            else "was not finite and was replaced by "
+            + ("the last applied input" if self.records else "u_bar projected onto U")
+        )
+        self.warnings.warn(
+            f"the MPC's input {u.tolist()} (normalized) at step {len(self.records)} "
+            f"{what}: U = [{self._u_phi_low.tolist()}, {self._u_phi_high.tolist()}] in "
+            "physical units. Every such step is recorded in ControllerStep.input_clipped"
+        )
 
     # Parts of one step; a faster controller overrides these, not the loop in ``step``.
     def _normalize(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -484,18 +541,32 @@ class OffsetFreeController:
         y0_target = (y0_arr - self._y_min) / self._y_scale - 1.0
         return y, y0_target
 
-    def _solve_reference(self, y0: FloatArray, d_hat: FloatArray) -> ReferenceSolution:
-        """eq. (reference_calculation) at this step."""
-        return self.reference.solve_arrays(y0, d_hat)  # both checked float64 (p,) arrays
+    def _solve_reference(
+        self,
+        y0: FloatArray,
+        d_hat: FloatArray,
+        chord: tuple[FloatArray, float, int, bool] | None = None,
+    ) -> ReferenceSolution:
+        """eq. (reference_calculation) at this step (``chord``: see :meth:`_step_general`)."""
+        if chord is None:
+            return self.reference.solve_arrays(y0, d_hat)  # checked float64 (p,) arrays
+        return self.reference.solve_arrays(y0, d_hat, chord=chord)
 
     def _solve_mpc(
-        self, x_hat: FloatArray, reference: ReferenceSolution, y0: FloatArray
+        self,
+        x_hat: FloatArray,
+        reference: ReferenceSolution,
+        y0: FloatArray,
+        skip_native: bool = False,
     ) -> MPCSolution:
         """The FHOCP eq. (optimization): ``prepare`` (candidate, linearization, build) then
         ``feedback`` (insert x_hat, solve, validate)."""
         mpc = self.mpc
         if self._phases:
             mpc.prepare(reference.x_bar, reference.u_bar, y0, self.e_hat, x_pred=x_hat)
+            if skip_native:  # the one-call step's feedback declined this point already
+                assert isinstance(mpc, RobustMPC)
+                return mpc._feedback(x_hat, native=False)
             return mpc.feedback(x_hat)
         return mpc.solve(x_hat, reference.x_bar, reference.u_bar, y0, self.e_hat)
 
@@ -508,7 +579,242 @@ class OffsetFreeController:
         return np.asarray((u + 1.0) * self._u_scale + self._u_min, dtype=np.float64)
 
     def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
-        """One sample: measured physical output and set-point in, physical input out."""
+        """One sample: measured physical output and set-point in, physical input out.
+
+        On the condensed transcription with DAQP bound natively (compiled kernels, one SQP
+        iteration, this controller's own MPC) a step after the first runs as one compiled
+        call (:mod:`ltv_lstm_mpc.loop.compiled_step`) whenever every test of that call
+        passes; otherwise, and for every other configuration, the general path below runs,
+        with the same numbers (tested to 1e-12).
+        """
+        chord = None
+        skip_native = False
+        if self._one_call is not None and self._initialized:
+            answer = self._step_one_call(y_phi, y0_phi)
+            if not isinstance(answer, tuple):
+                return answer
+            chord, skip_native = answer
+        return self._step_general(y_phi, y0_phi, chord, skip_native)
+
+    # ------------------------------------------------------------------ one-call step
+    def _one_call_workspace(self) -> Any:
+        """The :data:`~ltv_lstm_mpc.loop.compiled_step.StepWorkspace` of this controller, or
+        None where the one-call step does not apply (another transcription or solver, DAQP
+        not bound natively, the numpy kernels, a globalized SQP)."""
+        mpc, reference, observer = self.mpc, self.reference, self.observer
+        if not isinstance(mpc, RobustMPC) or mpc._native_feedback is None:
+            return None
+        problem = mpc._problem
+        if (
+            problem.daqp_workspace is None
+            or mpc._prepare_workspace is None
+            or reference._chord_workspace is None
+            or getattr(observer, "_workspace", None) is None
+        ):
+            return None
+        ti, model = self.certification.tightening, self.model
+        N, p = mpc.N, model.p
+
+        def vector(values: Any) -> FloatArray:
+            return np.array(values, dtype=np.float64)  # an owned, C-contiguous copy
+
+        self._one_call_requested = np.zeros(p)  # the workspace's ``requested``
+        self._one_call_settings = self._one_call_settings_now()
+        return one_call.new_step_workspace(
+            y_min=vector(self._y_min), y_scale=vector(self._y_scale),
+            u_min=vector(self._u_min), u_scale=vector(self._u_scale),
+            u_phi_low=vector(self._u_phi_low), u_phi_high=vector(self._u_phi_high),
+            a=vector(ti.a), b=vector(ti.b), bound_min=vector(ti.y_min),
+            bound_max=vector(ti.y_max), kappa=vector(ti.kappa), lower=np.zeros((N, p)),
+            upper=np.zeros((N, p)), requested=self._one_call_requested,
+            clock=np.zeros(2, dtype=np.int64),
+            u_max=self._u_max, implausible=float(IMPLAUSIBLE_MEASUREMENT_LIMIT),
+            tol=float(reference.tol), max_iter=int(reference.max_iter),
+            jump=float(reference.jump), reuse_tol=float(mpc.reuse_tol),
+            d_max=float(observer.d_max), tightening_d_max=float(ti.d_max),
+            rho_o=float(ti.rho_o), w_bar=float(ti.w_bar), e_inf=float(ti.e_inf),
+            backward=bool(getattr(problem, "backward_condensing", False)),
+            chord=reference._chord_workspace,
+            trajectories=mpc._prepare_workspace, condensing=mpc._condensing_workspace,
+            daqp=problem.daqp_workspace, plan=mpc._plan_workspace,
+            observer=observer._workspace, cand=mpc._cand,
+        )  # fmt: skip
+
+    def _one_call_settings_now(self) -> tuple[float, int, float, float]:
+        """The settings the one-call workspace holds: the reference calculator's tolerance,
+        iterations and jump bound, the MPC's reuse tolerance."""
+        reference, mpc = self.reference, self.mpc
+        return (reference.tol, reference.max_iter, reference.jump, mpc.reuse_tol)  # type: ignore[attr-defined]
+
+    def _step_one_call(
+        self, y_phi: ArrayLike, y0_phi: ArrayLike
+    ) -> FloatArray | tuple[tuple[FloatArray, float, int, bool] | None, bool]:
+        """:meth:`step` as one compiled call; returns the physical input, or
+        ``(chord outcome or None, skip_native)`` for the general path to go on with."""
+        mpc: Any = self.mpc
+        reference, observer = self.reference, self.observer
+        previous_u, last_z = mpc._previous_u, reference._last_z
+        y0_previous = self._y0
+        rate_limit = self.setpoint_rate_limit
+        if previous_u is None or last_z is None or not mpc._plan_valid:
+            return None, False
+        if rate_limit is None:
+            rate_limit = math.nan
+        elif y0_previous is None:
+            return None, False
+        if self._one_call_settings_now() != self._one_call_settings:  # changed by the user
+            self._one_call = self._one_call_workspace()
+        p = self.model.p
+        y_arr = real_vector("y_phi", y_phi, p)
+        y0_arr = real_vector("y0_phi", y0_phi, p)
+        if not (y_arr.flags.carray and y0_arr.flags.carray):  # one compiled signature
+            y_arr, y0_arr = np.array(y_arr), np.array(y0_arr)
+        records = self.records
+        k = len(records)
+        if k + 2 > records.capacity:
+            records.reserve(k + 2)
+        last_target = reference._last_target
+        problem = mpc._problem
+        code, warnings, inverse_valid, factorizations, e_hat_next = one_call.controller_step(
+            self._one_call, records.compiled, k, y_arr, y0_arr,
+            _NO_VALUES if y0_previous is None else y0_previous, observer.x_hat,
+            observer.d_hat, last_z, _NO_VALUES if last_target is None else last_target,
+            1 if reference._Jinv is not None else 0, previous_u, self.e_hat, rate_limit,
+        )  # fmt: skip
+        rows = records.rows
+        assert rows is not None
+        if code != one_call.STEP_DONE:
+            if code == one_call.STEP_GENERAL:
+                return None, False
+            reference.adopt_chord_state(inverse_valid, factorizations)
+            chord_row = rows.integer[k]
+            chord = (
+                rows.z[k].copy(),
+                float(rows.real[k, one_call.REFERENCE_RESIDUAL]),
+                int(chord_row[one_call.REFERENCE_ITERATIONS]),
+                bool(chord_row[one_call.CHORD_OK]),
+            )
+            return chord, code == one_call.STEP_FEEDBACK
+        # what the general path leaves behind, as views of the rows (never written again)
+        reference.adopt_chord_state(inverse_valid, factorizations)
+        reference._last_z = rows.z[k]
+        reference._last_target = rows.target[k]
+        observer.x_hat = rows.x_hat[k + 1]
+        observer.d_hat = rows.d_hat[k + 1]
+        mpc._previous_u = rows.u_plan[k]
+        mpc._problem.scale = math.nan  # prepare sets it again before any general feedback
+        if problem._last:
+            problem._last.clear()
+        solver_time, prepare_time, feedback_time = rows.real[
+            k, one_call.SOLVER_TIME : one_call.FEEDBACK_TIME + 1
+        ].tolist()
+        mpc.solver_time, mpc.prepare_time, mpc.feedback_time = (
+            solver_time, prepare_time, feedback_time
+        )  # fmt: skip
+        mpc.qp_iterations = int(rows.integer[k, one_call.SOLVER_ITERATIONS])
+        self._y0 = rows.y0[k]
+        self._last_reference = _RECORDED
+        self._last_reference_row = k
+        if warnings:
+            self._warn_one_call(rows, k, warnings)
+        self.e_hat = e_hat_next
+        records.append_recorded()
+        return rows.u_phi[k]
+
+    def _warn_one_call(self, rows: SimpleNamespace, k: int, warnings: int) -> None:
+        """The warnings of :meth:`_diagnose` and :meth:`_gate_input` for one-call step k."""
+        status = one_call.SETPOINT_STATUSES[int(rows.integer[k, one_call.SETPOINT_STATUS])]
+        y0 = rows.y0[k]
+        y0_target = rows.y0[k]
+        if status == "target_outside_admissible":
+            y0_target = self._one_call_requested.copy()
+        self._warn_diagnosis(status, rows.saturated[k].astype(bool), y0, y0_target, False)
+        if warnings & 4 and self.warnings.first("input_clipped"):
+            self._warn_clipped(rows.u_plan[k, 0], float(rows.real[k, one_call.INPUT_CLIPPED]))
+
+    def _recorded_reference(self, k: int) -> ReferenceSolution:
+        """The reference solution of one-call step k, from its record row."""
+        rows = self.records.rows
+        assert rows is not None
+        return ReferenceSolution(
+            x_bar=rows.x_bar[k].copy(),
+            u_bar=rows.u_bar[k].copy(),
+            residual=float(rows.real[k, one_call.REFERENCE_RESIDUAL]),
+            jacobian_condition=math.nan,
+            u_admissible=True,
+            converged=True,
+            iterations=int(rows.integer[k, one_call.REFERENCE_ITERATIONS]),
+        )
+
+    def _recorded_step(self, records: ControllerRecords, k: int) -> ControllerStep:
+        """The :class:`ControllerStep` of one-call step k of the run ``records``, built
+        from its row (when the record is first read)."""
+        rows = records.rows
+        assert rows is not None
+        real = rows.real[k].tolist()
+        integer = rows.integer[k].tolist()
+        mpc: Any = self.mpc
+        prepare_time, feedback_time = real[one_call.PREPARE_TIME], real[one_call.FEEDBACK_TIME]
+        solution = MPCSolution(
+            u=rows.u_plan[k],
+            x=rows.x_plan[k],
+            x_linear=rows.x_linear[k],
+            status="optimal" if integer[one_call.STATUS] == 1 else "optimal_inaccurate",
+            feasible=True,
+            policy="nominal",
+            solve_time=prepare_time + feedback_time,
+            solver_time=real[one_call.SOLVER_TIME],
+            iterations=1,
+            sqp_step=real[one_call.SQP_STEP],
+            alpha=real[one_call.ALPHA],
+            cost=real[one_call.COST],
+            residuals={
+                "output_violation": real[one_call.OUTPUT_VIOLATION],
+                "terminal_residual": real[one_call.TERMINAL_RESIDUAL],
+                "linearization_gap": real[one_call.LINEARIZATION_GAP],
+            },
+            reformulation=mpc.reformulation,
+            solver_iterations=integer[one_call.SOLVER_ITERATIONS],
+            transcription=mpc.transcription,
+            prepare_time=prepare_time,
+            feedback_time=feedback_time,
+            reason="",
+        )
+        return ControllerStep(
+            y=rows.y[k],
+            y0=rows.y0[k],
+            u=rows.u[k],
+            u_phi=rows.u_phi[k],
+            x_hat=rows.x_hat[k],
+            d_hat=rows.d_hat[k],
+            e_hat=real[one_call.E_HAT],
+            x_bar=rows.x_bar[k],
+            u_bar=rows.u_bar[k],
+            reference_ok=True,
+            mpc=solution,
+            time_observer=real[one_call.TIME_OBSERVER],
+            time_reference=real[one_call.TIME_REFERENCE],
+            time_mpc=real[one_call.TIME_MPC],
+            stale_reference=False,
+            setpoint_status=one_call.SETPOINT_STATUSES[integer[one_call.SETPOINT_STATUS]],
+            d_hat_saturated=rows.saturated[k].astype(bool),
+            input_clipped=real[one_call.INPUT_CLIPPED],
+            measurement_status=one_call.MEASUREMENT_STATUSES[integer[one_call.MEASUREMENT_STATUS]],
+            monitor_log=records.log,
+            index=k,
+        )
+
+    def _step_general(
+        self,
+        y_phi: ArrayLike,
+        y0_phi: ArrayLike,
+        chord: tuple[FloatArray, float, int, bool] | None = None,
+        skip_native: bool = False,
+    ) -> FloatArray:
+        """:meth:`step` in Python, calling each stage's compiled kernel (or numpy
+        reference) in turn. ``chord``: the warm chord's outcome, when the one-call step ran
+        it and did not accept it (the reference calculator goes on from it);
+        ``skip_native``: the one-call feedback already declined this step's point."""
         y, y0_target = self._normalize(y_phi, y0_phi)
         measurement_status = self._measurement_status(y, y_phi)
         t0 = time.perf_counter()
@@ -523,10 +829,14 @@ class OffsetFreeController:
         # No copies: the observer update rebinds x_hat and d_hat, it never mutates them.
         x_hat, d_hat = self.observer.x_hat, self.observer.d_hat
         t1 = time.perf_counter()
-        reference, y0_mpc, stale = self._reference(self._solve_reference(y0, d_hat), y0, d_hat)
+        if chord is None:
+            solved = self._solve_reference(y0, d_hat)
+        else:
+            solved = self._solve_reference(y0, d_hat, chord)
+        reference, y0_mpc, stale = self._reference(solved, y0, d_hat)
         setpoint_status, saturated = self._diagnose(y0, y0_target, d_hat, reference, stale)
         t2 = time.perf_counter()
-        solution = self._solve_mpc(x_hat, reference, y0_mpc)
+        solution = self._solve_mpc(x_hat, reference, y0_mpc, skip_native)
         u = solution.u[0].copy()
         u_max = self._u_max
         inside = all(-u_max < v < u_max for v in u.tolist())  # strictly; NaN fails

@@ -61,15 +61,24 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
     """The numba-compiled functions an ``OffsetFreeController`` with ``config`` calls on a
     compiled kernel: the MPC's (:func:`~ltv_lstm_mpc.mpc.rti.compiled_kernels`), the
     observer update and the reference calculator's chord Newton, with the constructors of
-    their workspaces."""
+    their workspaces; and the one-call step (:mod:`ltv_lstm_mpc.loop.compiled_step`) where
+    the one-call feedback runs."""
     from ltv_lstm_mpc.loop import compiled_observer, compiled_reference
     from ltv_lstm_mpc.mpc.rti import compiled_kernels
 
-    return [
+    kernels = [
         *compiled_kernels(config, native_feedback=native_feedback),
         compiled_observer.observer_update, compiled_observer._new_observer_workspace,
         compiled_reference.chord_newton, compiled_reference._new_chord_workspace,
     ]  # fmt: skip
+    if any(getattr(kernel, "__name__", "") == "nominal_feedback" for kernel in kernels):
+        from ltv_lstm_mpc.loop import compiled_step  # the one-call step builds on it
+
+        kernels += [
+            compiled_step.controller_step, compiled_step._new_step_workspace,
+            compiled_step._new_record_arrays,
+        ]  # fmt: skip
+    return kernels
 
 
 def choose_kernels(config: MPCConfig, kernels: str = "auto") -> tuple[bool, list[str]]:

@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -149,7 +150,7 @@ class AssumptionLog:
         The run's records (the controller's list, appended to as the run goes).
     """
 
-    def __init__(self, monitor: AssumptionMonitor, records: list[Any]) -> None:
+    def __init__(self, monitor: AssumptionMonitor, records: Sequence[Any]) -> None:
         monitor = copy.copy(monitor)  # its own induction state: logs never share one
         monitor.reset()
         self.monitor = monitor

@@ -232,9 +232,15 @@ class ReferenceCalculator:
         norm = chord_newton(
             self._chord_workspace, self._last_z, target, step, self.tol, self.max_iter, z
         )
-        self._Jinv = self._Jinv_buffer if state[0] == 1 else None
-        self.counts["factorizations"] += int(state[2])
+        self.adopt_chord_state(int(state[0]), int(state[2]))
         return z, float(norm), int(state[1]), bool(state[3])
+
+    def adopt_chord_state(self, inverse_valid: int, factorizations: int) -> None:
+        """After a compiled chord Newton (here or in the controller's one-call step): keep
+        the inverse Jacobian it left in the workspace if it is valid, count its
+        factorizations."""
+        self._Jinv = self._Jinv_buffer if inverse_valid == 1 else None
+        self.counts["factorizations"] += factorizations
 
     def _chord_numpy(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
         r"""Warm-started chord Newton from the previous solution: (z, residual, iterations, ok).
@@ -343,21 +349,26 @@ class ReferenceCalculator:
         y0_arr: FloatArray,
         d_arr: FloatArray,
         warm: tuple[ArrayLike, ArrayLike] | None = None,
+        *,
+        chord: tuple[FloatArray, float, int, bool] | None = None,
     ) -> ReferenceSolution:
         """:meth:`solve` for arguments already checked: float64 arrays of shape (p,) with
-        finite entries (the controller's hot path; nothing is checked here)."""
+        finite entries (the controller's hot path; nothing is checked here). ``chord``:
+        the warm chord's outcome ``(z, residual, iterations, converged)`` where it already
+        ran on this target (the controller's one-call step, which then calls
+        :meth:`adopt_chord_state`); it is not run again."""
         model = self.model
         target = y0_arr - d_arr  # g(x_bar) must equal y0 - d_hat
         n2 = 2 * model.n
-        chord: tuple[FloatArray, float] | None = None
+        folded: tuple[FloatArray, float] | None = None
         if warm is None and self._last_z is not None:
-            z, norm, iterations, ok = self._chord(target)
+            z, norm, iterations, ok = chord if chord is not None else self._chord(target)
             u_bar = z[n2:]
             admissible = ok and max(map(abs, u_bar.tolist())) <= self.u_max * (1 + 1e-12)
             if admissible and model.m > 1 and float(np.abs(z - self._last_z).max()) > self.jump:
                 # A MIMO equilibrium map can fold: a large jump may be another branch. Keep
                 # it as a candidate and let the restarts find the closest admissible one.
-                chord, admissible = (z, norm), False
+                folded, admissible = (z, norm), False
             if admissible:
                 self._last_z = z
                 self._last_target = target
@@ -384,8 +395,8 @@ class ReferenceCalculator:
         n_grid = 1 if model.m == 1 else min(self.restarts, distance.shape[0])
         for index in np.argsort(distance, kind="stable")[:n_grid]:
             starts.append(np.concatenate([self._grid_x[index], self._grid_u[index]]))
-        if chord is not None:
-            starts.insert(0, chord[0])  # converges at once (a Newton step from a solution)
+        if folded is not None:
+            starts.insert(0, folded[0])  # converges at once (a Newton step from a solution)
         total_iterations = 0
         best: tuple[FloatArray, float, bool, FloatArray, FloatArray] | None = None
         best_rank: tuple[bool, float, bool, float] = (False, -np.inf, False, -np.inf)
@@ -399,7 +410,7 @@ class ReferenceCalculator:
             rank = (admissible, closeness if admissible else -np.inf, converged, -norm)
             if best is None or rank > best_rank:
                 best, best_rank = (z, norm, converged, A, B), rank
-            if admissible and chord is None and (number == 0 or previous is None):
+            if admissible and folded is None and (number == 0 or previous is None):
                 break  # from the previous solution itself (or no previous one): take it
         assert best is not None
         z, norm, converged, A, B = best

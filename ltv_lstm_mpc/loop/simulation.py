@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -329,6 +329,9 @@ def simulate(
         "disturbances", disturbances, steps, getattr(plant, "disturbance_size", None)
     )
     controller.reset()
+    reserve = getattr(getattr(controller, "records", None), "reserve", None)
+    if reserve is not None:  # the one-call step's record rows, allocated before the loop
+        reserve(steps + 1)
     y_phi = np.atleast_1d(np.asarray(plant.output(), dtype=np.float64))
     true_output = getattr(plant, "true_output", None)  # noisy measurements: the truth
     ys, ys_true, us, y0s, ds = [], [], [], [], []
@@ -398,7 +401,7 @@ def simulate(
     )
 
 
-def _monitor_arrays(records: list[Any]) -> dict[str, Any]:
+def _monitor_arrays(records: Sequence[Any]) -> dict[str, Any]:
     """``guarantee`` and ``hypotheses`` of :class:`SimulationResult` from the records
     (None where the steps carry no monitor verdict)."""
     checks = [r.assumptions for r in records]

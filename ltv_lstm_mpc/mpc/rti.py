@@ -604,6 +604,11 @@ class RobustMPC:
         MPCSolution
             ``solve_time`` is prepare + feedback time; ``solver_time`` the solver calls.
         """
+        return self._feedback(x_hat, native=True)
+
+    def _feedback(self, x_hat: ArrayLike, *, native: bool) -> MPCSolution:
+        """:meth:`feedback`; ``native=False`` skips the one-call feedback (the controller's
+        one-call step has run it on this point and it declined)."""
         start = time.perf_counter()
         if not self._prepared:
             raise LtvMpcError("feedback() needs a prepare() first")
@@ -613,7 +618,7 @@ class RobustMPC:
         n2 = 2 * n
         x_hat_a = np.ascontiguousarray(x_hat, dtype=np.float64)
         alpha = self._alpha
-        if self._native_feedback is not None:
+        if native and self._native_feedback is not None:
             solution = self._feedback_native(x_hat_a, start)
             if solution is not None:
                 return solution

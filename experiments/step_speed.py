@@ -1,0 +1,145 @@
+"""The whole controller step, side by side: one-call daqp, general daqp, exact cones.
+
+Runs bench's scenario 1 (short) at each horizon, step by step interleaved (order
+alternating ABBA, each controller with its own plant, the garbage collector paused as in
+``simulate``), for
+
+- ``daqp one-call``: the condensed QP on DAQP, each step one compiled call
+  (:mod:`ltv_lstm_mpc.loop.compiled_step`);
+- ``daqp general``: the same controller with ``one_call_step=False`` (the general path:
+  one compiled call per stage, Python between them);
+- ``exact cones``: the paper's SOC terminal set, condensed, on native CLARABEL;
+
+and prints per controller the median, p95 and p99 of the full ``step``, the jitter
+p95/median, the medians of ``prepare`` and ``feedback`` (microseconds), the ratio of each
+median step to the one-call daqp step, and the largest difference of the applied input to
+the general daqp path (mL/s: 0 for the one-call step, which computes the same numbers).
+
+acados is not installable on the machines this project runs on (its Python template is not
+on the package index); where ``acados_template`` imports, its SQP-RTI solve is not built by
+this script either: the acados numbers in the speed notes come from another machine, so
+only the ratios between the rows printed here are measured side by side.
+
+    python experiments/step_speed.py --steps 300 --N 5 20 50
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import time
+from dataclasses import replace
+from typing import Any
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")  # before numpy: small products, one thread
+
+import numpy as np  # noqa: E402
+
+from ltv_lstm_mpc import OffsetFreeController  # noqa: E402
+from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
+from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
+
+#: (label, solver, one_call_step)
+CONTROLLERS = (
+    ("daqp one-call", "daqp", True),
+    ("daqp general", "daqp", False),
+    ("exact cones", "clarabel", True),
+)
+REFERENCE = "daqp general"
+
+
+def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
+    """Interleaved closed loops of :data:`CONTROLLERS` at horizon ``N``."""
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[0]
+    steps = min(steps, len(scenario.setpoints))
+    runs = []
+    for label, solver, one_call in CONTROLLERS:
+        config = replace(scenario.config, N=N, solver=solver)
+        ctrl = OffsetFreeController(
+            model,
+            config,
+            setpoint_rate_limit=scenario.setpoint_rate_limit,
+            kernels="compiled",
+            one_call_step=one_call,
+        )
+        ctrl.records.reserve(steps + 1)
+        runs.append((label, ctrl, scenario.make_plant(model)))
+    outputs = [plant.output() for _, _, plant in runs]
+    times: list[list[float]] = [[] for _ in runs]
+    inputs: list[list[float]] = [[] for _ in runs]
+    gc.collect()
+    gc.disable()
+    try:
+        for k in range(steps):
+            order = range(len(runs)) if k % 2 == 0 else reversed(range(len(runs)))
+            for j in order:
+                _, ctrl, plant = runs[j]
+                t0 = time.perf_counter()
+                u = ctrl.step(outputs[j], scenario.setpoints[k])
+                times[j].append(time.perf_counter() - t0)
+                inputs[j].append(float(u[0]))
+                d = scenario.disturbances[k]
+                outputs[j] = plant.step(u, None if np.isnan(d) else d)
+    finally:
+        gc.enable()
+    skip = 10  # first steps: cold caches, first reference solve
+    out: dict[str, dict[str, Any]] = {}
+    for j, (label, ctrl, _) in enumerate(runs):
+        mpc = [r.mpc for r in ctrl.records[skip:]]
+        out[label] = {
+            "total": np.array(times[j][skip:]),
+            "prepare": np.array([s.prepare_time for s in mpc]),
+            "feedback": np.array([s.feedback_time for s in mpc]),
+            "u": np.array(inputs[j]),
+            "one_call": ctrl.one_call,
+        }
+    return out
+
+
+def report(N: int, result: dict[str, dict[str, Any]]) -> None:
+    """Print one horizon's table."""
+    base = float(np.median(result["daqp one-call"]["total"]))
+    reference = result[REFERENCE]["u"]
+    print(f"\nN = {N} (microseconds; ratio: median step / daqp one-call)")
+    print(
+        f"{'controller':>14} {'median':>8} {'p95':>8} {'p99':>8} {'p95/med':>8} "
+        f"{'prepare':>8} {'feedback':>8} {'ratio':>6} {'max |du|':>9}"
+    )
+    for label, data in result.items():
+        total = data["total"] * 1e6
+        median = float(np.median(total))
+        p95, p99 = (float(v) for v in np.percentile(total, [95, 99]))
+        gap = float(np.abs(data["u"] - reference).max())
+        print(
+            f"{label:>14} {median:8.1f} {p95:8.1f} {p99:8.1f} {p95 / median:8.2f} "
+            f"{np.median(data['prepare']) * 1e6:8.1f} {np.median(data['feedback']) * 1e6:8.1f} "
+            f"{median / (base * 1e6):6.2f} {gap:9.1e}"
+        )
+    cones = float(np.median(result["exact cones"]["total"]))
+    general = float(np.median(result["daqp general"]["total"]))
+    print(
+        f"exact cones / daqp one-call = {cones / base:.2f}; "
+        f"daqp general / daqp one-call = {general / base:.2f}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
+    args = parser.parse_args()
+    try:
+        import acados_template  # noqa: F401
+
+        print("acados_template imports, but this script does not build an acados solver")
+    except ImportError:
+        print("acados: not installed (not on the package index): no acados row")
+    for N in args.N:
+        report(N, run(N, args.steps))
+
+
+if __name__ == "__main__":
+    main()

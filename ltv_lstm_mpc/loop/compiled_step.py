@@ -1,0 +1,449 @@
+r"""One controller step as one compiled call (``OffsetFreeController.step``'s fast path).
+
+:meth:`~ltv_lstm_mpc.OffsetFreeController.step` on the condensed transcription with DAQP
+bound natively (one SQP iteration, compiled kernels) runs, in :func:`controller_step`:
+
+1. the normalization of the measurement and the set-point (paper notes 1) and the
+   set-point rate limiter (Theorem 3's :math:`\Delta y^0_{max}`);
+2. the reference calculator's warm path, eq. (reference_calculation), by the chord Newton
+   of :func:`~ltv_lstm_mpc.loop.compiled_reference.chord_newton`, with the acceptance
+   test of ``ReferenceCalculator.solve_arrays``;
+3. the set-point status of Assumption 5 and the saturation flags of :math:`\hat d_k`;
+4. the tightened output bounds (eq. optimization_constraint_yub/ylb) and :math:`\alpha_k`
+   (eq. def_alpha) of :class:`~ltv_lstm_mpc.certificates.tightening.TighteningCertificate`;
+5. the preparation (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`) on the
+   proof candidate (Theorem 3, Part 2b) and the nominal feedback
+   (:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`);
+6. the exit gate onto :math:`\mathcal U`, the observer update eq. (lstm_observer)
+   (:func:`~ltv_lstm_mpc.loop.compiled_observer.observer_update`), the recursion
+   :math:`\hat e_{o,k+1} = \rho_o \hat e_{o,k} + \bar w` (eq. eo_evolution) and the
+   de-normalization of the input.
+
+Everything the step computed goes into row ``k`` of :data:`RecordArrays` (the updated
+estimates into row ``k + 1``): the controller's records are built from those rows when
+they are read (:class:`~ltv_lstm_mpc.loop.records.ControllerRecords`), not in the timed
+step.
+
+Like the one-call feedback, it only *accepts*. It returns :data:`STEP_DONE` when every
+test passed; otherwise nothing the controller keeps has changed (the chord's kept inverse
+Jacobian aside, which the general path takes over with the chord's outcome) and the
+general Python path of the step runs: :data:`STEP_GENERAL` (a measurement or set-point that
+is not finite or lies beyond the plausible range: the general path raises or flags it),
+:data:`STEP_REFERENCE` (the warm chord did not give an admissible equilibrium: the damped
+Newton with restarts runs) and :data:`STEP_FEEDBACK` (the one-call feedback did not accept
+its point: the general feedback runs, with its reasons and fallbacks). The same compiled
+functions run as on the general path, so both give the same numbers (to a few ulps, tested
+to 1e-12 over closed loops in ``tests/test_one_call_step.py``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ltv_lstm_mpc.loop.compiled_observer import observer_update
+from ltv_lstm_mpc.loop.compiled_reference import chord_newton
+from ltv_lstm_mpc.mpc.compiled_prepare import (
+    CANDIDATE_GIVEN,
+    CANDIDATE_SHIFT,
+    prepare_condensed,
+)
+from ltv_lstm_mpc.mpc.native_feedback import nominal_feedback
+from ltv_lstm_mpc.numba_support import AVAILABLE, build_workspace, njit, workspace_type
+
+__all__ = [
+    "RECORD_FIELDS",
+    "STEP_DONE",
+    "STEP_FEEDBACK",
+    "STEP_FIELDS",
+    "STEP_GENERAL",
+    "STEP_REFERENCE",
+    "RecordArrays",
+    "StepWorkspace",
+    "controller_step",
+    "new_record_arrays",
+    "new_step_workspace",
+]
+
+#: Return codes of :func:`controller_step`.
+STEP_DONE, STEP_GENERAL, STEP_REFERENCE, STEP_FEEDBACK = 1, 0, -1, -2
+
+#: Columns of ``RecordArrays.real``.
+(
+    E_HAT, INPUT_CLIPPED, ALPHA, COST, OUTPUT_VIOLATION, TERMINAL_RESIDUAL,
+    LINEARIZATION_GAP, SQP_STEP, SOLVER_TIME, PREPARE_TIME, FEEDBACK_TIME, TIME_OBSERVER,
+    TIME_REFERENCE, TIME_MPC, REFERENCE_RESIDUAL, E_HAT_NEXT,
+) = range(16)  # fmt: skip
+REAL_COLUMNS = 16
+#: Columns of ``RecordArrays.integer``.
+(
+    STATUS, SOLVER_ITERATIONS, REFERENCE_ITERATIONS, SETPOINT_STATUS, MEASUREMENT_STATUS,
+    FACTORIZATIONS, JINV_VALID, CHORD_OK, U_BAR_PROJECTED,
+) = range(9)  # fmt: skip
+INTEGER_COLUMNS = 9
+#: ``SETPOINT_STATUS`` codes (the strings of ``ControllerStep.setpoint_status``).
+SETPOINT_STATUSES = ("ok", "outside_admissible", "target_outside_admissible")
+#: ``MEASUREMENT_STATUS`` codes.
+MEASUREMENT_STATUSES = ("ok", "outside_training_range")
+
+#: Fields of :data:`StepWorkspace`, in the order of its compiled constructor.
+STEP_FIELDS = (
+    "y_min", "y_scale", "u_min", "u_scale", "u_phi_low", "u_phi_high", "a", "b",
+    "bound_min", "bound_max", "kappa", "lower", "upper", "requested", "clock",
+    "u_max", "implausible", "d_max", "tightening_d_max", "rho_o", "w_bar", "e_inf",
+    "backward", "tol", "max_iter", "jump", "reuse_tol", "chord", "trajectories",
+    "condensing", "daqp", "plan", "observer", "cand",
+)  # fmt: skip
+
+StepWorkspace = workspace_type(
+    "StepWorkspace",
+    STEP_FIELDS,
+    r"""Constants and buffers of :func:`controller_step`.
+
+    ``y_min``, ``y_scale``, ``u_min``, ``u_scale``: the normalization (physical =
+    (normalized + 1) scale + min); ``u_phi_low``, ``u_phi_high``: U in physical units;
+    ``a``, ``b`` (N + 1, p), ``bound_min``, ``bound_max``, ``kappa`` (p): the tightening
+    certificate's :math:`a_i, b_i, y_{min}, y_{max}, \kappa_j`; ``lower``, ``upper``
+    (N, p): the tightened output bounds written at each step; ``requested`` (p): the
+    set-point requested before the limiter;
+    ``clock`` (int64, 2): a timespec. Scalars (fixed when the controller is built):
+    ``u_max``; ``implausible`` (the plausible measurement limit); ``d_max`` (the
+    observer's saturation), ``tightening_d_max``, ``rho_o``, ``w_bar``, ``e_inf`` (the
+    tightening certificate's); ``backward`` (the condensing's recursion); ``tol``,
+    ``max_iter``, ``jump`` (the reference calculator's) and ``reuse_tol`` (the MPC's; the
+    controller builds a new workspace when one of these four changes). The other
+    workspaces (one argument crosses the boundary instead of seven): ``chord``, the
+    reference calculator's
+    :data:`~ltv_lstm_mpc.loop.compiled_reference.ChordWorkspace`; ``trajectories``,
+    ``condensing``, ``daqp``, ``plan``: the MPC's (preparation, condensing, DAQP, plan
+    checks); ``observer``: the observer's; ``cand`` (N, m): the MPC's candidate buffer.
+    """,
+    __name__,
+)
+StepWorkspaceType = getattr(StepWorkspace, "numba_type", None)
+
+#: Fields of :data:`RecordArrays`, in the order of its compiled constructor.
+RECORD_FIELDS = (
+    "y", "y0", "u", "u_phi", "x_hat", "d_hat", "x_bar", "u_bar", "z", "target",
+    "saturated", "u_plan", "x_plan", "x_linear", "real", "integer",
+)  # fmt: skip
+
+RecordArrays = workspace_type(
+    "RecordArrays",
+    RECORD_FIELDS,
+    """Preallocated per-step rows that :func:`controller_step` writes (capacity rows).
+
+    ``y``, ``y0``, ``u``, ``u_phi``: measurement, set-point used, input (normalized and
+    physical); ``x_hat``, ``d_hat``: the estimates used at step k (row k) and their update
+    (row k + 1); ``x_bar``, ``u_bar``, ``z`` (= [x_bar; u_bar]), ``target`` (= y0 - d_hat):
+    the reference; ``saturated`` (uint8, p): the saturation flags of d_hat; ``u_plan``
+    (N, m), ``x_plan``, ``x_linear`` (N + 1, 2n): the MPC's plan; ``real``, ``integer``: the
+    scalars, one column each (the column constants of this module).
+    """,
+    __name__,
+)
+RecordArraysType = getattr(RecordArrays, "numba_type", None)
+
+
+def new_step_workspace(**fields: Any) -> Any:
+    """A :data:`StepWorkspace` from its fields by name (:data:`STEP_FIELDS`)."""
+    return build_workspace(_new_step_workspace, STEP_FIELDS, fields)
+
+
+def new_record_arrays(capacity: int, p: int, m: int, n2: int, N: int) -> tuple[Any, dict[str, Any]]:
+    """Empty :data:`RecordArrays` for ``capacity`` steps (the estimates use one row more),
+    and its arrays by field name."""
+    fields = {
+        "y": np.zeros((capacity, p)),
+        "y0": np.zeros((capacity, p)),
+        "u": np.zeros((capacity, m)),
+        "u_phi": np.zeros((capacity, m)),
+        "x_hat": np.zeros((capacity + 1, n2)),
+        "d_hat": np.zeros((capacity + 1, p)),
+        "x_bar": np.zeros((capacity, n2)),
+        "u_bar": np.zeros((capacity, m)),
+        "z": np.zeros((capacity, n2 + m)),
+        "target": np.zeros((capacity, p)),
+        "saturated": np.zeros((capacity, p), dtype=np.uint8),
+        "u_plan": np.zeros((capacity, N, m)),
+        "x_plan": np.zeros((capacity, N + 1, n2)),
+        "x_linear": np.zeros((capacity, N + 1, n2)),
+        "real": np.zeros((capacity, REAL_COLUMNS)),
+        "integer": np.zeros((capacity, INTEGER_COLUMNS), dtype=np.int64),
+    }
+    return build_workspace(_new_record_arrays, RECORD_FIELDS, fields), fields
+
+
+@njit(cache=True)
+def _new_step_workspace(  # type: ignore[no-untyped-def]
+    y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max, kappa,
+    lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max, rho_o,
+    w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories, condensing,
+    daqp, plan, observer, cand,
+):  # fmt: skip
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return StepWorkspace(
+        y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max,
+        kappa, lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max,
+        rho_o, w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories,
+        condensing, daqp, plan, observer, cand,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _new_record_arrays(  # type: ignore[no-untyped-def]
+    y, y0, u, u_phi, x_hat, d_hat, x_bar, u_bar, z, target, saturated, u_plan, x_plan,
+    x_linear, real, integer,
+):  # fmt: skip
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return RecordArrays(
+        y, y0, u, u_phi, x_hat, d_hat, x_bar, u_bar, z, target, saturated, u_plan, x_plan,
+        x_linear, real, integer,
+    )  # fmt: skip
+
+
+_CLOCK_MONOTONIC = 1
+_clock_gettime: Any = None
+if AVAILABLE:  # the monotonic clock of time.perf_counter, from inside the compiled step
+    from numba import types as _types
+
+    _clock_gettime = _types.ExternalFunction(
+        "clock_gettime", _types.int32(_types.int32, _types.voidptr)
+    )
+
+
+@njit(cache=True)
+def _now(clock: Any) -> float:
+    """``time.perf_counter()`` (CLOCK_MONOTONIC, s) into and from the timespec ``clock``."""
+    _clock_gettime(_CLOCK_MONOTONIC, clock.ctypes.data)
+    return clock[0] + clock[1] * 1e-9
+
+
+@njit(cache=True)
+def _inside_interval(
+    values: Any, bound_min: Any, bound_max: Any, margin_base: float, a_N: Any, b_N: Any,
+    e_tilde: float,
+) -> bool:  # fmt: skip
+    r"""``values`` strictly inside the admissible set-point interval of Assumption 5
+    (``TighteningCertificate.setpoint_interval``)."""
+    for j in range(values.shape[0]):
+        margin = margin_base + a_N[j] * e_tilde + b_N[j]
+        if not bound_min[j] + margin < values[j] < bound_max[j] - margin:
+            return False
+    return True
+
+
+@njit(cache=True)
+def controller_step(
+    step: Any,
+    records: Any,
+    k: int,
+    y_phi: Any,
+    y0_phi: Any,
+    y0_previous: Any,
+    x_hat: Any,
+    d_hat: Any,
+    last_z: Any,
+    last_target: Any,
+    jinv_valid: int,
+    previous_u: Any,
+    e_hat: float,
+    rate_limit: float,
+) -> tuple[int, int, int, int, float]:
+    """One controller step (module docstring).
+
+    Returns ``(code, warnings, kept inverse Jacobian valid, factorizations, e_hat next)``:
+    ``code`` one of the ``STEP_*`` codes; ``warnings`` bit 0: d_hat saturated, bit 1: a
+    set-point status other than ok, bit 2: the input was moved onto U.
+
+    ``step``: :data:`StepWorkspace` (with the other workspaces); ``records``:
+    :data:`RecordArrays` with at least ``k + 2`` estimate rows; ``y_phi``, ``y0_phi``:
+    physical measurement and set-point; ``y0_previous``: the limiter's last set-point
+    (normalized; ignored without a limit); ``x_hat``, ``d_hat``: the estimates;
+    ``last_z``, ``last_target``: the reference calculator's last solution and target
+    (``last_target`` empty: none); ``jinv_valid``: whether its kept inverse Jacobian is
+    valid; ``previous_u``: the MPC's previous plan;
+    ``e_hat``: :math:`\\hat e_{o,k}`; ``rate_limit``: the limiter's bound (NaN: none).
+    """
+    clock = step.clock
+    t0 = _now(clock)
+    chord, trajectories, condensing = step.chord, step.trajectories, step.condensing
+    daqp, plan, observer, cand = step.daqp, step.plan, step.observer, step.cand
+    p = y_phi.shape[0]
+    m = step.u_min.shape[0]
+    n2 = x_hat.shape[0]
+    N = cand.shape[0]
+    # ---- normalization and measurement status (paper notes 1)
+    y = records.y[k]
+    y0 = records.y0[k]
+    largest = 0.0
+    for j in range(p):
+        y[j] = (y_phi[j] - step.y_min[j]) / step.y_scale[j] - 1.0
+        y0[j] = (y0_phi[j] - step.y_min[j]) / step.y_scale[j] - 1.0  # the target, for now
+        if not (np.isfinite(y[j]) and np.isfinite(y0[j])):
+            return STEP_GENERAL, 0, 0, 0, 0.0
+        largest = max(largest, abs(y[j]))
+    if largest > step.implausible:
+        return STEP_GENERAL, 0, 0, 0, 0.0
+    integer = records.integer[k]
+    real = records.real[k]
+    integer[MEASUREMENT_STATUS] = 0 if largest <= 1.0 else 1
+    # ---- the rate limiter: y0 moves towards the target by at most rate_limit
+    limited = not np.isnan(rate_limit)
+    if limited:
+        limit = rate_limit
+        requested = step.requested
+        for j in range(p):
+            requested[j] = y0[j]
+            change = min(max(y0[j] - y0_previous[j], -limit), limit)
+            y0[j] = change + y0_previous[j]
+    for q in range(n2):
+        records.x_hat[k, q] = x_hat[q]
+    for j in range(p):
+        records.d_hat[k, j] = d_hat[j]
+    t1 = _now(clock)
+    # ---- reference calculator, warm path (ReferenceCalculator.solve_arrays)
+    target = records.target[k]
+    target_step = np.empty(p)
+    for j in range(p):
+        target[j] = y0[j] - d_hat[j]
+        target_step[j] = target[j] - last_target[j] if last_target.shape[0] else 0.0
+    chord.state[0] = jinv_valid
+    z = records.z[k]
+    residual = chord_newton(chord, last_z, target, target_step, step.tol, step.max_iter, z)
+    state = chord.state
+    integer[REFERENCE_ITERATIONS] = state[1]
+    integer[FACTORIZATIONS] = state[2]
+    integer[CHORD_OK] = state[3]
+    integer[JINV_VALID] = state[0]
+    real[REFERENCE_RESIDUAL] = residual
+    u_max = step.u_max
+    largest_u = 0.0
+    for a in range(m):
+        largest_u = max(largest_u, abs(z[n2 + a]))
+    if not (state[3] == 1 and largest_u <= u_max * (1 + 1e-12)):
+        return STEP_REFERENCE, 0, int(state[0]), int(state[2]), 0.0
+    if m > 1:
+        largest_jump = 0.0
+        for q in range(n2 + m):
+            largest_jump = max(largest_jump, abs(z[q] - last_z[q]))
+        if largest_jump > step.jump:
+            return STEP_REFERENCE, 0, int(state[0]), int(state[2]), 0.0
+    x_bar = records.x_bar[k]
+    u_bar = records.u_bar[k]
+    for q in range(n2):
+        x_bar[q] = z[q]
+    for a in range(m):
+        u_bar[a] = z[n2 + a]
+    # ---- set-point status (Assumption 5) and saturation of d_hat
+    saturation = step.d_max * (1.0 - 1e-12)
+    for j in range(p):
+        records.saturated[k, j] = 1 if abs(d_hat[j]) >= saturation else 0
+    a_N, b_N = step.a[N], step.b[N]
+    e_tilde = max(e_hat, step.e_inf)
+    two_d = 2.0 * step.tightening_d_max
+    status = 0
+    if not _inside_interval(y0, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde):
+        status = 1
+    elif limited and not _inside_interval(
+        step.requested, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
+    ):
+        status = 2
+    integer[SETPOINT_STATUS] = status
+    t2 = _now(clock)
+    # ---- tightened bounds and alpha_k (TighteningCertificate.output_bounds, .alpha)
+    lower, upper = step.lower, step.upper
+    for i in range(N):
+        for j in range(p):
+            shrink = step.a[i, j] * e_hat + step.b[i, j] + step.tightening_d_max
+            lower[i, j] = step.bound_min[j] + shrink
+            upper[i, j] = step.bound_max[j] - shrink
+    alpha = np.inf
+    for j in range(p):
+        margin = two_d + a_N[j] * e_tilde + b_N[j]
+        kappa = step.kappa[j]
+        alpha = min(
+            alpha,
+            min((step.bound_max[j] - y0[j] - margin) / kappa,
+                (y0[j] - step.bound_min[j] - margin) / kappa),
+        )  # fmt: skip
+    real[ALPHA] = alpha
+    # ---- prepare: the candidate (Theorem 3, Part 2b), rollout, Jacobians, condensing
+    projected = False
+    for a in range(m):
+        if not -u_max <= u_bar[a] <= u_max:
+            projected = True
+    candidate = CANDIDATE_SHIFT
+    if projected:  # an inadmissible equilibrium within the tolerance: append its projection
+        for i in range(N - 1):
+            for a in range(m):
+                cand[i, a] = previous_u[i + 1, a]
+        for a in range(m):
+            cand[N - 1, a] = min(max(u_bar[a], -u_max), u_max)
+        candidate = CANDIDATE_GIVEN
+    integer[U_BAR_PROJECTED] = 1 if projected else 0
+    scale, _ = prepare_condensed(
+        trajectories, condensing, cand, previous_u, candidate, x_hat, step.reuse_tol, x_bar,
+        u_bar, lower, upper, alpha, step.backward,
+    )  # fmt: skip
+    t_prepared = _now(clock)
+    # ---- feedback: insert x_hat, solve, accept, re-simulate
+    u_plan = records.u_plan[k]
+    code, iterations, sqp_step, seconds = nominal_feedback(
+        condensing, daqp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
+        records.x_linear[k], u_plan, records.x_plan[k],
+    )  # fmt: skip
+    if code == 0:
+        return STEP_FEEDBACK, 0, int(state[0]), int(state[2]), 0.0
+    t3 = _now(clock)
+    integer[STATUS] = code
+    integer[SOLVER_ITERATIONS] = iterations
+    real[SQP_STEP] = sqp_step
+    real[SOLVER_TIME] = seconds
+    metrics = plan.out
+    real[COST] = metrics[0]
+    real[TERMINAL_RESIDUAL] = metrics[1] - alpha
+    real[OUTPUT_VIOLATION] = metrics[2]
+    real[LINEARIZATION_GAP] = metrics[3]
+    real[PREPARE_TIME] = t_prepared - t2
+    real[FEEDBACK_TIME] = t3 - t_prepared
+    # ---- the exit gate onto U
+    u = records.u[k]
+    inside = True
+    for a in range(m):
+        u[a] = u_plan[0, a]
+        if not -u_max < u[a] < u_max:  # strictly; on the boundary too
+            inside = False
+    moved = 0.0
+    if not inside:
+        for a in range(m):
+            gated = min(max(u[a], -u_max), u_max)
+            moved = max(moved, abs(gated - u[a]))
+            u[a] = gated
+    real[INPUT_CLIPPED] = moved
+    t4 = _now(clock)
+    # ---- observer update eq. (lstm_observer) and eq. (eo_evolution)
+    observer_update(observer, step.d_max, x_hat, d_hat, y, u, records.x_hat[k + 1],
+                    records.d_hat[k + 1])  # fmt: skip
+    real[E_HAT] = e_hat
+    e_hat_next = step.rho_o * e_hat + step.w_bar
+    real[E_HAT_NEXT] = e_hat_next
+    u_phi = records.u_phi[k]
+    for a in range(m):
+        u_phi[a] = (u[a] + 1.0) * step.u_scale[a] + step.u_min[a]
+        if not inside:
+            u_phi[a] = min(max(u_phi[a], step.u_phi_low[a]), step.u_phi_high[a])
+    t5 = _now(clock)
+    real[TIME_OBSERVER] = (t1 - t0) + (t5 - t4)
+    real[TIME_REFERENCE] = t2 - t1
+    real[TIME_MPC] = t4 - t2
+    warnings = 0
+    for j in range(p):
+        if records.saturated[k, j]:
+            warnings |= 1
+    if status != 0:
+        warnings |= 2
+    if moved > 0.0:
+        warnings |= 4
+    return STEP_DONE, warnings, int(state[0]), int(state[2]), e_hat_next

@@ -1,0 +1,263 @@
+"""The controller step as one compiled call (loop/compiled_step.py) against the general path.
+
+Both paths run the same compiled kernels, so the records agree to 1e-12 (measured: bit for
+bit) over 300-step closed loops, SISO and (2, 2), infeasible steps and the fallbacks
+included; the records of one-call steps are built from preallocated rows when read.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import Counter
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import pytest
+from ltv_lstm_mpc.solvers import daqp_native
+
+from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
+from ltv_lstm_mpc.loop import compiled_step
+from ltv_lstm_mpc.lstm.shipped import load_model
+
+needs_binding = pytest.mark.skipif(
+    not daqp_native.ready(), reason=f"DAQP not bound natively: {daqp_native.unavailable_reason}"
+)
+pytestmark = needs_binding
+
+TOLERANCE = 1e-12
+
+
+def _differences(a: Any, b: Any, prefix: str = "") -> dict[str, float]:
+    """Largest difference per field of two records (times excluded); strings and flags
+    must be equal (a difference of inf)."""
+    out: dict[str, float] = {}
+    for field in dataclasses.fields(a):
+        name = field.name
+        if name.startswith("time") or name.endswith("_time") or name == "monitor_log":
+            continue
+        left, right = getattr(a, name), getattr(b, name)
+        if dataclasses.is_dataclass(left):
+            out.update(_differences(left, right, prefix=f"{name}."))
+        elif isinstance(left, dict):
+            for key in left:
+                out[f"{prefix}{name}.{key}"] = abs(left[key] - right[key])
+        elif isinstance(left, np.ndarray):
+            both = np.isnan(left.astype(float)) & np.isnan(right.astype(float))
+            gap = np.where(both, 0.0, np.abs(left.astype(float) - right.astype(float)))
+            out[prefix + name] = float(gap.max()) if gap.size else 0.0
+        elif isinstance(left, float) and not isinstance(right, bool):
+            out[prefix + name] = (
+                0.0 if math.isnan(left) and math.isnan(right) else abs(left - right)
+            )
+        else:
+            out[prefix + name] = 0.0 if left == right else math.inf
+    return out
+
+
+def _worst(records_a: Any, records_b: Any) -> tuple[float, str]:
+    worst, where = 0.0, ""
+    for k, (a, b) in enumerate(zip(records_a, records_b, strict=True)):
+        for name, gap in _differences(a, b).items():
+            if gap > worst:
+                worst, where = gap, f"step {k}: {name}"
+    return worst, where
+
+
+@pytest.fixture
+def codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
+    """Counts of the one-call step's return codes."""
+    counts: Counter[int] = Counter()
+    original = compiled_step.controller_step
+
+    def counting(*args: Any) -> Any:
+        answer = original(*args)
+        counts[answer[0]] += 1
+        return answer
+
+    monkeypatch.setattr(compiled_step, "controller_step", counting)
+    return counts
+
+
+def _loop(model: Any, config: MPCConfig, scenario: Any, one_call: bool, steps: int) -> Any:
+    controller = OffsetFreeController(
+        model,
+        config,
+        setpoint_rate_limit=scenario.setpoint_rate_limit,
+        kernels="compiled",
+        one_call_step=one_call,
+    )
+    assert controller.one_call is one_call
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    for k in range(steps):
+        u = controller.step(y, scenario.setpoints[k])
+        d = scenario.disturbances[k]
+        y = plant.step(u, None if np.isnan(d) else d)
+    return controller
+
+
+@pytest.mark.parametrize(("index", "N"), [(0, 5), (0, 20), (2, 5)])
+def test_one_call_step_equals_the_general_path_siso(
+    index: int, N: int, codes: Counter[int]
+) -> None:
+    """Bench scenarios on the shipped pH model, 300 steps: every record field the same
+    (scenario 3 has infeasible steps: there the one-call feedback declines and the general
+    feedback runs its policy)."""
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[index]
+    config = replace(scenario.config, solver="daqp", N=N)
+    steps = min(len(scenario.setpoints), 300)
+    fast = _loop(model, config, scenario, True, steps)
+    taken = dict(codes)
+    general = _loop(model, config, scenario, False, steps)
+    assert dict(codes) == taken  # the general controller never calls the one-call step
+    worst, where = _worst(fast.records, general.records)
+    assert worst <= TOLERANCE, where
+    assert fast.warning_counts == general.warning_counts
+    assert fast.e_hat == general.e_hat
+    np.testing.assert_array_equal(fast.observer.x_hat, general.observer.x_hat)
+    assert taken.get(compiled_step.STEP_DONE, 0) >= 200
+    infeasible = sum(not r.mpc.feasible for r in fast.records)
+    if index == 2:
+        assert infeasible > 0
+        declined = taken.get(compiled_step.STEP_FEEDBACK, 0) + taken.get(
+            compiled_step.STEP_REFERENCE, 0
+        )
+        assert taken.get(compiled_step.STEP_FEEDBACK, 0) > 0 and declined + 1 >= infeasible
+    else:
+        assert infeasible == 0
+        assert taken.get(compiled_step.STEP_DONE, 0) == steps - 1  # all but the first step
+
+
+def test_one_call_step_equals_the_general_path_mimo(codes: Counter[int]) -> None:
+    """The quadruple tank (2, 2), 300 steps of its set-point scenario through simulate."""
+    from ltv_lstm_mpc.benchmarks.quadtank import QUADTANK_MODEL, quadtank_scenarios
+
+    model = load_model(QUADTANK_MODEL)
+    scenario = quadtank_scenarios(short=True)[0]
+    config = replace(scenario.config, solver="daqp")
+    steps = min(scenario.steps, 300)
+    results = []
+    for one_call in (True, False):
+        controller = OffsetFreeController(
+            model, config, setpoint_rate_limit=scenario.setpoint_rate_limit,
+            kernels="compiled", one_call_step=one_call,
+        )  # fmt: skip
+        result = simulate(
+            scenario.make_plant(model), controller, scenario.setpoints[:steps],
+            scenario.leaks[:steps], steps,
+        )  # fmt: skip
+        results.append((controller, result))
+    (fast, fast_result), (general, general_result) = results
+    assert codes[compiled_step.STEP_DONE] == steps - 1
+    worst, where = _worst(fast.records, general.records)
+    assert worst <= TOLERANCE, where
+    np.testing.assert_array_equal(fast_result.u_phi, general_result.u_phi)
+
+
+def test_unreachable_setpoint_takes_the_reference_fallback(codes: Counter[int]) -> None:
+    """A set-point step to 9.45 pH (no equilibrium with u_bar in U): the warm chord does not
+    give an admissible equilibrium, the general path goes on from its outcome (damped
+    Newton, the previous target kept): the same records as the general path alone."""
+    model = load_model("ph_lstm_n5.npz")
+    config = MPCConfig(solver="daqp", N=5)
+    setpoints = [7.0] * 20 + [9.45] * 20 + [7.5] * 40
+    records = []
+    for one_call in (True, False):
+        controller = OffsetFreeController(model, config, kernels="compiled", one_call_step=one_call)
+        from ltv_lstm_mpc.plants import PHNeutralizationPlant
+
+        plant = PHNeutralizationPlant()
+        y = plant.output()
+        with pytest.warns(RuntimeWarning, match="not reachable"):
+            for setpoint in setpoints:
+                y = plant.step(controller.step(y, setpoint))
+        records.append(controller.records)
+    assert codes[compiled_step.STEP_REFERENCE] > 0
+    assert any(r.stale_reference for r in records[0])
+    worst, where = _worst(*records)
+    assert worst <= TOLERANCE, where
+
+
+def test_records_are_a_read_only_sequence_built_on_reading() -> None:
+    """Records of one-call steps: placeholders until read, then kept; a list's reading
+    API (len, indexing, negative indices, slices, iteration, == list); an earlier run's
+    records stay readable after reset and another run (own rows, own assumption log)."""
+    model = load_model("ph_lstm_n5.npz")
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp", N=5), kernels="compiled")
+    plant_y = np.array([7.0])
+    for _ in range(5):
+        controller.step(plant_y, np.array([7.2]))
+    first_run = controller.records
+    assert len(first_run) == 5 and first_run._items[1:] == [None] * 4
+    last = first_run[-1]
+    assert first_run[4] is last and first_run._items[4] is last  # kept once built
+    assert [r.index for r in first_run[1:3]] == [1, 2]
+    assert list(first_run) == [first_run[k] for k in range(5)]
+    assert first_run == list(first_run) and first_run != []
+    u_first = [r.u.copy() for r in first_run]
+    verdict = last.assumptions
+    assert verdict is not None and verdict.guarantee  # read from this run's log
+    controller.reset()
+    assert controller.records == [] and not controller.records
+    for _ in range(3):
+        controller.step(np.array([7.1]), np.array([6.8]))
+    for r, u in zip(first_run, u_first, strict=True):
+        np.testing.assert_array_equal(r.u, u)
+    assert first_run[2].monitor_log is not controller.records[2].monitor_log
+
+
+def test_inputs_of_other_layouts_and_bad_inputs() -> None:
+    """Read-only and strided measurements run the one-call step (as copies: one compiled
+    signature) with the same input; a NaN measurement and an implausible one with
+    implausible_measurements='raise' are refused by the general path before anything is
+    updated."""
+    from ltv_lstm_mpc.exceptions import InvalidValueError
+
+    model = load_model("ph_lstm_n5.npz")
+    config = MPCConfig(solver="daqp", N=5)
+    inputs = []
+    for variant in range(3):
+        controller = OffsetFreeController(
+            model, config, kernels="compiled", implausible_measurements="raise"
+        )
+        controller.step(7.0, 7.0)
+        y = np.array([7.05, 0.0])[:1] if variant == 0 else np.array([[7.05, 0.0]])[0, ::2]
+        if variant == 1:
+            y.flags.writeable = False
+        setpoint = 7.3 if variant < 2 else np.array([7.3])
+        inputs.append(controller.step(y, setpoint).copy())
+        length = len(controller.records)
+        x_hat = controller.observer.x_hat.copy()
+        with pytest.raises(InvalidValueError, match="NaN"):
+            controller.step(np.array([np.nan]), 7.3)
+        with pytest.raises(InvalidValueError, match=r"implausible|range width"):
+            controller.step(np.array([100.0]), 7.3)
+        assert len(controller.records) == length
+        np.testing.assert_array_equal(controller.observer.x_hat, x_hat)
+    np.testing.assert_array_equal(inputs[0], inputs[1])
+    np.testing.assert_array_equal(inputs[0], inputs[2])
+
+
+def test_one_call_applies_only_where_it_can() -> None:
+    """Other solvers, the numpy kernels, a globalized SQP and a given mpc run the general
+    path; the flag is checked."""
+    from ltv_lstm_mpc import RobustMPC
+    from ltv_lstm_mpc.exceptions import ArgumentTypeError
+
+    model = load_model("ph_lstm_n5.npz")
+    assert OffsetFreeController(model, MPCConfig(solver="daqp"), kernels="compiled").one_call
+    assert not OffsetFreeController(model, MPCConfig(solver="daqp"), kernels="numpy").one_call
+    assert not OffsetFreeController(
+        model, MPCConfig(solver="daqp", sqp_iterations=3), kernels="compiled"
+    ).one_call
+    assert not OffsetFreeController(model, MPCConfig(solver="osqp"), kernels="compiled").one_call
+    config = MPCConfig(solver="daqp")
+    given = OffsetFreeController(model, config, mpc=RobustMPC(model, config))
+    assert not given.one_call
+    with pytest.raises(ArgumentTypeError, match="one_call_step"):
+        OffsetFreeController(model, config, one_call_step="yes")  # type: ignore[arg-type]
