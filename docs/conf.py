@@ -56,7 +56,7 @@ nitpick_ignore_regex = [
     (r"py:.*", r"^(?!ltv_lstm_mpc\b).*"),
     # private names (a leading underscore) and numba's structref types have no pages
     (r"py:.*", r".*\._[A-Za-z].*"),
-    (r"py:.*", r".*WorkspaceType$"),
+    (r"py:.*", r".*(Workspace|Arrays)Type$"),
     (r"py:class", r"ltv_lstm_mpc\.validation\.T"),  # a TypeVar
 ]
 
