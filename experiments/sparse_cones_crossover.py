@@ -50,11 +50,11 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import clarabel  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
+from ltv_lstm_mpc.solvers import ConvexProblem, DenseSession  # noqa: E402
 
 from ltv_lstm_mpc import OffsetFreeController  # noqa: E402
 from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
 from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
-from ltv_lstm_mpc.solvers import ConvexProblem, DenseSession  # noqa: E402
 
 
 def clarabel_data(problem: ConvexProblem) -> tuple[Any, ...]:
@@ -161,13 +161,17 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=120)
     parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
     args = parser.parse_args()
-    print(f"{'N':>3} {'variables':>9} {'rows':>5} {'sparse us':>10} {'condensed us':>13} "
-          f"{'sparse/condensed':>17} {'iterations':>10} {'max |du0| (normalized)':>23}")
+    print(
+        f"{'N':>3} {'variables':>9} {'rows':>5} {'sparse us':>10} {'condensed us':>13} "
+        f"{'sparse/condensed':>17} {'iterations':>10} {'max |du0| (normalized)':>23}"
+    )
     for N in args.N:
         r = run(N, args.steps)
-        print(f"{N:3d} {r['variables']:9d} {r['rows']:5d} {r['sparse'] * 1e6:10.0f} "
-              f"{r['dense'] * 1e6:13.0f} {r['sparse'] / r['dense']:17.2f} "
-              f"{r['iterations']:10.0f} {r['gap']:23.1e}")
+        print(
+            f"{N:3d} {r['variables']:9d} {r['rows']:5d} {r['sparse'] * 1e6:10.0f} "
+            f"{r['dense'] * 1e6:13.0f} {r['sparse'] / r['dense']:17.2f} "
+            f"{r['iterations']:10.0f} {r['gap']:23.1e}"
+        )
 
 
 if __name__ == "__main__":
