@@ -45,7 +45,7 @@ _EXTRA_HINT = 'pip install "ltv_lstm_mpc[solvers]"'
 #: Accepted registry names: letters, digits and ``_ . : @ , + -`` (no spaces).
 _NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.:@,+\-]*")
 #: Native backends that solve second-order cones exactly.
-NATIVE_CONE_SOLVERS = frozenset({"clarabel"})
+NATIVE_CONE_SOLVERS = frozenset({"clarabel", "daqp:socp"})
 
 
 @dataclass(frozen=True)
@@ -103,10 +103,20 @@ def _native_entries() -> list[tuple[str, str, Callable[[], tuple[Any, Any]]]]:
             lambda: (_module("piqp_").make_dense, _module("piqp_").make_dense_qp),
         ),
         ("daqp", "daqp", lambda: (_module("daqp_").make, _module("daqp_").make_dense)),
+        ("daqp:socp", "daqp", _daqp_socp),
         ("quadprog", "quadprog", lambda: (None, _module("quadprog_").make_dense)),
         ("clarabel", "clarabel", lambda: (None, _module("clarabel_").make_dense)),
         ("proxqp", "proxsuite", lambda: (None, _module("proxqp_").make_dense)),
     ]
+
+
+def _daqp_socp() -> tuple[Any, Any]:
+    """The exact-cone SQP on DAQP: only where DAQP's C entry point is bound natively."""
+    from . import daqp_native
+
+    if not daqp_native.bound():
+        raise ImportError(daqp_native.unavailable_reason or "DAQP is not bound natively")
+    return None, _module("daqp_socp").make_dense
 
 
 @functools.cache
@@ -150,8 +160,9 @@ def available_solvers() -> list[str]:
     ``cvxpy:<SOLVER>`` for the cvxpy solvers this layer supports (CLARABEL, ECOS,
     SCS for cones; OSQP, PIQP, PROXQP, DAQP, HIGHS for QPs), ``qpsolvers:<name>``
     for every solver in ``qpsolvers.available_solvers``, the native ``osqp``,
-    ``piqp`` (``piqp:sparse``, ``piqp:dense``), ``daqp``, ``quadprog``,
-    ``proxqp`` and ``clarabel`` (dense, exact cones), then the solvers added with
+    ``piqp`` (``piqp:sparse``, ``piqp:dense``), ``daqp``, ``daqp:socp`` (dense, exact
+    cones by SQP on DAQP), ``quadprog``, ``proxqp`` and ``clarabel`` (dense, exact cones),
+    then the solvers added with
     :func:`register_backend`.
     """
     return list(_registry())
@@ -177,7 +188,7 @@ def _native_entry(name: str) -> _Entry | None:
         except ImportError:
             return None
         family = name.split(":")[0]
-        cones = family in NATIVE_CONE_SOLVERS
+        cones = name in NATIVE_CONE_SOLVERS
         return _Entry(
             SolverInfo(name, family, cones, dense is not None, family in FIRST_ORDER),
             factory,
@@ -199,7 +210,8 @@ def _entry(name: str) -> _Entry:
     raise SolverNotFound(
         f"solver {name!r} is not available. Installed: {', '.join(reg) or 'none'}. "
         f"Names are 'cvxpy:<SOLVER>', 'qpsolvers:<solver>', 'osqp', 'piqp', 'daqp', "
-        f"'quadprog', 'proxqp', 'clarabel' or one added with register_backend(); "
+        f"'daqp:socp', 'quadprog', 'proxqp', 'clarabel' or one added with "
+        "register_backend(); "
         f"install the solvers with: {_EXTRA_HINT}"
     )
 

@@ -49,7 +49,9 @@ NO_NATIVE_STATUS = frozenset({"qpsolvers:daqp", "qpsolvers:highs", "qpsolvers:qu
 
 SOLVERS = available_solvers()
 CONE_SOLVERS = [
-    s for s in SOLVERS if s in ("cvxpy:CLARABEL", "cvxpy:ECOS", "cvxpy:SCS", "clarabel")
+    s
+    for s in SOLVERS
+    if s in ("cvxpy:CLARABEL", "cvxpy:ECOS", "cvxpy:SCS", "clarabel", "daqp:socp")
 ]
 
 

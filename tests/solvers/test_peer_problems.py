@@ -280,7 +280,7 @@ DENSE = "DenseSession"
 #: qpsolvers gives no native status for daqp / highs / quadprog (``found=False`` is FAILED,
 #: never INFEASIBLE or UNBOUNDED) and refuses a singular ``P`` for quadprog / ecos (FAILED);
 #: ProxQP does not detect infeasibility or unboundedness (MAX_ITER); DAQP refuses the
-#: near-singular equality rows at setup (exit flag -6); OSQP and ECOS stop
+#: near-singular equality rows at setup (exit flag -6; daqp:socp, on DAQP, too); OSQP and ECOS stop
 #: ``solved inaccurate`` on the cond-1e8 problem; ProxQP's multipliers on QPTEST and ECOS's
 #: (through cvxpy, the objective as a cone) on QPSUT03 and the least-squares problem miss the
 #: optimality tolerance (stationarity 1-2e-4: the acceptance check's OPTIMAL_INACCURATE).
@@ -292,6 +292,7 @@ HONEST: dict[tuple[str, str, str], SolverStatus] = {
     ),
     ("cvxpy:ECOS", "sparse least squares", BOTH): SolverStatus.OPTIMAL_INACCURATE,
     ("daqp", "near-singular equalities", BOTH): SolverStatus.FAILED,
+    ("daqp:socp", "near-singular equalities", BOTH): SolverStatus.FAILED,  # DAQP's -6
     ("osqp", "ill-conditioned (cond 1e8)", "solve"): SolverStatus.OPTIMAL_INACCURATE,
     ("proxqp", "QPTEST (Maros-Meszaros)", BOTH): SolverStatus.OPTIMAL_INACCURATE,
     ("proxqp", "infeasible (x1 >= 1, x1 <= 0)", BOTH): SolverStatus.MAX_ITER,

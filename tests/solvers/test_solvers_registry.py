@@ -30,7 +30,13 @@ def test_available_solvers_lists_the_families() -> None:
         for n in names
     )
     assert "cvxpy:CLARABEL" in names  # the default and the tests' reference
-    assert set(cone_solvers()) <= {"cvxpy:CLARABEL", "cvxpy:ECOS", "cvxpy:SCS", "clarabel"}
+    assert set(cone_solvers()) <= {
+        "cvxpy:CLARABEL",
+        "cvxpy:ECOS",
+        "cvxpy:SCS",
+        "clarabel",
+        "daqp:socp",
+    }
 
 
 @pytest.mark.parametrize("name", ["gurobi", "cvxpy:NOPE", "qpsolvers:mosek"])

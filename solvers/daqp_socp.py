@@ -1,0 +1,389 @@
+r"""Exact second-order cones on DAQP by sequential quadratic programming (``"daqp:socp"``).
+
+The dense problem of :class:`~ltv_lstm_mpc.solvers.DenseQP` with cones,
+
+.. math::
+
+    \min_z \tfrac12 z^\top H z + f^\top z \quad\text{s.t.}\quad lo \le A z \le up,\;
+    lb \le z \le ub,\; \|F_j z + g_j\|_2 \le e_j^\top z + f_j,
+
+is solved as a sequence of QPs on DAQP (an active-set QP solver). Each cone is the smooth
+convex constraint :math:`c_j(z) = r_j(z) - e_j^\top z - f_j \le 0` with
+:math:`r_j = \sqrt{\|F_j z + g_j\|^2 + s^2}` (:data:`SMOOTHING` :math:`s = 10^{-6}`: smooth at
+the apex of the cone, and conservative: :math:`\|F_j z + g_j\| \le r_j`, by at most
+:math:`s` at the apex and :math:`s^2 / (2\|F_j z + g_j\|)` elsewhere). Iteration k solves
+
+.. math::
+
+    \min_x \tfrac12 x^\top W_k x + (f + (H - W_k) z_k)^\top x \quad\text{s.t. the rows, the
+    bounds and}\quad \nabla c_j(z_k)^\top (x - z_k) + c_j(z_k) \le 0,
+
+with the exact Hessian of the Lagrangian :math:`W_k = H + \sum_j \mu_j \nabla^2 c_j(z_k)`,
+:math:`\nabla^2 c_j = F_j^\top (I - v_j v_j^\top / r_j^2) F_j / r_j` (positive semidefinite:
+each subproblem is a convex QP), the cone multipliers :math:`\mu_j` of the previous
+subproblem and DAQP warm-started from its working set. It stops when the step and the
+cones' violation are below the tolerance (:data:`STEP_TOLERANCE`); convergence is
+quadratic near the solution (3-6 iterations on the MPC's terminal cones, measured in
+``experiments/cone_sqp_prototype.py``). The multipliers are returned in the solver layer's
+convention: rows and bounds as DAQP's, each cone's :math:`(\lambda_0, \lambda_1) = \mu_j
+(1, -v_j / r_j)`.
+
+DAQP reports infeasibility of a linearized subproblem; the cones' linearizations are outer
+cutting planes, so an infeasible subproblem proves the problem infeasible. Needs DAQP's C
+entry point bound natively (:mod:`ltv_lstm_mpc.solvers.daqp_native`): the loop is compiled
+around it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
+
+from ._base import FloatArray, RawResult, WarmStart, check_settings, warm_start_vectors
+from .daqp_ import dense_status
+from .daqp_native import native, quadprog
+from .dense import DenseBackend, DenseQP
+from .problem import SolverStatus
+from .tolerances import known_settings, solver_options
+
+__all__ = ["SMOOTHING", "STEP_TOLERANCE", "DaqpSocpDense", "SocpWorkspace", "make_dense"]
+
+#: :math:`s` of :math:`r_j = \sqrt{\|F_j z + g_j\|^2 + s^2}` (smooth at the apex, conservative).
+SMOOTHING = 1e-6
+#: Stop when the step (inf-norm) and the largest cone violation are below this.
+STEP_TOLERANCE = 1e-9
+#: Most SQP iterations per solve (then ``MAX_ITER``).
+MAX_ITERATIONS = 50
+_BIG = 1e30  # DAQP's "no bound"
+_ACTIVE, _LOWER = 1, 2  # DAQP's sense bits
+
+#: Fields of :data:`SocpWorkspace`, in the order of its compiled constructor.
+SOCP_FIELDS = (
+    "H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets", "z", "mu",
+    "hessian", "A_k", "bupper", "blower", "sense", "x", "lam", "v", "w", "linear", "problem",
+    "result", "settings",
+)  # fmt: skip
+
+SocpWorkspace = workspace_type(
+    "SocpWorkspace",
+    SOCP_FIELDS,
+    """Buffers of :func:`socp_solve`.
+
+    The problem: ``H``, ``f``, ``A``, ``lb``, ``ub``, ``lo``, ``up``; the cones stacked: cone
+    j is rows ``cone_rows[j]:cone_rows[j + 1]`` of ``F``/``g``, with ``e[j]`` and
+    ``offsets[j]`` (its :math:`f_j`). The iterate ``z`` and the cone multipliers ``mu`` (a
+    warm start in, the solution out). Scratch: ``hessian``, ``A_k`` (rows, then one
+    linearized row per cone), ``bupper``, ``blower``, ``sense`` (DAQP's working set,
+    carried from one subproblem to the next), ``x``, ``lam``, ``v``, ``w``, ``linear``;
+    ``problem``, ``result``, ``settings``: DAQP's C structs.
+    """,
+    __name__,
+)
+SocpWorkspaceType = getattr(SocpWorkspace, "numba_type", None)
+
+
+@njit(cache=True)
+def _new_socp_workspace(  # type: ignore[no-untyped-def]
+    H, f, A, lb, ub, lo, up, F, g, cone_rows, e, offsets, z, mu, hessian, A_k, bupper, blower,
+    sense, x, lam, v, w, linear, problem, result, settings,
+):  # fmt: skip
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return SocpWorkspace(
+        H, f, A, lb, ub, lo, up, F, g, cone_rows, e, offsets, z, mu, hessian, A_k, bupper,
+        blower, sense, x, lam, v, w, linear, problem, result, settings,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _cone_values(ws: Any, j: int) -> tuple[float, float]:
+    """``v = F_j z + g_j`` into ``ws.v`` (its rows), ``w = F_j' v`` into ``ws.w``; returns
+    ``(r_j, e_j' z)``."""
+    F, g, z, v, w, e = ws.F, ws.g, ws.z, ws.v, ws.w, ws.e
+    n = z.shape[0]
+    start, stop = ws.cone_rows[j], ws.cone_rows[j + 1]
+    rr = SMOOTHING * SMOOTHING
+    for a in range(start, stop):
+        acc = g[a]
+        for b in range(n):
+            acc += F[a, b] * z[b]
+        v[a] = acc
+        rr += acc * acc
+    ez = 0.0
+    for b in range(n):
+        acc = 0.0
+        for a in range(start, stop):
+            acc += F[a, b] * v[a]
+        w[b] = acc
+        ez += e[j, b] * z[b]
+    return np.sqrt(rr), ez
+
+
+@njit(cache=True)
+def cone_violation(ws: Any) -> float:
+    """Largest :math:`\\|F_j z + g_j\\| - e_j^\\top z - f_j` at ``ws.z`` (unsmoothed)."""
+    F, g, z, e = ws.F, ws.g, ws.z, ws.e
+    n = z.shape[0]
+    worst = -np.inf
+    for j in range(ws.offsets.shape[0]):
+        rr = 0.0
+        for a in range(ws.cone_rows[j], ws.cone_rows[j + 1]):
+            acc = g[a]
+            for b in range(n):
+                acc += F[a, b] * z[b]
+            rr += acc * acc
+        ez = 0.0
+        for b in range(n):
+            ez += e[j, b] * z[b]
+        worst = max(worst, np.sqrt(rr) - ez - ws.offsets[j])
+    return worst
+
+
+@njit(cache=True)
+def socp_solve(ws: Any, warm: bool, max_iterations: int) -> tuple[int, int, int, float]:
+    """The SQP of the module docstring on the workspace ``ws``.
+
+    ``warm``: start from ``ws.z``, ``ws.mu`` (else zeros). Returns ``(DAQP exit flag of
+    the last subproblem, SQP iterations, DAQP iterations in all, cone violation)``: flag
+    1 or 2 with the iterations below ``max_iterations`` is converged; a negative flag is
+    DAQP's verdict on a subproblem (-1: infeasible); ``z``, ``mu``, ``lam`` hold the last
+    iterate.
+    """
+    H, f, A, z, mu = ws.H, ws.f, ws.A, ws.z, ws.mu
+    hessian, A_k, bupper, blower, sense = ws.hessian, ws.A_k, ws.bupper, ws.blower, ws.sense
+    x, lam, w, linear = ws.x, ws.lam, ws.w, ws.linear
+    n = H.shape[0]
+    m = A.shape[0]
+    cones = ws.offsets.shape[0]
+    for b in range(n):
+        bupper[b] = min(ws.ub[b], _BIG)
+        blower[b] = max(ws.lb[b], -_BIG)
+    for row in range(m):
+        bupper[n + row] = min(ws.up[row], _BIG)
+        blower[n + row] = max(ws.lo[row], -_BIG)
+        for b in range(n):
+            A_k[row, b] = A[row, b]
+    for j in range(cones):
+        blower[n + m + j] = -_BIG
+    if not warm:
+        for b in range(n):
+            z[b] = 0.0
+        for j in range(cones):
+            mu[j] = 0.0
+    for q in range(sense.shape[0]):
+        sense[q] = 0
+    flag = 0
+    total = 0
+    violation = np.inf
+    for iteration in range(1, max_iterations + 1):
+        for a in range(n):
+            for b in range(n):
+                hessian[a, b] = H[a, b]
+        for j in range(cones):
+            r, ez = _cone_values(ws, j)
+            value = r - ez - ws.offsets[j]
+            if mu[j] > 0.0:
+                scale = mu[j] / r
+                inv_r2 = 1.0 / (r * r)
+                start, stop = ws.cone_rows[j], ws.cone_rows[j + 1]
+                F = ws.F
+                for a in range(n):
+                    for b in range(a, n):
+                        acc = 0.0
+                        for c in range(start, stop):
+                            acc += F[c, a] * F[c, b]
+                        term = scale * (acc - w[a] * w[b] * inv_r2)
+                        hessian[a, b] += term
+                        if b != a:
+                            hessian[b, a] += term
+            bound = -value
+            for b in range(n):
+                gradient = w[b] / r - ws.e[j, b]
+                A_k[m + j, b] = gradient
+                bound += gradient * z[b]
+            bupper[n + m + j] = bound
+        for a in range(n):
+            acc = f[a]
+            for b in range(n):
+                acc += (H[a, b] - hessian[a, b]) * z[b]
+            linear[a] = acc
+        flag, iterations = quadprog(
+            hessian, linear, A_k, bupper, blower, sense, x, lam, ws.problem, ws.result,
+            ws.settings,
+        )  # fmt: skip
+        total += iterations
+        if flag == -6:  # the carried working set was overdetermined: once more, cold
+            for q in range(sense.shape[0]):
+                sense[q] = 0
+            flag, iterations = quadprog(
+                hessian, linear, A_k, bupper, blower, sense, x, lam, ws.problem, ws.result,
+                ws.settings,
+            )  # fmt: skip
+            total += iterations
+        if flag < 0:
+            return flag, iteration, total, np.inf
+        step = 0.0
+        for b in range(n):
+            step = max(step, abs(x[b] - z[b]))
+            z[b] = x[b]
+        for j in range(cones):
+            mu[j] = max(lam[n + m + j], 0.0)
+        for q in range(sense.shape[0]):  # the next subproblem starts from this working set
+            if lam[q] > 0.0:
+                sense[q] = _ACTIVE
+            elif lam[q] < 0.0:
+                sense[q] = _ACTIVE | _LOWER
+            else:
+                sense[q] = 0
+        violation = cone_violation(ws)
+        if step <= STEP_TOLERANCE * (1.0 + max_abs(z)) and violation <= STEP_TOLERANCE:
+            return flag, iteration, total, violation
+    return flag, max_iterations + 1, total, violation
+
+
+@njit(cache=True)
+def max_abs(values: Any) -> float:
+    """Largest absolute entry (0 for none)."""
+    largest = 0.0
+    for a in range(values.shape[0]):
+        largest = max(largest, abs(values[a]))
+    return largest
+
+
+class DaqpSocpDense(DenseBackend):
+    """Dense exact-cone backend: SQP on DAQP (see the module docstring)."""
+
+    backend: ClassVar[str] = "daqp"
+    supports_update: ClassVar[bool] = True
+    supports_warm_start: ClassVar[bool] = True
+    supports_cones: ClassVar[bool] = True
+
+    def __init__(self, name: str, tolerance: float, settings: Mapping[str, Any]) -> None:
+        """Check the settings against DAQP's and merge the tolerance options."""
+        check_settings("daqp", settings, known_settings("daqp"))
+        super().__init__(name, "daqp", solver_options("daqp", tolerance, settings))
+        buffers = native(self.options)
+        if buffers is None:  # pragma: no cover - registered only where DAQP is bound
+            from .daqp_native import unavailable_reason
+
+            raise RuntimeError(f"daqp:socp needs DAQP bound natively: {unavailable_reason}")
+        self._buffers = buffers
+        self._ws: Any = None
+        self._key: tuple[int, ...] = ()
+
+    def setup(self, qp: DenseQP) -> None:
+        """Allocate the workspace for the sizes of ``qp`` and write its values."""
+        n, m = qp.n_variables, qp.n_rows
+        sizes = [int(c.F.shape[0]) for c in qp.cones]
+        cones = len(sizes)
+        rows = int(sum(sizes))
+        buffers = self._buffers
+        self._arrays: dict[str, Any] = {
+            "H": np.zeros((n, n)), "f": np.zeros(n), "A": np.zeros((m, n)),
+            "lb": np.zeros(n), "ub": np.zeros(n), "lo": np.zeros(m), "up": np.zeros(m),
+            "F": np.zeros((rows, n)), "g": np.zeros(rows),
+            "cone_rows": np.cumsum([0, *sizes]).astype(np.int64),
+            "e": np.zeros((cones, n)), "offsets": np.zeros(cones), "z": np.zeros(n),
+            "mu": np.zeros(cones), "hessian": np.zeros((n, n)), "A_k": np.zeros((m + cones, n)),
+            "bupper": np.zeros(n + m + cones), "blower": np.zeros(n + m + cones),
+            "sense": np.zeros(n + m + cones, dtype=np.intc), "x": np.zeros(n),
+            "lam": np.zeros(n + m + cones), "v": np.zeros(rows), "w": np.zeros(n),
+            "linear": np.zeros(n), "problem": buffers.problem, "result": buffers.result,
+            "settings": buffers.settings,
+        }  # fmt: skip
+        self._ws = build_workspace(_new_socp_workspace, SOCP_FIELDS, self._arrays)
+        self._n, self._m, self._cones = n, m, cones
+        self._warm_valid = False
+        self.update(qp)
+
+    def update(self, qp: DenseQP) -> None:
+        """Copy the values of ``qp`` into the workspace."""
+        arrays = self._arrays
+        for name, value in (("H", qp.H), ("f", qp.f), ("A", qp.A), ("lb", qp.lb),
+                            ("ub", qp.ub), ("lo", qp.lo), ("up", qp.up)):  # fmt: skip
+            arrays[name][...] = value
+        start = 0
+        for j, cone in enumerate(qp.cones):
+            k = int(cone.F.shape[0])
+            arrays["F"][start : start + k] = cone.F
+            arrays["g"][start : start + k] = cone.g
+            arrays["e"][j] = cone.e
+            arrays["offsets"][j] = cone.f
+            start += k
+
+    def _duals(self) -> dict[str, FloatArray]:
+        """The multipliers in the layer's convention (module docstring)."""
+        a = self._arrays
+        n, m = self._n, self._m
+        lam = a["lam"]
+        pieces = []
+        for j in range(self._cones):
+            start, stop = int(a["cone_rows"][j]), int(a["cone_rows"][j + 1])
+            v = a["F"][start:stop] @ a["z"] + a["g"][start:stop]
+            r = float(np.sqrt(v @ v + SMOOTHING**2))
+            mu = float(a["mu"][j])
+            pieces.append(np.concatenate([[mu], -mu * v / r]))
+        cones = np.concatenate(pieces) if pieces else np.zeros(0)
+        return {"ineq": lam[n : n + m].copy(), "bounds": lam[:n].copy(), "cones": cones}
+
+    def _run(self, warm_start: WarmStart | None) -> tuple[SolverStatus, str, int, float]:
+        """One SQP solve; (status, native status, iterations, wall time)."""
+        a = self._arrays
+        z0, solution = warm_start_vectors(warm_start, self._n)
+        warm = z0 is not None
+        if z0 is not None:
+            a["z"][:] = z0
+            a["mu"][:] = 0.0
+            cones = None if solution is None else (solution.duals or {}).get("cones")
+            sizes = np.diff(a["cone_rows"]) + 1
+            if self._cones and cones is not None and cones.shape == (int(sizes.sum()),):
+                a["mu"][:] = cones[np.concatenate([[0], np.cumsum(sizes)[:-1]])]
+        start = time.perf_counter()
+        flag, sqp, total, violation = socp_solve(self._ws, warm, MAX_ITERATIONS)
+        wall = time.perf_counter() - start
+        if flag < 0:
+            status, _notes = dense_status(int(flag))
+            return status, f"exitflag {int(flag)} at SQP iteration {sqp}", total, wall
+        if sqp > MAX_ITERATIONS:
+            return (
+                SolverStatus.MAX_ITER,
+                f"{MAX_ITERATIONS} SQP iterations, cone violation {violation:.1e}",
+                total,
+                wall,
+            )
+        return SolverStatus.OPTIMAL, f"exitflag {int(flag)}, {sqp} SQP iterations", total, wall
+
+    def solve(self, warm_start: WarmStart | None) -> RawResult:
+        """One SQP solve (warm: from the given point and cone multipliers)."""
+        status, native_status, iterations, wall = self._run(warm_start)
+        z = duals = None
+        objective = None
+        if status.has_solution:
+            a = self._arrays
+            z = a["z"].copy()
+            duals = self._duals()
+            objective = float(0.5 * z @ a["H"] @ z + a["f"] @ z)
+        return RawResult(
+            status=status,
+            native_status=native_status,
+            z=z,
+            duals=duals,
+            solve_time=wall,
+            iterations=iterations,
+            objective=objective,
+        )
+
+    def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
+        """One cold SQP solve without multipliers; the status mapped as in :meth:`solve`."""
+        status, native_status, iterations, _wall = self._run(None)
+        z = self._arrays["z"].copy() if status.has_solution else None
+        return status, z, iterations, native_status
+
+
+def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
+    """Registry dense factory for ``"daqp:socp"``."""
+    return DaqpSocpDense(name, tolerance, settings)
