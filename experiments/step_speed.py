@@ -1,4 +1,4 @@
-"""The whole controller step, side by side: one-call daqp, general daqp, exact cones.
+"""The whole controller step, side by side: one-call daqp, general daqp, two exact-cone paths.
 
 Runs bench's scenario 1 (short) at each horizon, step by step interleaved (order
 alternating ABBA, each controller with its own plant, the garbage collector paused as in
@@ -9,7 +9,8 @@ alternating ABBA, each controller with its own plant, the garbage collector paus
 - ``daqp general``: the same controller with ``one_call_step=False`` (the general path:
   one compiled call per stage, Python between them);
 - ``exact cones``: the paper's SOC terminal set, condensed, on native CLARABEL;
-- ``cones daqp:socp``: the same exact cones by SQP on DAQP (``solvers/daqp_socp.py``);
+- ``cones daqp:socp``: the same exact cones by SQP on DAQP (``solvers/daqp_socp.py``), also
+  one compiled call per step;
 
 and prints per controller the median, p95 and p99 of the full ``step``, the jitter
 p95/median, the medians of ``prepare`` and ``feedback`` (microseconds), the ratio of each

@@ -87,3 +87,36 @@ def test_closed_loop_on_daqp_socp_follows_clarabels() -> None:
         assert {r.mpc.status for r in controller.records} == {"optimal"}
         inputs.append(np.array(applied))
     np.testing.assert_allclose(inputs[0], inputs[1], rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("index", [0, 2])
+def test_one_call_cone_feedback_equals_the_general_path(index: int) -> None:
+    """RobustMPC's one-call exact-cone feedback (mpc/native_feedback.cone_feedback) against
+    its general path (native_feedback=False: the daqp:socp session), 200 steps of bench's
+    scenarios 1 and 3: the same applied inputs and statuses."""
+    from ltv_lstm_mpc import RobustMPC
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[index]
+    config = replace(scenario.config, N=5, solver="daqp:socp")
+    runs = []
+    for native in (True, False):
+        mpc = RobustMPC(model, config, native_feedback=native)
+        assert (mpc._native_feedback is not None) is native
+        controller = OffsetFreeController(
+            model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, mpc=mpc
+        )
+        plant = scenario.make_plant(model)
+        y = plant.output()
+        applied = []
+        for k in range(200):
+            u = controller.step(y, scenario.setpoints[k])
+            applied.append(float(u[0]))
+            d = scenario.disturbances[k]
+            y = plant.step(u, None if np.isnan(d) else d)
+        runs.append((np.array(applied), [r.mpc.status for r in controller.records]))
+    np.testing.assert_allclose(runs[0][0], runs[1][0], rtol=0, atol=1e-12)
+    assert runs[0][1] == runs[1][1]
+    if index == 2:
+        assert "infeasible" in runs[0][1]

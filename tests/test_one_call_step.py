@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ltv_lstm_mpc.solvers import daqp_native
+from ltv_lstm_mpc.solvers import available_solvers, daqp_native
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.loop import compiled_step
@@ -98,18 +98,22 @@ def _loop(model: Any, config: MPCConfig, scenario: Any, one_call: bool, steps: i
     return controller
 
 
+SOLVERS = ["daqp"] + (["daqp:socp"] if "daqp:socp" in available_solvers() else [])
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
 @pytest.mark.parametrize(("index", "N"), [(0, 5), (0, 20), (2, 5)])
 def test_one_call_step_equals_the_general_path_siso(
-    index: int, N: int, codes: Counter[int]
+    index: int, N: int, solver: str, codes: Counter[int]
 ) -> None:
     """Bench scenarios on the shipped pH model, 300 steps: every record field the same
     (scenario 3 has infeasible steps: there the one-call feedback declines and the general
-    feedback runs its policy)."""
+    feedback runs its policy); daqp:socp: the exact terminal cones in the one call."""
     from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
 
     model = load_model("ph_lstm_n5.npz")
     scenario = bench_scenarios(model)[index]
-    config = replace(scenario.config, solver="daqp", N=N)
+    config = replace(scenario.config, solver=solver, N=N)
     steps = min(len(scenario.setpoints), 300)
     fast = _loop(model, config, scenario, True, steps)
     taken = dict(codes)

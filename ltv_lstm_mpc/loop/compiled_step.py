@@ -13,7 +13,9 @@ bound natively (one SQP iteration, compiled kernels) runs, in :func:`controller_
    (eq. def_alpha) of :class:`~ltv_lstm_mpc.certificates.tightening.TighteningCertificate`;
 5. the preparation (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`) on the
    proof candidate (Theorem 3, Part 2b) and the nominal feedback
-   (:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`);
+   (:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`, or
+   :func:`~ltv_lstm_mpc.mpc.native_feedback.cone_feedback` with the exact terminal cones
+   on ``daqp:socp``);
 6. the exit gate onto :math:`\mathcal U`, the observer update eq. (lstm_observer)
    (:func:`~ltv_lstm_mpc.loop.compiled_observer.observer_update`), the recursion
    :math:`\hat e_{o,k+1} = \rho_o \hat e_{o,k} + \bar w` (eq. eo_evolution) and the
@@ -49,7 +51,7 @@ from ltv_lstm_mpc.mpc.compiled_prepare import (
     CANDIDATE_SHIFT,
     prepare_condensed,
 )
-from ltv_lstm_mpc.mpc.native_feedback import nominal_feedback
+from ltv_lstm_mpc.mpc.native_feedback import cone_feedback, nominal_feedback
 from ltv_lstm_mpc.numba_support import AVAILABLE, build_workspace, njit, workspace_type
 
 __all__ = [
@@ -93,7 +95,7 @@ STEP_FIELDS = (
     "bound_min", "bound_max", "kappa", "lower", "upper", "requested", "clock",
     "u_max", "implausible", "d_max", "tightening_d_max", "rho_o", "w_bar", "e_inf",
     "backward", "tol", "max_iter", "jump", "reuse_tol", "chord", "trajectories",
-    "condensing", "daqp", "plan", "observer", "cand",
+    "condensing", "daqp", "plan", "observer", "cand", "cones", "socp", "tolerance",
 )  # fmt: skip
 
 StepWorkspace = workspace_type(
@@ -117,7 +119,12 @@ StepWorkspace = workspace_type(
     reference calculator's
     :data:`~ltv_lstm_mpc.loop.compiled_reference.ChordWorkspace`; ``trajectories``,
     ``condensing``, ``daqp``, ``plan``: the MPC's (preparation, condensing, DAQP, plan
-    checks); ``observer``: the observer's; ``cand`` (N, m): the MPC's candidate buffer.
+    checks); ``observer``: the observer's; ``cand`` (N, m): the MPC's candidate buffer;
+    ``cones``: the exact terminal cones by SQP on DAQP (``daqp:socp``: the feedback is
+    :func:`~ltv_lstm_mpc.mpc.native_feedback.cone_feedback` on ``socp``, a
+    :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace`, with the acceptance
+    ``tolerance``) rather than the QP on ``daqp`` (the other one of the two is a
+    placeholder).
     """,
     __name__,
 )
@@ -175,19 +182,43 @@ def new_record_arrays(capacity: int, p: int, m: int, n2: int, N: int) -> tuple[A
     return build_workspace(_new_record_arrays, RECORD_FIELDS, fields), fields
 
 
+def placeholder_daqp() -> Any:
+    """A DAQP workspace that is never solved with (the ``daqp`` of a cone controller's
+    :data:`StepWorkspace`: the field's type must be there)."""
+    from ltv_lstm_mpc.mpc.native_feedback import new_daqp_workspace
+
+    empty = np.zeros(8, dtype=np.uint8)
+    return new_daqp_workspace(
+        sense=np.zeros(1, dtype=np.intc), z=np.zeros(1), lam=np.zeros(1), problem=empty,
+        result=empty.copy(), settings=empty.copy(), tolerance=0.0,
+    )  # fmt: skip
+
+
+def placeholder_socp() -> Any:
+    """A :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace` that is never solved with
+    (the ``socp`` of a QP controller's :data:`StepWorkspace`)."""
+    from types import SimpleNamespace
+
+    from ltv_lstm_mpc.solvers.daqp_socp import new_socp_workspace, socp_arrays
+
+    empty = np.zeros(8, dtype=np.uint8)
+    buffers = SimpleNamespace(problem=empty, result=empty.copy(), settings=empty.copy())
+    return new_socp_workspace(**socp_arrays(1, 0, [], buffers))
+
+
 @njit(cache=True)
 def _new_step_workspace(  # type: ignore[no-untyped-def]
     y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max, kappa,
     lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max, rho_o,
     w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories, condensing,
-    daqp, plan, observer, cand,
+    daqp, plan, observer, cand, cones, socp, tolerance,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return StepWorkspace(
         y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max,
         kappa, lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max,
         rho_o, w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories,
-        condensing, daqp, plan, observer, cand,
+        condensing, daqp, plan, observer, cand, cones, socp, tolerance,
     )  # fmt: skip
 
 
@@ -390,10 +421,16 @@ def controller_step(
     t_prepared = _now(clock)
     # ---- feedback: insert x_hat, solve, accept, re-simulate
     u_plan = records.u_plan[k]
-    code, iterations, sqp_step, seconds = nominal_feedback(
-        condensing, daqp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
-        records.x_linear[k], u_plan, records.x_plan[k],
-    )  # fmt: skip
+    if step.cones:
+        code, iterations, sqp_step, seconds = cone_feedback(
+            condensing, step.socp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
+            step.tolerance, records.x_linear[k], u_plan, records.x_plan[k],
+        )  # fmt: skip
+    else:
+        code, iterations, sqp_step, seconds = nominal_feedback(
+            condensing, daqp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
+            records.x_linear[k], u_plan, records.x_plan[k],
+        )  # fmt: skip
     if code == 0:
         return STEP_FEEDBACK, 0, int(state[0]), int(state[2]), 0.0
     t3 = _now(clock)

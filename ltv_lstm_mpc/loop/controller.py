@@ -605,8 +605,9 @@ class OffsetFreeController:
         if not isinstance(mpc, RobustMPC) or mpc._native_feedback is None:
             return None
         problem = mpc._problem
+        daqp, socp = problem.daqp_workspace, problem.socp_workspace
         if (
-            problem.daqp_workspace is None
+            (daqp is None and socp is None)
             or mpc._prepare_workspace is None
             or reference._chord_workspace is None
             or getattr(observer, "_workspace", None) is None
@@ -636,8 +637,11 @@ class OffsetFreeController:
             backward=bool(getattr(problem, "backward_condensing", False)),
             chord=reference._chord_workspace,
             trajectories=mpc._prepare_workspace, condensing=mpc._condensing_workspace,
-            daqp=problem.daqp_workspace, plan=mpc._plan_workspace,
-            observer=observer._workspace, cand=mpc._cand,
+            daqp=daqp if daqp is not None else one_call.placeholder_daqp(),
+            plan=mpc._plan_workspace, observer=observer._workspace, cand=mpc._cand,
+            cones=socp is not None,
+            socp=socp if socp is not None else one_call.placeholder_socp(),
+            tolerance=float(problem.tolerance),
         )  # fmt: skip
 
     def _one_call_settings_now(self) -> tuple[float, int, float, float]:

@@ -71,13 +71,24 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
         compiled_observer.observer_update, compiled_observer._new_observer_workspace,
         compiled_reference.chord_newton, compiled_reference._new_chord_workspace,
     ]  # fmt: skip
-    if any(getattr(kernel, "__name__", "") == "nominal_feedback" for kernel in kernels):
-        from ltv_lstm_mpc.loop import compiled_step  # the one-call step builds on it
+    names = {getattr(kernel, "__name__", "") for kernel in kernels}
+    if names & {"nominal_feedback", "cone_feedback"}:
+        from ltv_lstm_mpc.loop import compiled_step  # the one-call step builds on them
+        from ltv_lstm_mpc.mpc import native_feedback as one_call_feedback
+        from ltv_lstm_mpc.solvers import daqp_socp
 
         kernels += [
             compiled_step.controller_step, compiled_step._new_step_workspace,
             compiled_step._new_record_arrays,
         ]  # fmt: skip
+        # the workspace of the feedback it does not run is a placeholder of that type
+        placeholder = (
+            one_call_feedback._new_daqp_workspace
+            if "cone_feedback" in names
+            else daqp_socp._new_socp_workspace
+        )
+        if placeholder not in kernels:
+            kernels.append(placeholder)
     return kernels
 
 

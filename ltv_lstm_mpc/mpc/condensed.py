@@ -220,6 +220,16 @@ class CondensedTranscription(TranscriptionBase):
                 settings=native.settings,
                 tolerance=self.tolerance,
             )
+        # Exact cones by SQP on DAQP as one compiled call (mpc/native_feedback.cone_feedback):
+        # its workspace holds the nominal exact-cone QP, the constant parts written once.
+        self._socp_workspace: Any = None
+        if (
+            self.compiled
+            and self.exact_cones
+            and config.solver == "daqp:socp"
+            and "nominal" in self._sessions
+        ):
+            self._socp_workspace = self._new_socp_workspace(config)
         #: The compiled condensing's buffers for the bound trajectory (:meth:`workspace`).
         self._workspace: Any = None
         empty = np.zeros(0)
@@ -331,6 +341,37 @@ class CondensedTranscription(TranscriptionBase):
             self._condense = self._condense_numpy
             self._insert = self._insert_numpy
             self._expand = self._expand_numpy
+
+    def _new_socp_workspace(self, config: MPCConfig) -> Any:
+        """The :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace` of the nominal
+        exact-cone QP (variables ``[du, t_c, t_h]``, the output rows, the cones of
+        :meth:`_cone_problem`), or None where DAQP is not bound natively."""
+        from ltv_lstm_mpc.solvers import daqp_native
+        from ltv_lstm_mpc.solvers.daqp_socp import new_socp_workspace, socp_arrays
+        from ltv_lstm_mpc.solvers.tolerances import solver_options
+
+        buffers = daqp_native.native(
+            solver_options("daqp", config.tolerance, dict(config.solver_settings))
+        )
+        if buffers is None:
+            return None
+        n, nu, ns = self.n, self.N * self.m, self._n_out
+        nz = nu + 2
+        arrays = socp_arrays(nz, ns, [n, n, 2], buffers)
+        arrays["H"][nu:, nu:] = self.terminal.P_f  # half the cost: 1/2 t'P_f t
+        arrays["lb"][nu:] = -np.inf  # t >= 0 follows from its cones
+        arrays["ub"][nu:] = np.inf
+        arrays["e"][0, nu] = 1.0  # ||c_N - c_bar|| <= t_c
+        arrays["e"][1, nu + 1] = 1.0  # ||h_N - h_bar|| <= t_h
+        arrays["F"][2 * n :, nu:] = self.terminal.square_root  # ||S t|| <= alpha_k
+        self._socp_arrays = arrays
+        return new_socp_workspace(**arrays)
+
+    @property
+    def socp_workspace(self) -> Any:
+        """The buffers of the core's one-call exact-cone feedback on ``daqp:socp`` (None
+        for other solvers, without DAQP bound natively, or with the numpy condensing)."""
+        return self._socp_workspace if self.compiled else None
 
     @property
     def daqp_workspace(self) -> Any:

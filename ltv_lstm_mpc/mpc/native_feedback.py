@@ -30,11 +30,13 @@ from ltv_lstm_mpc.mpc.compiled_condensing import expand_point, insert_state
 from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
 from ltv_lstm_mpc.numba_support import build_workspace, workspace_type
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
+from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
 
 __all__ = [
     "DAQP_FIELDS",
     "PRECHECK_MARGIN",
     "DaqpWorkspace",
+    "cone_feedback",
     "new_daqp_workspace",
     "nominal_feedback",
 ]
@@ -138,6 +140,113 @@ def nominal_feedback(
     violation = expand_point(condensing, z, high.shape[0], x_linear, u)
     # ---- acceptance (RobustMPC._checked_solve)
     for a in range(nu):
+        if not abs(z[a]) < _HUGE:
+            return 0, iterations, 0.0, seconds
+    for i in range(N + 1):
+        for q in range(n2):
+            if not abs(x_linear[i, q]) < _HUGE:
+                return 0, iterations, 0.0, seconds
+    largest = 0.0
+    for i in range(N):
+        for a in range(m):
+            largest = max(largest, abs(u[i, a]))
+    outside = largest - u_max
+    if outside > tolerance * (1.0 + u_max) or not max(violation, 0.0) / scale <= tolerance:
+        return 0, iterations, 0.0, seconds
+    step = 0.0
+    for i in range(N):
+        for a in range(m):
+            if outside > 0.0:
+                u[i, a] = min(max(u[i, a], -u_max), u_max)
+            step = max(step, abs(u[i, a] - S[i, n2 + a]))
+    # ---- the plan on the true LSTM (RobustMPC.feedback)
+    for q in range(n2):
+        P[0, q] = x_hat[q]
+    for i in range(N):
+        for a in range(m):
+            P[i, n2 + a] = u[i, a]
+    plan_metrics(plan, x_bar, u_bar, lower, upper, x_linear, x_plan)
+    return flag, iterations, step, seconds
+
+
+@njit(cache=True)
+def cone_feedback(
+    condensing: Any,
+    socp: Any,
+    plan: Any,
+    x_hat: Any,
+    x_bar: Any,
+    u_bar: Any,
+    lower: Any,
+    upper: Any,
+    alpha: float,
+    scale: float,
+    tolerance: float,
+    x_linear: Any,
+    u: Any,
+    x_plan: Any,
+) -> tuple[int, int, float, float]:
+    """:func:`nominal_feedback` with the exact terminal cones, by SQP on DAQP.
+
+    The same pre-check, insertion, expansion, acceptance and re-simulation; the QP is the
+    exact-cone problem of ``CondensedTranscription._cone_data`` (variables
+    ``[du, t_c, t_h]``: the output rows, the bounds of ``du``, the cones
+    :math:`\\|c_N - \\bar c\\| \\le t_c`, :math:`\\|h_N - \\bar h\\| \\le t_h`,
+    :math:`\\|P_f^{1/2} t\\| \\le \\alpha_k`) written into ``socp`` (a
+    :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace` whose constant parts the
+    transcription wrote once) and solved by
+    :func:`~ltv_lstm_mpc.solvers.daqp_socp.socp_solve` from a cold start, as the general
+    path's ``daqp:socp`` session does. Returns ``(code, DAQP iterations, sqp step, DAQP's
+    time)``; code 0: not accepted here (the general path runs). ``tolerance``: the
+    acceptance tolerance of the point (the transcription's).
+    """
+    W_y, b_y, A = condensing.W_y, condensing.b_y, condensing.A
+    H, f, lo, up = condensing.H, condensing.f, condensing.lo, condensing.up
+    S, u_max = condensing.S, condensing.u_max
+    P = plan.S
+    n2 = x_linear.shape[1]
+    n = n2 // 2
+    p = W_y.shape[0]
+    N, m = u.shape
+    nu = N * m
+    # ---- pre-check (fhocp.precheck_status), with a margin
+    margin = _PRECHECK_TOL - PRECHECK_MARGIN
+    for j in range(p):
+        y = b_y[j]
+        for q in range(n):
+            y += W_y[j, q] * x_hat[n + q]
+        if not lower[0, j] - margin <= y <= upper[0, j] + margin:
+            return 0, 0, 0.0, 0.0
+    if not alpha > 0.0:
+        return 0, 0, 0.0, 0.0
+    # ---- insert, then the exact-cone QP (CondensedTranscription._cone_data)
+    insert_state(condensing, x_hat)
+    ns = socp.A.shape[0]
+    for a in range(nu):
+        for b in range(nu):
+            socp.H[a, b] = H[a, b]
+        socp.f[a] = f[a]
+        socp.lb[a] = condensing.lb[a]
+        socp.ub[a] = condensing.ub[a]
+    for row in range(ns):
+        for b in range(nu):
+            socp.A[row, b] = A[row, b]
+        socp.lo[row] = lo[row]
+        socp.up[row] = up[row]
+    for r in range(n2):  # cone rows: c_N - c_bar, then h_N - h_bar
+        for b in range(nu):
+            socp.F[r, b] = A[ns + r, b]
+        socp.g[r] = -0.5 * (lo[ns + r] + up[ns + r])
+    socp.offsets[2] = alpha
+    flag, sqp, iterations, violation, seconds = socp_solve(socp, False, MAX_ITERATIONS)
+    if (flag != 1 and flag != 2) or sqp > MAX_ITERATIONS:
+        return 0, iterations, 0.0, seconds
+    z = socp.z
+    rows = nu + ns
+    violation_rows = expand_point(condensing, z, rows, x_linear, u)
+    violation = max(violation_rows, violation)
+    # ---- acceptance (RobustMPC._checked_solve)
+    for a in range(z.shape[0]):
         if not abs(z[a]) < _HUGE:
             return 0, iterations, 0.0, seconds
     for i in range(N + 1):

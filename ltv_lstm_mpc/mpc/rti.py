@@ -155,10 +155,17 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
             _compiled.clarabel_fill, _compiled.clarabel_cone_rows,
             _compiled.bounds_rows_violation, _compiled.cone_violation,
         ]  # fmt: skip
-    if config.solver != "daqp" or not daqp_native.bound():
+    if config.solver not in ("daqp", "daqp:socp") or not daqp_native.bound():
         return kernels
     from ltv_lstm_mpc.mpc import native_feedback as native
 
+    if config.solver == "daqp:socp":  # exact cones by SQP on DAQP (solvers/daqp_socp.py)
+        from ltv_lstm_mpc.solvers import daqp_socp
+
+        kernels += [daqp_native.quadprog, daqp_socp.socp_solve, daqp_socp._new_socp_workspace]
+        if config.sqp_iterations == 1 and native_feedback:
+            kernels.append(native.cone_feedback)
+        return kernels
     kernels += [daqp_native.quadprog, native._new_daqp_workspace]
     if config.sqp_iterations == 1 and native_feedback:
         kernels.append(native.nominal_feedback)
@@ -327,15 +334,13 @@ class RobustMPC:
         # One compiled call for the nominal feedback where the transcription offers it
         # (condensed QP, DAQP bound natively, compiled kernel; one SQP iteration).
         self._native_feedback: Any = None
-        if (
-            self._problem.daqp_workspace is not None
-            and self._prepare_workspace is not None
-            and config.sqp_iterations == 1
-            and native_feedback
-        ):
-            from ltv_lstm_mpc.mpc.native_feedback import nominal_feedback
+        if self._prepare_workspace is not None and config.sqp_iterations == 1 and native_feedback:
+            from ltv_lstm_mpc.mpc import native_feedback as one_call_feedback
 
-            self._native_feedback = nominal_feedback
+            if self._problem.daqp_workspace is not None:
+                self._native_feedback = one_call_feedback.nominal_feedback
+            elif self._problem.socp_workspace is not None:  # exact cones on daqp:socp
+                self._native_feedback = one_call_feedback.cone_feedback
         self.prepare_time = self.feedback_time = self.solver_time = 0.0
         self.qp_iterations = 0
 
@@ -717,17 +722,25 @@ class RobustMPC:
         it does not accept the point (the general path of :meth:`feedback` then runs)."""
         N, n2, m = self.N, 2 * self.model.n, self.model.m
         problem, alpha = self._problem, self._alpha
-        daqp = problem.daqp_workspace
-        if daqp is None:
+        daqp, socp = problem.daqp_workspace, problem.socp_workspace
+        if daqp is None and socp is None:
             return None
         u = np.empty((N, m))
         x_linear = np.empty((N + 1, n2))
         x_plan = np.empty((N + 1, n2))
         metrics = self._metrics
-        code, iterations, step, solver_time = self._native_feedback(
-            self._condensing_workspace, daqp, self._plan_workspace, x_hat, self._x_bar,
-            self._u_bar, self._lower, self._upper, alpha, problem.scale, x_linear, u, x_plan,
-        )  # fmt: skip
+        if daqp is not None:
+            code, iterations, step, solver_time = self._native_feedback(
+                self._condensing_workspace, daqp, self._plan_workspace, x_hat, self._x_bar,
+                self._u_bar, self._lower, self._upper, alpha, problem.scale, x_linear, u,
+                x_plan,
+            )  # fmt: skip
+        else:
+            code, iterations, step, solver_time = self._native_feedback(
+                self._condensing_workspace, socp, self._plan_workspace, x_hat, self._x_bar,
+                self._u_bar, self._lower, self._upper, alpha, problem.scale,
+                problem.tolerance, x_linear, u, x_plan,
+            )  # fmt: skip
         if not code:
             return None
         self._plan_valid = True

@@ -90,10 +90,17 @@ class TranscriptionBase(abc.ABC):
     reformulation: str | None = None
     #: Scale of the row violations of the last build (used by the one-call feedback).
     scale: float = 1.0
+    #: The acceptance tolerance of a subproblem's point
+    #: (:func:`~ltv_lstm_mpc.solvers.feasibility_tolerance` of the solver).
+    tolerance: float = 0.0
     #: DAQP's buffers of the core's one-call nominal feedback
     #: (:data:`~ltv_lstm_mpc.mpc.native_feedback.DaqpWorkspace`) where the transcription has
     #: one (the condensed QP with DAQP bound natively), else None.
     daqp_workspace: Any = None
+    #: The buffers of the core's one-call exact-cone feedback
+    #: (:data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace`) where the transcription has
+    #: one (the condensed exact-cone QP on ``daqp:socp``), else None.
+    socp_workspace: Any = None
 
     @abc.abstractmethod
     def build(
