@@ -1,4 +1,8 @@
-"""Prototype, not a library path: exact terminal cones by SQP on an active-set QP solver.
+"""The prototype of ``daqp:socp`` (``solvers/daqp_socp.py``): exact cones by SQP on DAQP.
+
+The library's backend grew out of this script (the same SQP, with DAQP's working set
+carried between the subproblems and a relative stopping step of 1e-8); the script is kept
+as the measurement that chose the method. The rest of this docstring is as measured then.
 
 The condensed exact-cone subproblem of eq. (optimization) is a QP plus three second-order
 cones (:class:`~ltv_lstm_mpc.solvers.DenseQP` with ``cones``: ``||c_N - c_bar|| <= t_c``,
