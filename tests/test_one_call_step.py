@@ -137,13 +137,14 @@ def test_one_call_step_equals_the_general_path_siso(
         assert taken.get(compiled_step.STEP_DONE, 0) == steps - 1  # all but the first step
 
 
-def test_one_call_step_equals_the_general_path_mimo(codes: Counter[int]) -> None:
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_one_call_step_equals_the_general_path_mimo(solver: str, codes: Counter[int]) -> None:
     """The quadruple tank (2, 2), 300 steps of its set-point scenario through simulate."""
     from ltv_lstm_mpc.benchmarks.quadtank import QUADTANK_MODEL, quadtank_scenarios
 
     model = load_model(QUADTANK_MODEL)
     scenario = quadtank_scenarios(short=True)[0]
-    config = replace(scenario.config, solver="daqp")
+    config = replace(scenario.config, solver=solver)
     steps = min(scenario.steps, 300)
     results = []
     for one_call in (True, False):
