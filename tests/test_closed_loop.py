@@ -207,4 +207,7 @@ def test_a_closed_loop_creates_no_reference_cycles_per_step(model) -> None:
         found = gc.collect()  # the controller and its records still alive
     finally:
         gc.enable()
-    assert found <= 50, found  # not one per step
+    # not one per step (that would be 300 or more): 13 here, 52 once in a clean-clone CI run
+    # (a fixed amount per run: the reset's empty records and their log, and whatever else
+    # the process collects at that moment)
+    assert found < 150, found

@@ -121,6 +121,16 @@ CALLEES = {
     "expand_point",
     "terminal_norm_of_squares",
     "solver_seconds",
+    # inside the one-call step (loop/compiled_step.py): its clock and interval test, and the
+    # exact-cone feedback it also holds (mpc/native_feedback.py, solvers/daqp_socp.py)
+    "_now",
+    "_inside_interval",
+    "nominal_feedback",
+    "cone_feedback",
+    "socp_solve",
+    "_cone_values",
+    "cone_violation",
+    "max_abs",
 }
 
 USED = """
@@ -154,6 +164,7 @@ CONFIGURATIONS = [
     {"solver": "osqp"},
     {"solver": "cvxpy:CLARABEL"},
     {"solver": "clarabel"},
+    {"solver": "daqp:socp"},
 ]
 
 
@@ -184,7 +195,9 @@ def test_the_kernel_list_names_every_kernel_called(config) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("config", [CONFIGURATIONS[0], CONFIGURATIONS[2], CONFIGURATIONS[4]])
+@pytest.mark.parametrize(
+    "config", [CONFIGURATIONS[0], CONFIGURATIONS[2], CONFIGURATIONS[4], CONFIGURATIONS[5]]
+)
 def test_warm_up_caches_every_listed_kernel_from_an_empty_cache(config, tmp_path) -> None:
     """From an empty numba cache, warm_up leaves every listed function cached (else
     "auto" would run numpy forever); about 30 s per configuration."""

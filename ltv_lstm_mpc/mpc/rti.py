@@ -150,7 +150,8 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
     ]  # fmt: skip
     from ltv_lstm_mpc.solvers import _compiled, daqp_native, solver_info
 
-    if solver_info(config.solver).supports_cones:  # the native CLARABEL backend's loops
+    if solver_info(config.solver).supports_cones and config.solver != "daqp:socp":
+        # the native CLARABEL backend's loops (daqp:socp has its own, below)
         kernels += [
             _compiled.clarabel_fill, _compiled.clarabel_cone_rows,
             _compiled.bounds_rows_violation, _compiled.cone_violation,
