@@ -11,11 +11,16 @@ alternating ABBA, each controller with its own plant, the garbage collector paus
 - ``exact cones``: the paper's SOC terminal set, condensed, on native CLARABEL;
 - ``cones daqp:socp``: the same exact cones by SQP on DAQP (``solvers/daqp_socp.py``), also
   one compiled call per step;
+- ``daqp prepared`` and ``socp prepared``: the first and the last, with the next step
+  prepared between samples (``OffsetFreeController.prepare_next``, called after the plant
+  step with the next set-point): ``step`` is then the time from the measurement to the
+  input (feedback, exit gate, observer update), and ``between`` the preparation's own time;
 
 and prints per controller the median, p95 and p99 of the full ``step``, the jitter
-p95/median, the medians of ``prepare`` and ``feedback`` (microseconds), the ratio of each
-median step to the one-call daqp step, and the largest difference of the applied input to
-the general daqp path (mL/s: 0 for the one-call step, which computes the same numbers).
+p95/median, the medians of ``prepare`` and ``feedback`` (microseconds) and of the
+preparation ``between`` samples, the ratio of each median step to the one-call daqp step,
+and the largest difference of the applied input to the general daqp path (mL/s: 0 for the
+one-call and prepared steps, which compute the same numbers).
 
 acados is not installable on the machines this project runs on (its Python template is not
 on the package index); where ``acados_template`` imports, its SQP-RTI solve is not built by
@@ -43,12 +48,14 @@ from ltv_lstm_mpc import OffsetFreeController  # noqa: E402
 from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
 from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
 
-#: (label, solver, one_call_step)
+#: (label, solver, one_call_step, prepared between samples)
 CONTROLLERS = (
-    ("daqp one-call", "daqp", True),
-    ("daqp general", "daqp", False),
-    ("exact cones", "clarabel", True),
-    ("cones daqp:socp", "daqp:socp", True),
+    ("daqp one-call", "daqp", True, False),
+    ("daqp general", "daqp", False, False),
+    ("exact cones", "clarabel", True, False),
+    ("cones daqp:socp", "daqp:socp", True, False),
+    ("daqp prepared", "daqp", True, True),
+    ("socp prepared", "daqp:socp", True, True),
 )
 REFERENCE = "daqp general"
 
@@ -59,7 +66,7 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
     scenario = bench_scenarios(model)[0]
     steps = min(steps, len(scenario.setpoints))
     runs = []
-    for label, solver, one_call in CONTROLLERS:
+    for label, solver, one_call, _ in CONTROLLERS:
         config = replace(scenario.config, N=N, solver=solver)
         ctrl = OffsetFreeController(
             model,
@@ -72,6 +79,8 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
         runs.append((label, ctrl, scenario.make_plant(model)))
     outputs = [plant.output() for _, _, plant in runs]
     times: list[list[float]] = [[] for _ in runs]
+    between: list[list[float]] = [[] for _ in runs]
+    prepared = [entry[3] for entry in CONTROLLERS]
     inputs: list[list[float]] = [[] for _ in runs]
     gc.collect()
     gc.disable()
@@ -86,6 +95,10 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
                 inputs[j].append(float(u[0]))
                 d = scenario.disturbances[k]
                 outputs[j] = plant.step(u, None if np.isnan(d) else d)
+                if prepared[j] and k + 1 < steps:
+                    t0 = time.perf_counter()
+                    ctrl.prepare_next(scenario.setpoints[k + 1])
+                    between[j].append(time.perf_counter() - t0)
     finally:
         gc.enable()
     skip = 10  # first steps: cold caches, first reference solve
@@ -96,6 +109,7 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
             "total": np.array(times[j][skip:]),
             "prepare": np.array([s.prepare_time for s in mpc]),
             "feedback": np.array([s.feedback_time for s in mpc]),
+            "between": np.array(between[j][skip:]),
             "u": np.array(inputs[j]),
             "one_call": ctrl.one_call,
         }
@@ -109,24 +123,27 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
     print(f"\nN = {N} (microseconds; ratio: median step / daqp one-call)")
     print(
         f"{'controller':>14} {'median':>8} {'p95':>8} {'p99':>8} {'p95/med':>8} "
-        f"{'prepare':>8} {'feedback':>8} {'ratio':>6} {'max |du|':>9}"
+        f"{'prepare':>8} {'feedback':>8} {'between':>8} {'ratio':>6} {'max |du|':>9}"
     )
     for label, data in result.items():
         total = data["total"] * 1e6
         median = float(np.median(total))
         p95, p99 = (float(v) for v in np.percentile(total, [95, 99]))
         gap = float(np.abs(data["u"] - reference).max())
+        between = f"{np.median(data['between']) * 1e6:8.1f}" if data["between"].size else " " * 8
         print(
             f"{label:>14} {median:8.1f} {p95:8.1f} {p99:8.1f} {p95 / median:8.2f} "
             f"{np.median(data['prepare']) * 1e6:8.1f} {np.median(data['feedback']) * 1e6:8.1f} "
-            f"{median / (base * 1e6):6.2f} {gap:9.1e}"
+            f"{between} {median / (base * 1e6):6.2f} {gap:9.1e}"
         )
     cones = float(np.median(result["exact cones"]["total"]))
     socp = float(np.median(result["cones daqp:socp"]["total"]))
     general = float(np.median(result["daqp general"]["total"]))
+    latency = float(np.median(result["daqp prepared"]["total"]))
     print(
         f"exact cones: clarabel / daqp one-call = {cones / base:.2f}, daqp:socp / daqp "
-        f"one-call = {socp / base:.2f}; daqp general / daqp one-call = {general / base:.2f}"
+        f"one-call = {socp / base:.2f}; daqp general / daqp one-call = {general / base:.2f}; "
+        f"prepared step (measurement to input) / daqp one-call = {latency / base:.2f}"
     )
 
 

@@ -17,6 +17,7 @@ __all__ = [
     "build_workspace",
     "compile_notice",
     "compile_on_demand",
+    "entry_point",
     "njit",
     "ready",
     "say_once",
@@ -113,6 +114,25 @@ def build_workspace(factory: Any, fields: Sequence[str], values: dict[str, Any])
             f"workspace fields: missing {missing}, unknown {unknown}; expected {list(fields)}"
         )
     return factory(*(values[name] for name in fields))
+
+
+def entry_point(dispatcher: Any, args: Sequence[Any]) -> Any:
+    """The compiled entry point of ``dispatcher`` for exactly the types of ``args``, or None
+    (not compiled for them yet, not a numba dispatcher, or no numba).
+
+    Calling it skips numba's type dispatch, which types each workspace argument through
+    Python (about 2 us per workspace on this machine kind, 4 of the 6 us a call with two
+    workspaces costs), but also skips its checks: the caller must pass arguments of the
+    same types as ``args`` (the one-call step does so only while every argument is one it
+    placed there itself; otherwise it calls the dispatcher).
+    """
+    overloads = getattr(dispatcher, "overloads", None)
+    if not AVAILABLE or overloads is None:
+        return None
+    from numba import typeof
+
+    compiled = overloads.get(tuple(typeof(value) for value in args))
+    return None if compiled is None else compiled.entry_point
 
 
 _compile_announced = False

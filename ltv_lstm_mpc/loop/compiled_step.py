@@ -21,6 +21,13 @@ bound natively (one SQP iteration, compiled kernels) runs, in :func:`controller_
    :math:`\hat e_{o,k+1} = \rho_o \hat e_{o,k} + \bar w` (eq. eo_evolution) and the
    de-normalization of the input.
 
+Stages 1-5 do not use the measurement :math:`y_k`: the observer's :math:`\hat x_k,
+\hat d_k` are known once step ``k - 1`` has returned its input (eq. lstm_observer updates
+them with :math:`y_{k-1}`). :func:`prepare_step` runs them alone, between samples
+(:meth:`~ltv_lstm_mpc.OffsetFreeController.prepare_next`), and :func:`feedback_step` runs
+stage 6 when the measurement arrives, so that a sample costs only the feedback and the
+observer update; :func:`controller_step` runs both in one call.
+
 Everything the step computed goes into row ``k`` of :data:`RecordArrays` (the updated
 estimates into row ``k + 1``): the controller's records are built from those rows when
 they are read (:class:`~ltv_lstm_mpc.loop.records.ControllerRecords`), not in the timed
@@ -64,8 +71,10 @@ __all__ = [
     "RecordArrays",
     "StepWorkspace",
     "controller_step",
+    "feedback_step",
     "new_record_arrays",
     "new_step_workspace",
+    "prepare_step",
 ]
 
 #: Return codes of :func:`controller_step`.
@@ -75,9 +84,9 @@ STEP_DONE, STEP_GENERAL, STEP_REFERENCE, STEP_FEEDBACK = 1, 0, -1, -2
 (
     E_HAT, INPUT_CLIPPED, ALPHA, COST, OUTPUT_VIOLATION, TERMINAL_RESIDUAL,
     LINEARIZATION_GAP, SQP_STEP, SOLVER_TIME, PREPARE_TIME, FEEDBACK_TIME, TIME_OBSERVER,
-    TIME_REFERENCE, TIME_MPC, REFERENCE_RESIDUAL, E_HAT_NEXT,
-) = range(16)  # fmt: skip
-REAL_COLUMNS = 16
+    TIME_REFERENCE, TIME_MPC, REFERENCE_RESIDUAL, E_HAT_NEXT, SCALE,
+) = range(17)  # fmt: skip
+REAL_COLUMNS = 17
 #: Columns of ``RecordArrays.integer``.
 (
     STATUS, SOLVER_ITERATIONS, REFERENCE_ITERATIONS, SETPOINT_STATUS, MEASUREMENT_STATUS,
@@ -96,6 +105,7 @@ STEP_FIELDS = (
     "u_max", "implausible", "d_max", "tightening_d_max", "rho_o", "w_bar", "e_inf",
     "backward", "tol", "max_iter", "jump", "reuse_tol", "chord", "trajectories",
     "condensing", "daqp", "plan", "observer", "cand", "cones", "socp", "tolerance",
+    "jinv_backup",
 )  # fmt: skip
 
 StepWorkspace = workspace_type(
@@ -124,7 +134,8 @@ StepWorkspace = workspace_type(
     :func:`~ltv_lstm_mpc.mpc.native_feedback.cone_feedback` on ``socp``, a
     :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace`, with the acceptance
     ``tolerance``) rather than the QP on ``daqp`` (the other one of the two is a
-    placeholder).
+    placeholder); ``jinv_backup``: the chord's inverse Jacobian as it was before the last
+    :func:`prepare_step` (restored when a preparation is discarded).
     """,
     __name__,
 )
@@ -211,14 +222,14 @@ def _new_step_workspace(  # type: ignore[no-untyped-def]
     y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max, kappa,
     lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max, rho_o,
     w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories, condensing,
-    daqp, plan, observer, cand, cones, socp, tolerance,
+    daqp, plan, observer, cand, cones, socp, tolerance, jinv_backup,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return StepWorkspace(
         y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max,
         kappa, lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max,
         rho_o, w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories,
-        condensing, daqp, plan, observer, cand, cones, socp, tolerance,
+        condensing, daqp, plan, observer, cand, cones, socp, tolerance, jinv_backup,
     )  # fmt: skip
 
 
@@ -266,11 +277,28 @@ def _inside_interval(
 
 
 @njit(cache=True)
-def controller_step(
+def _normalize_measurement(step: Any, records: Any, k: int, y_phi: Any) -> bool:
+    """The measurement normalized into row ``k`` with its status (paper notes 1); False
+    where it is not finite or lies beyond the plausible range (the general path raises or
+    flags it)."""
+    y = records.y[k]
+    largest = 0.0
+    for j in range(y_phi.shape[0]):
+        y[j] = (y_phi[j] - step.y_min[j]) / step.y_scale[j] - 1.0
+        if not np.isfinite(y[j]):
+            return False
+        largest = max(largest, abs(y[j]))
+    if largest > step.implausible:
+        return False
+    records.integer[k, MEASUREMENT_STATUS] = 0 if largest <= 1.0 else 1
+    return True
+
+
+@njit(cache=True)
+def prepare_step(
     step: Any,
     records: Any,
     k: int,
-    y_phi: Any,
     y0_phi: Any,
     y0_previous: Any,
     x_hat: Any,
@@ -281,45 +309,33 @@ def controller_step(
     previous_u: Any,
     e_hat: float,
     rate_limit: float,
-) -> tuple[int, int, int, int, float]:
-    """One controller step (module docstring).
+) -> tuple[int, int, int]:
+    r"""Stages 1-5 up to the feedback: everything step ``k`` needs that the measurement
+    ``y_k`` does not enter (the set-point, the reference, the bounds, the condensed
+    subproblem), from the estimates :math:`\hat x_k, \hat d_k` the previous step left.
 
-    Returns ``(code, warnings, kept inverse Jacobian valid, factorizations, e_hat next)``:
-    ``code`` one of the ``STEP_*`` codes; ``warnings`` bit 0: d_hat saturated, bit 1: a
-    set-point status other than ok, bit 2: the input was moved onto U.
-
-    ``step``: :data:`StepWorkspace` (with the other workspaces); ``records``:
-    :data:`RecordArrays` with at least ``k + 2`` estimate rows; ``y_phi``, ``y0_phi``:
-    physical measurement and set-point; ``y0_previous``: the limiter's last set-point
-    (normalized; ignored without a limit); ``x_hat``, ``d_hat``: the estimates;
-    ``last_z``, ``last_target``: the reference calculator's last solution and target
-    (``last_target`` empty: none); ``jinv_valid``: whether its kept inverse Jacobian is
-    valid; ``previous_u``: the MPC's previous plan;
-    ``e_hat``: :math:`\\hat e_{o,k}`; ``rate_limit``: the limiter's bound (NaN: none).
+    Returns ``(code, kept inverse Jacobian valid, factorizations)``; ``code`` is
+    :data:`STEP_DONE`, :data:`STEP_GENERAL` (a set-point that is not finite) or
+    :data:`STEP_REFERENCE`. The chord's inverse Jacobian as it was before is kept in
+    ``step.jinv_backup`` (a caller that discards this preparation puts it back). Arguments
+    as for :func:`controller_step`.
     """
     clock = step.clock
     t0 = _now(clock)
     chord, trajectories, condensing = step.chord, step.trajectories, step.condensing
-    daqp, plan, observer, cand = step.daqp, step.plan, step.observer, step.cand
-    p = y_phi.shape[0]
+    cand = step.cand
+    p = y0_phi.shape[0]
     m = step.u_min.shape[0]
     n2 = x_hat.shape[0]
     N = cand.shape[0]
-    # ---- normalization and measurement status (paper notes 1)
-    y = records.y[k]
+    # ---- normalization of the set-point (paper notes 1)
     y0 = records.y0[k]
-    largest = 0.0
     for j in range(p):
-        y[j] = (y_phi[j] - step.y_min[j]) / step.y_scale[j] - 1.0
         y0[j] = (y0_phi[j] - step.y_min[j]) / step.y_scale[j] - 1.0  # the target, for now
-        if not (np.isfinite(y[j]) and np.isfinite(y0[j])):
-            return STEP_GENERAL, 0, 0, 0, 0.0
-        largest = max(largest, abs(y[j]))
-    if largest > step.implausible:
-        return STEP_GENERAL, 0, 0, 0, 0.0
+        if not np.isfinite(y0[j]):
+            return STEP_GENERAL, 0, 0
     integer = records.integer[k]
     real = records.real[k]
-    integer[MEASUREMENT_STATUS] = 0 if largest <= 1.0 else 1
     # ---- the rate limiter: y0 moves towards the target by at most rate_limit
     limited = not np.isnan(rate_limit)
     if limited:
@@ -333,13 +349,16 @@ def controller_step(
         records.x_hat[k, q] = x_hat[q]
     for j in range(p):
         records.d_hat[k, j] = d_hat[j]
-    t1 = _now(clock)
     # ---- reference calculator, warm path (ReferenceCalculator.solve_arrays)
     target = records.target[k]
     target_step = np.empty(p)
     for j in range(p):
         target[j] = y0[j] - d_hat[j]
         target_step[j] = target[j] - last_target[j] if last_target.shape[0] else 0.0
+    backup, Jinv = step.jinv_backup, chord.Jinv
+    for r in range(Jinv.shape[0]):
+        for c in range(Jinv.shape[1]):
+            backup[r, c] = Jinv[r, c]
     chord.state[0] = jinv_valid
     z = records.z[k]
     residual = chord_newton(chord, last_z, target, target_step, step.tol, step.max_iter, z)
@@ -354,13 +373,13 @@ def controller_step(
     for a in range(m):
         largest_u = max(largest_u, abs(z[n2 + a]))
     if not (state[3] == 1 and largest_u <= u_max * (1 + 1e-12)):
-        return STEP_REFERENCE, 0, int(state[0]), int(state[2]), 0.0
+        return STEP_REFERENCE, int(state[0]), int(state[2])
     if m > 1:
         largest_jump = 0.0
         for q in range(n2 + m):
             largest_jump = max(largest_jump, abs(z[q] - last_z[q]))
         if largest_jump > step.jump:
-            return STEP_REFERENCE, 0, int(state[0]), int(state[2]), 0.0
+            return STEP_REFERENCE, int(state[0]), int(state[2])
     x_bar = records.x_bar[k]
     u_bar = records.u_bar[k]
     for q in range(n2):
@@ -418,21 +437,44 @@ def controller_step(
         trajectories, condensing, cand, previous_u, candidate, x_hat, step.reuse_tol, x_bar,
         u_bar, lower, upper, alpha, step.backward,
     )  # fmt: skip
-    t_prepared = _now(clock)
+    real[SCALE] = scale
+    t3 = _now(clock)
+    real[TIME_REFERENCE] = t2 - t0
+    real[PREPARE_TIME] = t3 - t2
+    return STEP_DONE, int(state[0]), int(state[2])
+
+
+@njit(cache=True)
+def _feedback_and_update(
+    step: Any, records: Any, k: int, x_hat: Any, d_hat: Any, e_hat: float, normalization: float
+) -> tuple[int, int, float]:
+    """Stage 6 on the subproblem :func:`prepare_step` left in row ``k``: the feedback, the
+    exit gate, the observer update with the measurement of row ``k``, e_hat_{k+1} and the
+    de-normalization. Returns ``(code, warnings, e_hat next)``; ``normalization``: the
+    seconds the measurement's normalization took (counted as the observer's time)."""
+    clock = step.clock
+    t_feedback = _now(clock)
+    daqp, plan, observer = step.daqp, step.plan, step.observer
+    p = d_hat.shape[0]
+    m = step.u_min.shape[0]
+    integer = records.integer[k]
+    real = records.real[k]
+    x_bar, u_bar = records.x_bar[k], records.u_bar[k]
+    lower, upper, alpha, scale = step.lower, step.upper, real[ALPHA], real[SCALE]
     # ---- feedback: insert x_hat, solve, accept, re-simulate
     u_plan = records.u_plan[k]
     if step.cones:
         code, iterations, sqp_step, seconds = cone_feedback(
-            condensing, step.socp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
+            step.condensing, step.socp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
             step.tolerance, records.x_linear[k], u_plan, records.x_plan[k],
         )  # fmt: skip
     else:
         code, iterations, sqp_step, seconds = nominal_feedback(
-            condensing, daqp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
+            step.condensing, daqp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
             records.x_linear[k], u_plan, records.x_plan[k],
         )  # fmt: skip
     if code == 0:
-        return STEP_FEEDBACK, 0, int(state[0]), int(state[2]), 0.0
+        return STEP_FEEDBACK, 0, 0.0
     t3 = _now(clock)
     integer[STATUS] = code
     integer[SOLVER_ITERATIONS] = iterations
@@ -443,9 +485,9 @@ def controller_step(
     real[TERMINAL_RESIDUAL] = metrics[1] - alpha
     real[OUTPUT_VIOLATION] = metrics[2]
     real[LINEARIZATION_GAP] = metrics[3]
-    real[PREPARE_TIME] = t_prepared - t2
-    real[FEEDBACK_TIME] = t3 - t_prepared
+    real[FEEDBACK_TIME] = t3 - t_feedback
     # ---- the exit gate onto U
+    u_max = step.u_max
     u = records.u[k]
     inside = True
     for a in range(m):
@@ -461,8 +503,8 @@ def controller_step(
     real[INPUT_CLIPPED] = moved
     t4 = _now(clock)
     # ---- observer update eq. (lstm_observer) and eq. (eo_evolution)
-    observer_update(observer, step.d_max, x_hat, d_hat, y, u, records.x_hat[k + 1],
-                    records.d_hat[k + 1])  # fmt: skip
+    observer_update(observer, step.d_max, x_hat, d_hat, records.y[k], u,
+                    records.x_hat[k + 1], records.d_hat[k + 1])  # fmt: skip
     real[E_HAT] = e_hat
     e_hat_next = step.rho_o * e_hat + step.w_bar
     real[E_HAT_NEXT] = e_hat_next
@@ -472,15 +514,82 @@ def controller_step(
         if not inside:
             u_phi[a] = min(max(u_phi[a], step.u_phi_low[a]), step.u_phi_high[a])
     t5 = _now(clock)
-    real[TIME_OBSERVER] = (t1 - t0) + (t5 - t4)
-    real[TIME_REFERENCE] = t2 - t1
-    real[TIME_MPC] = t4 - t2
+    real[TIME_OBSERVER] = normalization + (t5 - t4)
+    real[TIME_MPC] = real[PREPARE_TIME] + (t4 - t_feedback)
     warnings = 0
     for j in range(p):
         if records.saturated[k, j]:
             warnings |= 1
-    if status != 0:
+    if integer[SETPOINT_STATUS] != 0:
         warnings |= 2
     if moved > 0.0:
         warnings |= 4
-    return STEP_DONE, warnings, int(state[0]), int(state[2]), e_hat_next
+    return STEP_DONE, warnings, e_hat_next
+
+
+@njit(cache=True)
+def feedback_step(
+    step: Any, records: Any, k: int, y_phi: Any, x_hat: Any, d_hat: Any, e_hat: float
+) -> tuple[int, int, float]:
+    """Step ``k`` on the subproblem :func:`prepare_step` prepared for it (between samples,
+    after step ``k - 1`` returned its input): the measurement in, the input out, the
+    estimates updated.
+
+    Returns ``(code, warnings, e_hat next)``: ``code`` :data:`STEP_DONE`,
+    :data:`STEP_GENERAL` (the measurement is not finite or not plausible) or
+    :data:`STEP_FEEDBACK`; ``warnings`` as for :func:`controller_step`.
+    """
+    t0 = _now(step.clock)
+    if not _normalize_measurement(step, records, k, y_phi):
+        return STEP_GENERAL, 0, 0.0
+    normalization = _now(step.clock) - t0
+    return _feedback_and_update(step, records, k, x_hat, d_hat, e_hat, normalization)
+
+
+@njit(cache=True)
+def controller_step(
+    step: Any,
+    records: Any,
+    k: int,
+    y_phi: Any,
+    y0_phi: Any,
+    y0_previous: Any,
+    x_hat: Any,
+    d_hat: Any,
+    last_z: Any,
+    last_target: Any,
+    jinv_valid: int,
+    previous_u: Any,
+    e_hat: float,
+    rate_limit: float,
+) -> tuple[int, int, int, int, float]:
+    r"""One controller step (module docstring): :func:`prepare_step` and
+    :func:`feedback_step` in one call.
+
+    Returns ``(code, warnings, kept inverse Jacobian valid, factorizations, e_hat next)``:
+    ``code`` one of the ``STEP_*`` codes; ``warnings`` bit 0: d_hat saturated, bit 1: a
+    set-point status other than ok, bit 2: the input was moved onto U.
+
+    ``step``: :data:`StepWorkspace` (with the other workspaces); ``records``:
+    :data:`RecordArrays` with at least ``k + 2`` estimate rows; ``y_phi``, ``y0_phi``:
+    physical measurement and set-point; ``y0_previous``: the limiter's last set-point
+    (normalized; ignored without a limit); ``x_hat``, ``d_hat``: the estimates;
+    ``last_z``, ``last_target``: the reference calculator's last solution and target
+    (``last_target`` empty: none); ``jinv_valid``: whether its kept inverse Jacobian is
+    valid; ``previous_u``: the MPC's previous plan;
+    ``e_hat``: :math:`\hat e_{o,k}`; ``rate_limit``: the limiter's bound (NaN: none).
+    """
+    t0 = _now(step.clock)
+    if not _normalize_measurement(step, records, k, y_phi):
+        return STEP_GENERAL, 0, 0, 0, 0.0
+    normalization = _now(step.clock) - t0
+    code, inverse_valid, factorizations = prepare_step(
+        step, records, k, y0_phi, y0_previous, x_hat, d_hat, last_z, last_target, jinv_valid,
+        previous_u, e_hat, rate_limit,
+    )  # fmt: skip
+    if code != STEP_DONE:
+        return code, 0, inverse_valid, factorizations, 0.0
+    code, warnings, e_hat_next = _feedback_and_update(
+        step, records, k, x_hat, d_hat, e_hat, normalization
+    )
+    return code, warnings, inverse_valid, factorizations, e_hat_next

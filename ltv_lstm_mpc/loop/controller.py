@@ -43,6 +43,7 @@ from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
 from ltv_lstm_mpc.mpc.rti import RobustMPC
+from ltv_lstm_mpc.numba_support import entry_point
 from ltv_lstm_mpc.validation import (
     expect_bool,
     expect_instance,
@@ -59,6 +60,19 @@ FloatArray = NDArray[np.float64]
 _RECORDED = object()
 #: An empty vector: "none" for the one-call step's optional vector arguments.
 _NO_VALUES = np.zeros(0)
+
+
+def _same_state(now: tuple[Any, ...] | None, prepared: tuple[Any, ...]) -> bool:
+    """Whether the one-call state arguments ``now`` are those a preparation used: the same
+    arrays (not copies: views of the record rows), the same scalars."""
+    if now is None:
+        return False
+    for index in (0, 1, 2, 3, 4, 6):
+        if now[index] is not prepared[index]:
+            return False
+    limit, prepared_limit = now[8], prepared[8]
+    same_limit = limit == prepared_limit or (math.isnan(limit) and math.isnan(prepared_limit))
+    return bool(now[5] == prepared[5] and now[7] == prepared[7] and same_limit)
 
 
 def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
@@ -305,6 +319,8 @@ class OffsetFreeController:
             monitor = AssumptionMonitor(model, self.certification)
         self.monitor: AssumptionMonitor | None = monitor
         self.warnings = RunWarnings()
+        self._entries: dict[str, Any] = {}  # compiled entry points (_compiled)
+        self._prepared: tuple[Any, ...] | None = None  # what prepare_next prepared
         #: The one-call step's constants and buffers (None: the general path only).
         self._one_call: Any = self._one_call_workspace() if mpc is None and one_call_step else None
         #: This run's records (a read-only sequence of :class:`ControllerStep`).
@@ -350,6 +366,9 @@ class OffsetFreeController:
         self.records.log = self._assumption_log
         self.warnings.reset()
         self._interval: tuple[float, list[float], list[float]] = (math.nan, [], [])
+        self._prepared = None
+        self._installed: tuple[Any, ...] | None = None  # state the last one-call step left
+        self._requested_phi: FloatArray | None = None  # the set-point the last step requested
 
     def _limit(self, y0_target: FloatArray) -> FloatArray:
         if self._y0 is None or self.setpoint_rate_limit is None:
@@ -537,6 +556,7 @@ class OffsetFreeController:
         p = self.model.p
         y_arr = real_vector("y_phi", y_phi, p)
         y0_arr = real_vector("y0_phi", y0_phi, p)
+        self._requested_phi = y0_arr
         y = (y_arr - self._y_min) / self._y_scale - 1.0
         y0_target = (y0_arr - self._y_min) / self._y_scale - 1.0
         return y, y0_target
@@ -585,7 +605,9 @@ class OffsetFreeController:
         iteration, this controller's own MPC) a step after the first runs as one compiled
         call (:mod:`ltv_lstm_mpc.loop.compiled_step`) whenever every test of that call
         passes; otherwise, and for every other configuration, the general path below runs,
-        with the same numbers (tested to 1e-12).
+        with the same numbers (tested to 1e-12). After :meth:`prepare_next` (called between
+        samples) the step runs only the feedback of the prepared subproblem and the
+        observer update.
         """
         chord = None
         skip_native = False
@@ -620,6 +642,7 @@ class OffsetFreeController:
             return np.array(values, dtype=np.float64)  # an owned, C-contiguous copy
 
         self._one_call_requested = np.zeros(p)  # the workspace's ``requested``
+        self._jinv_backup = np.zeros_like(reference._Jinv_buffer)
         self._one_call_settings = self._one_call_settings_now()
         return one_call.new_step_workspace(
             y_min=vector(self._y_min), y_scale=vector(self._y_scale),
@@ -641,7 +664,7 @@ class OffsetFreeController:
             plan=mpc._plan_workspace, observer=observer._workspace, cand=mpc._cand,
             cones=socp is not None,
             socp=socp if socp is not None else one_call.placeholder_socp(),
-            tolerance=float(problem.tolerance),
+            tolerance=float(problem.tolerance), jinv_backup=self._jinv_backup,
         )  # fmt: skip
 
     def _one_call_settings_now(self) -> tuple[float, int, float, float]:
@@ -650,47 +673,225 @@ class OffsetFreeController:
         reference, mpc = self.reference, self.mpc
         return (reference.tol, reference.max_iter, reference.jump, mpc.reuse_tol)  # type: ignore[attr-defined]
 
-    def _step_one_call(
-        self, y_phi: ArrayLike, y0_phi: ArrayLike
-    ) -> FloatArray | tuple[tuple[FloatArray, float, int, bool] | None, bool]:
-        """:meth:`step` as one compiled call; returns the physical input, or
-        ``(chord outcome or None, skip_native)`` for the general path to go on with."""
+    def _one_call_state(self) -> tuple[Any, ...] | None:
+        """The state arguments of the compiled step, ``(y0_previous, x_hat, d_hat, last_z,
+        last_target, jinv_valid, previous_u, e_hat, rate_limit)``, or None where the
+        one-call step cannot run now (no plan or reference yet, or a limiter without its
+        last set-point: the general path then runs)."""
         mpc: Any = self.mpc
         reference, observer = self.reference, self.observer
         previous_u, last_z = mpc._previous_u, reference._last_z
         y0_previous = self._y0
         rate_limit = self.setpoint_rate_limit
         if previous_u is None or last_z is None or not mpc._plan_valid:
-            return None, False
+            return None
         if rate_limit is None:
             rate_limit = math.nan
         elif y0_previous is None:
-            return None, False
+            return None
         if self._one_call_settings_now() != self._one_call_settings:  # changed by the user
             self._one_call = self._one_call_workspace()
+            self._entries.clear()
+        last_target = reference._last_target
+        return (
+            _NO_VALUES if y0_previous is None else y0_previous, observer.x_hat,
+            observer.d_hat, last_z, _NO_VALUES if last_target is None else last_target,
+            1 if reference._Jinv is not None else 0, previous_u, self.e_hat, float(rate_limit),
+        )  # fmt: skip
+
+    def _installed_state(self) -> bool:
+        """Whether every state argument is the one the last one-call step left (views of
+        its record rows, so of the types the compiled entry points were resolved for)."""
+        installed = self._installed
+        if installed is None:
+            return False
+        reference, observer, mpc = self.reference, self.observer, self.mpc
+        return (
+            observer.x_hat is installed[0]
+            and observer.d_hat is installed[1]
+            and reference._last_z is installed[2]
+            and reference._last_target is installed[3]
+            and mpc._previous_u is installed[4]  # type: ignore[attr-defined]
+            and self._y0 is installed[5]
+            and type(self.e_hat) is float
+        )
+
+    def _compiled(self, name: str, fast: bool, arguments: tuple[Any, ...]) -> Any:
+        """Call ``compiled_step.<name>``: through its entry point when ``fast`` (all
+        arguments of the types it was resolved for: :func:`_installed_state`), otherwise
+        through numba's dispatcher (which checks the types), resolving the entry point."""
+        entry = self._entries.get(name) if fast else None
+        if entry:
+            return entry(*arguments)
+        function = getattr(one_call, name)
+        result = function(*arguments)
+        if fast and entry is None:  # False: no entry point (not a compiled dispatcher)
+            self._entries[name] = entry_point(function, arguments) or False
+        return result
+
+    def _signals(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Measurement and set-point as C-contiguous float64 vectors (checked)."""
         p = self.model.p
         y_arr = real_vector("y_phi", y_phi, p)
         y0_arr = real_vector("y0_phi", y0_phi, p)
         if not (y_arr.flags.carray and y0_arr.flags.carray):  # one compiled signature
             y_arr, y0_arr = np.array(y_arr), np.array(y0_arr)
+        return y_arr, y0_arr
+
+    def prepare_next(self, y0_phi: ArrayLike | None = None) -> bool:
+        r"""Prepare the next step now, between samples (after this step's input is applied).
+
+        Everything the next :meth:`step` computes before its feedback does not use its
+        measurement: the set-point and its limiter, the reference eq.
+        (reference_calculation), the tightened bounds and :math:`\alpha_k`, and the
+        linearized, condensed subproblem (Theorem 3's candidate) all follow from the
+        estimates :math:`\hat x_{k+1}, \hat d_{k+1}` this step left
+        (:func:`~ltv_lstm_mpc.loop.compiled_step.prepare_step`). Prepared, the next step
+        runs only the feedback, the exit gate and the observer update
+        (:func:`~ltv_lstm_mpc.loop.compiled_step.feedback_step`): the time from the
+        measurement to the input is the feedback's. Its numbers are those of an
+        unprepared step (tested bit for bit).
+
+        The next step uses the preparation only if it requests the same set-point (equal
+        values) and nothing the step depends on changed in between (:meth:`reset`, a new
+        estimate, plan or limiter assigned); otherwise it puts the preparation aside and
+        runs as usual, with the same numbers.
+
+        Parameters
+        ----------
+        y0_phi : array_like, optional
+            The set-point the next step will request (physical units, p values; a schedule
+            knows it); default: the one the last step requested.
+
+        Returns
+        -------
+        bool
+            True when the next step is prepared; False where the one-call step does not
+            apply (:attr:`one_call` False: the general path prepares inside the step),
+            before the first step, or where the preparation did not pass the one-call
+            step's tests (the next step then runs as usual).
+
+        Raises
+        ------
+        InvalidValueError, DimensionError
+            ``y0_phi`` not p finite real numbers.
+        """
+        self._discard_preparation()
+        if y0_phi is None:
+            requested = self._requested_phi
+        else:
+            requested = real_vector("y0_phi", y0_phi, self.model.p)
+        if self._one_call is None or not self._initialized or requested is None:
+            return False
+        y0_arr = np.array(requested, dtype=np.float64)  # an owned, C-contiguous copy
+        state = self._one_call_state()
+        if state is None:
+            return False
         records = self.records
         k = len(records)
         if k + 2 > records.capacity:
             records.reserve(k + 2)
-        last_target = reference._last_target
-        problem = mpc._problem
-        code, warnings, inverse_valid, factorizations, e_hat_next = one_call.controller_step(
-            self._one_call, records.compiled, k, y_arr, y0_arr,
-            _NO_VALUES if y0_previous is None else y0_previous, observer.x_hat,
-            observer.d_hat, last_z, _NO_VALUES if last_target is None else last_target,
-            1 if reference._Jinv is not None else 0, previous_u, self.e_hat, rate_limit,
-        )  # fmt: skip
+        workspace = self._one_call
+        code, inverse_valid, factorizations = self._compiled(
+            "prepare_step",
+            self._installed_state(),
+            (workspace, records.compiled, k, y0_arr, *state),
+        )
+        if code != one_call.STEP_DONE:
+            self._restore_chord()
+            return False
+        self._prepared = (k, y0_arr.tolist(), state, workspace, inverse_valid, factorizations)
+        return True
+
+    def _discard_preparation(self) -> None:
+        """Put a preparation of :meth:`prepare_next` aside (the chord as it was before)."""
+        if self._prepared is not None:
+            self._prepared = None
+            self._restore_chord()
+
+    def _restore_chord(self) -> None:
+        """The reference calculator's inverse Jacobian as before the last preparation."""
+        np.copyto(self.reference._Jinv_buffer, self._jinv_backup)
+
+    def _step_prepared(
+        self, y_phi: ArrayLike, y0_phi: ArrayLike
+    ) -> FloatArray | tuple[tuple[FloatArray, float, int, bool] | None, bool] | None:
+        """:meth:`step` on the preparation of :meth:`prepare_next`: the physical input, or
+        what :meth:`_step_one_call` returns for the general path, or None where the
+        preparation does not apply (put aside)."""
+        prepared = self._prepared
+        assert prepared is not None
+        self._prepared = None
+        k, y0_prepared, state, workspace, inverse_valid, factorizations = prepared
+        y_arr, y0_arr = self._signals(y_phi, y0_phi)
+        records = self.records
+        if (
+            k != len(records)
+            or y0_arr.tolist() != y0_prepared
+            or not _same_state(self._one_call_state(), state)
+            or self._one_call is not workspace
+        ):
+            self._restore_chord()
+            return None
+        code, warnings, e_hat_next = self._compiled(
+            "feedback_step",
+            self._installed_state(),
+            (workspace, records.compiled, k, y_arr, state[1], state[2], state[7]),
+        )
+        if code == one_call.STEP_GENERAL:
+            self._restore_chord()
+            return None
+        return self._finish_one_call(
+            k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr
+        )
+
+    def _step_one_call(
+        self, y_phi: ArrayLike, y0_phi: ArrayLike
+    ) -> FloatArray | tuple[tuple[FloatArray, float, int, bool] | None, bool]:
+        """:meth:`step` as one compiled call; returns the physical input, or
+        ``(chord outcome or None, skip_native)`` for the general path to go on with."""
+        if self._prepared is not None:
+            answer = self._step_prepared(y_phi, y0_phi)
+            if answer is not None:
+                return answer
+        state = self._one_call_state()
+        if state is None:
+            return None, False
+        y_arr, y0_arr = self._signals(y_phi, y0_phi)
+        records = self.records
+        k = len(records)
+        if k + 2 > records.capacity:
+            records.reserve(k + 2)
+        code, warnings, inverse_valid, factorizations, e_hat_next = self._compiled(
+            "controller_step",
+            self._installed_state(),
+            (self._one_call, records.compiled, k, y_arr, y0_arr, *state),
+        )
+        if code == one_call.STEP_GENERAL:
+            return None, False
+        return self._finish_one_call(
+            k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr
+        )
+
+    def _finish_one_call(
+        self,
+        k: int,
+        code: int,
+        warnings: int,
+        inverse_valid: int,
+        factorizations: int,
+        e_hat_next: float,
+        y0_arr: FloatArray,
+    ) -> FloatArray | tuple[tuple[FloatArray, float, int, bool] | None, bool]:
+        """After a compiled step or feedback: what the general path leaves behind, as views
+        of row ``k`` (never written again), and the input; or, when the compiled call did
+        not accept, the chord's outcome for the general path."""
+        reference, observer, mpc = self.reference, self.observer, self.mpc
+        records = self.records
         rows = records.rows
         assert rows is not None
+        reference.adopt_chord_state(inverse_valid, factorizations)
         if code != one_call.STEP_DONE:
-            if code == one_call.STEP_GENERAL:
-                return None, False
-            reference.adopt_chord_state(inverse_valid, factorizations)
             chord_row = rows.integer[k]
             chord = (
                 rows.z[k].copy(),
@@ -699,24 +900,21 @@ class OffsetFreeController:
                 bool(chord_row[one_call.CHORD_OK]),
             )
             return chord, code == one_call.STEP_FEEDBACK
-        # what the general path leaves behind, as views of the rows (never written again)
-        reference.adopt_chord_state(inverse_valid, factorizations)
-        reference._last_z = rows.z[k]
-        reference._last_target = rows.target[k]
-        observer.x_hat = rows.x_hat[k + 1]
-        observer.d_hat = rows.d_hat[k + 1]
-        mpc._previous_u = rows.u_plan[k]
-        mpc._problem.scale = math.nan  # prepare sets it again before any general feedback
+        x_hat, d_hat = rows.x_hat[k + 1], rows.d_hat[k + 1]
+        last_z, last_target, previous_u, y0 = rows.z[k], rows.target[k], rows.u_plan[k], rows.y0[k]
+        reference._last_z, reference._last_target = last_z, last_target
+        observer.x_hat, observer.d_hat = x_hat, d_hat
+        mpc._previous_u = previous_u  # type: ignore[attr-defined]
+        problem = mpc._problem  # type: ignore[attr-defined]
+        problem.scale = math.nan  # prepare sets it again before any general feedback
         if problem._last:
             problem._last.clear()
-        solver_time, prepare_time, feedback_time = rows.real[
-            k, one_call.SOLVER_TIME : one_call.FEEDBACK_TIME + 1
-        ].tolist()
-        mpc.solver_time, mpc.prepare_time, mpc.feedback_time = (
-            solver_time, prepare_time, feedback_time
-        )  # fmt: skip
-        mpc.qp_iterations = int(rows.integer[k, one_call.SOLVER_ITERATIONS])
-        self._y0 = rows.y0[k]
+        times = rows.real[k, one_call.SOLVER_TIME : one_call.FEEDBACK_TIME + 1].tolist()
+        mpc.solver_time, mpc.prepare_time, mpc.feedback_time = times  # type: ignore[attr-defined]
+        mpc.qp_iterations = int(rows.integer[k, one_call.SOLVER_ITERATIONS])  # type: ignore[attr-defined]
+        self._y0 = y0
+        self._requested_phi = y0_arr
+        self._installed = (x_hat, d_hat, last_z, last_target, previous_u, y0)
         self._last_reference = _RECORDED
         self._last_reference_row = k
         if warnings:

@@ -269,6 +269,7 @@ def simulate(
     blas_threads: int | None = 1,
     check_sampling_time: bool = True,
     pause_garbage_collection: bool = True,
+    prepare_between_samples: bool = False,
 ) -> SimulationResult:
     """Run plant and controller in closed loop.
 
@@ -301,9 +302,15 @@ def simulate(
     pause_garbage_collection : bool
         Python's cyclic garbage collector off during the loop (default; see
         :func:`garbage_collection_paused`): no collection pauses between steps.
+    prepare_between_samples : bool
+        After each sample, prepare the next step with the schedule's next set-point
+        (:meth:`~ltv_lstm_mpc.OffsetFreeController.prepare_next`), as a real-time loop does
+        while the plant evolves: each step then runs only its feedback and observer update.
+        Same numbers either way (tested bit for bit); the records' times split accordingly.
     """
     _check_arguments(plant, controller, progress, description, max_seconds, blas_threads)
     expect_bool("pause_garbage_collection", pause_garbage_collection)
+    expect_bool("prepare_between_samples", prepare_between_samples)
     if check_sampling_time:
         plant_Ts = getattr(plant, "Ts", None)
         sampling_time_contract(
@@ -351,6 +358,8 @@ def simulate(
             d = d_schedule[k]
             ds.append(np.full(1, np.nan) if d is None else d)
             y_phi = np.atleast_1d(np.asarray(plant.step(u_phi, d), dtype=np.float64))
+            if prepare_between_samples and k + 1 < steps:
+                controller.prepare_next(y0_schedule[k + 1])
             if max_seconds is not None and time.perf_counter() - start > max_seconds:
                 break
     records = controller.records
