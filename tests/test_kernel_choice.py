@@ -125,6 +125,8 @@ CALLEES = {
     # exact-cone feedback it also holds (mpc/native_feedback.py, solvers/daqp_socp.py)
     "_now",
     "_inside_interval",
+    "_normalize_measurement",
+    "_feedback_and_update",
     "nominal_feedback",
     "cone_feedback",
     "socp_solve",

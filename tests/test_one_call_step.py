@@ -67,16 +67,18 @@ def _worst(records_a: Any, records_b: Any) -> tuple[float, str]:
 
 @pytest.fixture
 def codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
-    """Counts of the one-call step's return codes."""
+    """Counts of the one-call step's return codes (both entries: with the state as
+    arguments, and read from the rows)."""
     counts: Counter[int] = Counter()
-    original = compiled_step.controller_step
+    for name in ("controller_step", "controller_step_from_rows"):
+        original = getattr(compiled_step, name)
 
-    def counting(*args: Any) -> Any:
-        answer = original(*args)
-        counts[answer[0]] += 1
-        return answer
+        def counting(*args: Any, original: Any = original) -> Any:
+            answer = original(*args)
+            counts[answer[0]] += 1
+            return answer
 
-    monkeypatch.setattr(compiled_step, "controller_step", counting)
+        monkeypatch.setattr(compiled_step, name, counting)
     return counts
 
 
@@ -266,3 +268,35 @@ def test_one_call_applies_only_where_it_can() -> None:
     assert not given.one_call
     with pytest.raises(ArgumentTypeError, match="one_call_step"):
         OffsetFreeController(model, config, one_call_step="yes")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_entry_points_give_the_dispatched_numbers(solver: str) -> None:
+    """Unpatched, the one-call and prepared steps call the compiled entry points directly
+    (resolved once, numba's type dispatch skipped while the state is the step's own
+    rows): the same records bit for bit as the general path."""
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[0]
+    config = replace(scenario.config, solver=solver, N=5)
+    steps = 120
+    fast = _loop(model, config, scenario, True, steps)
+    general = _loop(model, config, scenario, False, steps)
+    assert callable(fast._entries.get("controller_step_from_rows"))
+    worst, where = _worst(fast.records, general.records)
+    assert worst == 0.0, where
+    prepared = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+    )
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    for k in range(steps):
+        u = prepared.step(y, scenario.setpoints[k])
+        d = scenario.disturbances[k]
+        y = plant.step(u, None if np.isnan(d) else d)
+        assert prepared.prepare_next(scenario.setpoints[min(k + 1, steps - 1)])
+    assert callable(prepared._entries.get("feedback_step_from_rows"))
+    assert callable(prepared._entries.get("prepare_step_from_rows"))
+    worst, where = _worst(prepared.records, general.records)
+    assert worst == 0.0, where

@@ -31,16 +31,18 @@ SOLVERS = ["daqp"] + (["daqp:socp"] if "daqp:socp" in available_solvers() else [
 
 @pytest.fixture
 def feedback_codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
-    """Counts of ``feedback_step``'s return codes (the prepared steps)."""
+    """Counts of the prepared steps' return codes (``feedback_step`` and
+    ``feedback_step_from_rows``)."""
     counts: Counter[int] = Counter()
-    original = compiled_step.feedback_step
+    for name in ("feedback_step", "feedback_step_from_rows"):
+        original = getattr(compiled_step, name)
 
-    def counting(*args: Any) -> Any:
-        answer = original(*args)
-        counts[answer[0]] += 1
-        return answer
+        def counting(*args: Any, original: Any = original) -> Any:
+            answer = original(*args)
+            counts[answer[0]] += 1
+            return answer
 
-    monkeypatch.setattr(compiled_step, "feedback_step", counting)
+        monkeypatch.setattr(compiled_step, name, counting)
     return counts
 
 

@@ -71,10 +71,13 @@ __all__ = [
     "RecordArrays",
     "StepWorkspace",
     "controller_step",
+    "controller_step_from_rows",
     "feedback_step",
+    "feedback_step_from_rows",
     "new_record_arrays",
     "new_step_workspace",
     "prepare_step",
+    "prepare_step_from_rows",
 ]
 
 #: Return codes of :func:`controller_step`.
@@ -593,3 +596,45 @@ def controller_step(
         step, records, k, x_hat, d_hat, e_hat, normalization
     )
     return code, warnings, inverse_valid, factorizations, e_hat_next
+
+
+@njit(cache=True)
+def controller_step_from_rows(
+    step: Any,
+    records: Any,
+    k: int,
+    y_phi: Any,
+    y0_phi: Any,
+    jinv_valid: int,
+    e_hat: float,
+    rate_limit: float,
+) -> tuple[int, int, int, int, float]:
+    """:func:`controller_step` on the state the one-call step ``k - 1`` left in the rows
+    (the estimates of row ``k``; the set-point, reference and plan of row ``k - 1``): the
+    same call with four arguments fewer to cross the boundary (``k >= 1``)."""
+    return controller_step(
+        step, records, k, y_phi, y0_phi, records.y0[k - 1], records.x_hat[k], records.d_hat[k],
+        records.z[k - 1], records.target[k - 1], jinv_valid, records.u_plan[k - 1], e_hat,
+        rate_limit,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def prepare_step_from_rows(
+    step: Any, records: Any, k: int, y0_phi: Any, jinv_valid: int, e_hat: float, rate_limit: float
+) -> tuple[int, int, int]:
+    """:func:`prepare_step` on the state the one-call step ``k - 1`` left in the rows."""
+    return prepare_step(
+        step, records, k, y0_phi, records.y0[k - 1], records.x_hat[k], records.d_hat[k],
+        records.z[k - 1], records.target[k - 1], jinv_valid, records.u_plan[k - 1], e_hat,
+        rate_limit,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def feedback_step_from_rows(
+    step: Any, records: Any, k: int, y_phi: Any, e_hat: float
+) -> tuple[int, int, float]:
+    """:func:`feedback_step` with the estimates of row ``k`` (left by the one-call step
+    ``k - 1``)."""
+    return feedback_step(step, records, k, y_phi, records.x_hat[k], records.d_hat[k], e_hat)

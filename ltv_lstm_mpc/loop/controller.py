@@ -643,6 +643,7 @@ class OffsetFreeController:
 
         self._one_call_requested = np.zeros(p)  # the workspace's ``requested``
         self._jinv_backup = np.zeros_like(reference._Jinv_buffer)
+        self._y_buffer, self._y0_buffer = np.zeros(p), np.zeros(p)
         self._one_call_settings = self._one_call_settings_now()
         return one_call.new_step_workspace(
             y_min=vector(self._y_min), y_scale=vector(self._y_scale),
@@ -700,14 +701,16 @@ class OffsetFreeController:
         )  # fmt: skip
 
     def _installed_state(self) -> bool:
-        """Whether every state argument is the one the last one-call step left (views of
-        its record rows, so of the types the compiled entry points were resolved for)."""
+        """Whether every state argument is the one the last step, a one-call step, left
+        (views of its record row, so of the types the compiled entry points were resolved
+        for: the ``*_from_rows`` calls read them there)."""
         installed = self._installed
         if installed is None:
             return False
         reference, observer, mpc = self.reference, self.observer, self.mpc
         return (
-            observer.x_hat is installed[0]
+            installed[6] == len(self.records) - 1
+            and observer.x_hat is installed[0]
             and observer.d_hat is installed[1]
             and reference._last_z is installed[2]
             and reference._last_target is installed[3]
@@ -730,13 +733,26 @@ class OffsetFreeController:
         return result
 
     def _signals(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        """Measurement and set-point as C-contiguous float64 vectors (checked)."""
-        p = self.model.p
-        y_arr = real_vector("y_phi", y_phi, p)
-        y0_arr = real_vector("y0_phi", y0_phi, p)
-        if not (y_arr.flags.carray and y0_arr.flags.carray):  # one compiled signature
-            y_arr, y0_arr = np.array(y_arr), np.array(y0_arr)
-        return y_arr, y0_arr
+        """Measurement and set-point as C-contiguous float64 vectors of p values for the
+        compiled call. The common inputs (such arrays, or one float where p = 1) pass as
+        they are, or through the controller's buffers, with their finiteness left to the
+        compiled call (which hands a non-finite value to the general path: its error);
+        anything else is checked (:func:`~ltv_lstm_mpc.validation.real_vector`)."""
+        return (
+            self._vector("y_phi", y_phi, self._y_buffer),
+            self._vector("y0_phi", y0_phi, self._y0_buffer),
+        )
+
+    @staticmethod
+    def _vector(name: str, value: Any, buffer: FloatArray) -> FloatArray:
+        if type(value) is np.ndarray:
+            if value.dtype == np.float64 and value.shape == buffer.shape and value.flags.carray:
+                return value
+        elif isinstance(value, float) and buffer.shape[0] == 1:  # float and numpy.float64
+            buffer[0] = value
+            return buffer
+        checked = real_vector(name, value, buffer.shape[0])
+        return checked if checked.flags.carray else np.array(checked)
 
     def prepare_next(self, y0_phi: ArrayLike | None = None) -> bool:
         r"""Prepare the next step now, between samples (after this step's input is applied).
@@ -792,11 +808,16 @@ class OffsetFreeController:
         if k + 2 > records.capacity:
             records.reserve(k + 2)
         workspace = self._one_call
-        code, inverse_valid, factorizations = self._compiled(
-            "prepare_step",
-            self._installed_state(),
-            (workspace, records.compiled, k, y0_arr, *state),
-        )
+        if self._installed_state():
+            code, inverse_valid, factorizations = self._compiled(
+                "prepare_step_from_rows",
+                True,
+                (workspace, records.compiled, k, y0_arr, state[5], state[7], state[8]),
+            )
+        else:
+            code, inverse_valid, factorizations = self._compiled(
+                "prepare_step", False, (workspace, records.compiled, k, y0_arr, *state)
+            )
         if code != one_call.STEP_DONE:
             self._restore_chord()
             return False
@@ -833,11 +854,16 @@ class OffsetFreeController:
         ):
             self._restore_chord()
             return None
-        code, warnings, e_hat_next = self._compiled(
-            "feedback_step",
-            self._installed_state(),
-            (workspace, records.compiled, k, y_arr, state[1], state[2], state[7]),
-        )
+        if self._installed_state():
+            code, warnings, e_hat_next = self._compiled(
+                "feedback_step_from_rows", True, (workspace, records.compiled, k, y_arr, state[7])
+            )
+        else:
+            code, warnings, e_hat_next = self._compiled(
+                "feedback_step",
+                False,
+                (workspace, records.compiled, k, y_arr, state[1], state[2], state[7]),
+            )
         if code == one_call.STEP_GENERAL:
             self._restore_chord()
             return None
@@ -862,11 +888,19 @@ class OffsetFreeController:
         k = len(records)
         if k + 2 > records.capacity:
             records.reserve(k + 2)
-        code, warnings, inverse_valid, factorizations, e_hat_next = self._compiled(
-            "controller_step",
-            self._installed_state(),
-            (self._one_call, records.compiled, k, y_arr, y0_arr, *state),
-        )
+        workspace = self._one_call
+        if self._installed_state():
+            code, warnings, inverse_valid, factorizations, e_hat_next = self._compiled(
+                "controller_step_from_rows",
+                True,
+                (workspace, records.compiled, k, y_arr, y0_arr, state[5], state[7], state[8]),
+            )
+        else:
+            code, warnings, inverse_valid, factorizations, e_hat_next = self._compiled(
+                "controller_step",
+                False,
+                (workspace, records.compiled, k, y_arr, y0_arr, *state),
+            )
         if code == one_call.STEP_GENERAL:
             return None, False
         return self._finish_one_call(
@@ -914,7 +948,7 @@ class OffsetFreeController:
         mpc.qp_iterations = int(rows.integer[k, one_call.SOLVER_ITERATIONS])  # type: ignore[attr-defined]
         self._y0 = y0
         self._requested_phi = y0_arr
-        self._installed = (x_hat, d_hat, last_z, last_target, previous_u, y0)
+        self._installed = (x_hat, d_hat, last_z, last_target, previous_u, y0, k)
         self._last_reference = _RECORDED
         self._last_reference_row = k
         if warnings:

@@ -78,8 +78,10 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
         from ltv_lstm_mpc.solvers import daqp_socp
 
         kernels += [
-            compiled_step.controller_step, compiled_step._new_step_workspace,
-            compiled_step._new_record_arrays,
+            compiled_step.controller_step, compiled_step.controller_step_from_rows,
+            compiled_step.prepare_step, compiled_step.prepare_step_from_rows,
+            compiled_step.feedback_step, compiled_step.feedback_step_from_rows,
+            compiled_step._new_step_workspace, compiled_step._new_record_arrays,
         ]  # fmt: skip
         # the workspace of the feedback it does not run is a placeholder of that type
         placeholder = (

@@ -28,7 +28,9 @@ __all__ = ["compile_in_background", "warm_up"]
 def warm_up(model: LSTMModel, config: MPCConfig, *, steps: int = 3) -> float:
     """Compile (or load from numba's cache) every kernel a controller with ``config`` on
     ``model`` calls, by building one on a compiled kernel and running ``steps`` steps at
-    the equilibrium of ``u = 0`` with the model as its own plant. Returns the wall time
+    the equilibrium of ``u = 0`` with the model as its own plant (and a few steps
+    prepared between samples, :meth:`OffsetFreeController.prepare_next
+    <ltv_lstm_mpc.OffsetFreeController.prepare_next>`). Returns the wall time
     in seconds. ``ltv-lstm-mpc warmup`` calls it."""
     import time
 
@@ -38,7 +40,12 @@ def warm_up(model: LSTMModel, config: MPCConfig, *, steps: int = 3) -> float:
     controller = OffsetFreeController(twin, config, kernels="compiled")
     x_bar = twin.equilibrium(np.zeros(twin.m))
     y = np.asarray(twin.denormalize_y(twin.output(x_bar)), dtype=np.float64)
-    for _ in range(steps):
+    for _ in range(steps):  # the first step general, then one-call steps
+        controller.step(y, y)
+    controller.reset()
+    controller.step(y, y)
+    for _ in range(2):  # prepared steps: after a general step, then after a one-call one
+        controller.prepare_next()
         controller.step(y, y)
     return time.perf_counter() - start
 
