@@ -23,7 +23,8 @@ from ltv_lstm_mpc.loop import compiled_step
 from ltv_lstm_mpc.lstm.shipped import load_model
 
 pytestmark = pytest.mark.skipif(
-    not daqp_native.ready(), reason=f"DAQP not bound natively: {daqp_native.unavailable_reason}"
+    daqp_native.native({}) is None,  # binds and self-tests (compiles on an empty cache)
+    reason=f"DAQP not bound natively: {daqp_native.unavailable_reason}",
 )
 
 SOLVERS = ["daqp"] + (["daqp:socp"] if "daqp:socp" in available_solvers() else [])
@@ -34,15 +35,18 @@ def feedback_codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
     """Counts of the prepared steps' return codes (``feedback_step`` and
     ``feedback_step_from_rows``)."""
     counts: Counter[int] = Counter()
-    for name in ("feedback_step", "feedback_step_from_rows"):
-        original = getattr(compiled_step, name)
+    original = OffsetFreeController._compiled
+    names = ("feedback_step", "feedback_step_from_rows")
 
-        def counting(*args: Any, original: Any = original) -> Any:
-            answer = original(*args)
+    def counting(self: Any, name: str, fast: bool, arguments: Any) -> Any:
+        answer = original(self, name, fast, arguments)
+        if name in names:
             counts[answer[0]] += 1
-            return answer
+        return answer
 
-        monkeypatch.setattr(compiled_step, name, counting)
+    # at the controller's call, not by replacing the compiled functions (the "_from_rows"
+    # ones call them from compiled code: a Python stand-in cannot be compiled into them)
+    monkeypatch.setattr(OffsetFreeController, "_compiled", counting)
     return counts
 
 
@@ -258,3 +262,23 @@ def test_a_reset_or_a_new_estimate_puts_the_preparation_aside() -> None:
         np.testing.assert_array_equal(prepared.step(y, 7.3), plain.step(y, 7.3))
     worst, where = _worst(prepared.records, plain.records)
     assert worst == 0.0, where
+
+
+def test_a_setting_changed_after_a_preparation_puts_it_aside() -> None:
+    """The reference calculator's tolerance changed between ``prepare_next`` and ``step``:
+    the controller rebuilds its one-call workspace, puts the preparation aside (the chord's
+    inverse Jacobian as before it) and the steps are those of a controller that never
+    prepared, with the same change."""
+    prepared, plain = _pair()
+    for y in (7.05, 7.1):
+        assert prepared.prepare_next(7.3) is True
+        np.testing.assert_array_equal(prepared.step(y, 7.3), plain.step(y, 7.3))
+    assert prepared.prepare_next(7.3) is True
+    for controller in (prepared, plain):
+        controller.reference.tol = 1e-11
+    for y in (7.12, 7.15, 7.2):
+        np.testing.assert_array_equal(prepared.step(y, 7.3), plain.step(y, 7.3))
+        assert prepared.prepare_next(7.3) is True
+    worst, where = _worst(prepared.records, plain.records)
+    assert worst == 0.0, where
+    assert prepared.reference.counts == plain.reference.counts

@@ -327,6 +327,10 @@ def prepare_step(
     t0 = _now(clock)
     chord, trajectories, condensing = step.chord, step.trajectories, step.condensing
     cand = step.cand
+    backup, Jinv = step.jinv_backup, chord.Jinv
+    for r in range(Jinv.shape[0]):  # first: whatever this call returns, the backup is its own
+        for c in range(Jinv.shape[1]):
+            backup[r, c] = Jinv[r, c]
     p = y0_phi.shape[0]
     m = step.u_min.shape[0]
     n2 = x_hat.shape[0]
@@ -358,10 +362,6 @@ def prepare_step(
     for j in range(p):
         target[j] = y0[j] - d_hat[j]
         target_step[j] = target[j] - last_target[j] if last_target.shape[0] else 0.0
-    backup, Jinv = step.jinv_backup, chord.Jinv
-    for r in range(Jinv.shape[0]):
-        for c in range(Jinv.shape[1]):
-            backup[r, c] = Jinv[r, c]
     chord.state[0] = jinv_valid
     z = records.z[k]
     residual = chord_newton(chord, last_z, target, target_step, step.tol, step.max_iter, z)

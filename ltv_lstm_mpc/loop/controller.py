@@ -642,7 +642,8 @@ class OffsetFreeController:
             return np.array(values, dtype=np.float64)  # an owned, C-contiguous copy
 
         self._one_call_requested = np.zeros(p)  # the workspace's ``requested``
-        self._jinv_backup = np.zeros_like(reference._Jinv_buffer)
+        if getattr(self, "_jinv_backup", None) is None:  # kept when the workspace is rebuilt
+            self._jinv_backup = np.zeros_like(reference._Jinv_buffer)
         self._y_buffer, self._y0_buffer = np.zeros(p), np.zeros(p)
         self._one_call_settings = self._one_call_settings_now()
         return one_call.new_step_workspace(
