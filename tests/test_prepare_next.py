@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from ltv_lstm_mpc.solvers import available_solvers, daqp_native
 from test_one_call_step import _worst
 
@@ -282,3 +284,82 @@ def test_a_setting_changed_after_a_preparation_puts_it_aside() -> None:
     worst, where = _worst(prepared.records, plain.records)
     assert worst == 0.0, where
     assert prepared.reference.counts == plain.reference.counts
+
+
+@settings(max_examples=15)
+@given(
+    operations=st.lists(
+        st.tuples(
+            st.sampled_from(["step", "prepare next", "prepare wrong", "prepare last", "reset"]),
+            st.sampled_from([6.9, 7.0, 7.2, 7.4]),
+        ),
+        min_size=5,
+        max_size=25,
+    )
+)
+def test_any_sequence_of_steps_and_preparations_matches_a_controller_that_never_prepares(
+    operations: list[tuple[str, float]],
+) -> None:
+    """Random interleavings of steps (random set-points), preparations for the next step's
+    set-point, a wrong one or the last one, and resets: every input and record equals
+    those of a controller that only steps (same steps, same resets), and a preparation
+    for the next step's set-point, followed by that step, is used by it."""
+    prepared, plain, feedbacks = _cached_pair()
+    prepared.reset()
+    plain.reset()
+    y, last = 7.0, None
+    expect_used = False
+    for index, (operation, setpoint) in enumerate(operations):
+        if operation == "step":
+            before = feedbacks[0]
+            u = prepared.step(y, setpoint)
+            np.testing.assert_array_equal(u, plain.step(y, setpoint))
+            assert feedbacks[0] == before + (1 if expect_used else 0)
+            y, last = 0.5 * (y + setpoint), setpoint  # a plausible measurement
+            expect_used = False
+        elif operation == "reset":
+            prepared.reset()
+            plain.reset()
+            y, last, expect_used = 7.0, None, False
+        else:
+            following = [s for o, s in operations[index + 1 :] if o == "step"]
+            if operation == "prepare last":
+                for_setpoint = last
+                answer = prepared.prepare_next()
+            else:
+                if operation == "prepare next" and following:
+                    for_setpoint = following[0]
+                else:
+                    for_setpoint = setpoint + 0.05
+                answer = prepared.prepare_next(for_setpoint)
+            next_is_step = index + 1 < len(operations) and operations[index + 1][0] == "step"
+            expect_used = answer and next_is_step and for_setpoint == following[0]
+    worst, where = _worst(prepared.records, plain.records)
+    assert worst == 0.0, where
+    assert prepared.e_hat == plain.e_hat
+
+
+_PAIR: list[Any] = []
+
+
+def _cached_pair() -> tuple[Any, Any, list[int]]:
+    """Two controllers built once for the property test (reset by it), and the count of
+    the first one's prepared feedback calls."""
+    if not _PAIR:
+        model = load_model("ph_lstm_n5.npz")
+        config = MPCConfig(solver="daqp", N=5)
+        pair = [
+            OffsetFreeController(model, config, kernels="compiled", setpoint_rate_limit=0.05)
+            for _ in range(2)
+        ]
+        feedbacks = [0]
+        compiled = pair[0]._compiled
+
+        def counting(name: str, fast: bool, arguments: Any) -> Any:
+            if name.startswith("feedback_step"):
+                feedbacks[0] += 1
+            return compiled(name, fast, arguments)
+
+        pair[0]._compiled = counting  # type: ignore[method-assign]
+        _PAIR.extend([*pair, feedbacks])
+    return _PAIR[0], _PAIR[1], _PAIR[2]
