@@ -60,6 +60,7 @@ FloatArray = NDArray[np.float64]
 _RECORDED = object()
 #: An empty vector: "none" for the one-call step's optional vector arguments.
 _NO_VALUES = np.zeros(0)
+_FLOAT64 = np.dtype(np.float64)  # numpy's one native float64 dtype (compared by identity)
 
 
 def _same_state(now: tuple[Any, ...] | None, prepared: tuple[Any, ...]) -> bool:
@@ -747,7 +748,7 @@ class OffsetFreeController:
     @staticmethod
     def _vector(name: str, value: Any, buffer: FloatArray) -> FloatArray:
         if type(value) is np.ndarray:
-            if value.dtype == np.float64 and value.shape == buffer.shape and value.flags.carray:
+            if value.dtype is _FLOAT64 and value.shape == buffer.shape and value.flags.carray:
                 return value
         elif isinstance(value, float) and buffer.shape[0] == 1:  # float and numpy.float64
             buffer[0] = value
