@@ -17,8 +17,11 @@ alternating ABBA, each controller with its own plant, the garbage collector paus
   input (feedback, exit gate, observer update), and ``between`` the preparation's own time;
 
 and prints per controller the median, p95 and p99 of the full ``step``, the jitter
-p95/median, the medians of ``prepare`` and ``feedback`` (microseconds) and of the
-preparation ``between`` samples, the ratio of each median step to the one-call daqp step,
+p95/median, the medians of ``prepare`` and ``feedback`` (microseconds), of the
+preparation ``between`` samples and, for the one-call controllers, of the step's
+``python`` time (the step's wall time less the time its records give to the compiled
+calls of the step: the Python around them and the call boundary), the ratio of each
+median step to the one-call daqp step,
 and the largest difference of the applied input to the general daqp path (mL/s: 0 for the
 one-call and prepared steps, which compute the same numbers).
 
@@ -104,8 +107,14 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
     skip = 10  # first steps: cold caches, first reference solve
     out: dict[str, dict[str, Any]] = {}
     for j, (label, ctrl, _) in enumerate(runs):
-        mpc = [r.mpc for r in ctrl.records[skip:]]
+        records = ctrl.records[skip:]
+        mpc = [r.mpc for r in records]
+        # time inside the compiled calls of the step (a prepared step: its feedback half)
+        inside = [r.time_total - (r.time_reference + r.mpc.prepare_time) for r in records]
+        if not prepared[j]:
+            inside = [r.time_total for r in records]
         out[label] = {
+            "python": np.array(times[j][skip:]) - np.array(inside),
             "total": np.array(times[j][skip:]),
             "prepare": np.array([s.prepare_time for s in mpc]),
             "feedback": np.array([s.feedback_time for s in mpc]),
@@ -123,7 +132,8 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
     print(f"\nN = {N} (microseconds; ratio: median step / daqp one-call)")
     print(
         f"{'controller':>14} {'median':>8} {'p95':>8} {'p99':>8} {'p95/med':>8} "
-        f"{'prepare':>8} {'feedback':>8} {'between':>8} {'ratio':>6} {'max |du|':>9}"
+        f"{'prepare':>8} {'feedback':>8} {'between':>8} {'python':>7} {'ratio':>6} "
+        f"{'max |du|':>9}"
     )
     for label, data in result.items():
         total = data["total"] * 1e6
@@ -131,10 +141,11 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
         p95, p99 = (float(v) for v in np.percentile(total, [95, 99]))
         gap = float(np.abs(data["u"] - reference).max())
         between = f"{np.median(data['between']) * 1e6:8.1f}" if data["between"].size else " " * 8
+        python = f"{np.median(data['python']) * 1e6:7.1f}" if data["one_call"] else " " * 7
         print(
             f"{label:>14} {median:8.1f} {p95:8.1f} {p99:8.1f} {p95 / median:8.2f} "
             f"{np.median(data['prepare']) * 1e6:8.1f} {np.median(data['feedback']) * 1e6:8.1f} "
-            f"{between} {median / (base * 1e6):6.2f} {gap:9.1e}"
+            f"{between} {python} {median / (base * 1e6):6.2f} {gap:9.1e}"
         )
     cones = float(np.median(result["exact cones"]["total"]))
     socp = float(np.median(result["cones daqp:socp"]["total"]))

@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.caller_warnings import RunWarnings
 from ltv_lstm_mpc.certificates.certify import Certification
+from ltv_lstm_mpc.deferred_state import Deferred, DeferredState, defer, settle
 from ltv_lstm_mpc.exceptions import (
     ArgumentTypeError,
     InvalidValueError,
@@ -61,6 +62,8 @@ _RECORDED = object()
 #: An empty vector: "none" for the one-call step's optional vector arguments.
 _NO_VALUES = np.zeros(0)
 _FLOAT64 = np.dtype(np.float64)  # numpy's one native float64 dtype (compared by identity)
+#: The one-call step's rate limit without a limiter.
+_NO_LIMIT = math.nan
 
 
 def _same_state(now: tuple[Any, ...] | None, prepared: tuple[Any, ...]) -> bool:
@@ -74,6 +77,14 @@ def _same_state(now: tuple[Any, ...] | None, prepared: tuple[Any, ...]) -> bool:
     limit, prepared_limit = now[8], prepared[8]
     same_limit = limit == prepared_limit or (math.isnan(limit) and math.isnan(prepared_limit))
     return bool(now[5] == prepared[5] and now[7] == prepared[7] and same_limit)
+
+
+def _same_arguments(now: tuple[int, float, float], prepared: tuple[int, float, float]) -> bool:
+    """Whether the ``*_from_rows`` arguments ``(jinv_valid, e_hat, rate_limit)`` are those
+    a preparation used (NaN, no limiter, equal to NaN)."""
+    limit, prepared_limit = now[2], prepared[2]
+    same_limit = limit == prepared_limit or (math.isnan(limit) and math.isnan(prepared_limit))
+    return now[0] == prepared[0] and now[1] == prepared[1] and same_limit
 
 
 def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
@@ -198,7 +209,7 @@ class ControllerStep:
         return self.time_observer + self.time_reference + self.time_mpc
 
 
-class OffsetFreeController:
+class OffsetFreeController(DeferredState):
     r"""Robust offset-free LSTM MPC (paper Fig. 1) with physical inputs and outputs.
 
     Parameters
@@ -250,6 +261,12 @@ class OffsetFreeController:
     set-point status, :math:`\hat d` saturation) point at the caller's line, are shown once
     per run and counted in ``warning_counts``.
     """
+
+    # The limiter's last set-point (normalized) and the state the last one-call step left,
+    # as written into the owners (a one-call step leaves them deferred in its record row:
+    # ltv_lstm_mpc.deferred_state).
+    _y0 = Deferred[FloatArray | None]()
+    _installed = Deferred[tuple[Any, ...] | None]()
 
     def __init__(
         self,
@@ -321,6 +338,9 @@ class OffsetFreeController:
         self.monitor: AssumptionMonitor | None = monitor
         self.warnings = RunWarnings()
         self._entries: dict[str, Any] = {}  # compiled entry points (_compiled)
+        #: (record rows, k, inverse Jacobian valid): the state one-call step k left deferred
+        #: in its row (_defer_state; None: written into the owners).
+        self._deferred: tuple[SimpleNamespace, int, int] | None = None
         self._prepared: tuple[Any, ...] | None = None  # what prepare_next prepared
         #: The one-call step's constants and buffers (None: the general path only).
         self._one_call: Any = self._one_call_workspace() if mpc is None and one_call_step else None
@@ -347,8 +367,9 @@ class OffsetFreeController:
 
     def reset(self) -> None:
         """Back to the uninitialized state (the next step initializes the observer)."""
+        self._settle()
         self._initialized = False
-        self._y0: FloatArray | None = None
+        self._y0 = None
         self._last_reference: Any = None  # the last admissible one (or _RECORDED)
         self._last_converged: ReferenceSolution | None = None  # before any admissible one
         tightening = self.certification.tightening
@@ -368,7 +389,7 @@ class OffsetFreeController:
         self.warnings.reset()
         self._interval: tuple[float, list[float], list[float]] = (math.nan, [], [])
         self._prepared = None
-        self._installed: tuple[Any, ...] | None = None  # state the last one-call step left
+        self._installed = None
         self._requested_phi: FloatArray | None = None  # the set-point the last step requested
 
     def _limit(self, y0_target: FloatArray) -> FloatArray:
@@ -680,7 +701,8 @@ class OffsetFreeController:
         """The state arguments of the compiled step, ``(y0_previous, x_hat, d_hat, last_z,
         last_target, jinv_valid, previous_u, e_hat, rate_limit)``, or None where the
         one-call step cannot run now (no plan or reference yet, or a limiter without its
-        last set-point: the general path then runs)."""
+        last set-point: the general path then runs). Reading them writes a deferred state
+        into its owners (:mod:`ltv_lstm_mpc.deferred_state`)."""
         mpc: Any = self.mpc
         reference, observer = self.reference, self.observer
         previous_u, last_z = mpc._previous_u, reference._last_z
@@ -692,9 +714,7 @@ class OffsetFreeController:
             rate_limit = math.nan
         elif y0_previous is None:
             return None
-        if self._one_call_settings_now() != self._one_call_settings:  # changed by the user
-            self._one_call = self._one_call_workspace()
-            self._entries.clear()
+        self._check_settings()
         last_target = reference._last_target
         return (
             _NO_VALUES if y0_previous is None else y0_previous, observer.x_hat,
@@ -702,28 +722,96 @@ class OffsetFreeController:
             1 if reference._Jinv is not None else 0, previous_u, self.e_hat, float(rate_limit),
         )  # fmt: skip
 
-    def _installed_state(self) -> bool:
-        """Whether every state argument is the one the last step, a one-call step, left
-        (views of its record row, so of the types the compiled entry points were resolved
-        for: the ``*_from_rows`` calls read them there)."""
+    def _check_settings(self) -> None:
+        """A new workspace where the user changed one of the settings it holds."""
+        if self._one_call_settings_now() != self._one_call_settings:
+            self._one_call = self._one_call_workspace()
+            self._entries.clear()
+
+    def _rows_arguments(self, k: int) -> tuple[int, float, float] | None:
+        """``(jinv_valid, e_hat, rate_limit)`` for the ``*_from_rows`` calls of one-call step
+        ``k`` when the state it starts from is the one one-call step ``k - 1`` left in its
+        record row (still deferred and untouched, or written into the owners and unchanged
+        since: :meth:`_installed_state`), so that the compiled entry points apply; None
+        otherwise (the state is passed as arguments, through numba's dispatcher), and then
+        no state is left deferred: a step that runs from a deferred state ran from rows."""
+        e_hat = self.e_hat
+        deferred = self._deferred
+        if type(e_hat) is not float or not self.mpc._plan_valid:  # type: ignore[attr-defined]
+            self._settle()
+            return None
+        if deferred is not None:
+            if deferred[1] != k - 1:
+                self._settle()
+                return None
+            jinv_valid = deferred[2]
+        elif self._installed_state(k):
+            jinv_valid = 0 if self.reference._Jinv is None else 1
+            self._check_settings()  # (deferred: a setting assigned since would have settled)
+        else:
+            return None
+        rate_limit = self.setpoint_rate_limit
+        return jinv_valid, e_hat, _NO_LIMIT if rate_limit is None else float(rate_limit)
+
+    def _installed_state(self, k: int) -> bool:
+        """Whether every state argument is the one one-call step ``k - 1`` left, written
+        into the owners (views of its record row, of the types the compiled entry points
+        were resolved for)."""
         installed = self._installed
-        if installed is None:
+        if installed is None or installed[6] != k - 1:
             return False
         reference, observer, mpc = self.reference, self.observer, self.mpc
         return (
-            installed[6] == len(self.records) - 1
-            and observer.x_hat is installed[0]
+            observer.x_hat is installed[0]
             and observer.d_hat is installed[1]
             and reference._last_z is installed[2]
             and reference._last_target is installed[3]
             and mpc._previous_u is installed[4]  # type: ignore[attr-defined]
             and self._y0 is installed[5]
-            and type(self.e_hat) is float
         )
+
+    def _defer_state(self) -> None:
+        """Leave the state of the last one-call step in its record row: the owners go
+        without it until it is first read (:mod:`ltv_lstm_mpc.deferred_state`;
+        :meth:`_settle` writes it)."""
+        settle_state = self._settle
+        defer(self.observer, settle_state)
+        defer(self.reference, settle_state)
+        defer(self.mpc, settle_state)  # type: ignore[arg-type]
+        defer(self, settle_state)
+        problem = self.mpc._problem  # type: ignore[attr-defined]
+        problem.scale = math.nan  # prepare sets it again before any general feedback
+        problem._last.clear()
+
+    def _settle(self) -> None:
+        """Write the state the last one-call step k left in its record row into the
+        observer (estimates of row k + 1), the reference calculator (last solution and
+        target, inverse Jacobian), the MPC (plan, times) and this controller (set-point),
+        as views of the row (never written again); a value assigned since is kept."""
+        deferred = self._deferred
+        if deferred is None:
+            return
+        self._deferred = None
+        rows, k, inverse_valid = deferred
+        x_hat, d_hat = rows.x_hat[k + 1], rows.d_hat[k + 1]
+        last_z, last_target, previous_u, y0 = rows.z[k], rows.target[k], rows.u_plan[k], rows.y0[k]
+        reference = self.reference
+        jinv = reference._Jinv_buffer if inverse_valid == 1 else None
+        solver_time, prepare_time, feedback_time = rows.real[
+            k, one_call.SOLVER_TIME : one_call.FEEDBACK_TIME + 1
+        ].tolist()
+        settle(self.observer, {"x_hat": x_hat, "d_hat": d_hat})
+        settle(reference, {"_last_z": last_z, "_last_target": last_target, "_Jinv": jinv})
+        times = {"solver_time": solver_time, "prepare_time": prepare_time}
+        times["feedback_time"] = feedback_time
+        iterations = int(rows.integer[k, one_call.SOLVER_ITERATIONS])
+        settle(self.mpc, {"_previous_u": previous_u, **times, "qp_iterations": iterations})  # type: ignore[arg-type]
+        installed = (x_hat, d_hat, last_z, last_target, previous_u, y0, k)
+        settle(self, {"_y0": y0, "_installed": installed})
 
     def _compiled(self, name: str, fast: bool, arguments: tuple[Any, ...]) -> Any:
         """Call ``compiled_step.<name>``: through its entry point when ``fast`` (all
-        arguments of the types it was resolved for: :func:`_installed_state`), otherwise
+        arguments of the types it was resolved for: :meth:`_rows_arguments`), otherwise
         through numba's dispatcher (which checks the types), resolving the entry point."""
         entry = self._entries.get(name) if fast else None
         if entry:
@@ -802,28 +890,31 @@ class OffsetFreeController:
         if self._one_call is None or not self._initialized or requested is None:
             return False
         y0_arr = np.array(requested, dtype=np.float64)  # an owned, C-contiguous copy
-        state = self._one_call_state()
-        if state is None:
-            return False
         records = self.records
         k = len(records)
         if k + 2 > records.capacity:
             records.reserve(k + 2)
-        workspace = self._one_call
-        if self._installed_state():
+        from_rows = self._rows_arguments(k)
+        state = None
+        if from_rows is not None:
             code, inverse_valid, factorizations = self._compiled(
                 "prepare_step_from_rows",
                 True,
-                (workspace, records.compiled, k, y0_arr, state[5], state[7], state[8]),
+                (self._one_call, records.compiled, k, y0_arr, *from_rows),
             )
         else:
+            state = self._one_call_state()
+            if state is None:
+                return False
             code, inverse_valid, factorizations = self._compiled(
-                "prepare_step", False, (workspace, records.compiled, k, y0_arr, *state)
+                "prepare_step", False, (self._one_call, records.compiled, k, y0_arr, *state)
             )
         if code != one_call.STEP_DONE:
             self._restore_chord()
             return False
-        self._prepared = (k, y0_arr.tolist(), state, workspace, inverse_valid, factorizations)
+        self._prepared = (
+            k, y0_arr.tolist(), from_rows, state, self._one_call, inverse_valid, factorizations,
+        )  # fmt: skip
         return True
 
     def _discard_preparation(self) -> None:
@@ -845,22 +936,27 @@ class OffsetFreeController:
         prepared = self._prepared
         assert prepared is not None
         self._prepared = None
-        k, y0_prepared, state, workspace, inverse_valid, factorizations = prepared
+        k, y0_prepared, from_rows, state, workspace, inverse_valid, factorizations = prepared
         y_arr, y0_arr = self._signals(y_phi, y0_phi)
         records = self.records
-        if (
-            k != len(records)
-            or y0_arr.tolist() != y0_prepared
-            or not _same_state(self._one_call_state(), state)
-            or self._one_call is not workspace
-        ):
+        usable = k == len(records)
+        if usable and from_rows is not None:
+            now = self._rows_arguments(k)
+            usable = now is not None and _same_arguments(now, from_rows)
+        elif usable:
+            usable = _same_state(self._one_call_state(), state)
+        # (after the state checks: they build a new workspace where a setting changed)
+        if not usable or self._one_call is not workspace or y0_arr.tolist() != y0_prepared:
             self._restore_chord()
             return None
-        if self._installed_state():
+        if from_rows is not None:
             code, warnings, e_hat_next = self._compiled(
-                "feedback_step_from_rows", True, (workspace, records.compiled, k, y_arr, state[7])
+                "feedback_step_from_rows",
+                True,
+                (workspace, records.compiled, k, y_arr, from_rows[1]),
             )
         else:
+            assert state is not None
             code, warnings, e_hat_next = self._compiled(
                 "feedback_step",
                 False,
@@ -882,26 +978,27 @@ class OffsetFreeController:
             answer = self._step_prepared(y_phi, y0_phi)
             if answer is not None:
                 return answer
-        state = self._one_call_state()
-        if state is None:
-            return None, False
-        y_arr, y0_arr = self._signals(y_phi, y0_phi)
         records = self.records
         k = len(records)
+        from_rows = self._rows_arguments(k)
+        state = None if from_rows is not None else self._one_call_state()
+        if from_rows is None and state is None:
+            return None, False
+        y_arr, y0_arr = self._signals(y_phi, y0_phi)
         if k + 2 > records.capacity:
             records.reserve(k + 2)
         workspace = self._one_call
-        if self._installed_state():
+        if from_rows is not None:
             code, warnings, inverse_valid, factorizations, e_hat_next = self._compiled(
                 "controller_step_from_rows",
                 True,
-                (workspace, records.compiled, k, y_arr, y0_arr, state[5], state[7], state[8]),
+                (workspace, records.compiled, k, y_arr, y0_arr, *from_rows),
             )
         else:
             code, warnings, inverse_valid, factorizations, e_hat_next = self._compiled(
                 "controller_step",
                 False,
-                (workspace, records.compiled, k, y_arr, y0_arr, *state),
+                (workspace, records.compiled, k, y_arr, y0_arr, *state),  # type: ignore[misc]
             )
         if code == one_call.STEP_GENERAL:
             return None, False
@@ -919,15 +1016,14 @@ class OffsetFreeController:
         e_hat_next: float,
         y0_arr: FloatArray,
     ) -> FloatArray | tuple[tuple[FloatArray, float, int, bool] | None, bool]:
-        """After a compiled step or feedback: what the general path leaves behind, as views
-        of row ``k`` (never written again), and the input; or, when the compiled call did
-        not accept, the chord's outcome for the general path."""
-        reference, observer, mpc = self.reference, self.observer, self.mpc
+        """After a compiled step or feedback: the input, with the state the step left
+        deferred in its record row k (:meth:`_defer_state`); or, when the compiled call
+        did not accept, the chord's outcome for the general path."""
         records = self.records
         rows = records.rows
         assert rows is not None
-        reference.adopt_chord_state(inverse_valid, factorizations)
         if code != one_call.STEP_DONE:
+            self.reference.adopt_chord_state(inverse_valid, factorizations)
             chord_row = rows.integer[k]
             chord = (
                 rows.z[k].copy(),
@@ -936,21 +1032,12 @@ class OffsetFreeController:
                 bool(chord_row[one_call.CHORD_OK]),
             )
             return chord, code == one_call.STEP_FEEDBACK
-        x_hat, d_hat = rows.x_hat[k + 1], rows.d_hat[k + 1]
-        last_z, last_target, previous_u, y0 = rows.z[k], rows.target[k], rows.u_plan[k], rows.y0[k]
-        reference._last_z, reference._last_target = last_z, last_target
-        observer.x_hat, observer.d_hat = x_hat, d_hat
-        mpc._previous_u = previous_u  # type: ignore[attr-defined]
-        problem = mpc._problem  # type: ignore[attr-defined]
-        problem.scale = math.nan  # prepare sets it again before any general feedback
-        if problem._last:
-            problem._last.clear()
-        times = rows.real[k, one_call.SOLVER_TIME : one_call.FEEDBACK_TIME + 1].tolist()
-        mpc.solver_time, mpc.prepare_time, mpc.feedback_time = times  # type: ignore[attr-defined]
-        mpc.qp_iterations = int(rows.integer[k, one_call.SOLVER_ITERATIONS])  # type: ignore[attr-defined]
-        self._y0 = y0
+        if factorizations:
+            self.reference.counts["factorizations"] += factorizations
+        if self._deferred is None:  # else deferred since step k - 1 and untouched: kept so
+            self._defer_state()
+        self._deferred = (rows, k, inverse_valid)
         self._requested_phi = y0_arr
-        self._installed = (x_hat, d_hat, last_z, last_target, previous_u, y0, k)
         self._last_reference = _RECORDED
         self._last_reference_row = k
         if warnings:

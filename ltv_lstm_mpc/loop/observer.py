@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.stability import ObserverGains
+from ltv_lstm_mpc.deferred_state import Deferred, DeferredState
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.compiled_observer import new_observer_workspace, observer_update
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
@@ -32,7 +33,7 @@ __all__ = ["Observer"]
 FloatArray = NDArray[np.float64]
 
 
-class Observer:
+class Observer(DeferredState):
     r"""LSTM state and output-disturbance observer, eq. (lstm_observer).
 
     Parameters
@@ -47,6 +48,11 @@ class Observer:
         Initial estimate; default zero state and zero disturbance. Use
         :meth:`initialize` to start at the equilibrium matching a measurement.
     """
+
+    #: The estimates :math:`\hat x, \hat d` (a one-call step of the controller may leave
+    #: them in its record row until first used: :mod:`ltv_lstm_mpc.deferred_state`).
+    x_hat = Deferred[FloatArray]()
+    d_hat = Deferred[FloatArray]()
 
     def __init__(
         self,

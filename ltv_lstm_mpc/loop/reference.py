@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 # K_bar of Lemma 5 is a certificate number: its home is certificates/reference_gain.py
 # (re-exported here, where it was first defined).
 from ltv_lstm_mpc.certificates.reference_gain import KBarEstimate, estimate_K_bar
+from ltv_lstm_mpc.deferred_state import Deferred, DeferredSetting, DeferredState
 from ltv_lstm_mpc.exceptions import UnreachableSetpointError
 from ltv_lstm_mpc.loop.compiled_reference import chord_newton, new_chord_workspace
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
@@ -76,7 +77,7 @@ class ReferenceSolution:
         return self.converged and self.u_admissible
 
 
-class ReferenceCalculator:
+class ReferenceCalculator(DeferredState):
     r"""Solve eq. (reference_calculation) by Newton's method with warm start.
 
     Parameters
@@ -108,6 +109,16 @@ class ReferenceCalculator:
     starts are tried and the admissible solution closest to the previous one is returned;
     strict mode raises only when none of them is admissible.
     """
+
+    # The warm start: the last solution [x_bar; u_bar], its target y0 - d_hat and the kept
+    # inverse Jacobian (a one-call step may leave them deferred: ltv_lstm_mpc.deferred_state).
+    _last_z = Deferred[FloatArray | None]()
+    _last_target = Deferred[FloatArray | None]()
+    _Jinv = Deferred[FloatArray | None]()
+    # Settings the controller's one-call workspace holds (assigning one ends a deferral).
+    tol = DeferredSetting[float]()
+    max_iter = DeferredSetting[int]()
+    jump = DeferredSetting[float]()
 
     def __init__(
         self,
@@ -142,15 +153,15 @@ class ReferenceCalculator:
         self._eye = np.eye(n2)
         self._jacobian = np.zeros((n2 + m, n2 + m))
         self._jacobian[n2:, model.n : n2] = model.W_y
-        self._last_z: FloatArray | None = None  # previous solution [x_bar; u_bar]
+        self._last_z = None  # previous solution [x_bar; u_bar]
         # Warm path (chord Newton on the model's kernel): _chord_numpy or its compiled twin.
         self._traj = model.kernel.trajectory(1)
         self._z_view = self._traj.S[0, : n2 + m]
         self._chord_jacobian = self._jacobian.copy()
         self._chord_F = np.empty(n2 + m)
         self._diag = np.arange(n2)
-        self._Jinv: FloatArray | None = None
-        self._last_target: FloatArray | None = None
+        self._Jinv = None
+        self._last_target = None
         self._compiled = model.kernel.compiled  # the warm path in one numba call
         #: The chord-Newton warm path, chosen once: compiled twin or numpy reference.
         self._chord = self._chord_compiled if self._compiled else self._chord_numpy

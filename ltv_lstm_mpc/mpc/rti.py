@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.certify import Certification, certify, u_max_extrapolation
+from ltv_lstm_mpc.deferred_state import Deferred, DeferredSetting, DeferredState
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.compiled_plan import new_plan_workspace, plan_metrics
@@ -173,7 +174,7 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
     return kernels
 
 
-class RobustMPC:
+class RobustMPC(DeferredState):
     r"""The robust MPC of eq. (optimization), one RTI core for every transcription.
 
     Parameters
@@ -207,6 +208,16 @@ class RobustMPC:
     prepare_time, feedback_time, solver_time : float
         Wall times of the last :meth:`prepare`, :meth:`feedback` and solver calls, s.
     """
+
+    # The previous plan and the last times (a one-call step of the controller may leave
+    # them deferred in its record row: ltv_lstm_mpc.deferred_state).
+    _previous_u = Deferred[FloatArray | None]()
+    prepare_time = Deferred[float]()
+    feedback_time = Deferred[float]()
+    solver_time = Deferred[float]()
+    qp_iterations = Deferred[int]()
+    #: A setting the controller's one-call workspace holds (assigning it ends a deferral).
+    reuse_tol = DeferredSetting[float]()
 
     def __init__(
         self,
@@ -329,7 +340,7 @@ class RobustMPC:
         self._W_y_T = np.ascontiguousarray(model.W_y.T)
         self._bounds_key: tuple[float, bytes] | None = None
         self._bounds_e: float | None = None
-        self._previous_u: FloatArray | None = None
+        self._previous_u = None
         self._prepared = False
         self._u_bar_projected = False  # the last candidate appends u_bar projected onto U
         # One compiled call for the nominal feedback where the transcription offers it
