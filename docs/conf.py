@@ -57,7 +57,7 @@ nitpick_ignore_regex = [
     # private names (a leading underscore) and numba's structref types have no pages
     (r"py:.*", r".*\._[A-Za-z].*"),
     (r"py:.*", r".*(Workspace|Arrays)Type$"),
-    (r"py:class", r"ltv_lstm_mpc\.validation\.T"),  # a TypeVar
+    (r"py:(class|obj)", r"ltv_lstm_mpc\.(validation|deferred_state)\.T"),  # TypeVars
 ]
 
 sphinx_gallery_conf = {

@@ -49,9 +49,11 @@ class Observer(DeferredState):
         :meth:`initialize` to start at the equilibrium matching a measurement.
     """
 
-    #: The estimates :math:`\hat x, \hat d` (a one-call step of the controller may leave
-    #: them in its record row until first used: :mod:`ltv_lstm_mpc.deferred_state`).
+    #: The state estimate :math:`\hat x` (2n,). Rebound at each update, never mutated; a
+    #: one-call step of the controller leaves it in its record row until it is first
+    #: used (:mod:`ltv_lstm_mpc.deferred_state`).
     x_hat = Deferred[FloatArray]()
+    #: The disturbance estimate :math:`\hat d` (p,), saturated to ``d_max``; like ``x_hat``.
     d_hat = Deferred[FloatArray]()
 
     def __init__(

@@ -216,7 +216,7 @@ class RobustMPC(DeferredState):
     feedback_time = Deferred[float]()
     solver_time = Deferred[float]()
     qp_iterations = Deferred[int]()
-    #: A setting the controller's one-call workspace holds (assigning it ends a deferral).
+    # A setting the controller's one-call workspace holds (assigning it ends a deferral).
     reuse_tol = DeferredSetting[float]()
 
     def __init__(
