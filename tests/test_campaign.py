@@ -537,6 +537,32 @@ def test_cli_runs_on_its_own_local_cluster(tmp_path, capsys) -> None:
     assert all(r["status"] == "ok" and math.isfinite(r["final_offset"]) for r in rows)
 
 
+def test_a_script_without_the_main_guard_is_told_what_to_do(tmp_path) -> None:
+    """run_campaign(workers=2) at a script's top level: each worker process imports the
+    script again; the worker says why it stops, and the script's own error names the
+    guard (instead of multiprocessing's bootstrapping error and "Nanny failed to start")."""
+    pytest.importorskip("distributed")
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        textwrap.dedent(
+            f"""
+            from ltv_lstm_mpc.campaign import parse_spec, run_campaign
+            spec = parse_spec({tiny(seed=[0, 1])!r})
+            run_campaign(spec, {str(tmp_path / "out")!r}, workers=2, progress=False, report=False)
+            """
+        )
+    )
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode != 0
+    last = done.stderr.strip().splitlines()[-1]
+    assert last.startswith("ltv_lstm_mpc.campaign.runner.CampaignError: the LocalCluster")
+    assert 'if __name__ == "__main__":' in last
+    assert "run_campaign was called while a worker process imported the script" in done.stderr
+    assert "bootstrapping phase" not in done.stderr
+
+
 def test_example_specs_parse() -> None:
     folder = Path(__file__).resolve().parents[1] / "experiments" / "campaigns"
     robustness = load_spec(folder / "ph_robustness.toml")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import multiprocessing
 import os
 import signal
 import threading
@@ -55,6 +56,12 @@ __all__ = [
 ]
 
 INSTALL_HINT = "install the extra: python -m pip install 'ltv_lstm_mpc[campaign]'"
+#: Why a LocalCluster started from a script's top level fails, and the fix.
+MAIN_GUARD_HINT = (
+    "the LocalCluster's worker processes start a fresh Python that imports your script "
+    'again, so a script must call run_campaign under `if __name__ == "__main__":` '
+    "(or run serial=True, or on a scheduler=...)"
+)
 
 
 class CampaignError(LtvMpcError, RuntimeError):
@@ -171,19 +178,30 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         finally:
             client.close()
         return
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        # a new worker process importing its parent's script (multiprocessing's own test)
+        raise CampaignError(
+            f"run_campaign was called while a worker process imported the script: {MAIN_GUARD_HINT}"
+        )
     count = workers if workers is not None else (os.cpu_count() or 1)
     with contextlib.ExitStack() as stack:
         # the cluster's threads and worker processes never see Ctrl-C (this thread does)
         with _interrupt_only_this_thread():
-            cluster = stack.enter_context(
-                LocalCluster(
-                    n_workers=count,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=":0",  # a free port: several clusters may run at once
-                    silence_logs=logging.ERROR,
+            try:
+                cluster = stack.enter_context(
+                    LocalCluster(
+                        n_workers=count,
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=":0",  # a free port: several clusters at once
+                        silence_logs=logging.ERROR,
+                    )
                 )
-            )
+            except RuntimeError as error:  # "Nanny failed to start": a worker process died
+                raise CampaignError(
+                    f"the LocalCluster's worker processes did not start ({error}); a likely "
+                    f"cause: {MAIN_GUARD_HINT}"
+                ) from error
             client = stack.enter_context(Client(cluster))
         yield client
 
