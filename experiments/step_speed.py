@@ -30,7 +30,12 @@ on the package index); where ``acados_template`` imports, its SQP-RTI solve is n
 this script either: the acados numbers in the speed notes come from another machine, so
 only the ratios between the rows printed here are measured side by side.
 
+``--alone`` runs each controller's whole loop on its own instead (one after the other): its
+caches stay warm between steps, as a single controller's do, so the ``python`` column shows
+what a single loop pays; the ratios then compare different times of the machine.
+
     python experiments/step_speed.py --steps 300 --N 5 20 50
+    python experiments/step_speed.py --steps 300 --N 5 20 50 --alone
 """
 
 from __future__ import annotations
@@ -63,8 +68,9 @@ CONTROLLERS = (
 REFERENCE = "daqp general"
 
 
-def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
-    """Interleaved closed loops of :data:`CONTROLLERS` at horizon ``N``."""
+def run(N: int, steps: int, alone: bool = False) -> dict[str, dict[str, Any]]:
+    """Interleaved closed loops of :data:`CONTROLLERS` at horizon ``N`` (``alone``: one
+    controller's whole loop after the other's)."""
     model = load_model("ph_lstm_n5.npz")
     scenario = bench_scenarios(model)[0]
     steps = min(steps, len(scenario.setpoints))
@@ -88,20 +94,26 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
     gc.collect()
     gc.disable()
     try:
-        for k in range(steps):
-            order = range(len(runs)) if k % 2 == 0 else reversed(range(len(runs)))
-            for j in order:
-                _, ctrl, plant = runs[j]
+        if alone:  # each controller's loop on its own: its caches stay warm between steps
+            schedule = [(k, j) for j in range(len(runs)) for k in range(steps)]
+        else:  # step by step, order alternating ABBA
+            schedule = [
+                (k, j)
+                for k in range(steps)
+                for j in (range(len(runs)) if k % 2 == 0 else reversed(range(len(runs))))
+            ]
+        for k, j in schedule:
+            _, ctrl, plant = runs[j]
+            t0 = time.perf_counter()
+            u = ctrl.step(outputs[j], scenario.setpoints[k])
+            times[j].append(time.perf_counter() - t0)
+            inputs[j].append(float(u[0]))
+            d = scenario.disturbances[k]
+            outputs[j] = plant.step(u, None if np.isnan(d) else d)
+            if prepared[j] and k + 1 < steps:
                 t0 = time.perf_counter()
-                u = ctrl.step(outputs[j], scenario.setpoints[k])
-                times[j].append(time.perf_counter() - t0)
-                inputs[j].append(float(u[0]))
-                d = scenario.disturbances[k]
-                outputs[j] = plant.step(u, None if np.isnan(d) else d)
-                if prepared[j] and k + 1 < steps:
-                    t0 = time.perf_counter()
-                    ctrl.prepare_next(scenario.setpoints[k + 1])
-                    between[j].append(time.perf_counter() - t0)
+                ctrl.prepare_next(scenario.setpoints[k + 1])
+                between[j].append(time.perf_counter() - t0)
     finally:
         gc.enable()
     skip = 10  # first steps: cold caches, first reference solve
@@ -162,6 +174,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
+    parser.add_argument(
+        "--alone",
+        action="store_true",
+        help="run each controller's loop on its own rather than step by step interleaved "
+        "(warm caches, as a single controller runs; ratios then compare different times)",
+    )
     args = parser.parse_args()
     try:
         import acados_template  # noqa: F401
@@ -170,7 +188,7 @@ def main() -> None:
     except ImportError:
         print("acados: not installed (not on the package index): no acados row")
     for N in args.N:
-        report(N, run(N, args.steps))
+        report(N, run(N, args.steps, args.alone))
 
 
 if __name__ == "__main__":
