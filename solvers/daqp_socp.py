@@ -29,8 +29,20 @@ quadratic near the solution (3-6 iterations on the MPC's terminal cones, measure
 convention: rows and bounds as DAQP's, each cone's :math:`(\lambda_0, \lambda_1) = \mu_j
 (1, -v_j / r_j)`.
 
+Row screening: DAQP forms :math:`M = A R^{-1}` for every general row of a subproblem
+(:math:`R^\top R = W_k`), which is most of its time on the MPC's problems, whose output
+rows are rarely active. Each subproblem therefore gets only the rows that were active in the
+previous one or lie within :data:`SCREENING_MARGIN` times :math:`\|a_i\|_1` times the last
+SQP step of their bounds at :math:`z_k`, with the cones' rows; the others are checked at the
+subproblem's solution, and any that it violates is added and the subproblem solved again
+(the same :math:`W_k`, warm-started from the working set just found). A convex QP whose
+solution satisfies the rows it was not given has the same solution with them, so the SQP
+takes the same iterates; ``screen_rows=False`` gives DAQP every row (the reference the tests
+compare with: the same iterates to rounding, bit for bit on the closed loops measured).
+
 DAQP reports infeasibility of a linearized subproblem; the cones' linearizations are outer
-cutting planes, so an infeasible subproblem proves the problem infeasible. Needs DAQP's C
+cutting planes, so an infeasible subproblem proves the problem infeasible (and a subproblem
+with fewer rows that is infeasible proves the full one infeasible). Needs DAQP's C
 entry point bound natively (:mod:`ltv_lstm_mpc.solvers.daqp_native`): the loop is compiled
 around it.
 """
@@ -54,8 +66,10 @@ from .tolerances import known_settings, solver_options
 
 __all__ = [
     "CONE_TOLERANCE",
+    "SCREENING_MARGIN",
     "SMOOTHING",
     "STEP_TOLERANCE",
+    "STORED_PRODUCTS",
     "DaqpSocpDense",
     "SocpWorkspace",
     "make_dense",
@@ -77,13 +91,22 @@ STEP_TOLERANCE = 1e-7
 CONE_TOLERANCE = 1e-9
 #: Most SQP iterations per solve (then ``MAX_ITER``).
 MAX_ITERATIONS = 50
+#: Row screening (module docstring): a row whose slack at the iterate is at most this times
+#: its 1-norm times the last SQP step goes into the next subproblem. Only speed depends on
+#: it: a row left out that the subproblem's solution violates is added and the subproblem
+#: solved again.
+SCREENING_MARGIN = 2.0
+#: Largest number of entries of the cones' :math:`F_j^\top F_j` a workspace stores (formed
+#: once per solve rather than once per SQP iteration; the same numbers either way).
+STORED_PRODUCTS = 1 << 22
 _BIG = 1e30  # DAQP's "no bound"
 _ACTIVE, _LOWER = 1, 2  # DAQP's sense bits
 
 #: Fields of :data:`SocpWorkspace`, in the order of its compiled constructor.
 SOCP_FIELDS = (
     "H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets", "z", "mu",
-    "hessian", "A_k", "bupper", "blower", "sense", "x", "lam", "v", "w", "linear", "problem",
+    "hessian", "A_k", "bupper", "blower", "sense", "x", "lam", "v", "w", "linear",
+    "gradients", "gradient_bounds", "cone_products", "formed", "kept", "lam_k", "problem",
     "result", "settings",
 )  # fmt: skip
 
@@ -95,10 +118,16 @@ SocpWorkspace = workspace_type(
     The problem: ``H``, ``f``, ``A``, ``lb``, ``ub``, ``lo``, ``up``; the cones stacked: cone
     j is rows ``cone_rows[j]:cone_rows[j + 1]`` of ``F``/``g``, with ``e[j]`` and
     ``offsets[j]`` (its :math:`f_j`). The iterate ``z`` and the cone multipliers ``mu`` (a
-    warm start in, the solution out). Scratch: ``hessian``, ``A_k`` (rows, then one
-    linearized row per cone), ``bupper``, ``blower``, ``sense`` (DAQP's working set,
-    carried from one subproblem to the next), ``x``, ``lam``, ``v``, ``w``, ``linear``;
-    ``problem``, ``result``, ``settings``: DAQP's C structs.
+    warm start in, the solution out), and ``lam``: the multipliers of the last subproblem,
+    bounds, rows, then cones (a row left out has 0). Scratch: the subproblem as DAQP gets
+    it: ``A_k`` (the kept rows, then one linearized row per cone), ``bupper``, ``blower``,
+    ``sense`` (DAQP's working set, carried from one subproblem to the next), ``lam_k``
+    (its multipliers), in their first entries; ``kept`` (1 for a row the subproblem has),
+    ``hessian``, ``x``, ``v``, ``w``, ``linear``, ``gradients`` and ``gradient_bounds`` (the
+    cones' linearized rows), ``cone_products`` (each cone's :math:`F_j^\top F_j`, formed
+    once per solve, where ``formed[j]`` is 1; none, formed as needed, where they would
+    take more than :data:`STORED_PRODUCTS` numbers); ``problem``, ``result``, ``settings``:
+    DAQP's C structs.
     """,
     __name__,
 )
@@ -108,12 +137,14 @@ SocpWorkspaceType = getattr(SocpWorkspace, "numba_type", None)
 @njit(cache=True)
 def _new_socp_workspace(  # type: ignore[no-untyped-def]
     H, f, A, lb, ub, lo, up, F, g, cone_rows, e, offsets, z, mu, hessian, A_k, bupper, blower,
-    sense, x, lam, v, w, linear, problem, result, settings,
+    sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed, kept,
+    lam_k, problem, result, settings,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return SocpWorkspace(
         H, f, A, lb, ub, lo, up, F, g, cone_rows, e, offsets, z, mu, hessian, A_k, bupper,
-        blower, sense, x, lam, v, w, linear, problem, result, settings,
+        blower, sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed,
+        kept, lam_k, problem, result, settings,
     )  # fmt: skip
 
 
@@ -162,42 +193,144 @@ def cone_violation(ws: Any) -> float:
 
 
 @njit(cache=True)
-def socp_solve(ws: Any, warm: bool, max_iterations: int) -> tuple[int, int, int, float, float]:
+def _column_product(ws: Any, j: int, a: int, b: int) -> float:
+    """Entry ``(a, b)`` of :math:`F_j^\\top F_j`."""
+    F = ws.F
+    acc = 0.0
+    for c in range(ws.cone_rows[j], ws.cone_rows[j + 1]):
+        acc += F[c, a] * F[c, b]
+    return acc
+
+
+@njit(cache=True)
+def _sense(multiplier: float) -> int:
+    """DAQP's sense of a constraint with ``multiplier`` in the last subproblem (its
+    working set: active at the upper bound, at the lower bound, or not)."""
+    if multiplier > 0.0:
+        return _ACTIVE
+    if multiplier < 0.0:
+        return _ACTIVE | _LOWER
+    return 0
+
+
+@njit(cache=True)
+def _screen(ws: Any, screen_rows: bool, last_step: float) -> None:
+    """``ws.kept``: the rows of the next subproblem (module docstring, row screening):
+    active in the last one, or within :data:`SCREENING_MARGIN` of their bounds at
+    ``ws.z``; every row without ``screen_rows``."""
+    A, z, lo, up, lam, kept = ws.A, ws.z, ws.lo, ws.up, ws.lam, ws.kept
+    n = z.shape[0]
+    for row in range(A.shape[0]):
+        if not screen_rows or lam[n + row] != 0.0:
+            kept[row] = 1
+            continue
+        value = 0.0
+        norm = 0.0
+        for b in range(n):
+            value += A[row, b] * z[b]
+            norm += abs(A[row, b])
+        slack = min(up[row] - value, value - lo[row])
+        kept[row] = 1 if slack <= SCREENING_MARGIN * norm * last_step else 0
+
+
+@njit(cache=True)
+def _subproblem(ws: Any) -> int:
+    """Write the kept rows and the cones' linearized rows into DAQP's arrays (``A_k``,
+    ``bupper``, ``blower``, ``sense`` from the multipliers ``ws.lam``); returns the number
+    of rows."""
+    A, lam, kept, A_k = ws.A, ws.lam, ws.kept, ws.A_k
+    bupper, blower, sense = ws.bupper, ws.blower, ws.sense
+    n = A.shape[1]
+    m = A.shape[0]
+    for b in range(n):
+        sense[b] = _sense(lam[b])
+    count = 0
+    for row in range(m):
+        if kept[row]:
+            for b in range(n):
+                A_k[count, b] = A[row, b]
+            bupper[n + count] = min(ws.up[row], _BIG)
+            blower[n + count] = max(ws.lo[row], -_BIG)
+            sense[n + count] = _sense(lam[n + row])
+            count += 1
+    for j in range(ws.offsets.shape[0]):
+        for b in range(n):
+            A_k[count, b] = ws.gradients[j, b]
+        bupper[n + count] = ws.gradient_bounds[j]
+        blower[n + count] = -_BIG
+        sense[n + count] = _sense(lam[n + m + j])
+        count += 1
+    return count
+
+
+@njit(cache=True)
+def _add_violated_rows(ws: Any) -> bool:
+    """Spread the subproblem's multipliers ``ws.lam_k`` into ``ws.lam`` (0 for the rows
+    left out), then mark the rows left out that its solution ``ws.x`` violates as kept;
+    True where there are any (the subproblem is then solved again)."""
+    A, x, lam, lam_k, kept = ws.A, ws.x, ws.lam, ws.lam_k, ws.kept
+    n = A.shape[1]
+    m = A.shape[0]
+    for b in range(n):
+        lam[b] = lam_k[b]
+    count = n
+    for row in range(m):
+        if kept[row]:
+            lam[n + row] = lam_k[count]
+            count += 1
+        else:
+            lam[n + row] = 0.0
+    for j in range(ws.offsets.shape[0]):
+        lam[n + m + j] = lam_k[count + j]
+    added = False
+    for row in range(m):
+        if not kept[row]:
+            value = 0.0
+            for b in range(n):
+                value += A[row, b] * x[b]
+            if value > ws.up[row] or value < ws.lo[row]:
+                kept[row] = 1
+                added = True
+    return added
+
+
+@njit(cache=True)
+def socp_solve(
+    ws: Any, warm: bool, max_iterations: int, screen_rows: bool = True
+) -> tuple[int, int, int, float, float]:
     """The SQP of the module docstring on the workspace ``ws``.
 
-    ``warm``: start from ``ws.z``, ``ws.mu`` (else zeros). Returns ``(DAQP exit flag of
-    the last subproblem, SQP iterations, DAQP iterations in all, cone violation, DAQP's own
-    time in all (s))``: flag 1 or 2 with at most ``max_iterations`` SQP iterations is
+    ``warm``: start from ``ws.z``, ``ws.mu`` (else zeros). ``screen_rows``: give each
+    subproblem only the rows the row screening keeps (else all). Returns ``(DAQP exit flag
+    of the last subproblem, SQP iterations, DAQP iterations in all, cone violation, DAQP's
+    own time in all (s))``: flag 1 or 2 with at most ``max_iterations`` SQP iterations is
     converged; a negative flag is DAQP's verdict on a subproblem (-1: infeasible); ``z``,
     ``mu``, ``lam`` hold the last iterate.
     """
-    H, f, A, z, mu = ws.H, ws.f, ws.A, ws.z, ws.mu
+    H, f, z, mu = ws.H, ws.f, ws.z, ws.mu
     hessian, A_k, bupper, blower, sense = ws.hessian, ws.A_k, ws.bupper, ws.blower, ws.sense
-    x, lam, w, linear = ws.x, ws.lam, ws.w, ws.linear
+    x, lam, lam_k, w, linear = ws.x, ws.lam, ws.lam_k, ws.w, ws.linear
+    products = ws.cone_products
     n = H.shape[0]
-    m = A.shape[0]
     cones = ws.offsets.shape[0]
     for b in range(n):
         bupper[b] = min(ws.ub[b], _BIG)
         blower[b] = max(ws.lb[b], -_BIG)
-    for row in range(m):
-        bupper[n + row] = min(ws.up[row], _BIG)
-        blower[n + row] = max(ws.lo[row], -_BIG)
-        for b in range(n):
-            A_k[row, b] = A[row, b]
-    for j in range(cones):
-        blower[n + m + j] = -_BIG
     if not warm:
         for b in range(n):
             z[b] = 0.0
         for j in range(cones):
             mu[j] = 0.0
-    for q in range(sense.shape[0]):
-        sense[q] = 0
+    for q in range(lam.shape[0]):  # the first subproblem starts from an empty working set
+        lam[q] = 0.0
+    formed = ws.formed
+    for j in range(cones):
+        formed[j] = 0
     flag = 0
     total = 0
     seconds = 0.0
     violation = np.inf
+    step = 0.0
     for iteration in range(1, max_iterations + 1):
         for a in range(n):
             for b in range(n):
@@ -206,60 +339,61 @@ def socp_solve(ws: Any, warm: bool, max_iterations: int) -> tuple[int, int, int,
             r, ez = _cone_values(ws, j)
             value = r - ez - ws.offsets[j]
             if mu[j] > 0.0:
+                stored = products.shape[0] > 0
+                if stored and not formed[j]:
+                    for a in range(n):
+                        for b in range(a, n):
+                            products[j, a, b] = _column_product(ws, j, a, b)
+                    formed[j] = 1
                 scale = mu[j] / r
                 inv_r2 = 1.0 / (r * r)
-                start, stop = ws.cone_rows[j], ws.cone_rows[j + 1]
-                F = ws.F
                 for a in range(n):
                     for b in range(a, n):
-                        acc = 0.0
-                        for c in range(start, stop):
-                            acc += F[c, a] * F[c, b]
-                        term = scale * (acc - w[a] * w[b] * inv_r2)
+                        product = products[j, a, b] if stored else _column_product(ws, j, a, b)
+                        term = scale * (product - w[a] * w[b] * inv_r2)
                         hessian[a, b] += term
                         if b != a:
                             hessian[b, a] += term
             bound = -value
             for b in range(n):
                 gradient = w[b] / r - ws.e[j, b]
-                A_k[m + j, b] = gradient
+                ws.gradients[j, b] = gradient
                 bound += gradient * z[b]
-            bupper[n + m + j] = bound
+            ws.gradient_bounds[j] = bound
         for a in range(n):
             acc = f[a]
             for b in range(n):
                 acc += (H[a, b] - hessian[a, b]) * z[b]
             linear[a] = acc
-        flag, iterations = quadprog(
-            hessian, linear, A_k, bupper, blower, sense, x, lam, ws.problem, ws.result,
-            ws.settings,
-        )  # fmt: skip
-        total += iterations
-        seconds += solver_seconds(ws.result)
-        if flag == -6:  # the carried working set was overdetermined: once more, cold
-            for q in range(sense.shape[0]):
-                sense[q] = 0
+        _screen(ws, screen_rows, step)
+        while True:
+            rows = _subproblem(ws)
+            used = n + rows
             flag, iterations = quadprog(
-                hessian, linear, A_k, bupper, blower, sense, x, lam, ws.problem, ws.result,
-                ws.settings,
+                hessian, linear, A_k[:rows], bupper[:used], blower[:used], sense[:used], x,
+                lam_k[:used], ws.problem, ws.result, ws.settings,
             )  # fmt: skip
             total += iterations
             seconds += solver_seconds(ws.result)
-        if flag < 0:
-            return flag, iteration, total, np.inf, seconds
+            if flag == -6:  # the carried working set was overdetermined: once more, cold
+                for q in range(used):
+                    sense[q] = 0
+                flag, iterations = quadprog(
+                    hessian, linear, A_k[:rows], bupper[:used], blower[:used], sense[:used],
+                    x, lam_k[:used], ws.problem, ws.result, ws.settings,
+                )  # fmt: skip
+                total += iterations
+                seconds += solver_seconds(ws.result)
+            if flag < 0:
+                return flag, iteration, total, np.inf, seconds
+            if not _add_violated_rows(ws):
+                break
         step = 0.0
         for b in range(n):
             step = max(step, abs(x[b] - z[b]))
             z[b] = x[b]
         for j in range(cones):
-            mu[j] = max(lam[n + m + j], 0.0)
-        for q in range(sense.shape[0]):  # the next subproblem starts from this working set
-            if lam[q] > 0.0:
-                sense[q] = _ACTIVE
-            elif lam[q] < 0.0:
-                sense[q] = _ACTIVE | _LOWER
-            else:
-                sense[q] = 0
+            mu[j] = max(lam[n + ws.A.shape[0] + j], 0.0)
         violation = cone_violation(ws)
         if step <= STEP_TOLERANCE * (1.0 + max_abs(z)) and violation <= CONE_TOLERANCE:
             return flag, iteration, total, violation, seconds
@@ -296,8 +430,12 @@ def socp_arrays(n: int, m: int, sizes: list[int], buffers: Any) -> dict[str, Any
         "bupper": np.zeros(n + m + cones), "blower": np.zeros(n + m + cones),
         "sense": np.zeros(n + m + cones, dtype=np.intc), "x": np.zeros(n),
         "lam": np.zeros(n + m + cones), "v": np.zeros(rows), "w": np.zeros(n),
-        "linear": np.zeros(n), "problem": buffers.problem, "result": buffers.result,
-        "settings": buffers.settings,
+        "linear": np.zeros(n), "gradients": np.zeros((cones, n)),
+        "gradient_bounds": np.zeros(cones),
+        "cone_products": np.zeros((cones if cones * n * n <= STORED_PRODUCTS else 0, n, n)),
+        "formed": np.zeros(cones, dtype=np.int64), "kept": np.zeros(m, dtype=np.int64),
+        "lam_k": np.zeros(n + m + cones),
+        "problem": buffers.problem, "result": buffers.result, "settings": buffers.settings,
     }  # fmt: skip
 
 

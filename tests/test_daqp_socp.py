@@ -12,6 +12,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from ltv_lstm_mpc.solvers import DenseSession, SolverStatus, available_solvers
 
 from ltv_lstm_mpc import OffsetFreeController
@@ -120,3 +122,176 @@ def test_one_call_cone_feedback_equals_the_general_path(index: int) -> None:
     assert runs[0][1] == runs[1][1]
     if index == 2:
         assert "infeasible" in runs[0][1]
+
+
+# ---------------------------------------------------------------- row screening
+def _workspace(H, f, A, lo, up, lb, ub, cones):
+    """A SocpWorkspace of the problem; ``cones``: (F, g, e, offset) each."""
+    from ltv_lstm_mpc.solvers import daqp_native
+    from ltv_lstm_mpc.solvers.daqp_socp import new_socp_workspace, socp_arrays
+    from ltv_lstm_mpc.solvers.tolerances import solver_options
+
+    buffers = daqp_native.native(solver_options("daqp", 1e-8, {}))
+    n, m = H.shape[0], A.shape[0]
+    arrays = socp_arrays(n, m, [F.shape[0] for F, _, _, _ in cones], buffers)
+    for name, value in (("H", H), ("f", f), ("A", A), ("lo", lo), ("up", up), ("lb", lb),
+                        ("ub", ub)):  # fmt: skip
+        arrays[name][...] = value
+    start = 0
+    for j, (F, g, e, offset) in enumerate(cones):
+        arrays["F"][start : start + F.shape[0]] = F
+        arrays["g"][start : start + F.shape[0]] = g
+        arrays["e"][j] = e
+        arrays["offsets"][j] = offset
+        start += F.shape[0]
+    return arrays, new_socp_workspace(**arrays)
+
+
+def _both(problem):
+    """socp_solve with and without row screening: (result, z, lam) of each."""
+    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+
+    out = []
+    for screen in (False, True):
+        arrays, ws = _workspace(*problem)
+        result = socp_solve(ws, False, MAX_ITERATIONS, screen)
+        out.append((result, arrays["z"].copy(), arrays["lam"].copy()))
+    return out
+
+
+def test_a_row_left_out_that_the_solution_violates_is_added() -> None:
+    """min 1/2 |z - c|^2 with the row z_0 + z_1 <= 1 and ||z|| <= 3: the row has slack 1 at
+    the first iterate z = 0, so the first subproblem leaves it out, its solution (near c)
+    violates it, and the subproblem is solved again with it. Both ways: z = (0.5, 0.5),
+    the row's multiplier 1.5, the same SQP iterates."""
+    c = np.array([2.0, 2.0])
+    problem = (
+        np.eye(2), -c, np.array([[1.0, 1.0]]), np.array([-np.inf]), np.array([1.0]),
+        np.full(2, -10.0), np.full(2, 10.0), [(np.eye(2), np.zeros(2), np.zeros(2), 3.0)],
+    )  # fmt: skip
+    (full, z_full, lam_full), (screened, z, lam) = _both(problem)
+    assert full[0] > 0 and screened[0] > 0
+    np.testing.assert_allclose(z, [0.5, 0.5], atol=1e-9)
+    np.testing.assert_allclose(z, z_full, rtol=0, atol=1e-14)
+    assert abs(lam[2] - 1.5) <= 1e-9  # bounds, then the row
+    np.testing.assert_allclose(lam, lam_full, rtol=0, atol=1e-14)
+    assert screened[1] == full[1]  # SQP iterations
+
+
+def test_an_infeasible_row_left_out_is_found() -> None:
+    """The row z_0 <= 5 with ||z - (10, 0)|| <= 1: infeasible. The row has slack 5 at the
+    first iterate z = 0, so the first subproblem leaves it out; its solution (z_0 >= 9 by
+    the cone's cut) violates it, the row is added and DAQP proves the subproblem, hence the
+    problem, infeasible: the same verdict as with every row."""
+    problem = (
+        np.eye(2), np.zeros(2), np.array([[1.0, 0.0]]), np.array([-np.inf]), np.array([5.0]),
+        np.full(2, -20.0), np.full(2, 20.0),
+        [(np.eye(2), np.array([-10.0, 0.0]), np.zeros(2), 1.0)],
+    )  # fmt: skip
+    (full, _, _), (screened, _, _) = _both(problem)
+    assert full[0] == screened[0] == -1
+    assert screened[1] == full[1] == 1  # SQP iterations
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(2, 8),
+    m=st.integers(1, 10),
+    cone_count=st.integers(1, 3),
+    pull=st.floats(0.0, 20.0),
+)
+def test_screened_rows_give_the_same_solution(
+    seed: int, n: int, m: int, cone_count: int, pull: float
+) -> None:
+    """Random strictly feasible problems (rows, bounds and cones around a feasible point;
+    the cost pulls the solution ``pull`` away from it, so that rows and cones bind): the
+    SQP with row screening converges where the one with all rows does, to the same point
+    (1e-9) with the same multipliers (1e-7) and the same number of SQP iterations."""
+    rng = np.random.default_rng(seed)
+    B = rng.normal(size=(n, n))
+    H = np.eye(n) + B.T @ B
+    feasible = rng.normal(size=n)
+    f = -H @ (feasible + pull * rng.normal(size=n))
+    A = rng.normal(size=(m, n))
+    centre = A @ feasible
+    lo = centre - rng.uniform(0.1, 2.0, size=m)
+    up = centre + rng.uniform(0.1, 2.0, size=m)
+    lo[rng.random(m) < 0.3] = -np.inf
+    lb, ub = feasible - rng.uniform(0.5, 5.0, size=n), feasible + rng.uniform(0.5, 5.0, size=n)
+    cones = []
+    for _ in range(cone_count):
+        k = int(rng.integers(1, n + 1))
+        F, g, e = rng.normal(size=(k, n)), rng.normal(size=k), 0.1 * rng.normal(size=n)
+        offset = np.linalg.norm(F @ feasible + g) - e @ feasible + rng.uniform(0.1, 1.0)
+        cones.append((F, g, e, offset))
+    (full, z_full, lam_full), (screened, z, lam) = _both((H, f, A, lo, up, lb, ub, cones))
+    assert full[0] > 0 and full[1] <= 50, full
+    assert screened[0] > 0 and screened[1] == full[1], (screened, full)
+    np.testing.assert_allclose(z, z_full, rtol=0, atol=1e-9 * (1.0 + np.abs(z_full).max()))
+    np.testing.assert_allclose(lam, lam_full, rtol=0, atol=1e-7 * (1.0 + np.abs(lam_full).max()))
+
+
+def test_cone_products_formed_as_needed_give_the_same_numbers(monkeypatch) -> None:
+    """A workspace too large to store the cones' F_j' F_j forms them at each SQP iteration:
+    the same iterates, bit for bit, as one that stores them."""
+    from ltv_lstm_mpc.solvers import daqp_socp
+
+    rng = np.random.default_rng(7)
+    n = 6
+    B = rng.normal(size=(n, n))
+    H = np.eye(n) + B.T @ B
+    cones = []
+    for _ in range(2):  # strictly feasible at z = 0
+        F, g = rng.normal(size=(3, n)), rng.normal(size=3)
+        cones.append((F, g, np.zeros(n), np.linalg.norm(g) + 0.5))
+    problem = (
+        H, -H @ (5.0 * rng.normal(size=n)), rng.normal(size=(2, n)), np.full(2, -1.0),
+        np.full(2, 1.0), np.full(n, -3.0), np.full(n, 3.0), cones,
+    )  # fmt: skip
+    stored = _both(problem)[1]
+    monkeypatch.setattr(daqp_socp, "STORED_PRODUCTS", 0)
+    arrays, _ = _workspace(*problem)
+    assert arrays["cone_products"].shape[0] == 0
+    formed = _both(problem)[1]
+    assert stored[0][:3] == formed[0][:3] and stored[0][0] > 0
+    assert (stored[2][-2:] > 0).all()  # both cones active: their curvature is in the Hessian
+    assert np.array_equal(stored[1], formed[1]) and np.array_equal(stored[2], formed[2])
+
+
+@pytest.mark.parametrize("index", [0, 2])
+def test_screened_rows_on_the_mpcs_subproblems(index: int) -> None:
+    """The exact-cone subproblems of 60 closed-loop steps at N = 20 (bench scenarios 1 and
+    3, this one with infeasible steps), solved with and without row screening: the same
+    exit flags and SQP iterations, the same points and multipliers to 1e-12."""
+    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[index]
+    config = replace(scenario.config, N=20, solver="daqp:socp")
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+    )
+    problem = controller.mpc._problem
+    arrays, ws = problem._socp_arrays, problem.socp_workspace
+    assert ws is not None
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    flags = []
+    for k in range(60):
+        u = controller.step(y, scenario.setpoints[k])
+        d = scenario.disturbances[k]
+        y = plant.step(u, None if np.isnan(d) else d)
+        results = []
+        for screen in (False, True):  # the step's last subproblem is still in the workspace
+            result = socp_solve(ws, False, MAX_ITERATIONS, screen)
+            results.append((result, arrays["z"].copy(), arrays["lam"].copy()))
+        (full, z_full, lam_full), (screened, z, lam) = results
+        assert screened[:2] == full[:2], k
+        flags.append(full[0])
+        if full[0] > 0:
+            np.testing.assert_allclose(z, z_full, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(lam, lam_full, rtol=0, atol=1e-12)
+    assert sum(flag > 0 for flag in flags) >= 40
