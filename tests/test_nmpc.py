@@ -71,3 +71,18 @@ def test_usable_in_controller(model, nmpc) -> None:
     for _ in range(3):
         y = plant.step(controller.step(y, 7.2), 0.0)
     assert all(r.mpc.status == "optimal" for r in controller.records)
+
+
+def test_casadi_dynamics_is_the_models_state_update(model) -> None:
+    """casadi_dynamics (the NLP's f, and the model acados generates C from) against
+    LSTMModel.step at random states and inputs: 1e-14."""
+    from ltv_lstm_mpc.mpc.nmpc import casadi_dynamics
+
+    f = casadi_dynamics(model)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x = rng.uniform(-1.0, 1.0, 2 * model.n)
+        u = rng.uniform(-1.0, 1.0, model.m)
+        np.testing.assert_allclose(
+            np.asarray(f(x, u)).ravel(), model.step(x, u), rtol=0, atol=1e-14
+        )

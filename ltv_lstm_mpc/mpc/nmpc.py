@@ -41,7 +41,10 @@ from ltv_lstm_mpc.mpc.terminal import TerminalSet
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import SolverStatus
 
-__all__ = ["NonlinearTranscription"]  # ExactNMPC, the RTI core on it: mpc/exact_nmpc.py
+__all__ = [
+    "NonlinearTranscription",
+    "casadi_dynamics",
+]  # ExactNMPC, the RTI core on it: mpc/exact_nmpc.py
 
 FloatArray = NDArray[np.float64]
 
@@ -65,6 +68,29 @@ def _import_casadi() -> Any:
             'pip install -e ".[nmpc]"  (or: pip install "ltv_lstm_mpc[nmpc]")'
         ) from error
     return casadi
+
+
+def casadi_dynamics(model: LSTMModel) -> Any:
+    """The LSTM's state update :math:`x^+ = f(x, u)` of eq. (lstm) as a CasADi function
+    ``f(x, u)`` (symbolic: for CasADi's solvers and code generation, e.g. acados'), with
+    :math:`x = [c; h]`."""
+    ca = _import_casadi()
+    n, m = model.n, model.m
+    x = ca.SX.sym("x", 2 * n)
+    u = ca.SX.sym("u", m)
+    c, h = x[:n], x[n:]
+
+    def gate(W: FloatArray, U: FloatArray, b: FloatArray) -> Any:
+        return ca.mtimes(ca.DM(W), u) + ca.mtimes(ca.DM(U), h) + ca.DM(b)
+
+    sig = lambda z: 1.0 / (1.0 + ca.exp(-z))  # noqa: E731
+    f = sig(gate(model.W_f, model.U_f, model.b_f))
+    i = sig(gate(model.W_i, model.U_i, model.b_i))
+    o = sig(gate(model.W_o, model.U_o, model.b_o))
+    g = ca.tanh(gate(model.W_c, model.U_c, model.b_c))
+    c_next = f * c + i * g
+    h_next = o * ca.tanh(c_next)
+    return ca.Function("f", [x, u], [ca.vertcat(c_next, h_next)])
 
 
 class NonlinearTranscription(TranscriptionBase):
@@ -116,23 +142,7 @@ class NonlinearTranscription(TranscriptionBase):
 
     def _dynamics(self) -> Any:
         """CasADi function f(x, u) of eq. (lstm)."""
-        ca, model = self._ca, self.model
-        n, m = model.n, model.m
-        x = ca.SX.sym("x", 2 * n)
-        u = ca.SX.sym("u", m)
-        c, h = x[:n], x[n:]
-
-        def gate(W: FloatArray, U: FloatArray, b: FloatArray) -> Any:
-            return ca.mtimes(ca.DM(W), u) + ca.mtimes(ca.DM(U), h) + ca.DM(b)
-
-        sig = lambda z: 1.0 / (1.0 + ca.exp(-z))  # noqa: E731
-        f = sig(gate(model.W_f, model.U_f, model.b_f))
-        i = sig(gate(model.W_i, model.U_i, model.b_i))
-        o = sig(gate(model.W_o, model.U_o, model.b_o))
-        g = ca.tanh(gate(model.W_c, model.U_c, model.b_c))
-        c_next = f * c + i * g
-        h_next = o * ca.tanh(c_next)
-        return ca.Function("f", [x, u], [ca.vertcat(c_next, h_next)])
+        return casadi_dynamics(self.model)
 
     def _build(self, kind: str) -> dict[str, Any]:
         """Build the NLP once: ``kind`` is ``"nominal"``, ``"paper"`` or ``"soft"``."""

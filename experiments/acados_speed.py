@@ -1,0 +1,301 @@
+"""Our whole controller step against acados' SQP-RTI solve of the same QP, in one run.
+
+acados (generated C: the LSTM's discrete dynamics and their Jacobians from CasADi, full
+condensing, a C QP solver) solves, at each step of bench's scenario 1 (short), the QP our
+one-call daqp step solved: the same linearization trajectory (the previous plan's x_1
+rolled out along the candidate: the previous inputs shifted, :math:`\\bar u` appended),
+the same :math:`\\hat x_k` inserted as the first state, the same :math:`\\bar x, \\bar u`,
+stage weights Q and R, the tightened output bounds of stages 1..N-1, the input box, and
+the terminal box with its quadratic cost bound (the QP-only form of the terminal set,
+:class:`~ltv_lstm_mpc.mpc.terminal.TerminalBoxReformulation`). Each step first runs our
+controller (timed: observer, reference calculator and MPC, one compiled call), then
+acados' ``solve()`` on that step's data (timed: one SQP-RTI iteration, linearization,
+condensing and QP), alternately; the largest difference of the two first inputs says
+that the two solved the same QP.
+
+Printed per horizon: medians, p95 and p95/median of our full step, of our MPC alone
+(prepare + feedback, from the records) and of each acados solve (the Python call, and
+acados' own ``time_tot``), and the ratios of ours to each acados solve.
+
+acados comes from the wheel ``comma-deps-acados`` on the package index (acados' Python
+template, its shared libraries, headers and the template renderer); its vendored CasADi
+is built for Python 3.12 and would replace ours, so install it into its own folder and
+keep CasADi from the ``nmpc`` extra::
+
+    python -m pip install --no-deps --target .acados comma-deps-acados==0.2.2.post92
+    python experiments/acados_speed.py --N 5 20 50 --steps 300
+
+That build has acados' HPIPM and qpOASES but not DAQP (``FULL_CONDENSING_DAQP`` is
+reported unavailable and skipped). The generated code goes to a temporary folder
+(``--build DIR`` to keep it); building takes a few seconds per solver and horizon.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import gc
+import os
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")  # before numpy: small products, one thread
+
+import numpy as np  # noqa: E402
+
+from ltv_lstm_mpc import OffsetFreeController  # noqa: E402
+from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
+from ltv_lstm_mpc.mpc.nmpc import casadi_dynamics  # noqa: E402
+from ltv_lstm_mpc.mpc.terminal import TerminalSet  # noqa: E402
+from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
+
+#: acados QP solvers tried, in this order (a build without one is reported and skipped).
+QP_SOLVERS = ("FULL_CONDENSING_DAQP", "FULL_CONDENSING_HPIPM", "FULL_CONDENSING_QPOASES")
+#: HPIPM's mode and tolerances (acados' options ``hpipm_mode``, ``qp_solver_tol_*``).
+HPIPM_MODE = os.environ.get("HPIPM_MODE", "SPEED_ABS")
+HPIPM_TOLERANCE = float(os.environ.get("HPIPM_TOLERANCE", "1e-8"))
+#: Bounds acados treats as absent (no output rows at stage 0, whose state is fixed).
+NO_BOUND = 1e9
+
+
+def load_acados(folder: Path) -> Any:
+    """``acados.acados_template`` from the wheel installed with ``--target folder``."""
+    install = folder / "acados" / "install"
+    if not install.is_dir():
+        raise SystemExit(
+            f"no acados under {folder}: python -m pip install --no-deps --target {folder} "
+            "comma-deps-acados==0.2.2.post92"
+        )
+    os.environ["ACADOS_SOURCE_DIR"] = str(install)
+    os.environ["ACADOS_PYTHON_INTERFACE_PATH"] = str(folder / "acados" / "acados_template")
+    renderer = install / "bin" / "t_renderer"
+    renderer.chmod(renderer.stat().st_mode | 0o111)  # wheels lose the executable bit
+    os.environ["TERA_PATH"] = str(renderer)
+    for library in ("libblasfeo.so", "libhpipm.so", "libqpOASES_e.so.3.1", "libacados.so"):
+        ctypes.CDLL(str(install / "lib" / library), mode=ctypes.RTLD_GLOBAL)
+    import casadi  # noqa: F401 - ours (the nmpc extra), before the vendored one is reachable
+
+    sys.path.append(str(folder))
+    from acados import acados_template
+
+    return acados_template
+
+
+def build_solver(acados: Any, model: Any, controller: Any, qp_solver: str, folder: Path) -> Any:
+    """An AcadosOcpSolver of the controller's QP-only FHOCP (module docstring)."""
+    import casadi
+
+    config = controller.mpc.config
+    n2, m, p, N = 2 * model.n, model.m, model.p, config.N
+    Q, R = config.weights(model)
+    terminal = TerminalSet(np.asarray(controller.mpc.tightening.P_f), model.n)
+    x = casadi.SX.sym("x", n2)
+    u = casadi.SX.sym("u", m)
+    ocp_model = acados.AcadosModel()
+    ocp_model.name = f"lstm_{qp_solver.lower()}_{N}"
+    ocp_model.x, ocp_model.u = x, u
+    ocp_model.disc_dyn_expr = casadi_dynamics(model)(x, u)
+    ocp = acados.AcadosOcp()
+    ocp.model = ocp_model
+    ocp.dims.N = N
+    ocp.cost.cost_type = ocp.cost.cost_type_e = "LINEAR_LS"
+    ocp.cost.W = np.block([[Q, np.zeros((n2, m))], [np.zeros((m, n2)), R]])
+    ocp.cost.Vx = np.vstack([np.eye(n2), np.zeros((m, n2))])
+    ocp.cost.Vu = np.vstack([np.zeros((n2, m)), np.eye(m)])
+    ocp.cost.yref = np.zeros(n2 + m)
+    ocp.cost.W_e = np.diag(terminal.box_weights)
+    ocp.cost.Vx_e = np.eye(n2)
+    ocp.cost.yref_e = np.zeros(n2)
+    ocp.constraints.C = np.hstack([np.zeros((p, model.n)), model.W_y])
+    ocp.constraints.D = np.zeros((p, m))
+    ocp.constraints.lg = np.full(p, -NO_BOUND)
+    ocp.constraints.ug = np.full(p, NO_BOUND)
+    ocp.constraints.idxbu = np.arange(m)
+    ocp.constraints.lbu = np.full(m, -config.u_max)
+    ocp.constraints.ubu = np.full(m, config.u_max)
+    ocp.constraints.idxbx_e = np.arange(n2)
+    ocp.constraints.lbx_e = np.full(n2, -NO_BOUND)
+    ocp.constraints.ubx_e = np.full(n2, NO_BOUND)
+    ocp.constraints.x0 = np.zeros(n2)
+    options = ocp.solver_options
+    options.integrator_type = "DISCRETE"
+    options.nlp_solver_type = "SQP_RTI"
+    options.hessian_approx = "GAUSS_NEWTON"
+    options.qp_solver = qp_solver
+    options.qp_solver_iter_max = 200
+    options.print_level = 0
+    options.tf = float(N)
+    if "HPIPM" in qp_solver:
+        options.hpipm_mode = HPIPM_MODE
+        for name in ("stat", "eq", "ineq", "comp"):
+            setattr(options, f"qp_solver_tol_{name}", HPIPM_TOLERANCE)
+    ocp.code_export_directory = str(folder / ocp_model.name)
+    return acados.AcadosOcpSolver(
+        ocp, json_file=str(folder / f"{ocp_model.name}.json"), verbose=False
+    )
+
+
+def feed(solver: Any, controller: Any, model: Any, dynamics: Any) -> None:
+    """Write the data of the controller's last step into the acados solver (untimed)."""
+    config = controller.mpc.config
+    n2, N = 2 * model.n, config.N
+    record, previous = controller.records[-1], controller.records[-2]
+    terminal = TerminalSet(np.asarray(controller.mpc.tightening.P_f), model.n)
+    x_hat = record.mpc.x[0]
+    u_bar = np.clip(record.u_bar, -config.u_max, config.u_max)
+    candidate = np.vstack([previous.mpc.u[1:], u_bar[None, :]])
+    states = np.empty((N + 1, n2))
+    states[0] = previous.mpc.x[1]  # the linearization starts at the previous plan's x_1
+    for i in range(N):
+        states[i + 1] = np.asarray(dynamics(states[i], candidate[i])).ravel()
+    lower, upper = controller.mpc.tightening.output_bounds(record.e_hat)
+    reference = np.concatenate([record.x_bar, record.u_bar])
+    for i in range(N + 1):
+        solver.set(i, "x", states[i])
+    for i in range(N):
+        solver.set(i, "u", candidate[i])
+        solver.cost_set(i, "yref", reference)
+    solver.cost_set(N, "yref", record.x_bar)
+    solver.constraints_set(0, "lbx", x_hat)
+    solver.constraints_set(0, "ubx", x_hat)
+    for i in range(1, N):
+        solver.constraints_set(i, "lg", lower[i] - model.b_y)
+        solver.constraints_set(i, "ug", upper[i] - model.b_y)
+    half = max(record.mpc.alpha, 0.0) * terminal.unit_half_widths
+    solver.constraints_set(N, "lbx", record.x_bar - half)
+    solver.constraints_set(N, "ubx", record.x_bar + half)
+
+
+def run(acados: Any, N: int, steps: int, folder: Path) -> dict[str, dict[str, Any]]:
+    """One interleaved closed loop at horizon N (module docstring)."""
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[0]
+    steps = min(steps, len(scenario.setpoints))
+    config = replace(scenario.config, N=N, solver="daqp")
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled",
+        one_call_step=True,
+    )  # fmt: skip
+    controller.records.reserve(steps + 1)
+    plant = scenario.make_plant(model)
+    dynamics = casadi_dynamics(model)
+    solvers = {}
+    for qp_solver in QP_SOLVERS:
+        try:
+            solvers[qp_solver] = build_solver(acados, model, controller, qp_solver, folder)
+        except Exception as error:  # a build without this QP solver
+            print(f"  N = {N}: acados {qp_solver} unavailable ({type(error).__name__})")
+    ours: list[float] = []
+    theirs: dict[str, list[tuple[float, float, float]]] = {name: [] for name in solvers}
+    y = plant.output()
+    gc.collect()
+    gc.disable()
+    try:
+        for k in range(steps):
+            start = time.perf_counter()
+            u = controller.step(y, scenario.setpoints[k])
+            ours.append(time.perf_counter() - start)
+            if k >= 1 and controller.records[-1].mpc.status == "optimal":
+                ours_first = float(controller.records[-1].mpc.u[0, 0])
+                for name, solver in solvers.items():
+                    feed(solver, controller, model, dynamics)
+                    start = time.perf_counter()
+                    status = solver.solve()
+                    wall = time.perf_counter() - start
+                    first = float(solver.get(0, "u")[0]) if status == 0 else np.nan
+                    own, qp_call = (
+                        float(np.ravel(solver.get_stats(field))[0])
+                        for field in ("time_tot", "time_qp_solver_call")
+                    )
+                    theirs[name].append((wall, own, abs(first - ours_first), own - qp_call))
+            d = scenario.disturbances[k]
+            y = plant.step(u, None if np.isnan(d) else d)
+    finally:
+        gc.enable()
+    skip = 10
+    records = controller.records[skip:]
+    out: dict[str, dict[str, Any]] = {
+        "ours": {
+            "step": np.array(ours[skip:]),
+            "mpc": np.array([r.mpc.prepare_time + r.mpc.feedback_time for r in records]),
+            "daqp": np.array([r.mpc.solver_time for r in records]),
+        }
+    }
+    for name, rows in theirs.items():
+        table = np.array(rows[skip:])
+        out[name] = {
+            "solve": table[:, 0], "own": table[:, 1], "gap": table[:, 2], "around": table[:, 3],
+        }  # fmt: skip
+    return out
+
+
+def report(N: int, result: dict[str, dict[str, Any]]) -> None:
+    """Print one horizon's table."""
+
+    def stats(values: Any) -> str:
+        us = values * 1e6
+        median, p95 = float(np.median(us)), float(np.percentile(us, 95))
+        return f"{median:8.1f} {p95:8.1f} {p95 / median:8.2f}"
+
+    print(f"\nN = {N} (microseconds)")
+    print(f"{'':>34} {'median':>8} {'p95':>8} {'p95/med':>8}")
+    step, mpc = result["ours"]["step"], result["ours"]["mpc"]
+    print(f"{'ours: full step (one call)':>34} {stats(step)}")
+    print(f"{'ours: MPC (prepare + feedback)':>34} {stats(mpc)}")
+    print(f"{'ours: DAQP in the MPC':>34} {stats(result['ours']['daqp'])}")
+    for name, data in result.items():
+        if name == "ours":
+            continue
+        label = name.replace("FULL_CONDENSING_", "acados ").lower()
+        print(f"{label + ' solve()':>34} {stats(data['solve'])}")
+        print(f"{label + ' time_tot':>34} {stats(data['own'])}")
+        print(f"{label + ' time_tot less QP solver':>34} {stats(data['around'])}")
+        solve = float(np.median(data["solve"]))
+        jitter = (np.percentile(step, 95) / np.median(step)) / (
+            np.percentile(data["solve"], 95) / solve
+        )
+        print(
+            f"{'':>34} full step / solve() = {np.median(step) / solve:.2f}, "
+            f"MPC / solve() = {np.median(mpc) / solve:.2f}, "
+            f"jitter (p95/median) ours / theirs = {jitter:.2f}; "
+            f"max |u_0 - ours| = {np.nanmax(data['gap']):.1e} "
+            f"({int(np.isnan(data['gap']).sum())} failed)"
+        )
+    around = min(
+        float(np.median(data["around"])) for name, data in result.items() if name != "ours"
+    )
+    estimate = (around + float(np.median(result["ours"]["daqp"]))) * 1e6
+    print(
+        f"{'acados + DAQP, estimated':>34} {estimate:8.1f}   (acados' time_tot less its QP "
+        f"solver, the smaller, + our DAQP time on the same QP): full step / estimate = "
+        f"{np.median(step) * 1e6 / estimate:.2f}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
+    parser.add_argument("--acados", type=Path, default=Path(".acados"), help="the --target folder")
+    parser.add_argument("--build", type=Path, default=None, help="keep the generated code here")
+    args = parser.parse_args()
+    acados = load_acados(args.acados.resolve())
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = (args.build or Path(scratch)).resolve()
+        folder.mkdir(parents=True, exist_ok=True)
+        cwd = os.getcwd()
+        os.chdir(folder)  # acados writes some files next to the caller
+        try:
+            for N in args.N:
+                report(N, run(acados, N, args.steps, folder))
+        finally:
+            os.chdir(cwd)
+
+
+if __name__ == "__main__":
+    main()
