@@ -25,10 +25,8 @@ median step to the one-call daqp step,
 and the largest difference of the applied input to the general daqp path (mL/s: 0 for the
 one-call and prepared steps, which compute the same numbers).
 
-acados is not installable on the machines this project runs on (its Python template is not
-on the package index); where ``acados_template`` imports, its SQP-RTI solve is not built by
-this script either: the acados numbers in the speed notes come from another machine, so
-only the ratios between the rows printed here are measured side by side.
+acados' SQP-RTI on the same QPs is measured by ``experiments/acados_speed.py``; this script
+compares our own paths.
 
 ``--alone`` runs each controller's whole loop on its own instead (one after the other): its
 caches stay warm between steps, as a single controller's do, so the ``python`` column shows
@@ -181,12 +179,6 @@ def main() -> None:
         "(warm caches, as a single controller runs; ratios then compare different times)",
     )
     args = parser.parse_args()
-    try:
-        import acados_template  # noqa: F401
-
-        print("acados_template imports, but this script does not build an acados solver")
-    except ImportError:
-        print("acados: not installed (not on the package index): no acados row")
     for N in args.N:
         report(N, run(N, args.steps, args.alone))
 
