@@ -82,3 +82,76 @@ def test_contains_and_bad_weights() -> None:
         TerminalSet(np.eye(3), 2)
     with pytest.raises(InvalidValueError, match="entrywise nonnegative"):
         TerminalSet(np.array([[1.0, -0.1], [-0.1, 1.0]]), 2)
+
+
+def test_the_soft_qp_box_grows_with_the_terminal_slack() -> None:
+    """QP-only backends on the sparse transcription (PIQP): at the infeasible steps of bench
+    scenario 3 the soft problem is solved (policy "soft", never "soft+shift": with the
+    output slacks and the terminal level's slack s_T it is feasible by construction), and
+    its terminal rows hold exactly where |x_N - x_bar| <= (max(alpha_k, 0) + s_T) w, w the
+    half-widths of the box of level 1 (checked at random points). DAQP on the sparse soft
+    QP gives the plans of DAQP on the condensed one (the same problem) at those steps."""
+    from dataclasses import replace
+
+    from ltv_lstm_mpc import OffsetFreeController, RobustMPC
+    from ltv_lstm_mpc.lstm.shipped import load_model
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[2]
+    config = replace(
+        scenario.config, N=5, solver="piqp", transcription="sparse", infeasibility_policy="soft"
+    )
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+    )
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    soft_steps = []
+    for k in range(150):
+        u = controller.step(y, scenario.setpoints[k])
+        d = scenario.disturbances[k]
+        y = plant.step(u, None if np.isnan(d) else d)
+        record = controller.records[-1]
+        if record.mpc.policy == "soft":
+            soft_steps.append((record.mpc.x[0], record.x_bar, record.u_bar, record.y0,
+                               record.e_hat))  # fmt: skip
+            if len(soft_steps) == 6:
+                break
+    policies = [r.mpc.policy for r in controller.records]
+    assert len(soft_steps) == 6 and "soft+shift" not in policies
+    subproblem = controller.mpc._problem.subproblem("soft")
+    problem = controller.mpc.last_problem("soft")
+    qp = subproblem.reformulation.apply(problem)
+    n, N = model.n, config.N
+    xN = subproblem.layout.x(N)
+    level = max(problem.cones[2].f, 0.0)
+    unit = np.repeat(np.asarray(subproblem.reformulation.unit_tau) / np.sqrt(n), n)
+    centre = np.concatenate([-problem.cones[0].g, -problem.cones[1].g])
+    box = slice(qp.G.shape[0] - 4 * n, qp.G.shape[0])
+    rng = np.random.default_rng(0)
+    agreed = 0
+    for _ in range(400):
+        z = np.zeros(qp.q.shape[0])
+        z[xN] = centre + rng.normal(size=2 * n) * unit * (level + 1.0)
+        z[-1] = rng.uniform(0.0, 2.0)
+        inside = np.abs(z[xN] - centre) <= (level + z[-1]) * unit
+        values = qp.G[box] @ z
+        rows_hold = (qp.l[box] <= values) & (values <= qp.u[box])
+        assert np.array_equal(rows_hold[: 2 * n] & rows_hold[2 * n :], inside)
+        agreed += int(inside.all())
+    assert 0 < agreed < 400  # both outcomes were sampled
+    plans = []
+    for transcription in ("sparse", "condensed"):
+        mpc = RobustMPC(
+            model, replace(config, solver="daqp", transcription=transcription),
+            certification=controller.mpc.certification,
+        )  # fmt: skip
+        solutions = []
+        for x_hat, x_bar, u_bar, y0, e_hat in soft_steps:
+            mpc.reset()
+            solution = mpc.solve(x_hat, x_bar, u_bar, y0, e_hat)
+            assert solution.policy == "soft", (transcription, solution.status)
+            solutions.append(solution.u)
+        plans.append(np.array(solutions))
+    np.testing.assert_allclose(plans[0], plans[1], rtol=0, atol=1e-7)

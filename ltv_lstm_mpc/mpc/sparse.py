@@ -151,10 +151,9 @@ class FHOCPSubproblem:
         Include :math:`\|P_f^{1/2} t\| \le \alpha_k` (False: the paper's fallback).
     soft_penalty : float, optional
         If given, the output rows and the terminal level get nonnegative slacks with
-        this exact-penalty (L1) weight; with cone solvers the problem is then always
-        feasible. The QP reformulation keeps its terminal box hard (alpha clipped at 0), so
-        on QP-only backends it can still be infeasible; the MPC then falls back to the
-        shifted plan and records ``"soft+shift"``.
+        this exact-penalty (L1) weight: the problem is then always feasible, with cone
+        solvers and, through the QP reformulation (its terminal box of level
+        :math:`\max(\alpha_k, 0) + s_T`), with QP-only backends.
     """
 
     def __init__(

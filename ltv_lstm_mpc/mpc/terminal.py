@@ -163,7 +163,11 @@ class TerminalBoxReformulation:
       :math:`\tau^\top P_f \tau = \alpha_k^2` and :math:`P_{11}\tau_c^2 = P_{22}\tau_h^2`
       (the largest-volume such box) it lies inside :math:`\mathcal{X}_f(k)`.
 
-    The t variables are kept (fixed to 0) so the variable layout does not change.
+    The t variables are kept (fixed to 0) so the variable layout does not change. In the
+    soft problem the box has the level :math:`\max(\alpha_k, 0) + s_T` with the terminal
+    level's exact-penalty slack :math:`s_T \ge 0` (rows in :math:`(x_N, s_T)`), as the
+    condensed transcription's soft QP: with the output slacks the soft QP is then feasible
+    by construction on QP-only backends too.
     """
 
     name = "terminal_box_and_quadratic_cost_bound"
@@ -202,26 +206,57 @@ class TerminalBoxReformulation:
         lb, ub = problem.lb.copy(), problem.ub.copy()
         lb[layout.t_start : layout.t_start + 2] = 0.0
         ub[layout.t_start : layout.t_start + 2] = 0.0
+        G, l_rows, u_rows = problem.G, problem.l, problem.u
         if len(problem.cones) == 3:
-            alpha = problem.cones[2].f
-            if sub.soft_penalty is not None:
-                alpha = max(alpha, 0.0)  # the terminal slack has no QP counterpart
-            tau = max(alpha, 0.0) * self.unit_tau / np.sqrt(n)
+            level = max(problem.cones[2].f, 0.0)
+            unit = np.concatenate(
+                [np.full(n, self.unit_tau[0]), np.full(n, self.unit_tau[1])]
+            ) / np.sqrt(n)  # half-widths of the box of level 1
             centre = np.concatenate([c_bar, h_bar])
-            half = np.concatenate([np.full(n, tau[0]), np.full(n, tau[1])])
-            lb[xN] = centre - half
-            ub[xN] = centre + half
-            if sub.soft_penalty is not None:
-                lb[-1] = ub[-1] = 0.0
+            if sub.soft_penalty is None:
+                lb[xN] = centre - level * unit
+                ub[xN] = centre + level * unit
+            else:  # the box of level max(alpha_k, 0) + s_T, s_T the last variable
+                G, l_rows, u_rows = self._soft_box_rows(problem, xN, centre, unit, level)
         return ConvexProblem(
             P=P,
             q=q,
             A_eq=problem.A_eq,
             b_eq=problem.b_eq,
-            G=problem.G,
-            l=problem.l,
-            u=problem.u,
+            G=G,
+            l=l_rows,
+            u=u_rows,
             lb=lb,
             ub=ub,
             cones=(),
         )
+
+    @staticmethod
+    def _soft_box_rows(
+        problem: ConvexProblem, xN: slice, centre: FloatArray, unit: FloatArray, level: float
+    ) -> tuple[Any, FloatArray, FloatArray]:
+        r"""The rows of the soft problem's terminal box
+        :math:`|x_{N,j} - \bar x_j| \le (\max(\alpha_k, 0) + s_T)\, w_j` (``unit`` = w,
+        the half-widths of the box of level 1; :math:`s_T \ge 0` the last variable, the
+        exact-penalty slack of the terminal level), appended to the problem's rows:
+        :math:`x_{N,j} - w_j s_T \le \bar x_j + \max(\alpha_k, 0) w_j` and
+        :math:`x_{N,j} + w_j s_T \ge \bar x_j - \max(\alpha_k, 0) w_j`. Returns
+        ``(G, l, u)``."""
+        n_variables = problem.q.shape[0]
+        size = unit.shape[0]
+        columns = np.arange(n_variables)[xN]
+        slack = n_variables - 1
+        rows = np.repeat(np.arange(2 * size), 2)
+        cols = np.column_stack([np.tile(columns, 2), np.full(2 * size, slack)]).ravel()
+        values = np.column_stack([np.ones(2 * size), np.concatenate([-unit, unit])]).ravel()
+        box = sp.csc_matrix((values, (rows, cols)), shape=(2 * size, n_variables))
+        inf = np.full(size, np.inf)
+        box_l = np.concatenate([-inf, centre - level * unit])
+        box_u = np.concatenate([centre + level * unit, inf])
+        if problem.G is None:
+            return box, box_l, box_u
+        m = problem.G.shape[0]
+        l_rows = np.full(m, -np.inf) if problem.l is None else problem.l
+        u_rows = np.full(m, np.inf) if problem.u is None else problem.u
+        G = sp.vstack([problem.G, box], format="csc")
+        return G, np.concatenate([l_rows, box_l]), np.concatenate([u_rows, box_u])
