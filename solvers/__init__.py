@@ -145,6 +145,7 @@ A missing or unknown solver raises :class:`~ltv_lstm_mpc.SolverNotFound`
 
 from __future__ import annotations
 
+from ._base import Backend, RawResult
 from .acceptance import Residuals
 from .dense import DenseBackend, DenseCone, DenseQP
 from .dense_session import DenseSession
@@ -168,6 +169,7 @@ from .tolerances import TOLERANCE_OPTIONS, feasibility_tolerance, optimality_tol
 __all__ = [
     "DEFAULT_SOLVER",
     "TOLERANCE_OPTIONS",
+    "Backend",
     "ConeReformulation",
     "ConvexProblem",
     "DenseBackend",
@@ -175,6 +177,7 @@ __all__ = [
     "DenseQP",
     "DenseSession",
     "PolyhedralInnerApproximation",
+    "RawResult",
     "Residuals",
     "SecondOrderCone",
     "Session",

@@ -404,7 +404,7 @@ class DenseBackend(abc.ABC):
 
     Subclasses set the class attributes and implement :meth:`setup`,
     :meth:`solve` and, where the solver can, :meth:`update`. ``solve`` returns a
-    :class:`~ltv_lstm_mpc.solvers._base.RawResult` whose ``z`` is a fresh array
+    :class:`~ltv_lstm_mpc.solvers.RawResult` whose ``z`` is a fresh array
     (the session copies it anyway) and whose duals follow the module's sign
     convention (``"ineq"``, ``"bounds"``). Native exceptions propagate.
     """

@@ -296,7 +296,7 @@ def register_backend(
         Registry name: letters, digits and ``_ . : @ , + -``, no spaces.
     factory : callable, optional
         ``factory(name, tolerance, settings) -> Backend`` (a subclass of
-        :class:`~ltv_lstm_mpc.solvers._base.Backend`) for ConvexProblems
+        :class:`~ltv_lstm_mpc.solvers.Backend`) for ConvexProblems
         (:class:`Session`, :func:`solve`).
     dense_factory : callable, optional
         ``dense_factory(name, tolerance, settings) -> DenseBackend`` for
