@@ -45,10 +45,10 @@ BAD_VALUES: tuple[Any, ...] = (
 DOCUMENTED: tuple[type[BaseException], ...] = (FileNotFoundError,)
 
 #: Not called: exception classes (constructing one with any message is fine), the Plant
-#: protocol and the abstract DenseBackend (base classes to subclass: Python refuses to
-#: instantiate them by design), the SolverStatus enum (calling it looks a member up by
+#: protocol and the abstract Backend and DenseBackend (base classes to subclass: Python
+#: refuses to instantiate them by design), the SolverStatus enum (calling it looks a member up by
 #: value: ValueError, as for every Enum) and constants.
-SKIP = {"Plant", "DenseBackend", "SolverStatus", "__version__"}
+SKIP = {"Plant", "Backend", "DenseBackend", "SolverStatus", "__version__"}
 
 
 def _public_callables() -> list[tuple[str, Any]]:
