@@ -31,8 +31,10 @@ class LtvMpcError(Exception):
 
 class ArgumentTypeError(LtvMpcError, TypeError):
     """An argument has the wrong type (a file name where a model is expected, a dict for a
-    configuration, a string for a number, ...); the message names the argument, the type
-    given and what is expected."""
+    configuration, a string for a scalar setting, ...); the message names the argument,
+    the type given and what is expected. Array-valued arguments (measurements, set-points,
+    states) with entries that are not real numbers, strings included, raise
+    :class:`InvalidValueError` instead, as their other invalid entries do."""
 
 
 class DimensionError(LtvMpcError, ValueError):
