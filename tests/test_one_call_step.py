@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from collections import Counter
 from dataclasses import replace
 from typing import Any
@@ -220,6 +221,38 @@ def test_records_are_a_read_only_sequence_built_on_reading() -> None:
     for r, u in zip(first_run, u_first, strict=True):
         np.testing.assert_array_equal(r.u, u)
     assert first_run[2].monitor_log is not controller.records[2].monitor_log
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="minor page faults counted by getrusage")
+def test_steps_write_their_record_rows_without_page_faults() -> None:
+    """The record rows are written when reserved, so that the steps that fill them take
+    no page fault (lazily mapped zeros cost one per new 4 KiB page inside the timed step:
+    two per step at N = 50)."""
+    import resource
+
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[0]
+    controller = OffsetFreeController(
+        model,
+        replace(scenario.config, solver="daqp", N=50),
+        setpoint_rate_limit=scenario.setpoint_rate_limit,
+        kernels="compiled",
+    )
+    controller.records.reserve(400)
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    faults = 0
+    for k in range(200):
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        u = controller.step(y, scenario.setpoints[k])
+        if k >= 20:  # after compiling and warming the workspaces
+            faults += resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+        d = scenario.disturbances[k]
+        y = plant.step(u, None if np.isnan(d) else d)
+    assert controller.one_call and all(r.mpc.feasible for r in controller.records[20:])
+    assert faults <= 10, f"{faults} page faults in 180 steps"
 
 
 def test_inputs_of_other_layouts_and_bad_inputs() -> None:

@@ -172,26 +172,36 @@ def new_step_workspace(**fields: Any) -> Any:
     return build_workspace(_new_step_workspace, STEP_FIELDS, fields)
 
 
+def _resident_zeros(shape: tuple[int, ...], dtype: Any = np.float64) -> Any:
+    """Zeros written now (``np.full``), not the lazily mapped pages of ``np.zeros``: the
+    first write to each page of a large ``np.zeros`` array costs a page fault, which would
+    fall inside the timed steps that write their rows."""
+    return np.full(shape, 0, dtype=dtype)
+
+
 def new_record_arrays(capacity: int, p: int, m: int, n2: int, N: int) -> tuple[Any, dict[str, Any]]:
     """Empty :data:`RecordArrays` for ``capacity`` steps (the estimates use one row more),
-    and its arrays by field name."""
+    and its arrays by field name. The arrays are written (zeros) when allocated, so that
+    no page fault falls inside a step (two per step at N = 50 otherwise: 3 to 9 % of the
+    median step at N = 20 and 50, measured side by side)."""
+    zeros = _resident_zeros
     fields = {
-        "y": np.zeros((capacity, p)),
-        "y0": np.zeros((capacity, p)),
-        "u": np.zeros((capacity, m)),
-        "u_phi": np.zeros((capacity, m)),
-        "x_hat": np.zeros((capacity + 1, n2)),
-        "d_hat": np.zeros((capacity + 1, p)),
-        "x_bar": np.zeros((capacity, n2)),
-        "u_bar": np.zeros((capacity, m)),
-        "z": np.zeros((capacity, n2 + m)),
-        "target": np.zeros((capacity, p)),
-        "saturated": np.zeros((capacity, p), dtype=np.uint8),
-        "u_plan": np.zeros((capacity, N, m)),
-        "x_plan": np.zeros((capacity, N + 1, n2)),
-        "x_linear": np.zeros((capacity, N + 1, n2)),
-        "real": np.zeros((capacity, REAL_COLUMNS)),
-        "integer": np.zeros((capacity, INTEGER_COLUMNS), dtype=np.int64),
+        "y": zeros((capacity, p)),
+        "y0": zeros((capacity, p)),
+        "u": zeros((capacity, m)),
+        "u_phi": zeros((capacity, m)),
+        "x_hat": zeros((capacity + 1, n2)),
+        "d_hat": zeros((capacity + 1, p)),
+        "x_bar": zeros((capacity, n2)),
+        "u_bar": zeros((capacity, m)),
+        "z": zeros((capacity, n2 + m)),
+        "target": zeros((capacity, p)),
+        "saturated": zeros((capacity, p), np.uint8),
+        "u_plan": zeros((capacity, N, m)),
+        "x_plan": zeros((capacity, N + 1, n2)),
+        "x_linear": zeros((capacity, N + 1, n2)),
+        "real": zeros((capacity, REAL_COLUMNS)),
+        "integer": zeros((capacity, INTEGER_COLUMNS), np.int64),
     }
     return build_workspace(_new_record_arrays, RECORD_FIELDS, fields), fields
 
