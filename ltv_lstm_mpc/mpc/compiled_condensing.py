@@ -313,8 +313,9 @@ def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: A
     m = J.shape[2] - n2
     n = n2 // 2
     W = np.empty((n2, n2))
-    WA = np.empty((n2, n2))
-    V = np.empty((n2, m))
+    G = np.empty((n2, n2))
+    K = np.empty((n, n2))
+    V = np.empty((m, n2))
     for r in range(n2):
         for q in range(n2):
             W[r, q] = Qs[N - 1, r, q]
@@ -325,21 +326,25 @@ def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: A
         dev[q] = S[N, q] - x_bar[q]
     _weight_times(Qs, N - 1, dev, s, diagonal)
     for i in range(N - 1, -1, -1):
-        # V_i = W_{i+1} B_i and the H blocks of input i against inputs j <= i
-        for r in range(n2):
-            for b in range(m):
+        # V_i^T = B_i^T W_{i+1} (W symmetric: contiguous rows), then row block i of H over
+        # the causal columns j <= i, H[i, :] = V_i^T M[i + 1], mirrored into column block i
+        for b in range(m):
+            for c in range(n2):
                 acc = 0.0
                 for q in range(n2):
-                    acc += W[r, q] * J[i, q, n2 + b]
-                V[r, b] = acc
-        for j in range(i + 1):
-            for a in range(m):
-                for b in range(m):
-                    acc = 0.0
-                    for r in range(n2):
-                        acc += M[i + 1, r, n2 + j * m + a] * V[r, b]
-                    H[j * m + a, i * m + b] = acc
-                    H[i * m + b, j * m + a] = acc
+                    acc += J[i, q, n2 + b] * W[c, q]
+                V[b, c] = acc
+        live = (i + 1) * m
+        for b in range(m):
+            row = i * m + b
+            for c in range(live):
+                H[row, c] = 0.0
+            for r in range(n2):
+                v = V[b, r]
+                for c in range(live):
+                    H[row, c] += v * M[i + 1, r, n2 + c]
+            for c in range(live):
+                H[c, row] = H[row, c]
         for b in range(m):
             acc = 0.0
             for r in range(n2):
@@ -347,26 +352,33 @@ def _hessian_backward(J: Any, S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: A
             g0[i * m + b] = acc
         if i == 0:
             break
-        # W_i = Q_i + A_i^T W_{i+1} A_i (A_i's c-columns are diagonal blocks); inner loops
-        # run along rows (contiguous)
-        for r in range(n2):
-            for q in range(n):
-                WA[r, q] = W[r, q] * J[i, q, q] + W[r, n + q] * J[i, n + q, q]
-                WA[r, n + q] = 0.0
+        # W_i = Q_i + A_i^T W_{i+1} A_i with A_i = [[D_cc, K_c], [D_hc, K_h]] (D diagonal,
+        # K = A_i's h-columns, copied transposed): G = A_i^T W_{i+1}, then the upper
+        # triangle of G A_i (W is symmetric), mirrored; inner loops along contiguous rows
+        for q in range(n):
             for t in range(n2):
-                w = W[r, t]
-                for q in range(n):
-                    WA[r, n + q] += w * J[i, t, n + q]
+                K[q, t] = J[i, t, n + q]
         for r in range(n):
             d_cc, d_hc = J[i, r, r], J[i, n + r, r]
-            for q in range(n2):
-                W[r, q] = d_cc * WA[r, q] + d_hc * WA[n + r, q] + Qs[i - 1, r, q]
-                W[n + r, q] = Qs[i - 1, n + r, q]
-        for t in range(n2):
-            for r in range(n):
-                j_tr = J[i, t, n + r]
-                for q in range(n2):
-                    W[n + r, q] += j_tr * WA[t, q]
+            for c in range(n2):
+                G[r, c] = d_cc * W[r, c] + d_hc * W[n + r, c]
+        for q in range(n):
+            for c in range(n2):
+                acc = 0.0
+                for t in range(n2):
+                    acc += K[q, t] * W[c, t]
+                G[n + q, c] = acc
+        for r in range(n2):
+            for q in range(r, n):
+                W[r, q] = G[r, q] * J[i, q, q] + G[r, n + q] * J[i, n + q, q] + Qs[i - 1, r, q]
+            for q in range(max(r - n, 0), n):
+                acc = Qs[i - 1, r, n + q]
+                for t in range(n2):
+                    acc += G[r, t] * K[q, t]
+                W[r, n + q] = acc
+        for r in range(n2):
+            for q in range(r):
+                W[r, q] = W[q, r]
         # s_i = Q_i (x_i - x_bar) + A_i^T s_{i+1}
         _transpose_times(J, i, s, As)
         for q in range(n2):

@@ -74,9 +74,9 @@ __all__ = ["BACKWARD_CONDENSING_RATIO", "CondensedTranscription"]
 #: The compiled condensing forms H and g0 by the backward recursion when N m exceeds this
 #: multiple of the state dimension 2n (else by the Gram matrix); see ``mpc/compiled_condensing.py``.
 #: Measured (``experiments/condensing_speed.py``, backward / Gram time): n = 5, m = 1:
-#: 1.62 / 1.32 / 1.12 / 0.80 at N = 20 / 30 / 40 / 50; n = 10: 1.06 at N = 50, 0.68 at 80;
-#: n = 20, m = 2: 2.04 at N = 20, 0.80 at 50.
-BACKWARD_CONDENSING_RATIO = 3.5
+#: 1.21 / 1.00 / 0.86 / 0.59 at N = 15 / 20 / 25 / 50; n = 10: 1.02 at N = 30, 0.86 at 40;
+#: n = 20, m = 2: 1.06 at N = 30, 0.80 at 40.
+BACKWARD_CONDENSING_RATIO = 2.0
 
 FloatArray = NDArray[np.float64]
 
