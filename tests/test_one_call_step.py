@@ -70,18 +70,37 @@ def _worst(records_a: Any, records_b: Any) -> tuple[float, str]:
 @pytest.fixture
 def codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
     """Counts of the one-call step's return codes (both entries: with the state as
-    arguments, and read from the rows)."""
+    arguments, and read from the rows; through ``_compiled`` and through the entry point
+    the common step calls directly, ``_step_from_deferred_rows``)."""
     counts: Counter[int] = Counter()
     original = OffsetFreeController._compiled
     names = ("controller_step", "controller_step_from_rows")
 
+    class CountingEntries(dict[str, Any]):
+        """The controller's entry points, each handed out wrapped in a counter."""
+
+        def get(self, key: str, default: Any = None) -> Any:
+            entry = super().get(key, default)
+            if not entry or key not in names:
+                return entry
+
+            def counted(*arguments: Any) -> Any:
+                answer = entry(*arguments)
+                counts[answer[0]] += 1
+                return answer
+
+            return counted
+
     def counting(self: Any, name: str, fast: bool, arguments: Any) -> Any:
+        if not isinstance(self._entries, CountingEntries):
+            self._entries = CountingEntries(self._entries)
+        through_entry = fast and bool(dict.get(self._entries, name))  # counted there
         answer = original(self, name, fast, arguments)
-        if name in names:
+        if name in names and not through_entry:
             counts[answer[0]] += 1
         return answer
 
-    # at the controller's call, not by replacing the compiled functions (the "_from_rows"
+    # at the controller's calls, not by replacing the compiled functions (the "_from_rows"
     # ones call them from compiled code: a Python stand-in cannot be compiled into them)
     monkeypatch.setattr(OffsetFreeController, "_compiled", counting)
     return counts
@@ -221,6 +240,60 @@ def test_records_are_a_read_only_sequence_built_on_reading() -> None:
     for r, u in zip(first_run, u_first, strict=True):
         np.testing.assert_array_equal(r.u, u)
     assert first_run[2].monitor_log is not controller.records[2].monitor_log
+
+
+def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    """After a one-call step, the next one with float or float64-vector signals runs
+    through ``_step_from_deferred_rows`` (not ``_step_one_call``) and gives the same
+    inputs as a controller made to take the longer path; other signal types (numpy
+    scalars, lists) and a setting assigned between steps take the longer path."""
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[0]
+    config = replace(scenario.config, solver="daqp", N=5)
+    longer_calls = Counter[str]()
+    original = OffsetFreeController._step_one_call
+
+    def counted(self: Any, y_phi: Any, y0_phi: Any) -> Any:
+        longer_calls[self.name] += 1
+        return original(self, y_phi, y0_phi)
+
+    monkeypatch.setattr(OffsetFreeController, "_step_one_call", counted)
+    short, longer = (
+        OffsetFreeController(
+            model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+        )
+        for _ in range(2)
+    )
+    short.name, longer.name = "short", "longer"  # type: ignore[attr-defined]
+    longer._step_from_deferred_rows = lambda *arguments: None  # type: ignore[method-assignment]
+    plants = [scenario.make_plant(model) for _ in range(2)]
+    y = [plant.output() for plant in plants]
+    kinds = ["float"] * 20 + ["vector"] * 20 + ["float64", "list", "float", "setting"] * 5
+    for k, kind in enumerate(kinds):
+        u = []
+        for i, controller in enumerate((short, longer)):
+            y_phi = float(np.ravel(y[i])[0])
+            y0_phi = float(np.ravel(scenario.setpoints[k])[0])
+            if kind == "vector":
+                y_phi, y0_phi = np.array([y_phi]), np.array([y0_phi])
+            elif kind == "float64":
+                y_phi, y0_phi = np.float64(y_phi), np.float64(y0_phi)
+            elif kind == "list":
+                y_phi, y0_phi = [y_phi], [y0_phi]
+            elif kind == "setting":
+                controller.reference.tol = controller.reference.tol  # ends the deferral
+            u.append(controller.step(y_phi, y0_phi).copy())
+            d = scenario.disturbances[k]
+            y[i] = plants[i].step(u[-1], None if np.isnan(d) else d)
+        np.testing.assert_array_equal(u[0], u[1])
+    assert longer_calls["longer"] == len(kinds) - 1  # the first step is a general one
+    # the longer path: step 1 (the state as arguments) and 2 (which resolves the entry
+    # point), then per block the numpy scalar, the list and the step after the setting
+    assert longer_calls["short"] == 2 + 3 * 5, longer_calls
+    worst, where = _worst(short.records, longer.records)
+    assert worst <= TOLERANCE, where
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="minor page faults counted by getrusage")

@@ -631,6 +631,10 @@ class OffsetFreeController(DeferredState):
         samples) the step runs only the feedback of the prepared subproblem and the
         observer update.
         """
+        if self._deferred is not None:  # the last step was a one-call step
+            u = self._step_from_deferred_rows(y_phi, y0_phi)
+            if u is not None:
+                return u
         chord = None
         skip_native = False
         if self._one_call is not None and self._initialized:
@@ -968,6 +972,88 @@ class OffsetFreeController(DeferredState):
         return self._finish_one_call(
             k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr
         )
+
+    def _step_from_deferred_rows(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray | None:
+        """The common one-call step, with as little Python as possible: the last step was a
+        one-call step whose state is still deferred in its record row, nothing is prepared,
+        the signals are floats (p = 1) or C-contiguous float64 vectors, and the entry point
+        is resolved. The same call and bookkeeping as :meth:`_step_one_call` and
+        :meth:`_finish_one_call` in that case (the same numbers, the same path after a
+        compiled call that did not finish); None where any of it does not hold (nothing
+        changed: :meth:`step` goes on as without it)."""
+        deferred = self._deferred
+        if deferred is None:
+            return None
+        rows, last, inverse_valid_before = deferred
+        workspace = self._one_call
+        records = self.records
+        items = records._items
+        k = len(items)
+        e_hat = self.e_hat
+        entry = self._entries.get("controller_step_from_rows")
+        if (
+            last != k - 1
+            or rows is not records.rows
+            or type(e_hat) is not float
+            or not entry
+            or workspace is None
+            or self._prepared is not None
+            or k + 2 > records.capacity
+            or not self.mpc._plan_valid  # type: ignore[attr-defined]
+        ):
+            return None
+        buffer = self._y_buffer
+        if type(y_phi) is float and buffer.shape[0] == 1:
+            buffer[0] = y_phi
+            y_arr = buffer
+        elif (
+            type(y_phi) is np.ndarray
+            and y_phi.dtype is _FLOAT64
+            and y_phi.shape == buffer.shape
+            and y_phi.flags.carray
+        ):
+            y_arr = y_phi
+        else:
+            return None
+        buffer = self._y0_buffer
+        if type(y0_phi) is float and buffer.shape[0] == 1:
+            buffer[0] = y0_phi
+            y0_arr = buffer
+        elif (
+            type(y0_phi) is np.ndarray
+            and y0_phi.dtype is _FLOAT64
+            and y0_phi.shape == buffer.shape
+            and y0_phi.flags.carray
+        ):
+            y0_arr = y0_phi
+        else:
+            return None
+        rate_limit = self.setpoint_rate_limit
+        code, warnings, inverse_valid, factorizations, e_hat_next = entry(
+            workspace, records.compiled, k, y_arr, y0_arr, inverse_valid_before, e_hat,
+            _NO_LIMIT if rate_limit is None else float(rate_limit),
+        )  # fmt: skip
+        if code == one_call.STEP_GENERAL:
+            return self._step_general(y_phi, y0_phi, None, False)
+        if code != one_call.STEP_DONE:
+            answer = self._finish_one_call(
+                k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr
+            )
+            if not isinstance(answer, tuple):
+                return answer
+            chord, skip_native = answer
+            return self._step_general(y_phi, y0_phi, chord, skip_native)
+        if factorizations:
+            self.reference.counts["factorizations"] += factorizations
+        self._deferred = (rows, k, inverse_valid)
+        self._requested_phi = y0_arr
+        self._last_reference = _RECORDED
+        self._last_reference_row = k
+        if warnings:
+            self._warn_one_call(rows, k, warnings)
+        self.e_hat = e_hat_next
+        items.append(None)  # records.append_recorded()
+        return rows.u_phi[k]
 
     def _step_one_call(
         self, y_phi: ArrayLike, y0_phi: ArrayLike
