@@ -243,10 +243,10 @@ def test_records_are_a_read_only_sequence_built_on_reading() -> None:
 
 
 def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch) -> None:
-    """After a one-call step, the next one with float or float64-vector signals runs
-    through ``_step_from_deferred_rows`` (not ``_step_one_call``) and gives the same
-    inputs as a controller made to take the longer path; other signal types (numpy
-    scalars, lists) and a setting assigned between steps take the longer path."""
+    """After a one-call step, the next one with float, numpy float64 or float64-vector
+    signals runs through ``_step_from_deferred_rows`` (not ``_step_one_call``) and gives
+    the same inputs as a controller made to take the longer path; other signal types
+    (0-d arrays, lists) and a setting assigned between steps take the longer path."""
     from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
 
     model = load_model("ph_lstm_n5.npz")
@@ -270,7 +270,8 @@ def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch
     longer._step_from_deferred_rows = lambda *arguments: None  # type: ignore[method-assignment]
     plants = [scenario.make_plant(model) for _ in range(2)]
     y = [plant.output() for plant in plants]
-    kinds = ["float"] * 20 + ["vector"] * 20 + ["float64", "list", "float", "setting"] * 5
+    kinds = ["float"] * 10 + ["vector"] * 10 + ["float64"] * 10
+    kinds += ["0-d array", "list", "float", "setting"] * 5
     for k, kind in enumerate(kinds):
         u = []
         for i, controller in enumerate((short, longer)):
@@ -280,6 +281,8 @@ def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch
                 y_phi, y0_phi = np.array([y_phi]), np.array([y0_phi])
             elif kind == "float64":
                 y_phi, y0_phi = np.float64(y_phi), np.float64(y0_phi)
+            elif kind == "0-d array":
+                y_phi, y0_phi = np.array(y_phi), np.array(y0_phi)
             elif kind == "list":
                 y_phi, y0_phi = [y_phi], [y0_phi]
             elif kind == "setting":
@@ -290,7 +293,7 @@ def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch
         np.testing.assert_array_equal(u[0], u[1])
     assert longer_calls["longer"] == len(kinds) - 1  # the first step is a general one
     # the longer path: step 1 (the state as arguments) and 2 (which resolves the entry
-    # point), then per block the numpy scalar, the list and the step after the setting
+    # point), then per block the 0-d array, the list and the step after the setting
     assert longer_calls["short"] == 2 + 3 * 5, longer_calls
     worst, where = _worst(short.records, longer.records)
     assert worst <= TOLERANCE, where

@@ -976,7 +976,8 @@ class OffsetFreeController(DeferredState):
     def _step_from_deferred_rows(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray | None:
         """The common one-call step, with as little Python as possible: the last step was a
         one-call step whose state is still deferred in its record row, nothing is prepared,
-        the signals are floats (p = 1) or C-contiguous float64 vectors, and the entry point
+        the signals are floats or numpy float64 scalars (p = 1) or C-contiguous float64
+        vectors, and the entry point
         is resolved. The same call and bookkeeping as :meth:`_step_one_call` and
         :meth:`_finish_one_call` in that case (the same numbers, the same path after a
         compiled call that did not finish); None where any of it does not hold (nothing
@@ -1003,7 +1004,7 @@ class OffsetFreeController(DeferredState):
         ):
             return None
         buffer = self._y_buffer
-        if type(y_phi) is float and buffer.shape[0] == 1:
+        if (type(y_phi) is float or type(y_phi) is np.float64) and buffer.shape[0] == 1:
             buffer[0] = y_phi
             y_arr = buffer
         elif (
@@ -1016,7 +1017,7 @@ class OffsetFreeController(DeferredState):
         else:
             return None
         buffer = self._y0_buffer
-        if type(y0_phi) is float and buffer.shape[0] == 1:
+        if (type(y0_phi) is float or type(y0_phi) is np.float64) and buffer.shape[0] == 1:
             buffer[0] = y0_phi
             y0_arr = buffer
         elif (
