@@ -977,11 +977,10 @@ class OffsetFreeController(DeferredState):
         """The common one-call step, with as little Python as possible: the last step was a
         one-call step whose state is still deferred in its record row, nothing is prepared,
         the signals are floats or numpy float64 scalars (p = 1) or C-contiguous float64
-        vectors, and the entry point
-        is resolved. The same call and bookkeeping as :meth:`_step_one_call` and
-        :meth:`_finish_one_call` in that case (the same numbers, the same path after a
-        compiled call that did not finish); None where any of it does not hold (nothing
-        changed: :meth:`step` goes on as without it)."""
+        vectors, and the entry point is resolved. The same call and bookkeeping as
+        :meth:`_step_one_call` and :meth:`_finish_one_call` in that case (the same numbers,
+        the same path after a compiled call that did not finish); None where any of it does
+        not hold (nothing changed: :meth:`step` goes on as without it)."""
         deferred = self._deferred
         if deferred is None:
             return None
