@@ -106,8 +106,8 @@ _ACTIVE, _LOWER = 1, 2  # DAQP's sense bits
 SOCP_FIELDS = (
     "H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets", "z", "mu",
     "hessian", "A_k", "bupper", "blower", "sense", "x", "lam", "v", "w", "linear",
-    "gradients", "gradient_bounds", "cone_products", "formed", "kept", "lam_k", "problem",
-    "result", "settings",
+    "gradients", "gradient_bounds", "cone_products", "formed", "kept", "lam_k",
+    "row_values", "row_norms", "problem", "result", "settings",
 )  # fmt: skip
 
 SocpWorkspace = workspace_type(
@@ -126,8 +126,9 @@ SocpWorkspace = workspace_type(
     ``hessian``, ``x``, ``v``, ``w``, ``linear``, ``gradients`` and ``gradient_bounds`` (the
     cones' linearized rows), ``cone_products`` (each cone's :math:`F_j^\top F_j`, formed
     once per solve, where ``formed[j]`` is 1; none, formed as needed, where they would
-    take more than :data:`STORED_PRODUCTS` numbers); ``problem``, ``result``, ``settings``:
-    DAQP's C structs.
+    take more than :data:`STORED_PRODUCTS` numbers), ``row_values`` (:math:`A z` at the
+    iterate) and ``row_norms`` (each row's 1-norm, formed once per solve), which the row
+    screening reads; ``problem``, ``result``, ``settings``: DAQP's C structs.
     """,
     __name__,
 )
@@ -138,13 +139,13 @@ SocpWorkspaceType = getattr(SocpWorkspace, "numba_type", None)
 def _new_socp_workspace(  # type: ignore[no-untyped-def]
     H, f, A, lb, ub, lo, up, F, g, cone_rows, e, offsets, z, mu, hessian, A_k, bupper, blower,
     sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed, kept,
-    lam_k, problem, result, settings,
+    lam_k, row_values, row_norms, problem, result, settings,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return SocpWorkspace(
         H, f, A, lb, ub, lo, up, F, g, cone_rows, e, offsets, z, mu, hessian, A_k, bupper,
         blower, sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed,
-        kept, lam_k, problem, result, settings,
+        kept, lam_k, row_values, row_norms, problem, result, settings,
     )  # fmt: skip
 
 
@@ -162,12 +163,14 @@ def _cone_values(ws: Any, j: int) -> tuple[float, float]:
             acc += F[a, b] * z[b]
         v[a] = acc
         rr += acc * acc
+    for b in range(n):
+        w[b] = 0.0
+    for a in range(start, stop):  # w = F_j' v along the rows of F (the same sums, in order)
+        va = v[a]
+        for b in range(n):
+            w[b] += F[a, b] * va
     ez = 0.0
     for b in range(n):
-        acc = 0.0
-        for a in range(start, stop):
-            acc += F[a, b] * v[a]
-        w[b] = acc
         ez += e[j, b] * z[b]
     return np.sqrt(rr), ez
 
@@ -193,6 +196,23 @@ def cone_violation(ws: Any) -> float:
 
 
 @njit(cache=True)
+def _form_products(ws: Any, j: int) -> None:
+    """The upper triangle of :math:`F_j^\top F_j` into ``ws.cone_products[j]`` (the sums of
+    :func:`_column_product`, in its order, along the rows of ``F``)."""
+    F, products = ws.F, ws.cone_products
+    n = F.shape[1]
+    for a in range(n):
+        target = products[j, a, a:]  # slices: loops from 0 vectorize (from a, they did not)
+        for b in range(target.shape[0]):
+            target[b] = 0.0
+        for c in range(ws.cone_rows[j], ws.cone_rows[j + 1]):
+            fa = F[c, a]
+            source = F[c, a:]
+            for b in range(target.shape[0]):
+                target[b] += fa * source[b]
+
+
+@njit(cache=True)
 def _column_product(ws: Any, j: int, a: int, b: int) -> float:
     """Entry ``(a, b)`` of :math:`F_j^\\top F_j`."""
     F = ws.F
@@ -214,23 +234,68 @@ def _sense(multiplier: float) -> int:
 
 
 @njit(cache=True)
+def _row_values(ws: Any, point: Any) -> None:
+    """``ws.row_values``: :math:`A` times ``point`` (every row)."""
+    A, values = ws.A, ws.row_values
+    n, m = A.shape[1], A.shape[0]
+    row = 0
+    while row + 4 <= m:  # four rows per pass: four independent sums (each in its order)
+        a0, a1, a2, a3 = A[row], A[row + 1], A[row + 2], A[row + 3]
+        v0 = v1 = v2 = v3 = 0.0
+        for b in range(n):
+            x = point[b]
+            v0 += a0[b] * x
+            v1 += a1[b] * x
+            v2 += a2[b] * x
+            v3 += a3[b] * x
+        values[row], values[row + 1], values[row + 2], values[row + 3] = v0, v1, v2, v3
+        row += 4
+    for rest in range(row, m):
+        value = 0.0
+        for b in range(n):
+            value += A[rest, b] * point[b]
+        values[rest] = value
+
+
+@njit(cache=True)
+def _row_norms(ws: Any) -> None:
+    """``ws.row_norms``: the 1-norm of every row of :math:`A` (as :func:`_row_values`)."""
+    A, norms = ws.A, ws.row_norms
+    n, m = A.shape[1], A.shape[0]
+    row = 0
+    while row + 4 <= m:
+        a0, a1, a2, a3 = A[row], A[row + 1], A[row + 2], A[row + 3]
+        v0 = v1 = v2 = v3 = 0.0
+        for b in range(n):
+            v0 += abs(a0[b])
+            v1 += abs(a1[b])
+            v2 += abs(a2[b])
+            v3 += abs(a3[b])
+        norms[row], norms[row + 1], norms[row + 2], norms[row + 3] = v0, v1, v2, v3
+        row += 4
+    for rest in range(row, m):
+        norm = 0.0
+        for b in range(n):
+            norm += abs(A[rest, b])
+        norms[rest] = norm
+
+
+@njit(cache=True)
 def _screen(ws: Any, screen_rows: bool, last_step: float) -> None:
     """``ws.kept``: the rows of the next subproblem (module docstring, row screening):
     active in the last one, or within :data:`SCREENING_MARGIN` of their bounds at
-    ``ws.z``; every row without ``screen_rows``."""
-    A, z, lo, up, lam, kept = ws.A, ws.z, ws.lo, ws.up, ws.lam, ws.kept
-    n = z.shape[0]
-    for row in range(A.shape[0]):
+    ``ws.z`` (``ws.row_values`` holds :math:`A z`, ``ws.row_norms`` the rows' 1-norms);
+    every row without ``screen_rows``."""
+    lo, up, lam, kept = ws.lo, ws.up, ws.lam, ws.kept
+    values, norms = ws.row_values, ws.row_norms
+    n = ws.z.shape[0]
+    for row in range(kept.shape[0]):
         if not screen_rows or lam[n + row] != 0.0:
             kept[row] = 1
             continue
-        value = 0.0
-        norm = 0.0
-        for b in range(n):
-            value += A[row, b] * z[b]
-            norm += abs(A[row, b])
+        value = values[row]
         slack = min(up[row] - value, value - lo[row])
-        kept[row] = 1 if slack <= SCREENING_MARGIN * norm * last_step else 0
+        kept[row] = 1 if slack <= SCREENING_MARGIN * norms[row] * last_step else 0
 
 
 @njit(cache=True)
@@ -266,8 +331,9 @@ def _subproblem(ws: Any) -> int:
 @njit(cache=True)
 def _add_violated_rows(ws: Any) -> bool:
     """Spread the subproblem's multipliers ``ws.lam_k`` into ``ws.lam`` (0 for the rows
-    left out), then mark the rows left out that its solution ``ws.x`` violates as kept;
-    True where there are any (the subproblem is then solved again)."""
+    left out), form ``ws.row_values`` (:math:`A` times its solution ``ws.x``, the next
+    iterate), then mark the rows left out that ``ws.x`` violates as kept; True where there
+    are any (the subproblem is then solved again)."""
     A, x, lam, lam_k, kept = ws.A, ws.x, ws.lam, ws.lam_k, ws.kept
     n = A.shape[1]
     m = A.shape[0]
@@ -282,12 +348,12 @@ def _add_violated_rows(ws: Any) -> bool:
             lam[n + row] = 0.0
     for j in range(ws.offsets.shape[0]):
         lam[n + m + j] = lam_k[count + j]
+    _row_values(ws, x)
+    values = ws.row_values
     added = False
     for row in range(m):
         if not kept[row]:
-            value = 0.0
-            for b in range(n):
-                value += A[row, b] * x[b]
+            value = values[row]
             if value > ws.up[row] or value < ws.lo[row]:
                 kept[row] = 1
                 added = True
@@ -323,37 +389,74 @@ def socp_solve(
             mu[j] = 0.0
     for q in range(lam.shape[0]):  # the first subproblem starts from an empty working set
         lam[q] = 0.0
+    F, v = ws.F, ws.v
+    _row_norms(ws)  # the rows' 1-norms and A z, for the row screening
+    _row_values(ws, z)
     formed = ws.formed
     for j in range(cones):
         formed[j] = 0
+    stored = products.shape[0] > 0
+    symmetric = True
+    for a in range(n):
+        for b in range(a + 1, n):
+            if H[a, b] != H[b, a]:
+                symmetric = False
     flag = 0
     total = 0
     seconds = 0.0
     violation = np.inf
     step = 0.0
     for iteration in range(1, max_iterations + 1):
+        for a in range(n):  # W_k on the upper triangle (mirrored below), from H's
+            target = hessian[a, a:]  # symmetric part (H itself where it is symmetric)
+            if symmetric:
+                source = H[a, a:]
+                for b in range(target.shape[0]):
+                    target[b] = source[b]
+            else:
+                for b in range(target.shape[0]):
+                    target[b] = 0.5 * (H[a, a + b] + H[a + b, a])
         for a in range(n):
-            for b in range(n):
-                hessian[a, b] = H[a, b]
+            linear[a] = f[a]
         for j in range(cones):
             r, ez = _cone_values(ws, j)
             value = r - ez - ws.offsets[j]
             if mu[j] > 0.0:
-                stored = products.shape[0] > 0
+                # mu_j times the curvature F_j' (I - v v' / r^2) F_j / r into W_k, and its
+                # product with z_k out of the linear term: (H - W_k) z_k with
+                # F_j' F_j z_k = F_j' (F_j z_k), whose F_j z_k goes into v's rows
                 if stored and not formed[j]:
-                    for a in range(n):
-                        for b in range(a, n):
-                            products[j, a, b] = _column_product(ws, j, a, b)
+                    _form_products(ws, j)
                     formed[j] = 1
                 scale = mu[j] / r
                 inv_r2 = 1.0 / (r * r)
                 for a in range(n):
-                    for b in range(a, n):
-                        product = products[j, a, b] if stored else _column_product(ws, j, a, b)
-                        term = scale * (product - w[a] * w[b] * inv_r2)
-                        hessian[a, b] += term
-                        if b != a:
-                            hessian[b, a] += term
+                    wa = w[a]
+                    target = hessian[a, a:]
+                    w_tail = w[a:]
+                    if stored:
+                        product = products[j, a, a:]
+                        for b in range(target.shape[0]):
+                            target[b] += scale * (product[b] - wa * w_tail[b] * inv_r2)
+                    else:
+                        for b in range(target.shape[0]):
+                            entry = _column_product(ws, j, a, a + b)
+                            target[b] += scale * (entry - wa * w_tail[b] * inv_r2)
+                start, stop = ws.cone_rows[j], ws.cone_rows[j + 1]
+                wz = 0.0
+                for b in range(n):
+                    wz += w[b] * z[b]
+                for c in range(start, stop):
+                    acc = 0.0
+                    for b in range(n):
+                        acc += F[c, b] * z[b]
+                    v[c] = acc
+                wz *= inv_r2
+                for b in range(n):
+                    acc = 0.0
+                    for c in range(start, stop):
+                        acc += F[c, b] * v[c]
+                    linear[b] -= scale * (acc - w[b] * wz)
             bound = -value
             for b in range(n):
                 gradient = w[b] / r - ws.e[j, b]
@@ -361,10 +464,8 @@ def socp_solve(
                 bound += gradient * z[b]
             ws.gradient_bounds[j] = bound
         for a in range(n):
-            acc = f[a]
-            for b in range(n):
-                acc += (H[a, b] - hessian[a, b]) * z[b]
-            linear[a] = acc
+            for b in range(a + 1, n):
+                hessian[b, a] = hessian[a, b]
         _screen(ws, screen_rows, step)
         while True:
             rows = _subproblem(ws)
@@ -435,6 +536,7 @@ def socp_arrays(n: int, m: int, sizes: list[int], buffers: Any) -> dict[str, Any
         "cone_products": np.zeros((cones if cones * n * n <= STORED_PRODUCTS else 0, n, n)),
         "formed": np.zeros(cones, dtype=np.int64), "kept": np.zeros(m, dtype=np.int64),
         "lam_k": np.zeros(n + m + cones),
+        "row_values": np.zeros(m), "row_norms": np.zeros(m),
         "problem": buffers.problem, "result": buffers.result, "settings": buffers.settings,
     }  # fmt: skip
 
