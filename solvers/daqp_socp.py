@@ -94,6 +94,7 @@ __all__ = [
     "new_socp_workspace",
     "socp_arrays",
     "socp_solve",
+    "warm_up",
 ]
 
 #: :math:`s` of :math:`r_j = \sqrt{\|F_j z + g_j\|^2 + s^2}` (smooth at the apex, conservative).
@@ -933,6 +934,23 @@ class DaqpSocpDense(DenseBackend):
         status, native_status, iterations, _wall = self._run(None)
         z = self._arrays["z"].copy() if status.has_solution else None
         return status, z, iterations, native_status
+
+
+def warm_up() -> None:
+    """Solve a two-variable problem with one cone from Python, as :class:`DaqpSocpDense`
+    does: compiles :func:`socp_solve` for those argument types (or loads it from numba's
+    cache), so that a later first solve does not wait for it."""
+    from .dense import DenseCone
+
+    cone = DenseCone(np.array([[1.0, 0.0]]), np.zeros(1), np.array([0.0, 1.0]), 0.0)
+    qp = DenseQP(
+        H=np.eye(2), f=np.array([-2.0, 0.0]), A=np.zeros((0, 2)), lo=np.zeros(0),
+        up=np.zeros(0), lb=np.array([-10.0, -np.inf]), ub=np.array([10.0, np.inf]),
+        cones=(cone,),
+    )  # fmt: skip
+    backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+    backend.setup(qp)
+    backend.solve(None)
 
 
 def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:

@@ -133,6 +133,17 @@ CALLEES = {
     "_cone_values",
     "cone_violation",
     "max_abs",
+    # inside socp_solve (solvers/daqp_socp.py), which warm-up also calls from Python
+    "_add_violated_rows",
+    "_column_product",
+    "_epigraph_cones",
+    "_form_products",
+    "_reduced_solve",
+    "_row_norms",
+    "_row_values",
+    "_screen",
+    "_sense",
+    "_subproblem",
 }
 
 USED = """
