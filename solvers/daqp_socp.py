@@ -29,6 +29,17 @@ quadratic near the solution (3-6 iterations on the MPC's terminal cones, measure
 convention: rows and bounds as DAQP's, each cone's :math:`(\lambda_0, \lambda_1) = \mu_j
 (1, -v_j / r_j)`.
 
+Globalization: the first :data:`FULL_STEPS` iterations take full steps (the local method,
+quadratic near the solution). Far from it, full steps can cycle (two points visited in
+turn, seen on small random problems whose cost pulls an epigraph variable far below its
+cone), so from then on the step to the subproblem's solution is shortened by backtracking
+until the l1 merit function :math:`\tfrac12 z^\top H z + f^\top z + w \sum_j
+\max(c_j(z), 0)` decreases enough (Armijo, :data:`ARMIJO`), with :math:`w` at least twice
+the largest cone multiplier so far (the SQP direction then descends on it). The stop test
+reads the full step. Solutions at a cone's apex stay slow: the smoothed cone's curvature
+:math:`\mu_j / r_j` grows as :math:`r_j \to s` and the accepted steps shrink; such a
+problem ends with ``MAX_ITER`` (an interior-point solver such as CLARABEL suits it).
+
 Row screening: DAQP forms :math:`M = A R^{-1}` for every general row of a subproblem
 (:math:`R^\top R = W_k`), which is most of its time on the MPC's problems, whose output
 rows are rarely active. Each subproblem therefore gets only the rows that were active in the
@@ -110,6 +121,13 @@ STEP_TOLERANCE = 1e-7
 CONE_TOLERANCE = 1e-9
 #: Most SQP iterations per solve (then ``MAX_ITER``).
 MAX_ITERATIONS = 50
+#: Iterations taken as full steps (the local method, quadratic near the solution: the MPC's
+#: subproblems converge in 3-6); from the next one on, each step's length comes from a
+#: line search on the l1 merit function (module docstring, globalization).
+FULL_STEPS = 8
+#: Sufficient decrease of the line search (Armijo) and its most halvings.
+ARMIJO = 1e-4
+BACKTRACKS = 30
 #: Row screening (module docstring): a row whose slack at the iterate is at most this times
 #: its 1-norm times the last SQP step goes into the next subproblem. Only speed depends on
 #: it: a row left out that the subproblem's solution violates is added and the subproblem
@@ -230,7 +248,7 @@ def cone_violation(ws: Any) -> float:
 
 @njit(cache=True)
 def _form_products(ws: Any, j: int) -> None:
-    """The upper triangle of :math:`F_j^\top F_j` into ``ws.cone_products[j]`` (the sums of
+    """The upper triangle of :math:`F_j^\\top F_j` into ``ws.cone_products[j]`` (the sums of
     :func:`_column_product`, in its order, along the rows of ``F``)."""
     F, products = ws.F, ws.cone_products
     n = F.shape[1]
@@ -607,6 +625,59 @@ def _add_violated_rows(ws: Any) -> bool:
 
 
 @njit(cache=True)
+def _merit(ws: Any, point: Any, weight: float) -> float:
+    r"""The l1 merit function at ``point``: :math:`\tfrac12 z^\top H z + f^\top z + w
+    \sum_j \max(c_j(z), 0)` (the smoothed cones; the rows and bounds hold on the segment
+    between two subproblem solutions)."""
+    H, f, F, g, e = ws.H, ws.f, ws.F, ws.g, ws.e
+    n = point.shape[0]
+    value = 0.0
+    for a in range(n):
+        acc = 0.5 * H[a, a] * point[a] + f[a]
+        for b in range(a + 1, n):
+            acc += 0.5 * (H[a, b] + H[b, a]) * point[b]
+        value += acc * point[a]
+    for j in range(ws.offsets.shape[0]):
+        rr = SMOOTHING * SMOOTHING
+        for c in range(ws.cone_rows[j], ws.cone_rows[j + 1]):
+            acc = g[c]
+            for b in range(n):
+                acc += F[c, b] * point[b]
+            rr += acc * acc
+        ez = 0.0
+        for b in range(n):
+            ez += e[j, b] * point[b]
+        value += weight * max(np.sqrt(rr) - ez - ws.offsets[j], 0.0)
+    return value
+
+
+@njit(cache=True)
+def _line_search(ws: Any, weight: float) -> float:
+    """The step length along ``ws.x - ws.z`` by backtracking from 1 on :func:`_merit`
+    with ``weight`` (at least the cones' multipliers: the SQP direction then descends),
+    until the Armijo condition holds (:data:`ARMIJO`); the shortest tried where it never
+    does. ``ws.linear`` holds the trial points."""
+    H, f, z, x, trial = ws.H, ws.f, ws.z, ws.x, ws.linear
+    n = z.shape[0]
+    slope = 0.0  # the merit's directional derivative bound: grad q' d - w sum max(c_j, 0)
+    for a in range(n):
+        acc = f[a]
+        for b in range(n):
+            acc += 0.5 * (H[a, b] + H[b, a]) * z[b]
+        slope += acc * (x[a] - z[a])
+    start = _merit(ws, z, weight)
+    slope -= start - _merit(ws, z, 0.0)
+    length = 1.0
+    for _ in range(BACKTRACKS):
+        for a in range(n):
+            trial[a] = z[a] + length * (x[a] - z[a])
+        if _merit(ws, trial, weight) <= start + ARMIJO * length * slope:
+            return length
+        length *= 0.5
+    return 2.0 * length
+
+
+@njit(cache=True)
 def socp_solve(
     ws: Any, warm: bool, max_iterations: int, screen_rows: bool = True, eliminate: bool = True
 ) -> tuple[int, int, int, float, float]:
@@ -659,6 +730,7 @@ def socp_solve(
     seconds = 0.0
     violation = np.inf
     step = 0.0
+    weight = 0.0  # of the merit function's cone violations, once it is used
     for iteration in range(1, max_iterations + 1):
         for a in range(n):  # W_k on the upper triangle (mirrored below), from H's
             target = hessian[a, a:]  # symmetric part (H itself where it is symmetric)
@@ -756,14 +828,25 @@ def socp_solve(
                 return flag, iteration, total, np.inf, seconds
             if not _add_violated_rows(ws):
                 break
+        largest = 0.0
+        for j in range(cones):
+            mu[j] = max(lam[n + ws.A.shape[0] + j], 0.0)
+            largest = max(largest, mu[j])
+            if iteration == 1 and ws.epigraph[j] >= 0:
+                ws.first_active[j] = 1 if mu[j] > 0.0 else 0
         step = 0.0
         for b in range(n):
             step = max(step, abs(x[b] - z[b]))
-            z[b] = x[b]
-        for j in range(cones):
-            mu[j] = max(lam[n + ws.A.shape[0] + j], 0.0)
-            if iteration == 1 and ws.epigraph[j] >= 0:
-                ws.first_active[j] = 1 if mu[j] > 0.0 else 0
+        if iteration > FULL_STEPS:  # a line search on the l1 merit function
+            weight = max(weight, 2.0 * largest)
+            length = _line_search(ws, weight)
+            for b in range(n):
+                z[b] += length * (x[b] - z[b])
+            if length < 1.0:
+                _row_values(ws, z)  # A z for the next screening (A x was formed)
+        else:
+            for b in range(n):
+                z[b] = x[b]
         violation = cone_violation(ws)
         if step <= STEP_TOLERANCE * (1.0 + max_abs(z)) and violation <= CONE_TOLERANCE:
             return flag, iteration, total, violation, seconds

@@ -156,3 +156,19 @@ def test_every_public_name_resolves() -> None:
         assert getattr(ltv_lstm_mpc, name) is not None, name
     with pytest.raises(AttributeError, match="has no attribute 'nothing_here'"):
         ltv_lstm_mpc.nothing_here  # noqa: B018
+
+
+def test_no_docstring_holds_a_control_character() -> None:
+    """A LaTeX command in a docstring that is not raw loses its backslash to an escape
+    (``\\tilde`` becomes a tab and "ilde", ``\\bar`` a backspace and "ar") and renders
+    wrongly in the API pages: every docstring of the library is free of tab, backspace,
+    bell, form feed and vertical tab characters."""
+    found = []
+    for name, path in _modules().items():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+                text = ast.get_docstring(node, clean=False) or ""
+                if any(character in text for character in "\t\b\a\f\v"):
+                    found.append(f"{name}.{getattr(node, 'name', '')}")
+    assert found == []

@@ -251,8 +251,8 @@ class TighteningCertificate:
     ) -> None:
         """Raise :class:`EmptySetpointIntervalError` when Assumption 5 admits no set-point.
 
-        The interval of :meth:`setpoint_interval` (at :math:`\bar e_\\infty`) is empty when
-        :math:`2 d_{max} + a_N \tilde e_{o} + b_N` is at least half the output range
+        The interval of :meth:`setpoint_interval` (at :math:`\\bar e_\\infty`) is empty when
+        :math:`2 d_{max} + a_N \\tilde e_{o} + b_N` is at least half the output range
         :math:`y_{max} - y_{min}` on some output. ``to_physical`` (normalized -> physical
         output) adds physical units to the message.
         """

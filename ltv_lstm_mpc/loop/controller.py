@@ -145,7 +145,7 @@ class ControllerStep:
     setpoint_status : str
         ``"ok"``; ``"outside_admissible"`` (the set-point lies outside the admissible
         interval of Assumption 5 at this :math:`\\hat e_{o,k}`: no terminal set);
-        ``"unreachable_stale"`` (no equilibrium with :math:`\bar u \\in \\mathcal U` for it:
+        ``"unreachable_stale"`` (no equilibrium with :math:`\\bar u \\in \\mathcal U` for it:
         the previous target is kept, see ``stale_reference``); ``"unreachable"`` (the same
         at the first step: the inadmissible equilibrium found is used);
         ``"target_outside_admissible"`` (the rate-limited set-point used is admissible, but
