@@ -72,6 +72,41 @@ def _equilibrium_residual(
 
 
 @njit(cache=True)
+def _invert(matrix: Any, inverse: Any) -> bool:
+    """``inverse`` = the inverse of ``matrix`` by Gauss-Jordan elimination with partial
+    pivoting, in place (``matrix`` is overwritten): no allocation and no library call in
+    the step. Returns False for an exactly singular matrix (a zero pivot column)."""
+    size = matrix.shape[0]
+    for r in range(size):
+        for c in range(size):
+            inverse[r, c] = 1.0 if r == c else 0.0
+    for k in range(size):
+        pivot_row = k
+        largest = abs(matrix[k, k])
+        for r in range(k + 1, size):
+            if abs(matrix[r, k]) > largest:
+                largest = abs(matrix[r, k])
+                pivot_row = r
+        if largest == 0.0:
+            return False
+        if pivot_row != k:
+            for c in range(size):
+                matrix[k, c], matrix[pivot_row, c] = matrix[pivot_row, c], matrix[k, c]
+                inverse[k, c], inverse[pivot_row, c] = inverse[pivot_row, c], inverse[k, c]
+        scale = 1.0 / matrix[k, k]
+        for c in range(size):
+            matrix[k, c] *= scale
+            inverse[k, c] *= scale
+        for r in range(size):
+            factor = matrix[r, k]
+            if r != k and factor != 0.0:
+                for c in range(size):
+                    matrix[r, c] -= factor * matrix[k, c]
+                    inverse[r, c] -= factor * inverse[k, c]
+    return True
+
+
+@njit(cache=True)
 def chord_newton(
     workspace: Any,
     z_start: Any,
@@ -119,10 +154,8 @@ def chord_newton(
             for j in range(size - n2):
                 for q in range(n):
                     jac[n2 + j, n + q] = W_y[j, q]
-            inverse = np.linalg.inv(jac)
-            for r in range(size):
-                for c in range(size):
-                    Jinv[r, c] = inverse[r, c]
+            if not _invert(jac, Jinv):  # singular: no chord (the caller's Newton runs)
+                break
             state[0] = 1
             factorizations += 1
             fresh = True

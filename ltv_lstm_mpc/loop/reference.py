@@ -224,15 +224,21 @@ class ReferenceCalculator(DeferredState):
         F[n2:] -= target
         return float(np.abs(F).max())
 
-    def _chord_factorize(self) -> None:
-        """Inverse Jacobian eq. (jacobian) at the point of the last residual evaluation."""
+    def _chord_factorize(self) -> bool:
+        """Inverse Jacobian eq. (jacobian) at the point of the last residual evaluation;
+        False (and no inverse) where it is singular."""
         self.model.kernel.jacobians(self._traj)
         n2 = 2 * self.model.n
         jac = self._chord_jacobian
         jac[:n2] = self._traj.J[0]
         jac[self._diag, self._diag] -= 1.0
-        self._Jinv = np.linalg.inv(jac)
+        try:
+            self._Jinv = np.linalg.inv(jac)
+        except np.linalg.LinAlgError:
+            self._Jinv = None
+            return False
         self.counts["factorizations"] += 1
+        return True
 
     def _chord_compiled(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
         """:meth:`_chord_numpy` in one numba call (``loop/compiled_reference.py``)."""
@@ -272,7 +278,8 @@ class ReferenceCalculator(DeferredState):
         iterations, fresh = 0, False
         while norm >= self.tol and iterations < self.max_iter:
             if self._Jinv is None:
-                self._chord_factorize()
+                if not self._chord_factorize():  # singular: no chord (the Newton runs)
+                    break
                 fresh = True
             assert self._Jinv is not None
             z_new = z - self._Jinv @ self._chord_F
