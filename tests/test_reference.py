@@ -114,3 +114,30 @@ def test_observer_saturates_disturbance_and_checks_shapes() -> None:
         observer.step([0.0], [0.0, 1.0])
     with pytest.raises(InvalidValueError):
         observer.step([np.inf], [0.0])
+
+
+def test_a_singular_chord_jacobian_ends_the_chord_and_newton_solves(monkeypatch) -> None:
+    """Where the chord's Jacobian cannot be inverted (np.linalg.inv raising, as for a
+    singular matrix), the numpy chord ends without an inverse and the damped Newton solves
+    the set-point (one fallback counted), rather than the error reaching the caller; the
+    compiled chord does the same (tests/test_kernel.py checks its in-place inverse)."""
+    from ltv_lstm_mpc.lstm.kernel import LSTMKernel
+
+    model = load_model("example_delta_iss_n3.npz")
+    model.kernel = LSTMKernel(model, compiled=False)
+    calculator = ReferenceCalculator(model)
+    assert not calculator._compiled
+    y_a = model.output(model.equilibrium(np.array([0.1])))
+    y_b = model.output(model.equilibrium(np.array([0.12])))
+    assert calculator.solve(y_a, [0.0]).converged
+    calculator._Jinv = None  # the next chord factorizes
+
+    def singular(matrix):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(np.linalg, "inv", singular)
+    fallbacks = calculator.counts["fallbacks"]
+    solution = calculator.solve(y_b, [0.0])
+    assert solution.converged and solution.residual < 1e-10
+    assert calculator.counts["fallbacks"] == fallbacks + 1
+    np.testing.assert_allclose(solution.u_bar, [0.12], atol=1e-7)
