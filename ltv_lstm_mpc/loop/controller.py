@@ -631,10 +631,9 @@ class OffsetFreeController(DeferredState):
         samples) the step runs only the feedback of the prepared subproblem and the
         observer update.
         """
-        if self._deferred is not None:  # the last step was a one-call step
-            u = self._step_from_deferred_rows(y_phi, y0_phi)
-            if u is not None:
-                return u
+        u = self._step_from_deferred_rows(y_phi, y0_phi)  # the common one-call step
+        if u is not None:
+            return u
         chord = None
         skip_native = False
         if self._one_call is not None and self._initialized:
@@ -839,14 +838,24 @@ class OffsetFreeController(DeferredState):
 
     @staticmethod
     def _vector(name: str, value: Any, buffer: FloatArray) -> FloatArray:
+        ready = OffsetFreeController._ready_vector(value, buffer)
+        if ready is not None:
+            return ready
+        checked = real_vector(name, value, buffer.shape[0])
+        return checked if checked.flags.carray else np.array(checked)
+
+    @staticmethod
+    def _ready_vector(value: Any, buffer: FloatArray) -> FloatArray | None:
+        """``value`` as the step's signal without a check or a copy: a C-contiguous float64
+        vector of the buffer's shape itself, a float (numpy float64 included, p = 1) in
+        ``buffer``; None for anything else (:meth:`_vector` checks it)."""
         if type(value) is np.ndarray:
             if value.dtype is _FLOAT64 and value.shape == buffer.shape and value.flags.carray:
                 return value
         elif isinstance(value, float) and buffer.shape[0] == 1:  # float and numpy.float64
             buffer[0] = value
             return buffer
-        checked = real_vector(name, value, buffer.shape[0])
-        return checked if checked.flags.carray else np.array(checked)
+        return None
 
     def prepare_next(self, y0_phi: ArrayLike | None = None) -> bool:
         r"""Prepare the next step now, between samples (after this step's input is applied).
@@ -1002,31 +1011,9 @@ class OffsetFreeController(DeferredState):
             or not self.mpc._plan_valid  # type: ignore[attr-defined]
         ):
             return None
-        buffer = self._y_buffer
-        if (type(y_phi) is float or type(y_phi) is np.float64) and buffer.shape[0] == 1:
-            buffer[0] = y_phi
-            y_arr = buffer
-        elif (
-            type(y_phi) is np.ndarray
-            and y_phi.dtype is _FLOAT64
-            and y_phi.shape == buffer.shape
-            and y_phi.flags.carray
-        ):
-            y_arr = y_phi
-        else:
-            return None
-        buffer = self._y0_buffer
-        if (type(y0_phi) is float or type(y0_phi) is np.float64) and buffer.shape[0] == 1:
-            buffer[0] = y0_phi
-            y0_arr = buffer
-        elif (
-            type(y0_phi) is np.ndarray
-            and y0_phi.dtype is _FLOAT64
-            and y0_phi.shape == buffer.shape
-            and y0_phi.flags.carray
-        ):
-            y0_arr = y0_phi
-        else:
+        y_arr = self._ready_vector(y_phi, self._y_buffer)
+        y0_arr = self._ready_vector(y0_phi, self._y0_buffer)
+        if y_arr is None or y0_arr is None:
             return None
         rate_limit = self.setpoint_rate_limit
         code, warnings, inverse_valid, factorizations, e_hat_next = entry(
