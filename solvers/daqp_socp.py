@@ -227,22 +227,29 @@ def _cone_values(ws: Any, j: int) -> tuple[float, float]:
 
 
 @njit(cache=True)
+def _cone_value(ws: Any, j: int, point: Any, smoothing: float) -> float:
+    r""":math:`\sqrt{\|F_j z + g_j\|^2 + s^2} - e_j^\top z - f_j` at ``point`` with
+    :math:`s` = ``smoothing`` (0: the cone's own violation)."""
+    F, g, e = ws.F, ws.g, ws.e
+    n = point.shape[0]
+    rr = smoothing * smoothing
+    for a in range(ws.cone_rows[j], ws.cone_rows[j + 1]):
+        acc = g[a]
+        for b in range(n):
+            acc += F[a, b] * point[b]
+        rr += acc * acc
+    ez = 0.0
+    for b in range(n):
+        ez += e[j, b] * point[b]
+    return np.sqrt(rr) - ez - ws.offsets[j]
+
+
+@njit(cache=True)
 def cone_violation(ws: Any) -> float:
-    """Largest :math:`\\|F_j z + g_j\\| - e_j^\\top z - f_j` at ``ws.z`` (unsmoothed)."""
-    F, g, z, e = ws.F, ws.g, ws.z, ws.e
-    n = z.shape[0]
+    r"""Largest :math:`\|F_j z + g_j\| - e_j^\top z - f_j` at ``ws.z`` (unsmoothed)."""
     worst = -np.inf
     for j in range(ws.offsets.shape[0]):
-        rr = 0.0
-        for a in range(ws.cone_rows[j], ws.cone_rows[j + 1]):
-            acc = g[a]
-            for b in range(n):
-                acc += F[a, b] * z[b]
-            rr += acc * acc
-        ez = 0.0
-        for b in range(n):
-            ez += e[j, b] * z[b]
-        worst = max(worst, np.sqrt(rr) - ez - ws.offsets[j])
+        worst = max(worst, _cone_value(ws, j, ws.z, 0.0))
     return worst
 
 
@@ -310,25 +317,13 @@ def _row_values(ws: Any, point: Any) -> None:
 
 @njit(cache=True)
 def _row_norms(ws: Any) -> None:
-    """``ws.row_norms``: the 1-norm of every row of :math:`A` (as :func:`_row_values`)."""
+    """``ws.row_norms``: the 1-norm of every row of :math:`A` (once per solve)."""
     A, norms = ws.A, ws.row_norms
-    n, m = A.shape[1], A.shape[0]
-    row = 0
-    while row + 4 <= m:
-        a0, a1, a2, a3 = A[row], A[row + 1], A[row + 2], A[row + 3]
-        v0 = v1 = v2 = v3 = 0.0
-        for b in range(n):
-            v0 += abs(a0[b])
-            v1 += abs(a1[b])
-            v2 += abs(a2[b])
-            v3 += abs(a3[b])
-        norms[row], norms[row + 1], norms[row + 2], norms[row + 3] = v0, v1, v2, v3
-        row += 4
-    for rest in range(row, m):
+    for row in range(A.shape[0]):
         norm = 0.0
-        for b in range(n):
-            norm += abs(A[rest, b])
-        norms[rest] = norm
+        for b in range(A.shape[1]):
+            norm += abs(A[row, b])
+        norms[row] = norm
 
 
 @njit(cache=True)
@@ -421,6 +416,19 @@ def _epigraph_cones(ws: Any) -> int:
 
 
 @njit(cache=True)
+def _take(source: Any, index: Any, leading: bool, target: Any) -> None:
+    """``target[q] = source[index[q]]`` for the entries of ``target``; ``leading``: the
+    index is 0, 1, ... (a contiguous copy, which vectorizes)."""
+    if leading:
+        head = source[: target.shape[0]]
+        for q in range(target.shape[0]):
+            target[q] = head[q]
+    else:
+        for q in range(target.shape[0]):
+            target[q] = source[index[q]]
+
+
+@njit(cache=True)
 def _reduced_solve(ws: Any, rows: int) -> tuple[bool, int, int, float]:
     """The subproblem in ``ws`` (as :func:`_subproblem` wrote it, ``rows`` rows) with the
     linearized rows of the epigraph cones marked in ``ws.eliminated`` as equalities,
@@ -464,8 +472,7 @@ def _reduced_solve(ws: Any, rows: int) -> tuple[bool, int, int, float]:
             continue
         k = epigraph[j]
         target = coupled[j, :reduced]
-        for q in range(reduced):
-            target[q] = W[k, index[q]]
+        _take(W[k], index, leading, target)
         for i in range(cones):
             if eliminated[i]:
                 weight = W[k, epigraph[i]]
@@ -477,13 +484,7 @@ def _reduced_solve(ws: Any, rows: int) -> tuple[bool, int, int, float]:
     for p in range(reduced):
         target = hessian[p]
         a = index[p]
-        if leading:
-            source = W[a, :reduced]
-            for q in range(reduced):
-                target[q] = source[q]
-        else:
-            for q in range(reduced):
-                target[q] = W[a, index[q]]
+        _take(W[a], index, leading, target)
         for j in range(cones):
             if eliminated[j]:
                 left, right = W[a, epigraph[j]], tau[j, p]
@@ -516,13 +517,7 @@ def _reduced_solve(ws: Any, rows: int) -> tuple[bool, int, int, float]:
         if row >= first_cone and eliminated[row - first_cone]:
             continue
         target = ws.reduced_rows[kept * reduced : (kept + 1) * reduced]
-        if leading:
-            source = A_k[row, :reduced]
-            for q in range(reduced):
-                target[q] = source[q]
-        else:
-            for q in range(reduced):
-                target[q] = A_k[row, index[q]]
+        _take(A_k[row], index, leading, target)
         shift = 0.0
         for j in range(cones):
             if eliminated[j] and A_k[row, epigraph[j]] != 0.0:
@@ -625,53 +620,47 @@ def _add_violated_rows(ws: Any) -> bool:
 
 
 @njit(cache=True)
-def _merit(ws: Any, point: Any, weight: float) -> float:
-    r"""The l1 merit function at ``point``: :math:`\tfrac12 z^\top H z + f^\top z + w
-    \sum_j \max(c_j(z), 0)` (the smoothed cones; the rows and bounds hold on the segment
-    between two subproblem solutions)."""
-    H, f, F, g, e = ws.H, ws.f, ws.F, ws.g, ws.e
+def _merit_parts(ws: Any, point: Any) -> tuple[float, float]:
+    r"""The two parts of the l1 merit function :math:`\tfrac12 z^\top H z + f^\top z + w
+    \sum_j \max(c_j(z), 0)` at ``point``: the cost and the smoothed cones' violations
+    :math:`\sum_j \max(c_j(z), 0)` (the rows and bounds hold on the segment between two
+    subproblem solutions)."""
+    H, f = ws.H, ws.f
     n = point.shape[0]
-    value = 0.0
+    cost = 0.0
     for a in range(n):
         acc = 0.5 * H[a, a] * point[a] + f[a]
         for b in range(a + 1, n):
             acc += 0.5 * (H[a, b] + H[b, a]) * point[b]
-        value += acc * point[a]
+        cost += acc * point[a]
+    violations = 0.0
     for j in range(ws.offsets.shape[0]):
-        rr = SMOOTHING * SMOOTHING
-        for c in range(ws.cone_rows[j], ws.cone_rows[j + 1]):
-            acc = g[c]
-            for b in range(n):
-                acc += F[c, b] * point[b]
-            rr += acc * acc
-        ez = 0.0
-        for b in range(n):
-            ez += e[j, b] * point[b]
-        value += weight * max(np.sqrt(rr) - ez - ws.offsets[j], 0.0)
-    return value
+        violations += max(_cone_value(ws, j, point, SMOOTHING), 0.0)
+    return cost, violations
 
 
 @njit(cache=True)
 def _line_search(ws: Any, weight: float) -> float:
-    """The step length along ``ws.x - ws.z`` by backtracking from 1 on :func:`_merit`
-    with ``weight`` (at least the cones' multipliers: the SQP direction then descends),
-    until the Armijo condition holds (:data:`ARMIJO`); the shortest tried where it never
-    does. ``ws.linear`` holds the trial points."""
+    """The step length along ``ws.x - ws.z`` by backtracking from 1 on the l1 merit
+    function (:func:`_merit_parts`) with ``weight`` (at least the cones' multipliers: the
+    SQP direction then descends), until the Armijo condition holds (:data:`ARMIJO`); the
+    shortest tried where it never does. ``ws.linear`` holds the trial points."""
     H, f, z, x, trial = ws.H, ws.f, ws.z, ws.x, ws.linear
     n = z.shape[0]
-    slope = 0.0  # the merit's directional derivative bound: grad q' d - w sum max(c_j, 0)
-    for a in range(n):
+    cost, violations = _merit_parts(ws, z)
+    start = cost + weight * violations
+    slope = -weight * violations  # the merit's directional derivative bound:
+    for a in range(n):  # grad q' d - w sum max(c_j, 0)
         acc = f[a]
         for b in range(n):
             acc += 0.5 * (H[a, b] + H[b, a]) * z[b]
         slope += acc * (x[a] - z[a])
-    start = _merit(ws, z, weight)
-    slope -= start - _merit(ws, z, 0.0)
     length = 1.0
     for _ in range(BACKTRACKS):
         for a in range(n):
             trial[a] = z[a] + length * (x[a] - z[a])
-        if _merit(ws, trial, weight) <= start + ARMIJO * length * slope:
+        cost, violations = _merit_parts(ws, trial)
+        if cost + weight * violations <= start + ARMIJO * length * slope:
             return length
         length *= 0.5
     return 2.0 * length

@@ -260,13 +260,10 @@ def test_cone_products_formed_as_needed_give_the_same_numbers(monkeypatch) -> No
     assert np.array_equal(stored[1], formed[1]) and np.array_equal(stored[2], formed[2])
 
 
-@pytest.mark.parametrize("index", [0, 2])
-def test_screened_rows_on_the_mpcs_subproblems(index: int) -> None:
-    """The exact-cone subproblems of 60 closed-loop steps at N = 20 (bench scenarios 1 and
-    3, this one with infeasible steps), solved with and without row screening: the same
-    exit flags and SQP iterations, the same points and multipliers to 1e-12."""
-    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
-
+def _mpc_subproblems(index: int, steps: int):
+    """A closed loop of bench scenario ``index + 1`` at N = 20 on ``daqp:socp``: after each
+    step, ``(k, arrays, workspace)`` of the nominal exact-cone QP (its last subproblem is
+    still in the workspace)."""
     from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
 
     model = load_model("ph_lstm_n5.npz")
@@ -280,11 +277,22 @@ def test_screened_rows_on_the_mpcs_subproblems(index: int) -> None:
     assert ws is not None
     plant = scenario.make_plant(model)
     y = plant.output()
-    flags = []
-    for k in range(60):
+    for k in range(steps):
         u = controller.step(y, scenario.setpoints[k])
         d = scenario.disturbances[k]
         y = plant.step(u, None if np.isnan(d) else d)
+        yield k, arrays, ws
+
+
+@pytest.mark.parametrize("index", [0, 2])
+def test_screened_rows_on_the_mpcs_subproblems(index: int) -> None:
+    """The exact-cone subproblems of 60 closed-loop steps at N = 20 (bench scenarios 1 and
+    3, this one with infeasible steps), solved with and without row screening: the same
+    exit flags and SQP iterations, the same points and multipliers to 1e-12."""
+    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+
+    flags = []
+    for k, arrays, ws in _mpc_subproblems(index, 60):
         results = []
         for screen in (False, True):  # the step's last subproblem is still in the workspace
             result = socp_solve(ws, False, MAX_ITERATIONS, screen)
@@ -443,24 +451,9 @@ def test_epigraph_elimination_on_the_mpcs_subproblems(index: int) -> None:
     eliminated in the last subproblem of most steps."""
     from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
 
-    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
-
-    model = load_model("ph_lstm_n5.npz")
-    scenario = bench_scenarios(model)[index]
-    config = replace(scenario.config, N=20, solver="daqp:socp")
-    controller = OffsetFreeController(
-        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
-    )
-    problem = controller.mpc._problem
-    arrays, ws = problem._socp_arrays, problem.socp_workspace
-    nz = arrays["H"].shape[0]
-    plant = scenario.make_plant(model)
-    y = plant.output()
     eliminated_steps = converged = 0
-    for k in range(60):
-        u = controller.step(y, scenario.setpoints[k])
-        d = scenario.disturbances[k]
-        y = plant.step(u, None if np.isnan(d) else d)
+    for k, arrays, ws in _mpc_subproblems(index, 60):
+        nz = arrays["H"].shape[0]
         results = []
         for eliminate in (False, True):
             result = socp_solve(ws, False, MAX_ITERATIONS, True, eliminate)
