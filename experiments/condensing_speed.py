@@ -1,11 +1,13 @@
-"""Compiled condensing: Gram matrix vs backward recursion for H and g0, side by side.
+"""Compiled condensing: the forward forms vs the backward recursion for H and g0, side by side.
 
-``CondensedTranscription`` forms the Hessian and gradient of the condensed QP either as one
-Gram matrix of the weighted prediction stack (one BLAS product, O(N^3 n m^2)) or by the
-backward recursion of the cost-to-go weights (O(N n^3 + N^2 n m^2)); both give the same
+``CondensedTranscription`` forms the Hessian and gradient of the condensed QP either forward,
+from the prediction matrices (O(N^3 n m^2): rank updates on their causal columns for
+diagonal stage weights, one BLAS Gram matrix of the weighted stack for full ones), or by
+the backward recursion of the cost-to-go weights (O(N n^3 + N^2 n m^2)); all give the same
 QP (tests/test_kernel.py). This script times ``mpc/compiled_condensing.condense`` both ways,
-interleaved call by call on the same data, for random delta-ISS models, and prints the
-medians and their ratio: the crossover sets ``BACKWARD_CONDENSING_RATIO``.
+interleaved call by call on the same data, for random delta-ISS models with diagonal and
+with full stage weights, and prints the medians and their ratio: the crossovers set
+``BACKWARD_CONDENSING_RATIO_DIAGONAL`` and ``BACKWARD_CONDENSING_RATIO``.
 
     python experiments/condensing_speed.py [--repeats 300]
 """
@@ -29,13 +31,18 @@ from lstm_factories import random_delta_iss_lstm  # noqa: E402
 from ltv_lstm_mpc import MPCConfig, RobustMPC  # noqa: E402
 from ltv_lstm_mpc.exceptions import EmptySetpointIntervalError  # noqa: E402
 from ltv_lstm_mpc.mpc import compiled_condensing  # noqa: E402
-from ltv_lstm_mpc.mpc.condensed import BACKWARD_CONDENSING_RATIO  # noqa: E402
+from ltv_lstm_mpc.mpc.condensed import (  # noqa: E402
+    BACKWARD_CONDENSING_RATIO,
+    BACKWARD_CONDENSING_RATIO_DIAGONAL,
+)
 
 
-def times(n: int, m: int, N: int, repeats: int) -> tuple[float, float]:
-    """Median seconds of condense with the Gram matrix and with the backward recursion."""
+def times(n: int, m: int, N: int, repeats: int, diagonal: bool) -> tuple[float, float]:
+    """Median seconds of condense forward (rank updates with diagonal weights, the Gram
+    matrix with full ones) and with the backward recursion."""
     model = random_delta_iss_lstm(np.random.default_rng(n + m), n, m, m)
-    mpc = RobustMPC(model, MPCConfig(solver="daqp", N=N))
+    Q = 1.0 if diagonal else np.eye(2 * n) + 0.3 * np.ones((2 * n, 2 * n)) / (2 * n)
+    mpc = RobustMPC(model, MPCConfig(solver="daqp", N=N, Q=Q))
     rng = np.random.default_rng(0)
     u_bar = rng.uniform(-0.2, 0.2, m)
     x_bar = model.equilibrium(u_bar)
@@ -49,32 +56,40 @@ def times(n: int, m: int, N: int, repeats: int) -> tuple[float, float]:
         return time.perf_counter() - start
 
     call(False), call(True)
-    gram, backward = [], []
+    forward, backward = [], []
     for _ in range(repeats):
-        gram.append(call(False))
+        forward.append(call(False))
         backward.append(call(True))
-    return float(np.median(gram)), float(np.median(backward))
+    return float(np.median(forward)), float(np.median(backward))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=300)
     args = parser.parse_args()
-    print(f"BACKWARD_CONDENSING_RATIO = {BACKWARD_CONDENSING_RATIO} (backward when N m > it * 2n)")
     print(
-        f"{'n':>3} {'m':>2} {'N':>3} {'Nm/2n':>6} {'gram us':>9} {'backward us':>12} {'ratio':>6}"
+        f"backward when N m > ratio * 2n: ratio {BACKWARD_CONDENSING_RATIO_DIAGONAL} with "
+        f"diagonal stage weights (else rank updates), {BACKWARD_CONDENSING_RATIO} with full "
+        "ones (else the Gram matrix)"
     )
-    for n, m, horizons in ((5, 1, (5, 20, 30, 40, 50)), (10, 1, (20, 50, 80)), (20, 2, (20, 50))):
-        for N in horizons:
-            try:
-                gram, backward = times(n, m, N, args.repeats)
-            except EmptySetpointIntervalError:  # the random model's tightening at this N
-                print(f"{n:>3} {m:>2} {N:>3}  (no admissible set-point at this N: skipped)")
-                continue
-            print(
-                f"{n:>3} {m:>2} {N:>3} {N * m / (2 * n):>6.2f} {gram * 1e6:>9.1f} "
-                f"{backward * 1e6:>12.1f} {backward / gram:>6.2f}"
-            )
+    print(
+        f"{'weights':>8} {'n':>3} {'m':>2} {'N':>3} {'Nm/2n':>6} {'forward us':>11} "
+        f"{'backward us':>12} {'ratio':>6}"
+    )
+    cases = ((5, 1, (5, 20, 30, 40, 50)), (10, 1, (20, 50, 80)), (20, 2, (20, 50)))
+    for diagonal in (True, False):
+        for n, m, horizons in cases:
+            for N in horizons:
+                kind = "diagonal" if diagonal else "full"
+                try:
+                    forward, backward = times(n, m, N, args.repeats, diagonal)
+                except EmptySetpointIntervalError:  # the random model's tightening at this N
+                    print(f"{kind:>8} {n:>3} {m:>2} {N:>3}  (no admissible set-point: skipped)")
+                    continue
+                print(
+                    f"{kind:>8} {n:>3} {m:>2} {N:>3} {N * m / (2 * n):>6.2f} "
+                    f"{forward * 1e6:>11.1f} {backward * 1e6:>12.1f} {backward / forward:>6.2f}"
+                )
 
 
 if __name__ == "__main__":

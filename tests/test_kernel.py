@@ -33,6 +33,72 @@ def _load(kernel: LSTMKernel, N: int, x0: np.ndarray, u: np.ndarray):  # type: i
     return traj
 
 
+def _ulps(value: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """|value - reference| in units in the last place of the reference."""
+    return np.abs(value - reference) / np.spacing(np.abs(reference))
+
+
+def _activations(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    sigmoid = np.array([compiled._sigmoid(float(v)) for v in x])
+    tanh = np.array([compiled._tanh(float(v)) for v in x])
+    return sigmoid, tanh
+
+
+def test_the_compiled_activations_are_within_four_ulps_of_numpy() -> None:
+    """The vectorizable sigmoid and tanh of the compiled cell against scipy's expit and
+    numpy's tanh: at most 4 ulps over the range where sigmoid is a normal number, also
+    near 0 (where tanh x ~ x needs relative accuracy), and exactly at the saturations."""
+    from scipy.special import expit
+
+    rng = np.random.default_rng(7)
+    x = np.concatenate(
+        [
+            rng.uniform(-40.0, 40.0, 20000),
+            rng.uniform(-700.0, 700.0, 2000),
+            rng.uniform(-1e-6, 1e-6, 1000),
+            [0.0, -0.0, 1e-300, -1e-300, 0.5 * np.log(2.0), -0.5 * np.log(2.0), 36.0, -36.0],
+        ]
+    )
+    sigmoid, tanh = _activations(x)
+    reference_sigmoid, reference_tanh = expit(x), np.tanh(x)
+    nonzero = reference_tanh != 0
+    assert _ulps(sigmoid, reference_sigmoid).max() <= 4.0
+    assert _ulps(tanh[nonzero], reference_tanh[nonzero]).max() <= 4.0
+    assert np.array_equal(tanh[~nonzero], reference_tanh[~nonzero])
+    # saturations: exactly 0, 1 and +-1 (or below 1e-307 where sigmoid underflows)
+    sigmoid, tanh = _activations(np.array([-1e4, -800.0, 800.0, 1e4, np.inf, -np.inf]))
+    assert np.all(sigmoid[:2] < 1e-307) and np.all(sigmoid[:2] >= 0.0)
+    assert np.array_equal(sigmoid[2:5], [1.0, 1.0, 1.0]) and sigmoid[5] < 1e-307
+    assert np.array_equal(tanh, [-1.0, -1.0, 1.0, 1.0, 1.0, -1.0])
+
+
+def test_the_compiled_activations_propagate_nan() -> None:
+    sigmoid, tanh = _activations(np.array([np.nan]))
+    assert np.isnan(sigmoid[0]) and np.isnan(tanh[0])
+
+
+def test_the_compiled_cell_keeps_the_activations_accuracy() -> None:
+    """The cell's activations, inlined into a loop the compiler vectorizes (with the
+    cell's reassociation flags), are those of the scalar functions to 4 ulps: the two-part
+    argument reduction survives (gates driven over +-30 through large weights; weights and
+    inputs are multiples of 1/8, so the pre-activations are exact in any summation order)."""
+    from scipy.special import expit
+
+    rng = np.random.default_rng(3)
+    n, m = 6, 1
+    WU = rng.integers(-120, 121, (4 * n, n + m + 1)) / 8.0
+    z = np.concatenate([rng.integers(-8, 9, n + m) / 8.0, [1.0]])
+    c = rng.uniform(-3.0, 3.0, n)
+    t, c_next, h_next, tc = np.empty(4 * n), np.empty(n), np.empty(n), np.empty(n)
+    compiled.lstm_cell(WU, z, t, c, c_next, h_next, tc, np.zeros(0))
+    pre = WU @ z
+    assert np.abs(pre).max() > 20.0
+    assert _ulps(t[: 3 * n], expit(pre[: 3 * n])).max() <= 4.0
+    assert _ulps(t[3 * n :], np.tanh(pre[3 * n :])).max() <= 4.0
+    np.testing.assert_allclose(tc, np.tanh(c_next), rtol=4e-16, atol=0)
+    np.testing.assert_allclose(h_next, t[2 * n : 3 * n] * tc, rtol=0, atol=0)
+
+
 @pytest.mark.parametrize(("n", "m", "p"), SHAPES)
 @pytest.mark.parametrize("seed", [0, 1])
 def test_rollout_and_jacobians_match_reference(n: int, m: int, p: int, seed: int) -> None:

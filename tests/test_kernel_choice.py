@@ -112,7 +112,12 @@ def test_a_given_mpc_keeps_the_models_kernel(monkeypatch, auto) -> None:
 #: compile with their caller, and are not on the kernel lists.
 CALLEES = {
     "lstm_cell",
+    "_exp_parts",
+    "_sigmoid",
+    "_tanh",
+    "_hessian_causal",
     "_hessian_gram",
+    "_invert",
     "_hessian_backward",
     "_transpose_times",
     "_weight_times",
@@ -135,6 +140,10 @@ CALLEES = {
     "max_abs",
     # inside socp_solve (solvers/daqp_socp.py), which warm-up also calls from Python
     "_add_violated_rows",
+    "_cone_value",
+    "_line_search",
+    "_merit_parts",
+    "_take",
     "_column_product",
     "_epigraph_cones",
     "_form_products",

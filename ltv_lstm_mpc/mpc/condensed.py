@@ -69,14 +69,21 @@ from ltv_lstm_mpc.solvers import (
     solver_info,
 )
 
-__all__ = ["BACKWARD_CONDENSING_RATIO", "CondensedTranscription"]
+__all__ = [
+    "BACKWARD_CONDENSING_RATIO",
+    "BACKWARD_CONDENSING_RATIO_DIAGONAL",
+    "CondensedTranscription",
+]
 
-#: The compiled condensing forms H and g0 by the backward recursion when N m exceeds this
-#: multiple of the state dimension 2n (else by the Gram matrix); see ``mpc/compiled_condensing.py``.
-#: Measured (``experiments/condensing_speed.py``, backward / Gram time): n = 5, m = 1:
-#: 1.21 / 1.00 / 0.86 / 0.59 at N = 15 / 20 / 25 / 50; n = 10: 1.02 at N = 30, 0.86 at 40;
-#: n = 20, m = 2: 1.06 at N = 30, 0.80 at 40.
+#: With full stage weights, the compiled condensing forms H and g0 by the backward recursion
+#: when N m exceeds this multiple of the state dimension 2n (else by the Gram matrix); see
+#: ``mpc/compiled_condensing.py``. Measured (``experiments/condensing_speed.py``, backward /
+#: Gram time): n = 5, m = 1: 1.21 / 1.00 / 0.86 / 0.59 at N = 15 / 20 / 25 / 50; n = 10:
+#: 1.02 at N = 30, 0.86 at 40; n = 20, m = 2: 1.06 at N = 30, 0.80 at 40.
 BACKWARD_CONDENSING_RATIO = 2.0
+#: The same with diagonal stage weights (the default), against the rank updates on the
+#: causal columns (``_hessian_causal``), which are cheaper than the Gram matrix.
+BACKWARD_CONDENSING_RATIO_DIAGONAL = 3.5
 
 FloatArray = NDArray[np.float64]
 
@@ -177,10 +184,13 @@ class CondensedTranscription(TranscriptionBase):
             #: Q_i = Lt_i' Lt_i, the weight of x_{i+1} (the backward recursions' form).
             self._Qs = np.ascontiguousarray(np.matmul(self._Lt_all.transpose(0, 2, 1), Lt_all))
             self._Maug_inputs = np.empty((N, n2, nu + 1))  # Gram stack, input columns only
-            #: H and g0 by the backward recursion (O(N n^3 + N^2 n m^2)) rather than the Gram
-            #: matrix (O(N^3 n m^2)) when the horizon is long for the state size (measured:
-            #: experiments/condensing_speed.py).
-            self.backward_condensing = N * m > BACKWARD_CONDENSING_RATIO * n2
+            #: H and g0 by the backward recursion (O(N n^3 + N^2 n m^2)) rather than the rank
+            #: updates or the Gram matrix (O(N^3 n m^2)) when the horizon is long for the
+            #: state size (measured: experiments/condensing_speed.py).
+            ratio = (
+                BACKWARD_CONDENSING_RATIO_DIAGONAL if self._diag_Q else BACKWARD_CONDENSING_RATIO
+            )
+            self.backward_condensing = N * m > ratio * n2
             self._R = np.ascontiguousarray(R, dtype=np.float64)
             self._H = np.zeros((nu, nu))  # no F, E: delta x_0 enters at feedback time
             self._g0 = np.zeros(nu)
