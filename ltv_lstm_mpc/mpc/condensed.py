@@ -78,11 +78,13 @@ __all__ = [
 #: With full stage weights, the compiled condensing forms H and g0 by the backward recursion
 #: when N m exceeds this multiple of the state dimension 2n (else by the Gram matrix); see
 #: ``mpc/compiled_condensing.py``. Measured (``experiments/condensing_speed.py``, backward /
-#: Gram time): n = 5, m = 1: 1.21 / 1.00 / 0.86 / 0.59 at N = 15 / 20 / 25 / 50; n = 10:
-#: 1.02 at N = 30, 0.86 at 40; n = 20, m = 2: 1.06 at N = 30, 0.80 at 40.
-BACKWARD_CONDENSING_RATIO = 2.0
+#: Gram time, two runs): n = 5, m = 1: 1.03-1.05 / 0.79 / 0.59-0.60 at N = 5 / 20 / 30;
+#: n = 10: 0.84-0.85 at N = 20; n = 20, m = 2: 0.86-0.87 at N = 20.
+BACKWARD_CONDENSING_RATIO = 0.75
 #: The same with diagonal stage weights (the default), against the rank updates on the
-#: causal columns (``_hessian_causal``), which are cheaper than the Gram matrix.
+#: causal columns (``_hessian_causal``), which are cheaper than the Gram matrix. Measured
+#: (backward / rank updates): n = 5, m = 1: 1.69 / 1.31 / 1.10 / 0.90 / 0.77 at N = 5 / 20 /
+#: 30 / 40 / 50; n = 10: 1.08 at N = 50, 0.68 at 80; n = 20, m = 2: 0.90 at N = 50.
 BACKWARD_CONDENSING_RATIO_DIAGONAL = 3.5
 
 FloatArray = NDArray[np.float64]
