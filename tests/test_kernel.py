@@ -72,9 +72,11 @@ def test_the_compiled_activations_are_within_four_ulps_of_numpy() -> None:
     assert np.array_equal(tanh, [-1.0, -1.0, 1.0, 1.0, 1.0, -1.0])
 
 
-def test_the_compiled_activations_propagate_nan() -> None:
-    sigmoid, tanh = _activations(np.array([np.nan]))
+def test_the_compiled_activations_propagate_nan_and_keep_the_sign_of_zero() -> None:
+    sigmoid, tanh = _activations(np.array([np.nan, -0.0, 0.0, -1e-300]))
     assert np.isnan(sigmoid[0]) and np.isnan(tanh[0])
+    assert np.array_equal(np.signbit(tanh[1:]), [True, False, True])
+    assert sigmoid[1] == sigmoid[2] == 0.5
 
 
 def test_the_compiled_cell_keeps_the_activations_accuracy() -> None:
@@ -97,6 +99,56 @@ def test_the_compiled_cell_keeps_the_activations_accuracy() -> None:
     assert _ulps(t[3 * n :], np.tanh(pre[3 * n :])).max() <= 4.0
     np.testing.assert_allclose(tc, np.tanh(c_next), rtol=4e-16, atol=0)
     np.testing.assert_allclose(h_next, t[2 * n : 3 * n] * tc, rtol=0, atol=0)
+
+
+def test_the_compiled_cell_keeps_relative_accuracy_near_zero() -> None:
+    """Tiny pre-activations through a cell wide enough (n = 16) that every activation loop
+    runs its vector body: tanh x ~ x keeps its relative accuracy (4 ulps), which a
+    reassociated m / (m + 2) with m = e^(2x) - 1 would lose."""
+    rng = np.random.default_rng(5)
+    n, m = 16, 1
+    WU = np.zeros((4 * n, n + m + 1))
+    WU[:, -1] = rng.choice([-1.0, 1.0], 4 * n) * 2.0 ** rng.integers(-40, -20, 4 * n)
+    z = np.concatenate([np.zeros(n + m), [1.0]])  # pre-activations: the bias column, exactly
+    c = np.zeros(n)
+    t, c_next, h_next, tc = np.empty(4 * n), np.empty(n), np.empty(n), np.empty(n)
+    compiled.lstm_cell(WU, z, t, c, c_next, h_next, tc, np.zeros(0))
+    pre = WU[:, -1]
+    assert _ulps(t[3 * n :], np.tanh(pre[3 * n :])).max() <= 4.0
+    assert _ulps(tc, np.tanh(c_next)).max() <= 4.0
+    assert _ulps(t[: 3 * n], expit_reference(pre[: 3 * n])).max() <= 4.0
+
+
+def expit_reference(x: np.ndarray) -> np.ndarray:
+    from scipy.special import expit
+
+    return np.asarray(expit(x))
+
+
+@pytest.mark.parametrize(
+    ("n", "m", "N", "diagonal_Q", "backward"),
+    [
+        (5, 1, 35, True, False),  # N m = 3.5 * 2n: the rank updates still
+        (5, 1, 36, True, True),
+        (5, 1, 7, False, False),  # N m = 0.7 * 2n: the Gram matrix still
+        (5, 1, 8, False, True),
+        (2, 2, 7, True, False),  # N m = 14 = 3.5 * 2n
+        (2, 2, 8, True, True),
+    ],
+)
+def test_the_condensing_chooses_the_backward_recursion_by_the_measured_crossover(
+    n: int, m: int, N: int, diagonal_Q: bool, backward: bool
+) -> None:
+    """Backward from N m > 3.5 * 2n with diagonal stage weights (rank updates below it),
+    from N m > 0.75 * 2n with full ones (the Gram matrix below it)."""
+    from lstm_factories import random_delta_iss_lstm
+
+    from ltv_lstm_mpc import MPCConfig, RobustMPC
+
+    model = random_delta_iss_lstm(np.random.default_rng(n + 10 * m), n, m, m)
+    Q = 1.0 if diagonal_Q else np.eye(2 * n) + 0.3 * np.ones((2 * n, 2 * n)) / (2 * n)
+    mpc = RobustMPC(model, MPCConfig(solver="daqp", N=N, Q=Q))
+    assert mpc._problem.backward_condensing is backward
 
 
 @pytest.mark.parametrize(("n", "m", "p"), SHAPES)
@@ -189,7 +241,8 @@ def test_compiled_condensing_matches_the_numpy_build(
     n: int, m: int, N: int, diagonal_Q: bool, backward: bool
 ) -> None:
     """CondensedTranscription.build: numba version vs numpy reference, every QP array, with
-    H and g0 from the Gram matrix and from the backward recursion."""
+    H and g0 forward (rank updates on the causal columns for diagonal stage weights, the
+    Gram matrix for full ones) and from the backward recursion."""
     from lstm_factories import random_delta_iss_lstm
 
     from ltv_lstm_mpc import MPCConfig, RobustMPC

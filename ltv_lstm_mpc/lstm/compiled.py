@@ -18,7 +18,8 @@ activations); elsewhere sums run in another order (the LSTM cell, the feedback i
 the backward recursions and the plan checks may vectorize theirs:
 :data:`~ltv_lstm_mpc.numba_support.REDUCTIONS`) and the cell's sigmoid and tanh are
 polynomials of its own (:func:`_exp_parts`: libm's scalar ``exp`` and ``tanh`` would keep
-its loops from vectorizing; within 4 ulps of numpy's), so the results agree to a few ulps
+its loops from vectorizing; within 4 ulps of numpy's for :math:`|x| \le 708`, sigmoid below
+3.4e-308 for :math:`x < -708`), so the results agree to a few ulps
 (every function is tested against its reference to 1e-12 in ``tests/test_kernel.py``).
 
 :data:`AVAILABLE` is False when numba cannot be imported; the numpy reference then runs.
@@ -37,7 +38,7 @@ __all__ = ["AVAILABLE", "jacobians", "lstm_cell", "pairs", "rollout"]
 
 
 #: exp(x) for |x| above this is clamped (exp(708) is finite; the activations below do not
-#: need more: sigmoid and tanh are then 0 or 1 to the last bit or below 1e-307).
+#: need more: beyond it tanh is +-1 and sigmoid 1 to the last bit, or below 3.4e-308).
 _EXP_LIMIT = 708.0
 _LOG2_E = 1.4426950408889634
 #: ln 2 in two parts (Cody and Waite): k ln2_high is exact for |k| < 2^20.
@@ -51,7 +52,7 @@ _SHIFTER_BITS = 0x4338000000000000
 _TAYLOR = tuple(1.0 / math.factorial(j) for j in range(2, 14))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, fastmath=False, error_model="numpy")
 def _exp_parts(x: float) -> tuple[float, float]:
     r"""``(s, q)`` with :math:`e^x = s (1 + q)`, :math:`s = 2^k`, :math:`k = \mathrm{round}(x /
     \ln 2)`, :math:`q = e^r - 1` for the reduced :math:`r = x - k \ln 2`.
@@ -60,8 +61,10 @@ def _exp_parts(x: float) -> tuple[float, float]:
     vectorize (no library call, no branch: the calls to libm's ``exp`` and ``tanh`` keep
     the loops of :func:`lstm_cell` scalar). Accurate to a few ulps (tested against numpy):
     the reduction in two parts, a degree-13 Taylor polynomial, :math:`2^k` written into the
-    exponent bits. No fast-math flags here: their reassociation would undo the two-part
-    reduction. NaN propagates; :math:`|x|` is clamped to ``_EXP_LIMIT``.
+    exponent bits. ``fastmath=False`` is explicit: numba would otherwise give these
+    functions the flags of their first caller (``lstm_cell``'s reassociation), which
+    could undo the two-part reduction and the cancellation-free forms below. NaN
+    propagates; :math:`|x|` is clamped to ``_EXP_LIMIT``.
     """
     x = _EXP_LIMIT if x > _EXP_LIMIT else x
     x = -_EXP_LIMIT if x < -_EXP_LIMIT else x
@@ -85,20 +88,20 @@ def _exp_parts(x: float) -> tuple[float, float]:
     return scale, q
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, fastmath=False, error_model="numpy")
 def _sigmoid(x: float) -> float:
     r""":math:`\sigma(x) = 1 / (1 + e^{-x})` (the gates f, i, o of eq. (lstm))."""
     scale, q = _exp_parts(-x)
     return 1.0 / (1.0 + (scale + scale * q))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, fastmath=False, error_model="numpy")
 def _tanh(x: float) -> float:
     r""":math:`\tanh x = m / (m + 2)` with :math:`m = e^{2x} - 1` formed as
     :math:`(s - 1) + s q` (relative accuracy near 0 kept: no cancellation)."""
     scale, q = _exp_parts(2.0 * x)
     m = (scale - 1.0) + scale * q
-    return m / (m + 2.0)
+    return math.copysign(m / (m + 2.0), x)  # tanh is odd: the sign of x, -0.0 included
 
 
 @njit(cache=True, fastmath=REDUCTIONS, error_model="numpy")

@@ -258,8 +258,9 @@ def _hessian_causal(S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: Any) -> Non
     Stage i adds :math:`\Gamma_{i+1}^\top Q_i \Gamma_{i+1}` and
     :math:`\Gamma_{i+1}^\top Q_i (\tilde x_{i+1} - \bar x)` to the first
     :math:`(i + 1) m` rows and columns (:math:`\Gamma_{i+1}` is zero beyond them), four
-    rows of :math:`\Gamma_{i+1}` per pass over the rows of H. :math:`O(N^3 n m^2 / 3)`
-    products, a third of the Gram matrix's, read from ``M`` in place: no weighted copy of
+    rows of :math:`\Gamma_{i+1}` per pass over the rows of H. About
+    :math:`\tfrac{2}{3} N^3 n m^2` products (whole causal blocks, so the loops vectorize),
+    a third of the Gram matrix's, read from ``M`` in place: no weighted copy of
     the stack and no BLAS call (whose code and buffers a step runs cold). H is mirrored
     from its upper triangle, so it is exactly symmetric."""
     N, n2 = Qs.shape[0], Qs.shape[1]
