@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 from lstm_factories import random_lstm
+from scipy.special import expit
 
 from ltv_lstm_mpc.lstm import compiled
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
@@ -48,8 +49,6 @@ def test_the_compiled_activations_are_within_four_ulps_of_numpy() -> None:
     """The vectorizable sigmoid and tanh of the compiled cell against scipy's expit and
     numpy's tanh: at most 4 ulps over the range where sigmoid is a normal number, also
     near 0 (where tanh x ~ x needs relative accuracy), and exactly at the saturations."""
-    from scipy.special import expit
-
     rng = np.random.default_rng(7)
     x = np.concatenate(
         [
@@ -80,12 +79,11 @@ def test_the_compiled_activations_propagate_nan_and_keep_the_sign_of_zero() -> N
 
 
 def test_the_compiled_cell_keeps_the_activations_accuracy() -> None:
-    """The cell's activations, inlined into a loop the compiler vectorizes (with the
-    cell's reassociation flags), are those of the scalar functions to 4 ulps: the two-part
-    argument reduction survives (gates driven over +-30 through large weights; weights and
-    inputs are multiples of 1/8, so the pre-activations are exact in any summation order)."""
-    from scipy.special import expit
-
+    """The cell's activations, inlined into loops the compiler vectorizes (the cell itself
+    compiled with reassociation flags), are those of the scalar functions to 4 ulps: the
+    two-part argument reduction survives (gates driven over +-30 through large weights;
+    weights and inputs are multiples of 1/8, so the pre-activations are exact in any
+    summation order)."""
     rng = np.random.default_rng(3)
     n, m = 6, 1
     WU = rng.integers(-120, 121, (4 * n, n + m + 1)) / 8.0
@@ -116,13 +114,7 @@ def test_the_compiled_cell_keeps_relative_accuracy_near_zero() -> None:
     pre = WU[:, -1]
     assert _ulps(t[3 * n :], np.tanh(pre[3 * n :])).max() <= 4.0
     assert _ulps(tc, np.tanh(c_next)).max() <= 4.0
-    assert _ulps(t[: 3 * n], expit_reference(pre[: 3 * n])).max() <= 4.0
-
-
-def expit_reference(x: np.ndarray) -> np.ndarray:
-    from scipy.special import expit
-
-    return np.asarray(expit(x))
+    assert _ulps(t[: 3 * n], expit(pre[: 3 * n])).max() <= 4.0
 
 
 @pytest.mark.parametrize(

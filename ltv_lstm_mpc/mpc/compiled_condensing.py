@@ -203,7 +203,7 @@ def condense(
     elif diagonal:
         _hessian_causal(S, M, Qs, x_bar, H, g0)
     else:
-        _hessian_gram(S, M, Maug, Lt, x_bar, H, g0, diagonal)
+        _hessian_gram(S, M, Maug, Lt, x_bar, H, g0)
     for i in range(N):
         for a in range(m):
             acc = 0.0
@@ -317,41 +317,30 @@ def _hessian_causal(S: Any, M: Any, Qs: Any, x_bar: Any, H: Any, g0: Any) -> Non
 
 
 @njit(cache=True)
-def _hessian_gram(S: Any, M: Any, Maug: Any, Lt: Any, x_bar: Any, H: Any, g0: Any,
-                  diagonal: bool) -> None:  # fmt: skip
+def _hessian_gram(S: Any, M: Any, Maug: Any, Lt: Any, x_bar: Any, H: Any, g0: Any) -> None:
     r"""``H`` and ``g0`` (without R) of the condensed stage cost of eq. (optimization_cost)
-    as one Gram matrix: the weighted stack
+    for full stage weights as one Gram matrix: the weighted stack
     ``Maug[i] = [Lt_i \Gamma_{i+1}, Lt_i (\tilde x_{i+1} - \bar x)]`` (N, 2n, Nm + 1) and one
-    BLAS product :math:`O(N^3 n m^2)`, the cheaper way for short horizons."""
+    BLAS product :math:`O(N^3 n m^2)`, the cheaper way for short horizons (diagonal weights:
+    :func:`_hessian_causal`)."""
     N, n2 = Maug.shape[0], Maug.shape[1]
     nu = Maug.shape[2] - 1
     m = nu // N
     for i in range(N):
         live = (i + 1) * m
-        if diagonal:
-            for r in range(n2):
-                w = Lt[i, r, r]
-                target = Maug[i, r]
-                source = M[i + 1, r]
+        for r in range(n2):  # Lt_i Gamma_{i+1} as row updates
+            target = Maug[i, r]
+            for c in range(nu):
+                target[c] = 0.0
+            for q in range(n2):
+                w = Lt[i, r, q]
+                source = M[i + 1, q]
                 for c in range(live):
-                    target[c] = w * source[n2 + c]
-                for c in range(live, nu):
-                    target[c] = 0.0
-                target[nu] = w * (S[i + 1, r] - x_bar[r])
-        else:
-            for r in range(n2):  # Lt_i Gamma_{i+1} as row updates (a full Q is rare)
-                target = Maug[i, r]
-                for c in range(nu):
-                    target[c] = 0.0
-                for q in range(n2):
-                    w = Lt[i, r, q]
-                    source = M[i + 1, q]
-                    for c in range(live):
-                        target[c] += w * source[n2 + c]
-                acc = 0.0
-                for q in range(n2):
-                    acc += Lt[i, r, q] * (S[i + 1, q] - x_bar[q])
-                target[nu] = acc
+                    target[c] += w * source[n2 + c]
+            acc = 0.0
+            for q in range(n2):
+                acc += Lt[i, r, q] * (S[i + 1, q] - x_bar[q])
+            target[nu] = acc
     flat = Maug.reshape(N * n2, nu + 1)
     gram = flat.T @ flat  # one BLAS product (faster than loops over the causal blocks)
     for a in range(nu):

@@ -185,7 +185,8 @@ class CondensedTranscription(TranscriptionBase):
             self._Lt_all = np.ascontiguousarray(Lt_all)
             #: Q_i = Lt_i' Lt_i, the weight of x_{i+1} (the backward recursions' form).
             self._Qs = np.ascontiguousarray(np.matmul(self._Lt_all.transpose(0, 2, 1), Lt_all))
-            self._Maug_inputs = np.empty((N, n2, nu + 1))  # Gram stack, input columns only
+            # the Gram stack (input columns only), used with full stage weights only
+            self._Maug_inputs = np.empty((0 if self._diag_Q else N, n2, nu + 1))
             #: H and g0 by the backward recursion (O(N n^3 + N^2 n m^2)) rather than the rank
             #: updates or the Gram matrix (O(N^3 n m^2)) when the horizon is long for the
             #: state size (measured: experiments/condensing_speed.py).
