@@ -17,7 +17,14 @@ Printed per horizon: medians, p95, p99 and p95/median of our full step, of our M
 (prepare + feedback, from the records), of DAQP's own time in it, and of each acados solve
 (the Python call, acados' own ``time_tot``, and that less its QP solver), the ratios of
 ours to each acados solve, and an estimate of acados with DAQP (acados' time less its QP
-solver, plus DAQP's time on the same QP).
+solver, plus DAQP's time on the same QP). The jitter ratio (p95/median, ours / acados')
+comes with a 95 % bootstrap interval: one closed loop gives about 290 samples, whose p95
+rests on the largest 15, so one run's ratio moves by about +-0.1; ``--repeats R`` pools R
+closed loops (a new controller and plant each, the same acados solvers) for a narrower one.
+With three repeats or more it also prints the jitter of each step's smallest time over the
+repeats (the loop is deterministic, so step k does the same work in every repeat, and the
+machine's noise seldom hits the same step in all of them): the jitter of the work itself,
+what an isolated core would show.
 
 acados comes from the wheel ``comma-deps-acados`` on the package index (acados' Python
 template, its shared libraries, headers and the template renderer); its vendored CasADi
@@ -25,7 +32,7 @@ is built for Python 3.12 and would replace ours, so install it into its own fold
 keep CasADi from the ``nmpc`` extra::
 
     python -m pip install --no-deps --target .acados comma-deps-acados==0.2.2.post92
-    python experiments/acados_speed.py --N 5 20 50 --steps 300
+    python experiments/acados_speed.py --N 5 20 50 --steps 300 [--repeats 5]
 
 That build has acados' HPIPM and qpOASES but not DAQP (``FULL_CONDENSING_DAQP`` is
 reported unavailable and skipped). The generated code goes to a temporary folder
@@ -178,67 +185,133 @@ def feed(solver: Any, controller: Any, model: Any, dynamics: Any) -> None:
     solver.constraints_set(N, "ubx", record.x_bar + half)
 
 
-def run(acados: Any, N: int, steps: int, folder: Path) -> dict[str, dict[str, Any]]:
-    """One interleaved closed loop at horizon N (module docstring)."""
+def run(
+    acados: Any, N: int, steps: int, folder: Path, repeats: int = 1
+) -> dict[str, dict[str, Any]]:
+    """``repeats`` interleaved closed loops at horizon N (module docstring), each with a new
+    controller and plant and the same acados solvers; the samples of all repeats pooled
+    (the first 10 steps of each left out)."""
     model = load_model("ph_lstm_n5.npz")
     scenario = bench_scenarios(model)[0]
     steps = min(steps, len(scenario.setpoints))
     config = replace(scenario.config, N=N, solver="daqp")
-    controller = OffsetFreeController(
-        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled",
-        one_call_step=True,
-    )  # fmt: skip
-    controller.records.reserve(steps + 1)
-    plant = scenario.make_plant(model)
+
+    def new_controller() -> Any:
+        controller = OffsetFreeController(
+            model, config, setpoint_rate_limit=scenario.setpoint_rate_limit,
+            kernels="compiled", one_call_step=True,
+        )  # fmt: skip
+        controller.records.reserve(steps + 1)
+        return controller
+
     dynamics = casadi_dynamics(model)
     solvers = {}
     for qp_solver in QP_SOLVERS:
         try:
-            solvers[qp_solver] = build_solver(acados, model, controller, qp_solver, folder)
+            solvers[qp_solver] = build_solver(acados, model, new_controller(), qp_solver, folder)
         except Exception as error:  # a build without this QP solver
             print(f"  N = {N}: acados {qp_solver} unavailable ({type(error).__name__})")
-    ours: list[float] = []
-    theirs: dict[str, list[tuple[float, float, float]]] = {name: [] for name in solvers}
-    y = plant.output()
-    gc.collect()
-    gc.disable()
-    try:
-        for k in range(steps):
-            start = time.perf_counter()
-            u = controller.step(y, scenario.setpoints[k])
-            ours.append(time.perf_counter() - start)
-            if k >= 1 and controller.records[-1].mpc.status == "optimal":
-                ours_first = float(controller.records[-1].mpc.u[0, 0])
-                for name, solver in solvers.items():
-                    feed(solver, controller, model, dynamics)
-                    start = time.perf_counter()
-                    status = solver.solve()
-                    wall = time.perf_counter() - start
-                    first = float(solver.get(0, "u")[0]) if status == 0 else np.nan
-                    own, qp_call = (
-                        float(np.ravel(solver.get_stats(field))[0])
-                        for field in ("time_tot", "time_qp_solver_call")
-                    )
-                    theirs[name].append((wall, own, abs(first - ours_first), own - qp_call))
-            d = scenario.disturbances[k]
-            y = plant.step(u, None if np.isnan(d) else d)
-    finally:
-        gc.enable()
     skip = 10
-    records = controller.records[skip:]
+    step_repeats: list[list[float]] = []
+    solve_repeats: dict[str, list[list[float]]] = {name: [] for name in solvers}
+    step_times: list[float] = []
+    mpc_times: list[float] = []
+    daqp_times: list[float] = []
+    pooled: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in solvers}
+    for _repeat in range(repeats):
+        controller = new_controller()
+        plant = scenario.make_plant(model)
+        ours: list[float] = []
+        theirs: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in solvers}
+        y = plant.output()
+        gc.collect()
+        gc.disable()
+        try:
+            for k in range(steps):
+                start = time.perf_counter()
+                u = controller.step(y, scenario.setpoints[k])
+                ours.append(time.perf_counter() - start)
+                if k >= 1 and controller.records[-1].mpc.status == "optimal":
+                    ours_first = float(controller.records[-1].mpc.u[0, 0])
+                    for name, solver in solvers.items():
+                        feed(solver, controller, model, dynamics)
+                        start = time.perf_counter()
+                        status = solver.solve()
+                        wall = time.perf_counter() - start
+                        first = float(solver.get(0, "u")[0]) if status == 0 else np.nan
+                        own, qp_call = (
+                            float(np.ravel(solver.get_stats(field))[0])
+                            for field in ("time_tot", "time_qp_solver_call")
+                        )
+                        row = (wall, own, abs(first - ours_first), own - qp_call)
+                        theirs[name].append(row)
+                d = scenario.disturbances[k]
+                y = plant.step(u, None if np.isnan(d) else d)
+        finally:
+            gc.enable()
+        records = controller.records[skip:]
+        step_times.extend(ours[skip:])
+        step_repeats.append(ours[skip:])
+        mpc_times.extend(r.mpc.prepare_time + r.mpc.feedback_time for r in records)
+        daqp_times.extend(r.mpc.solver_time for r in records)
+        for name, rows in theirs.items():
+            pooled[name].extend(rows[skip:])
+            solve_repeats[name].append([row[0] for row in rows[skip:]])
     out: dict[str, dict[str, Any]] = {
         "ours": {
-            "step": np.array(ours[skip:]),
-            "mpc": np.array([r.mpc.prepare_time + r.mpc.feedback_time for r in records]),
-            "daqp": np.array([r.mpc.solver_time for r in records]),
+            "step": np.array(step_times), "mpc": np.array(mpc_times),
+            "daqp": np.array(daqp_times), "repeats": per_step_minimum(step_repeats),
         }
-    }
-    for name, rows in theirs.items():
-        table = np.array(rows[skip:])
+    }  # fmt: skip
+    for name, rows in pooled.items():
+        table = np.array(rows)
         out[name] = {
             "solve": table[:, 0], "own": table[:, 1], "gap": table[:, 2], "around": table[:, 3],
+            "repeats": per_step_minimum(solve_repeats[name]),
         }  # fmt: skip
     return out
+
+
+def per_step_minimum(repeats: list[list[float]]) -> Any:
+    """Each step's smallest time over the repeats of the same closed loop (the same work at
+    step k in every repeat: the loop is deterministic), or None with fewer than 3 repeats
+    or repeats of different lengths. The machine's noise rarely hits one step in every
+    repeat, so its p95/median is that of the work itself: what a quiet (isolated) core
+    would show."""
+    if len(repeats) < 3 or len({len(times) for times in repeats}) != 1:
+        return None
+    return np.min(np.array(repeats), axis=0)
+
+
+def quiet_jitter(ours: Any, theirs: Any) -> str:
+    """The jitter ratio of the per-step minima (:func:`per_step_minimum`), if any."""
+    if ours is None or theirs is None:
+        return ""
+    return (
+        f", per-step minimum over the repeats {jitter(ours):.3f} / {jitter(theirs):.3f} = "
+        f"{jitter(ours) / jitter(theirs):.2f}"
+    )
+
+
+def jitter(values: Any) -> float:
+    """p95 / median of ``values``."""
+    return float(np.percentile(values, 95) / np.median(values))
+
+
+def jitter_ratio_interval(
+    ours: Any, theirs: Any, resamples: int = 2000, seed: int = 0
+) -> tuple[float, float]:
+    """A 95 % bootstrap interval of ``jitter(ours) / jitter(theirs)``: both samples drawn
+    again with replacement, independently, ``resamples`` times (percentile interval)."""
+    rng = np.random.default_rng(seed)
+    ours, theirs = np.asarray(ours), np.asarray(theirs)
+    ratios = np.empty(resamples)
+    for i in range(resamples):
+        a = ours[rng.integers(0, ours.size, ours.size)]
+        b = theirs[rng.integers(0, theirs.size, theirs.size)]
+        ratios[i] = jitter(a) / jitter(b)
+    low, high = np.percentile(ratios, [2.5, 97.5])
+    return float(low), float(high)
 
 
 def report(N: int, result: dict[str, dict[str, Any]]) -> None:
@@ -264,13 +337,15 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
         print(f"{label + ' time_tot':>34} {stats(data['own'])}")
         print(f"{label + ' time_tot less QP solver':>34} {stats(data['around'])}")
         solve = float(np.median(data["solve"]))
-        jitter = (np.percentile(step, 95) / np.median(step)) / (
-            np.percentile(data["solve"], 95) / solve
-        )
+        low, high = jitter_ratio_interval(step, data["solve"])
         print(
             f"{'':>34} full step / solve() = {np.median(step) / solve:.2f}, "
             f"MPC / solve() = {np.median(mpc) / solve:.2f}, "
-            f"jitter (p95/median) ours / theirs = {jitter:.2f}; "
+            f"jitter (p95/median) ours / theirs = {jitter(step) / jitter(data['solve']):.2f} "
+            f"(95 % bootstrap interval {low:.2f}-{high:.2f}, {step.size} / "
+            f"{data['solve'].size} steps)"
+            + quiet_jitter(result["ours"]["repeats"], data["repeats"])
+            + "; "
             f"max |u_0 - ours| = {np.nanmax(data['gap']):.1e} "
             f"({int(np.isnan(data['gap']).sum())} failed)"
         )
@@ -288,6 +363,9 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument(
+        "--repeats", type=int, default=1, help="closed loops per horizon, samples pooled"
+    )
     parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
     parser.add_argument("--acados", type=Path, default=Path(".acados"), help="the --target folder")
     parser.add_argument("--build", type=Path, default=None, help="keep the generated code here")
@@ -300,7 +378,7 @@ def main() -> None:
         os.chdir(folder)  # acados writes some files next to the caller
         try:
             for N in args.N:
-                report(N, run(acados, N, args.steps, folder))
+                report(N, run(acados, N, args.steps, folder, args.repeats))
         finally:
             os.chdir(cwd)
 
