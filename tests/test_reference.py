@@ -141,3 +141,56 @@ def test_a_singular_chord_jacobian_ends_the_chord_and_newton_solves(monkeypatch)
     assert solution.converged and solution.residual < 1e-10
     assert calculator.counts["fallbacks"] == fallbacks + 1
     np.testing.assert_allclose(solution.u_bar, [0.12], atol=1e-7)
+
+
+def test_the_chord_refreshes_its_inverse_only_after_a_slow_contraction() -> None:
+    """The chord Newton's refresh rule (CHORD_REFRESH_CONTRACTION): over a ramp of the
+    shipped pH model's set-point, the inverse Jacobian is recomputed exactly where the last
+    accepted iteration reduced the residual by less than that factor (or did not reduce
+    it), never after a faster one; so the refreshes are rare on a smooth ramp, and every
+    step still converges in a few iterations."""
+    from ltv_lstm_mpc.loop.compiled_reference import CHORD_REFRESH_CONTRACTION
+    from ltv_lstm_mpc.lstm.kernel import LSTMKernel
+
+    model = load_model("ph_lstm_n5.npz")
+    model.kernel = LSTMKernel(model, compiled=False)
+    calculator = ReferenceCalculator(model, tol=1e-12)
+    assert not calculator._compiled
+    events: list[tuple[str, float]] = []
+    residual, factorize = calculator._chord_residual, calculator._chord_factorize
+
+    def logged_residual(z, target):
+        norm = residual(z, target)
+        events.append(("residual", norm))
+        return norm
+
+    def logged_factorize():
+        events.append(("factorize", 0.0))
+        return factorize()
+
+    calculator._chord_residual = logged_residual  # type: ignore[method-assign]
+    calculator._chord_factorize = logged_factorize  # type: ignore[method-assign]
+    y_low = model.output(model.equilibrium(np.array([-0.2])))
+    y_high = model.output(model.equilibrium(np.array([0.2])))
+    calculator.solve(y_low, [0.0])
+    steps, slow_iterations = 200, 0
+    for k in range(1, steps + 1):
+        events.clear()
+        solution = calculator.solve(y_low + (y_high - y_low) * k / steps, [0.0])
+        assert solution.converged and solution.residual < 1e-12
+        assert solution.iterations <= 8
+        norms = [norm for kind, norm in events if kind == "residual"]
+        # each residual after the first is an iteration's trial (no restores on this ramp)
+        assert len(norms) == solution.iterations + 1
+        at = 0
+        for i, (kind, _) in enumerate(events):
+            if kind != "residual":
+                continue
+            if 0 < at < len(norms) - 1:  # an accepted iteration with another one after it
+                ratio = norms[at] / norms[at - 1]
+                refreshed = events[i + 1][0] == "factorize"
+                assert refreshed == (ratio > CHORD_REFRESH_CONTRACTION), (k, at, ratio)
+                slow_iterations += refreshed
+            at += 1
+    assert calculator.counts["factorizations"] <= 0.05 * steps
+    assert slow_iterations <= 0.05 * steps

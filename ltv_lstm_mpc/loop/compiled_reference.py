@@ -14,7 +14,24 @@ import numpy as np
 from ltv_lstm_mpc.lstm.compiled import jacobians, lstm_cell
 from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
-__all__ = ["CHORD_FIELDS", "ChordWorkspace", "chord_newton", "new_chord_workspace"]
+__all__ = [
+    "CHORD_FIELDS",
+    "CHORD_REFRESH_CONTRACTION",
+    "ChordWorkspace",
+    "chord_newton",
+    "new_chord_workspace",
+]
+
+#: The chord Newton refreshes its kept inverse Jacobian (eq. jacobian: the LSTM's Jacobians
+#: and an inverse) after an iteration that reduced the residual by less than this factor.
+#: A refresh costs as much as 15 chord iterations (n = 5, interleaved with acados: 2.7-3.1
+#: us against about 0.2 us), so a slower contraction is cheaper to iterate through than to
+#: refresh: with 0.1 the pH loop of bench's scenario 1 refreshed in 2 of 290 steps (4.2
+#: iterations per step) against 37 with 1e-2 (2.3 iterations), at the same mean step
+#: time, and the refresh no longer sets the p95 of the step (``experiments/acados_speed.py``,
+#: ``docs/benchmarks.md``). Shared by the numpy reference
+#: (``ReferenceCalculator._chord_numpy``).
+CHORD_REFRESH_CONTRACTION = 0.1
 
 #: Fields of :data:`ChordWorkspace`, in the order of its compiled constructor.
 CHORD_FIELDS = ("WU", "WU_raw", "W_y", "b_y", "S", "T", "TC", "J", "Jinv", "state", "F", "jacobian")
@@ -172,7 +189,7 @@ def chord_newton(
             state[0] = 0
             norm = _equilibrium_residual(WU, W_y, b_y, S, T, TC, z, target, F)  # restore
             continue
-        if norm_new > 1e-2 * norm:
+        if norm_new > CHORD_REFRESH_CONTRACTION * norm:
             state[0] = 0  # slow contraction: refactorize at z_new
         for a in range(size):
             z[a] = z_new[a]

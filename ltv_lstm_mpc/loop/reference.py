@@ -25,7 +25,11 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.certificates.reference_gain import KBarEstimate, estimate_K_bar
 from ltv_lstm_mpc.deferred_state import Deferred, DeferredSetting, DeferredState
 from ltv_lstm_mpc.exceptions import UnreachableSetpointError
-from ltv_lstm_mpc.loop.compiled_reference import chord_newton, new_chord_workspace
+from ltv_lstm_mpc.loop.compiled_reference import (
+    CHORD_REFRESH_CONTRACTION,
+    chord_newton,
+    new_chord_workspace,
+)
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import (
     expect_bool,
@@ -264,7 +268,9 @@ class ReferenceCalculator(DeferredState):
 
         The equilibrium moves little between samples, so the inverse Jacobian is kept from
         the last factorization (one residual evaluation per iteration) and refreshed only
-        when the contraction is slower than 1e-2 per iteration; the implicit-function
+        when an iteration reduces the residual by less than
+        :data:`~ltv_lstm_mpc.loop.compiled_reference.CHORD_REFRESH_CONTRACTION` (0.1: a
+        refresh costs as much as 15-20 iterations); the implicit-function
         predictor of Lemma 5 moves the start with the target. At steady state the call is
         one residual check. ``ok`` is False when an iteration with a fresh Jacobian does not
         decrease the residual: the caller then runs the damped Newton with restarts.
@@ -291,7 +297,7 @@ class ReferenceCalculator(DeferredState):
                 self._Jinv = None
                 norm = self._chord_residual(z, target)  # restore the buffers at z
                 continue
-            if norm_new > 1e-2 * norm:
+            if norm_new > CHORD_REFRESH_CONTRACTION * norm:
                 self._Jinv = None  # slow contraction: refactorize at z_new
             z, norm, fresh = z_new, norm_new, False
         return z, norm, iterations, norm < self.tol
