@@ -7,7 +7,9 @@ still imports and runs its numpy reference code (``AVAILABLE`` is then ``False``
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 __all__ = [
@@ -19,8 +21,10 @@ __all__ = [
     "compile_on_demand",
     "entry_point",
     "njit",
+    "purge_stale_caches",
     "ready",
     "say_once",
+    "sources_fingerprint",
     "uncached",
     "workspace_type",
 ]
@@ -39,6 +43,99 @@ except ImportError:  # pragma: no cover - exercised in a subprocess by the tests
             return function
 
         return wrap
+
+
+#: The packages whose compiled kernels call one another across files (this one and the
+#: solver layer beside it), and the file that holds the fingerprint of their sources.
+_HERE = Path(__file__).resolve().parent
+_KERNEL_PACKAGES = (_HERE, _HERE.parent / "solvers")
+_STAMP = _HERE / "__pycache__" / "numba-sources.stamp"
+
+
+def _sources(roots: Sequence[Path]) -> list[Path]:
+    """The Python files under ``roots`` (sorted; a missing root has none)."""
+    return sorted(path for root in roots if root.is_dir() for path in root.rglob("*.py"))
+
+
+def sources_fingerprint(roots: Sequence[Path]) -> str:
+    """A digest of the path, modification time and size of every Python file under
+    ``roots``: what numba compares for one file, taken for all of them at once."""
+    digest = hashlib.sha1()
+    for path in _sources(roots):
+        stat = path.stat()
+        digest.update(f"{path}\0{stat.st_mtime_ns}\0{stat.st_size}\n".encode())
+    return digest.hexdigest()
+
+
+def _cache_folders(source: Path) -> list[Path]:
+    """Where numba may keep the cache of ``source``'s functions: ``__pycache__`` beside it,
+    and under ``NUMBA_CACHE_DIR`` where that is set (numba's own path rule)."""
+    folders = [source.parent / "__pycache__"]
+    if AVAILABLE:
+        from numba.core import config
+        from numba.core.caching import UserProvidedCacheLocator
+
+        cache_dir = getattr(config, "CACHE_DIR", "")
+        if cache_dir:
+            subpath = UserProvidedCacheLocator.get_suitable_cache_subpath(str(source))
+            folders.append(Path(cache_dir) / subpath)
+    return folders
+
+
+def purge_stale_caches(roots: Sequence[Path] | None = None, stamp: Path | None = None) -> int:
+    """Delete numba's cached kernels of the files under ``roots`` when any of those files
+    changed since the caches were made; returns how many cache files were deleted.
+
+    numba checks a cached function against its own source file only, so a kernel that
+    calls a kernel of another file (the one-call step calls the observer, the chord Newton,
+    the condensing and the feedback) would keep the callee's old machine code after only
+    the callee's file was edited, and compute with it silently. The fingerprint of all the
+    files (:func:`sources_fingerprint`) is kept in ``stamp``; when it differs (or there is
+    none yet), every ``.nbi`` / ``.nbc`` file of these sources is deleted, so that each
+    kernel compiles again from the current sources at its first call. Runs once per
+    process, when this module is imported (before any kernel is loaded): about 3 ms. An
+    install or upgrade rewrites every file, so numba's own check already covers it; in a
+    read-only install nothing can be deleted or stamped, and nothing needs to be.
+
+    Parameters
+    ----------
+    roots : sequence of Path, optional
+        The source folders; by default ``ltv_lstm_mpc`` and ``solvers``.
+    stamp : Path, optional
+        The fingerprint file; by default ``numba-sources.stamp`` in ``ltv_lstm_mpc``'s
+        ``__pycache__``.
+    """
+    roots = _KERNEL_PACKAGES if roots is None else roots
+    stamp = _STAMP if stamp is None else stamp
+    fingerprint = sources_fingerprint(roots)
+    try:
+        if stamp.read_text() == fingerprint:
+            return 0
+    except OSError:
+        pass
+    deleted = 0
+    for source in _sources(roots):
+        prefix = source.stem + "."
+        for folder in _cache_folders(source):
+            if not folder.is_dir():
+                continue
+            for path in folder.iterdir():
+                if path.name.startswith(prefix) and path.suffix in (".nbi", ".nbc"):
+                    try:
+                        path.unlink()
+                        deleted += 1
+                    except OSError:
+                        pass
+    try:
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+        stamp.write_text(fingerprint)
+    except OSError:
+        pass
+    return deleted
+
+
+if AVAILABLE:
+    purge_stale_caches()
 
 
 #: LLVM flags of the compiled loops whose sums may run in any order (vectorized reductions,
