@@ -17,12 +17,13 @@ Printed per horizon: medians, p95, p99 and p95/median of our full step, of our M
 (prepare + feedback, from the records), of DAQP's own time in it, and of each acados solve
 (the Python call, acados' own ``time_tot``, and that less its QP solver), the ratios of
 ours to each acados solve, and an estimate of acados with DAQP (acados' time less its QP
-solver, plus DAQP's time on the same QP). The jitter ratio (p95/median, ours / acados')
-comes with a 95 % bootstrap interval: one closed loop gives about 290 samples, whose p95
+solver, plus DAQP's time on the same QP). The jitter ratio (p95/median, ours / acados',
+over the steps both timed) comes with a 95 % bootstrap interval that draws steps, each
+with all its repeats and both times: one closed loop gives about 290 steps, whose p95
 rests on the largest 15, so one run's ratio moves by about +-0.1; ``--repeats R`` pools R
-closed loops (a new controller and plant each, the same acados solvers) for a narrower one.
-With three repeats or more it also prints the jitter of each step's smallest time over the
-repeats (the loop is deterministic, so step k does the same work in every repeat, and the
+closed loops (a new controller and plant each, the same acados solvers). With three
+repeats or more it also prints the jitter of each step's smallest time over the repeats
+(the loop is deterministic, so step k does the same work in every repeat, and the
 machine's noise seldom hits the same step in all of them): the jitter of the work itself,
 what an isolated core would show.
 
@@ -212,13 +213,13 @@ def run(
         except Exception as error:  # a build without this QP solver
             print(f"  N = {N}: acados {qp_solver} unavailable ({type(error).__name__})")
     skip = 10
-    step_repeats: list[list[float]] = []
-    solve_repeats: dict[str, list[list[float]]] = {name: [] for name in solvers}
+    step_by_k = np.full((repeats, steps), np.nan)  # our step's time, per repeat and step
+    solve_by_k = {name: np.full((repeats, steps), np.nan) for name in solvers}
     step_times: list[float] = []
     mpc_times: list[float] = []
     daqp_times: list[float] = []
     pooled: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in solvers}
-    for _repeat in range(repeats):
+    for repeat in range(repeats):
         controller = new_controller()
         plant = scenario.make_plant(model)
         ours: list[float] = []
@@ -243,54 +244,40 @@ def run(
                             float(np.ravel(solver.get_stats(field))[0])
                             for field in ("time_tot", "time_qp_solver_call")
                         )
-                        row = (wall, own, abs(first - ours_first), own - qp_call)
-                        theirs[name].append(row)
+                        if k >= skip:
+                            theirs[name].append((wall, own, abs(first - ours_first), own - qp_call))
+                            solve_by_k[name][repeat, k] = wall
                 d = scenario.disturbances[k]
                 y = plant.step(u, None if np.isnan(d) else d)
         finally:
             gc.enable()
         records = controller.records[skip:]
         step_times.extend(ours[skip:])
-        step_repeats.append(ours[skip:])
+        step_by_k[repeat] = ours
         mpc_times.extend(r.mpc.prepare_time + r.mpc.feedback_time for r in records)
         daqp_times.extend(r.mpc.solver_time for r in records)
         for name, rows in theirs.items():
-            pooled[name].extend(rows[skip:])
-            solve_repeats[name].append([row[0] for row in rows[skip:]])
+            pooled[name].extend(rows)
     out: dict[str, dict[str, Any]] = {
         "ours": {
             "step": np.array(step_times), "mpc": np.array(mpc_times),
-            "daqp": np.array(daqp_times), "repeats": per_step_minimum(step_repeats),
+            "daqp": np.array(daqp_times), "by_step": step_by_k,
         }
     }  # fmt: skip
     for name, rows in pooled.items():
         table = np.array(rows)
         out[name] = {
             "solve": table[:, 0], "own": table[:, 1], "gap": table[:, 2], "around": table[:, 3],
-            "repeats": per_step_minimum(solve_repeats[name]),
+            "by_step": solve_by_k[name],
         }  # fmt: skip
     return out
 
 
-def per_step_minimum(repeats: list[list[float]]) -> Any:
-    """Each step's smallest time over the repeats of the same closed loop (the same work at
-    step k in every repeat: the loop is deterministic), or None with fewer than 3 repeats
-    or repeats of different lengths. The machine's noise rarely hits one step in every
-    repeat, so its p95/median is that of the work itself: what a quiet (isolated) core
-    would show."""
-    if len(repeats) < 3 or len({len(times) for times in repeats}) != 1:
-        return None
-    return np.min(np.array(repeats), axis=0)
-
-
-def quiet_jitter(ours: Any, theirs: Any) -> str:
-    """The jitter ratio of the per-step minima (:func:`per_step_minimum`), if any."""
-    if ours is None or theirs is None:
-        return ""
-    return (
-        f", per-step minimum over the repeats {jitter(ours):.3f} / {jitter(theirs):.3f} = "
-        f"{jitter(ours) / jitter(theirs):.2f}"
-    )
+def common_steps(ours: Any, theirs: Any) -> tuple[Any, Any]:
+    """Our and acados' times (repeats x steps) on the steps that both timed in every repeat
+    (acados solves only the steps our controller solved to optimality, from k = 10 on)."""
+    both = np.all(np.isfinite(ours) & np.isfinite(theirs), axis=0)
+    return ours[:, both], theirs[:, both]
 
 
 def jitter(values: Any) -> float:
@@ -298,20 +285,37 @@ def jitter(values: Any) -> float:
     return float(np.percentile(values, 95) / np.median(values))
 
 
+def jitter_ratio(ours: Any, theirs: Any) -> float:
+    """``jitter`` of our times over that of acados', both over all repeats and steps."""
+    return jitter(np.ravel(ours)) / jitter(np.ravel(theirs))
+
+
 def jitter_ratio_interval(
     ours: Any, theirs: Any, resamples: int = 2000, seed: int = 0
 ) -> tuple[float, float]:
-    """A 95 % bootstrap interval of ``jitter(ours) / jitter(theirs)``: both samples drawn
-    again with replacement, independently, ``resamples`` times (percentile interval)."""
+    """A 95 % bootstrap interval of :func:`jitter_ratio` over (repeats x steps) arrays of
+    the same steps: the steps are drawn again with replacement, each with all its repeats
+    and both solvers' times (the samples of one step are alike in every repeat, and ours
+    and acados' of one step were measured side by side); percentile interval."""
     rng = np.random.default_rng(seed)
-    ours, theirs = np.asarray(ours), np.asarray(theirs)
+    count = ours.shape[1]
     ratios = np.empty(resamples)
     for i in range(resamples):
-        a = ours[rng.integers(0, ours.size, ours.size)]
-        b = theirs[rng.integers(0, theirs.size, theirs.size)]
-        ratios[i] = jitter(a) / jitter(b)
+        steps = rng.integers(0, count, count)
+        ratios[i] = jitter_ratio(ours[:, steps], theirs[:, steps])
     low, high = np.percentile(ratios, [2.5, 97.5])
     return float(low), float(high)
+
+
+def quiet_jitter(ours: Any, theirs: Any) -> str:
+    """With three repeats or more: the jitter of each step's smallest time over the repeats
+    (the same work at step k in every repeat, as the loop is deterministic; the machine's
+    noise seldom hits one step in all of them, so this is the work's own jitter, what an
+    isolated core would show), ours / acados'."""
+    if ours.shape[0] < 3:
+        return ""
+    mine, their = jitter(ours.min(axis=0)), jitter(theirs.min(axis=0))
+    return f", per-step minimum over the repeats {mine:.3f} / {their:.3f} = {mine / their:.2f}"
 
 
 def report(N: int, result: dict[str, dict[str, Any]]) -> None:
@@ -337,15 +341,14 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
         print(f"{label + ' time_tot':>34} {stats(data['own'])}")
         print(f"{label + ' time_tot less QP solver':>34} {stats(data['around'])}")
         solve = float(np.median(data["solve"]))
-        low, high = jitter_ratio_interval(step, data["solve"])
+        ours_k, theirs_k = common_steps(result["ours"]["by_step"], data["by_step"])
+        low, high = jitter_ratio_interval(ours_k, theirs_k)
         print(
             f"{'':>34} full step / solve() = {np.median(step) / solve:.2f}, "
             f"MPC / solve() = {np.median(mpc) / solve:.2f}, "
-            f"jitter (p95/median) ours / theirs = {jitter(step) / jitter(data['solve']):.2f} "
-            f"(95 % bootstrap interval {low:.2f}-{high:.2f}, {step.size} / "
-            f"{data['solve'].size} steps)"
-            + quiet_jitter(result["ours"]["repeats"], data["repeats"])
-            + "; "
+            f"jitter (p95/median) ours / theirs = {jitter_ratio(ours_k, theirs_k):.2f} "
+            f"(95 % bootstrap interval {low:.2f}-{high:.2f}, {ours_k.shape[1]} steps x "
+            f"{ours_k.shape[0]} repeats)" + quiet_jitter(ours_k, theirs_k) + "; "
             f"max |u_0 - ours| = {np.nanmax(data['gap']):.1e} "
             f"({int(np.isnan(data['gap']).sum())} failed)"
         )
@@ -370,6 +373,8 @@ def main() -> None:
     parser.add_argument("--acados", type=Path, default=Path(".acados"), help="the --target folder")
     parser.add_argument("--build", type=Path, default=None, help="keep the generated code here")
     args = parser.parse_args()
+    if args.repeats < 1 or args.steps < 20:
+        parser.error("--repeats must be at least 1 and --steps at least 20")
     acados = load_acados(args.acados.resolve())
     with tempfile.TemporaryDirectory() as scratch:
         folder = (args.build or Path(scratch)).resolve()

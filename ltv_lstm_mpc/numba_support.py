@@ -8,6 +8,8 @@ still imports and runs its numpy reference code (``AVAILABLE`` is then ``False``
 from __future__ import annotations
 
 import hashlib
+import importlib.util
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -20,8 +22,8 @@ __all__ = [
     "compile_notice",
     "compile_on_demand",
     "entry_point",
+    "make_njit",
     "njit",
-    "purge_stale_caches",
     "ready",
     "say_once",
     "sources_fingerprint",
@@ -29,113 +31,90 @@ __all__ = [
     "workspace_type",
 ]
 
+
+def _kernel_packages() -> tuple[Path, ...]:
+    """The folders of the packages whose compiled kernels call one another across files:
+    this one and its solver layer (``ltv_lstm_mpc.solvers``, the folder ``solvers/`` of the
+    repository), as numba names their files (absolute, links not resolved)."""
+    here = Path(os.path.abspath(__file__)).parent
+    spec = importlib.util.find_spec("ltv_lstm_mpc.solvers")
+    locations = list(spec.submodule_search_locations or []) if spec is not None else []
+    return (here, *(Path(os.path.abspath(location)) for location in locations))
+
+
+def sources_fingerprint(roots: Sequence[Path]) -> str:
+    """A digest of the relative path, modification time and size of every Python file
+    under ``roots`` (a file that vanishes while they are read is left out)."""
+    digest = hashlib.sha1()
+    for number, root in enumerate(roots):
+        if not root.is_dir():
+            continue
+        for path in sorted(root.rglob("*.py")):
+            try:
+                stat = path.stat()
+            except OSError:  # removed meanwhile, or a dangling link (an editor's lock file)
+                continue
+            relative = path.relative_to(root).as_posix()
+            digest.update(f"{number}:{relative}\0{stat.st_mtime_ns}\0{stat.st_size}\n".encode())
+    return digest.hexdigest()
+
+
+def make_njit(roots: Sequence[Path]) -> Any:
+    """numba's ``njit`` whose on-disk caches are valid only while no Python file under
+    ``roots`` has changed (the fingerprint of :func:`sources_fingerprint`, taken now).
+
+    numba checks a cached function against its own source file only, so a kernel that
+    calls a kernel of another file (the one-call step calls the observer, the chord
+    Newton, the condensing and the feedback; ``cone_feedback`` calls the SOCP solver)
+    would load the callee's old machine code after only the callee's file was edited or
+    upgraded, and compute with it. Here each cached kernel's index carries numba's stamp
+    of its own file together with the fingerprint of all of them, so numba itself finds
+    every such cache stale and compiles again from the current sources, in whatever
+    folder it keeps its caches; a process that still runs old code (a background compile,
+    a Dask worker, a notebook) writes caches with its old fingerprint, which the others do
+    not take. Without numba: a stand-in that leaves a function as Python.
+    """
+    if not AVAILABLE:
+
+        def stand_in(*args: Any, **kwargs: Any) -> Any:
+            """Stand-in: returns the Python function unchanged."""
+            if len(args) == 1 and callable(args[0]) and not kwargs:
+                return args[0]
+
+            def wrap(function: Any) -> Any:
+                return function
+
+            return wrap
+
+        return stand_in
+    fingerprint = sources_fingerprint(roots)
+
+    def stamped(dispatcher: Any) -> Any:
+        cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
+        if cache_file is not None and hasattr(cache_file, "_source_stamp"):
+            cache_file._source_stamp = (cache_file._source_stamp, fingerprint)
+        return dispatcher
+
+    def njit(*args: Any, **kwargs: Any) -> Any:
+        """``numba.njit`` with the fingerprint of the sources in its cache's stamp."""
+        result = _numba_njit(*args, **kwargs)
+        if not callable(result) or hasattr(result, "py_func"):  # a dispatcher already
+            return stamped(result)
+        return lambda function: stamped(result(function))
+
+    return njit
+
+
 try:  # pragma: no cover - numba is a core dependency
-    from numba import njit
+    from numba import njit as _numba_njit
 
     AVAILABLE = True
 except ImportError:  # pragma: no cover - exercised in a subprocess by the tests
     AVAILABLE = False
 
-    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
-        """Stand-in: returns the Python function unchanged."""
-
-        def wrap(function: Any) -> Any:
-            return function
-
-        return wrap
-
-
-#: The packages whose compiled kernels call one another across files (this one and the
-#: solver layer beside it), and the file that holds the fingerprint of their sources.
-_HERE = Path(__file__).resolve().parent
-_KERNEL_PACKAGES = (_HERE, _HERE.parent / "solvers")
-_STAMP = _HERE / "__pycache__" / "numba-sources.stamp"
-
-
-def _sources(roots: Sequence[Path]) -> list[Path]:
-    """The Python files under ``roots`` (sorted; a missing root has none)."""
-    return sorted(path for root in roots if root.is_dir() for path in root.rglob("*.py"))
-
-
-def sources_fingerprint(roots: Sequence[Path]) -> str:
-    """A digest of the path, modification time and size of every Python file under
-    ``roots``: what numba compares for one file, taken for all of them at once."""
-    digest = hashlib.sha1()
-    for path in _sources(roots):
-        stat = path.stat()
-        digest.update(f"{path}\0{stat.st_mtime_ns}\0{stat.st_size}\n".encode())
-    return digest.hexdigest()
-
-
-def _cache_folders(source: Path) -> list[Path]:
-    """Where numba may keep the cache of ``source``'s functions: ``__pycache__`` beside it,
-    and under ``NUMBA_CACHE_DIR`` where that is set (numba's own path rule)."""
-    folders = [source.parent / "__pycache__"]
-    if AVAILABLE:
-        from numba.core import config
-        from numba.core.caching import UserProvidedCacheLocator
-
-        cache_dir = getattr(config, "CACHE_DIR", "")
-        if cache_dir:
-            subpath = UserProvidedCacheLocator.get_suitable_cache_subpath(str(source))
-            folders.append(Path(cache_dir) / subpath)
-    return folders
-
-
-def purge_stale_caches(roots: Sequence[Path] | None = None, stamp: Path | None = None) -> int:
-    """Delete numba's cached kernels of the files under ``roots`` when any of those files
-    changed since the caches were made; returns how many cache files were deleted.
-
-    numba checks a cached function against its own source file only, so a kernel that
-    calls a kernel of another file (the one-call step calls the observer, the chord Newton,
-    the condensing and the feedback) would keep the callee's old machine code after only
-    the callee's file was edited, and compute with it silently. The fingerprint of all the
-    files (:func:`sources_fingerprint`) is kept in ``stamp``; when it differs (or there is
-    none yet), every ``.nbi`` / ``.nbc`` file of these sources is deleted, so that each
-    kernel compiles again from the current sources at its first call. Runs once per
-    process, when this module is imported (before any kernel is loaded): about 3 ms. An
-    install or upgrade rewrites every file, so numba's own check already covers it; in a
-    read-only install nothing can be deleted or stamped, and nothing needs to be.
-
-    Parameters
-    ----------
-    roots : sequence of Path, optional
-        The source folders; by default ``ltv_lstm_mpc`` and ``solvers``.
-    stamp : Path, optional
-        The fingerprint file; by default ``numba-sources.stamp`` in ``ltv_lstm_mpc``'s
-        ``__pycache__``.
-    """
-    roots = _KERNEL_PACKAGES if roots is None else roots
-    stamp = _STAMP if stamp is None else stamp
-    fingerprint = sources_fingerprint(roots)
-    try:
-        if stamp.read_text() == fingerprint:
-            return 0
-    except OSError:
-        pass
-    deleted = 0
-    for source in _sources(roots):
-        prefix = source.stem + "."
-        for folder in _cache_folders(source):
-            if not folder.is_dir():
-                continue
-            for path in folder.iterdir():
-                if path.name.startswith(prefix) and path.suffix in (".nbi", ".nbc"):
-                    try:
-                        path.unlink()
-                        deleted += 1
-                    except OSError:
-                        pass
-    try:
-        stamp.parent.mkdir(parents=True, exist_ok=True)
-        stamp.write_text(fingerprint)
-    except OSError:
-        pass
-    return deleted
-
-
-if AVAILABLE:
-    purge_stale_caches()
+#: The one ``njit`` of every compiled kernel of this package and its solver layer
+#: (:func:`make_njit`: caches valid only while none of their source files has changed).
+njit = make_njit(_kernel_packages())
 
 
 #: LLVM flags of the compiled loops whose sums may run in any order (vectorized reductions,

@@ -145,10 +145,11 @@ def test_a_singular_chord_jacobian_ends_the_chord_and_newton_solves(monkeypatch)
 
 def test_the_chord_refreshes_its_inverse_only_after_a_slow_contraction() -> None:
     """The chord Newton's refresh rule (CHORD_REFRESH_CONTRACTION): over a ramp of the
-    shipped pH model's set-point, the inverse Jacobian is recomputed exactly where the last
-    accepted iteration reduced the residual by less than that factor (or did not reduce
-    it), never after a faster one; so the refreshes are rare on a smooth ramp, and every
-    step still converges in a few iterations."""
+    shipped pH model's set-point, the inverse Jacobian is recomputed after an accepted
+    iteration exactly where that iteration reduced the residual by less than that factor,
+    never after a faster one (every iteration on this ramp reduces the residual: no
+    restore); so the refreshes are rare on a smooth ramp, and every step still converges
+    in a few iterations."""
     from ltv_lstm_mpc.loop.compiled_reference import CHORD_REFRESH_CONTRACTION
     from ltv_lstm_mpc.lstm.kernel import LSTMKernel
 

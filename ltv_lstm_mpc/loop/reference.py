@@ -270,7 +270,7 @@ class ReferenceCalculator(DeferredState):
         the last factorization (one residual evaluation per iteration) and refreshed only
         when an iteration reduces the residual by less than
         :data:`~ltv_lstm_mpc.loop.compiled_reference.CHORD_REFRESH_CONTRACTION` (0.1: a
-        refresh costs as much as 15-20 iterations); the implicit-function
+        refresh costs as much as about 15 iterations); the implicit-function
         predictor of Lemma 5 moves the start with the target. At steady state the call is
         one residual check. ``ok`` is False when an iteration with a fresh Jacobian does not
         decrease the residual: the caller then runs the damped Newton with restarts.

@@ -24,11 +24,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from numba import njit
-
 from ltv_lstm_mpc.mpc.compiled_condensing import expand_point, insert_state
 from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
-from ltv_lstm_mpc.numba_support import build_workspace, workspace_type
+from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
 from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
 
