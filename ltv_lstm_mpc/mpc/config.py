@@ -24,7 +24,15 @@ from ltv_lstm_mpc.validation import (
     finite_array,
 )
 
-__all__ = ["TRANSCRIPTIONS", "InfeasibilityPolicy", "MPCConfig", "Transcription", "require_config"]
+__all__ = [
+    "DEFAULT_L_D",
+    "TRANSCRIPTIONS",
+    "InfeasibilityPolicy",
+    "MPCConfig",
+    "Transcription",
+    "default_solver",
+    "require_config",
+]
 
 FloatArray = NDArray[np.float64]
 InfeasibilityPolicy = Literal["paper", "soft", "shift"]
@@ -32,6 +40,19 @@ Transcription = Literal["auto", "condensed", "sparse", "nonlinear"]
 _POLICIES = ("paper", "soft", "shift")
 #: The transcriptions of the FHOCP (see :attr:`MPCConfig.transcription`).
 TRANSCRIPTIONS: tuple[str, ...] = ("auto", "condensed", "sparse", "nonlinear")
+#: The one default observer gain :math:`L_d = l_d I_p` of the library and every command
+#: (``MPCConfig``, ``certify``, ``simulate``, ``campaign``): the paper's first choice, with
+#: which Theorem 3's set-point rate bound holds on the shipped model (0.1, the paper's
+#: second pH simulation, rejects disturbances faster but makes that bound void).
+DEFAULT_L_D = 0.01
+
+
+def default_solver() -> str:
+    """The fastest installed solver with exact terminal cones
+    (:func:`ltv_lstm_mpc.solvers.default_solver`): ``MPCConfig``'s default solver."""
+    from ltv_lstm_mpc.solvers import default_solver as registry_default
+
+    return registry_default()
 
 
 @dataclass(frozen=True)
@@ -57,13 +78,15 @@ class MPCConfig:
     Q_s, Q_o : float
         Lyapunov weights :math:`Q_s = q_s I_2`, :math:`Q_o = q_o I_3` (1000).
     L_d : float
-        :math:`L_d = l_d I_p` (0.01).
+        :math:`L_d = l_d I_p` (:data:`DEFAULT_L_D`, 0.01).
     L_f, L_i, L_o : float
         Fill values of the observer gains (0: the certified fallback of Remark 3).
     design_gains : bool
         Choose :math:`L_f, L_i, L_o` by paper notes 2.11 instead.
     solver : str
-        Backend name, e.g. ``"cvxpy:CLARABEL"`` (cones, exact), ``"osqp"``, ``"daqp"``,
+        Backend name; default :func:`default_solver`, the fastest installed one with exact
+        terminal cones (``"daqp:socp"`` where DAQP is installed, else ``"clarabel"``, else
+        ``"cvxpy:CLARABEL"``). E.g. ``"cvxpy:CLARABEL"`` (cones, exact), ``"osqp"``, ``"daqp"``,
         ``"qpsolvers:piqp"`` (QP-only: the terminal cones get the conservative
         :class:`~ltv_lstm_mpc.mpc.terminal.TerminalBoxReformulation`, recorded per step).
     tolerance : float
@@ -93,12 +116,12 @@ class MPCConfig:
     w_bar: float = 0.01
     Q_s: float = 1000.0
     Q_o: float = 1000.0
-    L_d: float = 0.01
+    L_d: float = DEFAULT_L_D
     L_f: float = 0.0
     L_i: float = 0.0
     L_o: float = 0.0
     design_gains: bool = False
-    solver: str = "cvxpy:CLARABEL"
+    solver: str = field(default_factory=default_solver)
     transcription: Transcription = "auto"
     tolerance: float = 1e-8
     sqp_iterations: int = 1

@@ -45,11 +45,51 @@ def test_unknown_or_missing_solver_error(name: str) -> None:
         get_backend(name)
     msg = str(info.value)
     assert name in msg
-    assert 'pip install "ltv_lstm_mpc[solvers]"' in msg
+    # cvxpy and qpsolvers are installed: installing the extra would not help
+    assert "pip install" not in msg
     assert "cvxpy:CLARABEL" in msg  # lists the installed ones
     assert isinstance(info.value, ImportError)
     with pytest.raises(SolverNotFound):
         solve(problem("qp"), name)
+
+
+@pytest.mark.parametrize(
+    ("name", "meant"),
+    [
+        ("DAQP", "'daqp'"),
+        ("clarabel ", "'clarabel'"),
+        ("Daqp:SOCP", "'daqp:socp'"),
+        ("osqpp", "'osqp'"),
+    ],
+)
+def test_unknown_solver_says_did_you_mean(name: str, meant: str) -> None:
+    if meant.strip("'") not in SOLVERS:
+        pytest.skip(f"{meant} is not installed")
+    with pytest.raises(SolverNotFound, match=f"did you mean {meant}"):
+        get_backend(name)
+
+
+def test_install_advice_only_where_the_package_is_missing(monkeypatch: pytest.MonkeyPatch) -> None:
+    from ltv_lstm_mpc.solvers import registry
+
+    with pytest.raises(SolverNotFound) as info:
+        get_backend("gurobi")
+    assert "not a name of this library" in str(info.value) and "cvxpy:GUROBI" in str(info.value)
+    real = registry._installed
+    monkeypatch.setattr(registry, "_installed", lambda module: module != "osqp" and real(module))
+    message = registry._not_found_message("osqp", ["daqp"])  # as if osqp were missing
+    assert "package 'osqp' is not installed: pip install" in message
+
+
+def test_default_solver_is_the_fastest_exact_one_installed() -> None:
+    from ltv_lstm_mpc import MPCConfig
+    from ltv_lstm_mpc.solvers import default_solver, solver_info
+
+    name = default_solver()
+    assert solver_info(name).supports_cones
+    assert MPCConfig().solver == name
+    expected = next(s for s in ("daqp:socp", "clarabel", "cvxpy:CLARABEL") if s in SOLVERS)
+    assert name == expected
 
 
 @pytest.mark.parametrize(
