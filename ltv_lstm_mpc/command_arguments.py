@@ -21,8 +21,16 @@ from typing import Any
 from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
 
 __all__ = [
+    "HelpFormatter",
     "OrderedPair",
+    "Parser",
+    "RawDescriptionHelpFormatter",
     "UsageError",
+    "add_check_sampling_time_option",
+    "add_d_max_option",
+    "add_l_d_option",
+    "add_n_option",
+    "add_solver_option",
     "check_order",
     "fraction_open",
     "nonnegative_float",
@@ -31,11 +39,46 @@ __all__ = [
     "positive_float",
     "positive_int",
     "real",
+    "solver_name",
 ]
 
 
 class UsageError(LtvMpcError, ValueError):
     """A command-line usage error found after parsing (exit code 2)."""
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """The one way every command shows its defaults: argparse's ``(default: X)`` after
+    each option's help, left out where there is nothing to show (a switch, a default of
+    ``None`` whose help says in words what applies)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        hidden = default is None or default is argparse.SUPPRESS or action.nargs == 0  # a switch
+        if "%(default)" in text or hidden or default == []:
+            return text
+        if not action.option_strings and action.nargs not in (argparse.OPTIONAL, "*"):
+            return text
+        return text + " (default: %(default)s)"
+
+
+class RawDescriptionHelpFormatter(HelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """:class:`HelpFormatter` that keeps the description's and epilog's line breaks."""
+
+
+class Parser(argparse.ArgumentParser):
+    """The parser of ``ltv-lstm-mpc`` and of each command (``add_subparsers`` makes its
+    sub-parsers of this class): :class:`HelpFormatter` by default, and a usage error is one
+    line on stderr, ``PROG: error: MESSAGE (see PROG --help)``, with exit code 2."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message: str) -> Any:
+        """Print one line and exit with code 2 (argparse prints the usage block first)."""
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def real(text: str) -> float:
@@ -156,3 +199,119 @@ class OrderedPair(argparse.Action):
         except UsageError as error:
             parser.error(str(error))
         setattr(namespace, self.dest, [low, high])
+
+
+def solver_name(nonlinear: bool = False) -> Callable[[str], str]:
+    """``--solver``'s type: an installed solver (``SolverNotFound``'s message: did you mean,
+    what to install); ``nonlinear``: also ``ipopt`` (the nonlinear transcription)."""
+
+    def check(text: str) -> str:
+        from ltv_lstm_mpc.exceptions import SolverNotFound
+        from ltv_lstm_mpc.mpc.rti import NLP_SOLVERS
+        from ltv_lstm_mpc.solvers import solver_info
+
+        if text in NLP_SOLVERS:
+            if nonlinear:
+                return text
+            raise argparse.ArgumentTypeError(
+                f"{text!r} solves the nonlinear transcription, which this command does not run; "
+                "give a QP or cone solver"
+            )
+        try:
+            solver_info(text)
+        except SolverNotFound as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+        return text
+
+    check.__name__ = "solver name"
+    return check
+
+
+def add_solver_option(
+    parser: argparse.ArgumentParser, *, nonlinear: bool = False, repeat: bool = False
+) -> None:
+    """``--solver NAME`` (default: :func:`~ltv_lstm_mpc.solvers.default_solver`, the fastest
+    installed solver with exact terminal cones, the library's ``MPCConfig`` default)."""
+    from ltv_lstm_mpc.solvers import default_solver
+
+    names = "ltv_lstm_mpc.solvers.available_solvers()" + (", or ipopt" if nonlinear else "")
+    help_text = (
+        f"solver backend: a name of {names}; the default is the fastest installed one "
+        "with exact terminal cones"
+    )
+    if repeat:  # "append" adds to a list default: the default is filled in after parsing
+        parser.add_argument(
+            "--solver",
+            type=solver_name(nonlinear),
+            action=_AppendOrDefault,
+            default=[default_solver()],
+            metavar="NAME",
+            help=help_text + "; repeat for several",
+        )
+        return
+    parser.add_argument(
+        "--solver",
+        type=solver_name(nonlinear),
+        default=default_solver(),
+        metavar="NAME",
+        help=help_text,
+    )
+
+
+class _AppendOrDefault(argparse.Action):
+    """``action="append"`` whose values replace the default list instead of extending it."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        current = getattr(namespace, self.dest, None)
+        items = [] if current is None or current is self.default else list(current)
+        setattr(namespace, self.dest, [*items, values])
+
+
+def add_n_option(parser: argparse.ArgumentParser) -> None:
+    """``--N``: the prediction horizon (``MPCConfig.N``)."""
+    from ltv_lstm_mpc.mpc.config import MPCConfig
+
+    parser.add_argument("--N", type=positive_int, default=MPCConfig.N, help="prediction horizon N")
+
+
+def add_l_d_option(parser: argparse.ArgumentParser) -> None:
+    """``--L-d``: the observer gain l_d of L_d = l_d I_p (:data:`DEFAULT_L_D`)."""
+    from ltv_lstm_mpc.mpc.config import DEFAULT_L_D
+
+    parser.add_argument(
+        "--L-d",
+        type=fraction_open(0.0, 2.0),
+        default=DEFAULT_L_D,
+        help="observer gain L_d = l_d I_p (0.1: faster disturbance rejection, the rate "
+        "bound of Theorem 3 void on the shipped model)",
+    )
+
+
+def add_d_max_option(parser: argparse.ArgumentParser) -> None:
+    """``--d-max``: the disturbance bound d_max (``MPCConfig.d_max``, normalized)."""
+    from ltv_lstm_mpc.mpc.config import MPCConfig
+
+    parser.add_argument(
+        "--d-max",
+        type=positive_float,
+        default=MPCConfig.d_max,
+        help="disturbance bound d_max (normalized): raise it where d_hat saturates; "
+        "it shrinks the admissible set-point interval by 2 d_max",
+    )
+
+
+def add_check_sampling_time_option(parser: argparse.ArgumentParser) -> None:
+    """``--no-check-sampling-time``: run a model identified at another sampling time."""
+    parser.add_argument(
+        "--no-check-sampling-time",
+        dest="check_sampling_time",
+        action="store_false",
+        help="run even where the model's sampling time differs from the plant's or is "
+        "unknown (at your risk)",
+    )

@@ -24,6 +24,7 @@ from ltv_lstm_mpc.campaign.testing import (
 )
 from ltv_lstm_mpc.cli.main import main
 from ltv_lstm_mpc.exceptions import CampaignSpecError
+from ltv_lstm_mpc.mpc.config import DEFAULT_L_D, default_solver
 
 #: Columns that hold wall times (differ between runs).
 TIMING = {
@@ -95,7 +96,8 @@ def test_spec_tasks_are_the_product_in_order_with_stable_keys() -> None:
     assert [t.trace for t in spec.tasks] == [True, False] * 3
     assert spec.varying == ["noise_std", "seed"]
     # defaults filled in
-    assert settings["N"] == 5 and settings["L_d"] == 0.1 and settings["mismatch"] == {}
+    assert settings["N"] == 5 and settings["L_d"] == DEFAULT_L_D and settings["mismatch"] == {}
+    assert settings["solver"] == default_solver()  # the library's default, as every command's
 
 
 def test_a_retrained_model_makes_new_tasks_and_travels_with_them(tmp_path) -> None:

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ltv_lstm_mpc.command_arguments import (
+    RawDescriptionHelpFormatter,
     UsageError,
     fraction_open,
     nonnegative_float,
@@ -38,7 +39,7 @@ def register(subparsers: Any) -> None:
     settings = "\n".join(f"  {name:<15} {doc}" for name, doc in describe_settings())
     parser = subparsers.add_parser(
         "campaign",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=RawDescriptionHelpFormatter,
         epilog=(
             "settings ([campaign] fixed values, [factors] lists, [[cases]] overrides):\n"
             f"{settings}\n"
@@ -88,14 +89,14 @@ def register(subparsers: Any) -> None:
         "--beta",
         type=fraction_open(0.0, 1.0),
         default=0.05,
-        help="1 - confidence of the report's statistical statements (default 0.05)",
+        help="1 - confidence of the report's statistical statements",
     )
     parser.add_argument(
         "--offset-tolerance",
         type=nonnegative_float,
         default=1e-3,
         metavar="TOL",
-        help="final offset (output units) above which a loop counts as failed (default 1e-3)",
+        help="final offset (output units) above which a loop counts as failed",
     )
     parser.add_argument("--no-report", action="store_true", help="skip report.md and the plots")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -68,7 +68,7 @@ from typing import Any
 
 from ltv_lstm_mpc.campaign.task import Task, task_key
 from ltv_lstm_mpc.exceptions import CampaignSpecError
-from ltv_lstm_mpc.mpc.config import TRANSCRIPTIONS, InfeasibilityPolicy
+from ltv_lstm_mpc.mpc.config import DEFAULT_L_D, TRANSCRIPTIONS, InfeasibilityPolicy, default_solver
 from ltv_lstm_mpc.plants.ph import PHParameters
 from ltv_lstm_mpc.plants.registry import resolve_plant
 
@@ -107,9 +107,9 @@ CAMPAIGN_ONLY = ("name", "trace")
 DEFAULTS: dict[str, Any] = {
     "plant": "ph",
     "model": "ph_lstm_n5.npz",
-    "L_d": 0.1,
+    "L_d": DEFAULT_L_D,  # the library's and every command's (MPCConfig)
     "N": 5,
-    "solver": "daqp",
+    "solver": default_solver(),  # the fastest installed solver with exact terminal cones
     "transcription": "auto",
     "policy": "paper",
     "sqp_iterations": 1,

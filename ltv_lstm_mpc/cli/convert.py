@@ -21,15 +21,18 @@ def register(subparsers: Any) -> None:
 
     parser = subparsers.add_parser(
         "convert",
-        help="convert an ONNX model (one LSTM + a linear output layer) into the .npz format",
+        help="convert an ONNX or Keras model (one LSTM + a linear output layer) into .npz",
         description=(
-            "Read IN (.onnx: one LSTM operator and a linear output layer, checked against "
-            "eq. (lstm); or .npz), add the metadata given here (one --u-phi per input, one "
-            "--y-phi and --y-phi-constraint per output, in physical units), write OUT.npz."
+            "Read SOURCE (.onnx: one LSTM operator and a linear output layer, checked against "
+            "eq. (lstm); .keras; or .npz), add the metadata given here (one --u-phi per input, "
+            "one --y-phi and --y-phi-constraint per output, in physical units), write OUT "
+            "(.npz)."
         ),
     )
-    parser.add_argument("source", type=Path, help="model file (.onnx or .npz)")
-    parser.add_argument("out", type=Path, help="output .npz file")
+    parser.add_argument(
+        "source", type=Path, metavar="SOURCE", help="model file (.onnx, .keras or .npz)"
+    )
+    parser.add_argument("out", type=Path, metavar="OUT", help="output .npz file")
     for flag, what in (
         ("--u-phi", "physical input range used for normalization"),
         ("--y-phi", "physical output range used for normalization"),
@@ -44,7 +47,12 @@ def register(subparsers: Any) -> None:
             default=None,
             help=f"{what} (repeat once per channel)",
         )
-    parser.add_argument("--Ts", type=positive_float, default=None, help="sampling time, s")
+    parser.add_argument(
+        "--Ts",
+        type=positive_float,
+        default=None,
+        help="sampling time in s (default: the one SOURCE carries)",
+    )
     parser.set_defaults(func=_run_convert)
 
 

@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -33,7 +35,6 @@ from typing import Any
 from ltv_lstm_mpc import __version__
 from ltv_lstm_mpc.benchmarks.quadtank import QUADTANK_MODEL
 from ltv_lstm_mpc.certificates.certify import (
-    PAPER_Y_PHI_BOUNDS,
     Certification,
     CertificationSettings,
     certify,
@@ -41,9 +42,14 @@ from ltv_lstm_mpc.certificates.certify import (
 )
 from ltv_lstm_mpc.command_arguments import (
     OrderedPair,
+    Parser,
     UsageError,
+    add_check_sampling_time_option,
+    add_d_max_option,
+    add_l_d_option,
+    add_n_option,
+    add_solver_option,
     check_order,
-    fraction_open,
     nonnegative_float,
     output_folder,
     plant_help,
@@ -51,6 +57,7 @@ from ltv_lstm_mpc.command_arguments import (
     positive_float,
     positive_int,
     real,
+    solver_name,
 )
 from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
@@ -81,26 +88,18 @@ def _add_certify(subparsers: Any) -> None:
         nargs="?",
         default=PH_MODEL,
         help=(
-            f"model .npz file or the name of a shipped model (default: {PH_MODEL}; also "
-            f"shipped: {QUADTANK_MODEL}, {EXAMPLE_MODEL})"
+            f"model .npz file or the name of a shipped model (also shipped: {QUADTANK_MODEL}, "
+            f"{EXAMPLE_MODEL})"
         ),
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument(
-        "--u-max", type=positive_float, default=1.0, help="input bound u_max (default 1)"
-    )
-    parser.add_argument(
-        "--Q-s", type=positive_float, default=1000.0, help="Q_s = q I_2 (default 1000)"
-    )
-    parser.add_argument(
-        "--Q-o", type=positive_float, default=1000.0, help="Q_o = q I_3 (default 1000)"
-    )
-    parser.add_argument(
-        "--L-d", type=fraction_open(0.0, 2.0), default=0.01, help="L_d = l_d I_p (default 0.01)"
-    )
-    parser.add_argument("--L-f", type=real, default=0.0, help="fill value of L_f (default 0)")
-    parser.add_argument("--L-i", type=real, default=0.0, help="fill value of L_i (default 0)")
-    parser.add_argument("--L-o", type=real, default=0.0, help="fill value of L_o (default 0)")
+    parser.add_argument("--u-max", type=positive_float, default=1.0, help="input bound u_max")
+    parser.add_argument("--Q-s", type=positive_float, default=1000.0, help="Q_s = q I_2")
+    parser.add_argument("--Q-o", type=positive_float, default=1000.0, help="Q_o = q I_3")
+    add_l_d_option(parser)
+    parser.add_argument("--L-f", type=real, default=0.0, help="fill value of L_f")
+    parser.add_argument("--L-i", type=real, default=0.0, help="fill value of L_i")
+    parser.add_argument("--L-o", type=real, default=0.0, help="fill value of L_o")
     parser.add_argument(
         "--design-gains",
         action="store_true",
@@ -108,7 +107,7 @@ def _add_certify(subparsers: Any) -> None:
             "choose L_f, L_i, L_o minimizing rho(A_d) (paper notes 2.11) instead of the fill values"
         ),
     )
-    parser.add_argument("--d-max", type=positive_float, default=0.1, help="d_max (default 0.1)")
+    add_d_max_option(parser)
     parser.add_argument(
         "--d-max-from",
         type=Path,
@@ -119,34 +118,22 @@ def _add_certify(subparsers: Any) -> None:
             "open-loop output mismatch of the model plus 10 %%; overrides --d-max"
         ),
     )
-    parser.add_argument(
-        "--w-bar", type=nonnegative_float, default=0.01, help="w_bar (default 0.01)"
-    )
-    parser.add_argument(
-        "--Q", type=positive_float, default=1.0, help="stage weight Q = q I_2n (default 1)"
-    )
-    parser.add_argument("--N", type=positive_int, default=5, help="prediction horizon (default 5)")
+    parser.add_argument("--w-bar", type=nonnegative_float, default=0.01, help="w_bar")
+    parser.add_argument("--Q", type=positive_float, default=1.0, help="stage weight Q = q I_2n")
+    add_n_option(parser)
     parser.add_argument(
         "--y-min",
         type=real,
         default=None,
-        help=(
-            "normalized output lower bound (default: the model's stored output constraint, "
-            f"e.g. the paper's {PAPER_Y_PHI_BOUNDS[0]} pH in the shipped pH models)"
-        ),
+        help="normalized output lower bound (default: the model's stored output constraint)",
     )
     parser.add_argument(
         "--y-max",
         type=real,
         default=None,
-        help=(
-            "normalized output upper bound (default: the model's stored output constraint, "
-            f"e.g. the paper's {PAPER_Y_PHI_BOUNDS[1]} pH in the shipped pH models)"
-        ),
+        help="normalized output upper bound (default: the model's stored output constraint)",
     )
-    parser.add_argument(
-        "--e-y-bar", type=positive_float, default=0.03, help="e_y_bar of Lemma 5 (0.03)"
-    )
+    parser.add_argument("--e-y-bar", type=positive_float, default=0.03, help="e_y_bar of Lemma 5")
     parser.add_argument(
         "--y0-range",
         action=OrderedPair,
@@ -263,7 +250,7 @@ def _add_reproduce(subparsers: Any) -> None:
         "--benchmark",
         choices=["paper", "quadtank"],
         default="paper",
-        help="paper: the pH scenarios of Section V (default); quadtank: the quadruple tank",
+        help="paper: the pH scenarios of Section V; quadtank: the quadruple tank",
     )
     parser.add_argument(
         "--out", type=output_folder, default=None, help="output folder (PNG/CSV/JSON)"
@@ -271,7 +258,7 @@ def _add_reproduce(subparsers: Any) -> None:
     parser.add_argument(
         "--model",
         default=None,
-        help=f"model file or shipped name (default {PH_MODEL}; --benchmark quadtank: "
+        help=f"model file or shipped name (default: {PH_MODEL}; --benchmark quadtank: "
         f"{QUADTANK_MODEL})",
     )
     parser.add_argument(
@@ -279,8 +266,13 @@ def _add_reproduce(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--solver",
+        type=solver_name(nonlinear=True),
         default=None,
-        help="solver backend (default cvxpy:CLARABEL; --benchmark quadtank: daqp and clarabel)",
+        metavar="NAME",
+        help=(
+            "solver backend (default: the library's, the fastest installed one with exact "
+            "terminal cones, for the paper's scenarios; --benchmark quadtank: daqp and clarabel)"
+        ),
     )
     parser.add_argument("--short", action="store_true", help="quarter-length schedules (smoke)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG files")
@@ -353,14 +345,14 @@ def _add_simulate(subparsers: Any) -> None:
     parser.add_argument(
         "--model",
         default=None,
-        help=f"model (default: the plant's, {PH_MODEL} for ph; quadtank: {QUADTANK_MODEL})",
+        help=f"model (default: the plant's: {PH_MODEL} for ph, {QUADTANK_MODEL} for quadtank)",
     )
     parser.add_argument(
         "--plant",
         type=plant_name,
         default="ph",
         help=(
-            f"plant: {plant_help()} (default ph); quadtank: the quadruple-tank process (pump "
+            f"plant: {plant_help()}; quadtank: the quadruple-tank process (pump "
             "voltages in V, levels in cm, disturbances = leak areas of tanks 1 and 2 in cm^2)"
         ),
     )
@@ -384,14 +376,8 @@ def _add_simulate(subparsers: Any) -> None:
             "comma-separated per output for p > 1)"
         ),
     )
-    parser.add_argument(
-        "--segment", type=positive_int, default=400, help="samples per segment (400)"
-    )
-    parser.add_argument(
-        "--solver",
-        default="cvxpy:CLARABEL",
-        help="solver backend (any name of `ltv_lstm_mpc.solvers.available_solvers()`, or ipopt)",
-    )
+    parser.add_argument("--segment", type=positive_int, default=400, help="samples per segment")
+    add_solver_option(parser, nonlinear=True)
     parser.add_argument(
         "--transcription",
         choices=["auto", "condensed", "sparse", "nonlinear"],
@@ -401,15 +387,14 @@ def _add_simulate(subparsers: Any) -> None:
             "condensed for every other solver, the native clarabel with exact cones included)"
         ),
     )
-    parser.add_argument("--N", type=positive_int, default=5, help="horizon (5)")
-    parser.add_argument(
-        "--L-d", type=fraction_open(0.0, 2.0), default=0.1, help="observer gain L_d (0.1)"
-    )
+    add_n_option(parser)
+    add_l_d_option(parser)
+    add_d_max_option(parser)
     parser.add_argument(
         "--rate-limit",
         type=nonnegative_float,
         default=0.01,
-        help="largest normalized set-point change per step (0.01; 0 = no limiter)",
+        help="largest normalized set-point change per step (0 = no limiter)",
     )
     parser.add_argument(
         "--policy", choices=["paper", "soft", "shift"], default="paper", help="infeasibility policy"
@@ -421,6 +406,7 @@ def _add_simulate(subparsers: Any) -> None:
         "--out", type=output_folder, default=None, help="output folder (PNG/CSV/JSON)"
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_check_sampling_time_option(parser)
     _add_max_offset(parser)
     parser.set_defaults(func=_run_simulate)
 
@@ -428,6 +414,7 @@ def _add_simulate(subparsers: Any) -> None:
 def _run_simulate(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from ltv_lstm_mpc.cli.simulate_mimo import parse_vectors
     from ltv_lstm_mpc.mpc.config import MPCConfig
     from ltv_lstm_mpc.paper.reproduce import format_table, write_scenario_outputs
     from ltv_lstm_mpc.paper.scenarios import Scenario, run_scenario
@@ -442,6 +429,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
     config = MPCConfig(
         N=args.N,
         L_d=args.L_d,
+        d_max=args.d_max,
         solver=args.solver,
         transcription=args.transcription,
         infeasibility_policy=args.policy,
@@ -470,6 +458,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
             plant=plant,
             labels=_plot_labels(entry, model),
             title=_plot_title(entry, model, setpoint_tokens, args),
+            check_sampling_time=args.check_sampling_time,
         )
         offsets = mimo["segment_offsets"]
         print(f"{'segment':>7}  " + "  ".join(f"offset y_{j:<6}" for j in range(model.p)))
@@ -487,14 +476,10 @@ def _run_simulate(args: argparse.Namespace) -> int:
     tokens = args.setpoints or default_setpoints
     if not tokens:
         raise UsageError(f"the plant {entry.name} names no default set-points: give --setpoints")
-    try:
-        setpoints = [float(t) for t in tokens]
-        given = None if args.disturbances is None else [float(t) for t in args.disturbances]
-    except ValueError:
-        raise UsageError(
-            f"--setpoints/--disturbances: one number per segment for this single-output model, "
-            f"got {tokens} / {args.disturbances}"
-        ) from None
+    setpoints = [float(v) for v in parse_vectors("--setpoints", tokens, 1)[:, 0]]
+    given = None
+    if args.disturbances is not None:
+        given = [float(v) for v in parse_vectors("--disturbances", args.disturbances, 1)[:, 0]]
     segments = len(setpoints)
     nominal = entry.nominal_disturbance[0] if entry.nominal_disturbance else float("nan")
     disturbances = given or [nominal] * segments
@@ -514,7 +499,9 @@ def _run_simulate(args: argparse.Namespace) -> int:
         setpoint_rate_limit=rate_limit,
         segments=schedule_segments(lengths),
     )
-    result = run_scenario(scenario, model, progress=not args.no_progress)
+    result = run_scenario(
+        scenario, model, progress=not args.no_progress, check_sampling_time=args.check_sampling_time
+    )
     summary = write_scenario_outputs(result, args.out) if args.out is not None else result.summary()
     print(format_table([summary]))
     sim = result.simulation
@@ -599,7 +586,7 @@ def _check_plant_size(entry: Any, model: LSTMModel) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``ltv-lstm-mpc`` argument parser with every subcommand."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="ltv-lstm-mpc",
         description=(
             "Robust offset-free constrained MPC with LSTM models (Schimperna & Magni), "
@@ -636,24 +623,80 @@ def _register_optional_commands(subparsers: Any) -> None:
             importlib.import_module(name).register(subparsers)
 
 
+#: Library advice rewritten for the command line: (phrase, the option that replaces it, the
+#: text where the command has no such option).
+_CLI_ADVICE = (
+    (
+        "; if the model's Ts is unknown and you accept the risk, pass check_sampling_time=False",
+        "--no-check-sampling-time",
+        "; if the model's Ts is unknown and you accept the risk, pass --no-check-sampling-time",
+    ),
+    (
+        " (MPCConfig d_max; estimate_d_max(model, data) measures the mismatch)",
+        "--d-max",
+        " with --d-max (`ltv-lstm-mpc certify MODEL --d-max-from DATA.npz` estimates it)",
+    ),
+)
+_LONG_FLOAT = re.compile(r"(?<![\w.])-?\d+\.\d{5,}(?:e[-+]?\d+)?(?![\w.])")
+_SINGLETON = re.compile(r"\[(-?[\d.]+(?:e[-+]?\d+)?)\]")
+
+
+def _for_command(message: str, parser: argparse.ArgumentParser | None) -> str:
+    """``message`` as the command line says it: library advice (``pass
+    check_sampling_time=False``, ``MPCConfig d_max``) replaced by the command's option where
+    it has one, left out where it has none; floats rounded to 4 significant digits and
+    one-element lists unwrapped (``[[6.321881455615142], [8.67811...]]`` -> ``[6.322,
+    8.678]``); one line."""
+    options = set() if parser is None else set(parser._option_string_actions)
+    for phrase, option, replacement in _CLI_ADVICE:
+        if phrase in message:
+            message = message.replace(phrase, replacement if option in options else "")
+    message = _LONG_FLOAT.sub(lambda m: f"{float(m.group()):.4g}", message)
+    message = _SINGLETON.sub(r"\1", message)
+    return " ".join(message.split())
+
+
+def _command_parser(parser: argparse.ArgumentParser, command: str) -> Any:
+    """The sub-parser of ``command`` (None if there is none)."""
+    for action in parser._subparsers._group_actions if parser._subparsers else ():
+        choices = getattr(action, "choices", None) or {}
+        if command in choices:
+            return choices[command]
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``ltv-lstm-mpc``; returns the exit status."""
+    """Entry point of ``ltv-lstm-mpc``; returns the exit status.
+
+    Exit codes: 0 success; 1 an error while working (a library error, a file that cannot be
+    read); 2 a bad option or input found before the work starts (one line on stderr,
+    ``ltv-lstm-mpc COMMAND: error: ...``); 3 a final offset above ``--max-offset``; 130
+    interrupted. Warnings print as one line each, ``ltv-lstm-mpc COMMAND: warning: ...``.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    prog = f"ltv-lstm-mpc {args.command}"
+    command = _command_parser(parser, args.command)
+
+    def show(message: Any, category: Any, *_: Any, **__: Any) -> None:
+        print(f"{prog}: warning: {_for_command(str(message), command)}", file=sys.stderr)
+
     try:
-        return int(args.func(args))
+        with warnings.catch_warnings():
+            warnings.showwarning = show
+            return int(args.func(args))
     except UsageError as error:
-        print(f"ltv-lstm-mpc {args.command}: error: {error}", file=sys.stderr)
+        print(f"{prog}: error: {_for_command(str(error), command)}", file=sys.stderr)
         return 2
     except (LtvMpcError, OSError, ValueError) as error:
-        print(f"ltv-lstm-mpc {args.command}: error: {error}", file=sys.stderr)
+        print(f"{prog}: error: {_for_command(str(error), command)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as interrupt:
         # one line; a command may say what was kept and how to resume (campaign)
-        print(f"ltv-lstm-mpc {args.command}: {interrupt or 'interrupted'}", file=sys.stderr)
+        print(f"{prog}: {interrupt or 'interrupted'}", file=sys.stderr)
         return 130
 
 

@@ -36,6 +36,14 @@ __all__ = ["mimo_figure", "parse_vectors", "run_mimo"]
 FloatArray = NDArray[np.float64]
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def parse_vectors(name: str, tokens: list[str], size: int, *, repeat: bool = True) -> FloatArray:
     """``["a,b", "c,d"]`` -> array (segments, size).
 
@@ -44,19 +52,27 @@ def parse_vectors(name: str, tokens: list[str], size: int, *, repeat: bool = Tru
     one per output, ``--setpoints 14`` for two levels is refused, not guessed).
     """
     rows = []
-    for token in tokens:
+    what = "one number" if size == 1 else f"{size} comma-separated numbers (one per output)"
+    for number, token in enumerate(tokens, start=1):
         parts = [part for part in str(token).split(",") if part.strip()]
         try:
             values = [float(part) for part in parts]
         except ValueError:
+            bad = next(part for part in parts if not _is_number(part)) if parts else token
             raise UsageError(
-                f"{name}: {token!r} is not a comma-separated list of numbers"
+                f"{name}: {bad.strip()!r} (segment {number}) is not a number; give {what} "
+                "per segment, in the output's physical units"
             ) from None
         if len(values) == 1 and repeat:
             values = values * size
-        if len(values) != size or not np.all(np.isfinite(values)):
+        if len(values) != size:
             raise UsageError(
-                f"{name}: {token!r} needs {size} finite values (one per output), got {len(values)}"
+                f"{name}: {token!r} (segment {number}) has {len(values)} values; give {what} "
+                "per segment"
+            )
+        if not np.all(np.isfinite(values)):
+            raise UsageError(
+                f"{name}: {token!r} (segment {number}) is not finite; give {what} per segment"
             )
         rows.append(values)
     return np.array(rows, dtype=np.float64)
@@ -75,13 +91,15 @@ def run_mimo(
     plant: Plant | None = None,
     labels: tuple[tuple[str, ...], tuple[str, ...]] = ((), ()),
     title: str = "",
+    check_sampling_time: bool = True,
 ) -> tuple[dict[str, Any], SimulationResult]:
     """Run the MIMO closed loop; returns (summary, simulation).
 
     ``plant`` defaults to the model's own :class:`LSTMPlant`; another plant is used as
     given (reset it first) and its disturbance has ``plant.disturbance_size`` entries per
     segment (default: p). ``labels`` = (input labels, output labels) with units for the
-    plot (the plant registry's; empty: ``u_0``, ``y_0``, ...), ``title`` its title.
+    plot (the plant registry's; empty: ``u_0``, ``y_0``, ...), ``title`` its title;
+    ``check_sampling_time``: as :func:`~ltv_lstm_mpc.simulate`'s.
     """
     p = model.p
     size = None if plant is None else getattr(plant, "disturbance_size", None)
@@ -103,7 +121,14 @@ def run_mimo(
     d_schedule = np.repeat(disturbances, segment, axis=0)
     steps = segments * segment
     sim = simulate(
-        plant, controller, y0_schedule, d_schedule, steps, progress=progress, description="MIMO"
+        plant,
+        controller,
+        y0_schedule,
+        d_schedule,
+        steps,
+        progress=progress,
+        description="MIMO",
+        check_sampling_time=check_sampling_time,
     )
     ends = [segment * (k + 1) - 1 for k in range(segments)]
     offsets = np.abs(sim.y_phi[ends] - y0_schedule[ends])  # (segments, p)

@@ -17,7 +17,7 @@ __all__ = ["register"]
 
 def register(subparsers: Any) -> None:
     """Add the ``warmup`` subcommand to the ``ltv-lstm-mpc`` parser."""
-    from ltv_lstm_mpc.command_arguments import positive_int
+    from ltv_lstm_mpc.command_arguments import add_n_option, add_solver_option
 
     parser = subparsers.add_parser(
         "warmup",
@@ -25,25 +25,22 @@ def register(subparsers: Any) -> None:
         description=(
             "Compile (or load from numba's on-disk cache) every kernel a controller with the "
             "given solver, transcription and horizon calls, by running a few steps of it on "
-            "the model; prints the kernels that were missing and the time taken."
+            "the model; prints the kernels that were missing and the time taken. The default "
+            "solver is simulate's, so that warming up with the defaults warms what simulate "
+            "runs."
         ),
     )
     parser.add_argument(
         "model", nargs="?", default="ph_lstm_n5.npz", help="model .npz or shipped name"
     )
-    parser.add_argument(
-        "--solver",
-        action="append",
-        default=None,
-        help="solver backend (repeat for several; default daqp)",
-    )
+    add_solver_option(parser, repeat=True)
     parser.add_argument(
         "--transcription",
         choices=("auto", "condensed", "sparse"),
         default="auto",
-        help="transcription (default auto)",
+        help="FHOCP transcription",
     )
-    parser.add_argument("--N", type=positive_int, default=5, help="horizon (default 5)")
+    add_n_option(parser)
     parser.set_defaults(func=_run_warmup)
 
 
@@ -54,7 +51,7 @@ def _run_warmup(args: argparse.Namespace) -> int:
     from ltv_lstm_mpc.mpc.config import MPCConfig
 
     model = load_model(args.model)
-    for solver in args.solver or ["daqp"]:
+    for solver in args.solver:
         config = MPCConfig(solver=solver, transcription=args.transcription, N=args.N)
         missing = choose_kernels(config, "compiled")[1]
         print(

@@ -316,8 +316,10 @@ def run_scenario(
     solver: str | None = None,
     N: int | None = None,
     progress: bool = False,
+    check_sampling_time: bool = True,
 ) -> ScenarioResult:
-    """Simulate one scenario in closed loop and return it with its summary."""
+    """Simulate one scenario in closed loop and return it with its summary
+    (``check_sampling_time``: as :func:`~ltv_lstm_mpc.simulate`'s)."""
     controller = scenario.make_controller(model, mpc=mpc, solver=solver, N=N)
     plant = scenario.make_plant(model)
     disturbances = scenario.disturbances
@@ -329,5 +331,6 @@ def run_scenario(
         scenario.steps,
         progress=progress,
         description=scenario.name,
+        check_sampling_time=check_sampling_time,
     )
     return ScenarioResult(scenario=scenario, simulation=result, controller=controller)

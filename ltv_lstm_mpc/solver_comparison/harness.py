@@ -734,29 +734,23 @@ def replay(directory: str | Path, *, solvers: Sequence[str] | None = None) -> li
 
 # --------------------------------------------------------------------------------- CLI
 def _parser_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--model", default="ph_lstm_n5.npz", help="model .npz or shipped name (ph_lstm_n5.npz)"
-    )
-    parser.add_argument(
-        "--out", type=output_folder, default="bench_results", help="output folder (bench_results)"
-    )
+    parser.add_argument("--model", default="ph_lstm_n5.npz", help="model .npz or shipped name")
+    parser.add_argument("--out", type=output_folder, default="bench_results", help="output folder")
     parser.add_argument("--N", type=positive_int, nargs="+", default=[5, 20, 50], help="horizons")
     parser.add_argument(
         "--backends", nargs="+", default=None, help="backend names or patterns (default: all)"
     )
     parser.add_argument("--scenarios", nargs="+", default=None, help="scenario names (patterns)")
     parser.add_argument(
-        "--steps", type=positive_int, default=None, help="samples per run (default 200)"
+        "--steps", type=positive_int, default=None, help="samples per run (default: 200)"
     )
     parser.add_argument(
-        "--slow-steps", type=positive_int, default=60, help="cap for N>=20 via cvxpy/qpsolvers (60)"
+        "--slow-steps", type=positive_int, default=60, help="cap for N>=20 via cvxpy/qpsolvers"
     )
     parser.add_argument(
-        "--all-scenarios", action="store_true", help="N > 5 on every scenario (default: first)"
+        "--all-scenarios", action="store_true", help="N > 5 on every scenario, not only the first"
     )
-    parser.add_argument(
-        "--time-cap", type=positive_float, default=60.0, help="wall cap per run, s (60)"
-    )
+    parser.add_argument("--time-cap", type=positive_float, default=60.0, help="wall cap per run, s")
     parser.add_argument(
         "--smoke", action="store_true", help="seconds: 1 scenario, 30 steps, few backends, N=5"
     )
@@ -886,8 +880,17 @@ def register(subparsers: Any) -> None:
     _parser_args(bench)
     bench.set_defaults(func=main_bench)
     rep = subparsers.add_parser(
-        "replay", help="re-solve saved subproblems (.npz) with every backend and compare"
+        "replay",
+        help="re-solve saved subproblems (.npz) with every backend and compare",
+        description=(
+            "Re-solve the RTI subproblems saved by `ltv-lstm-mpc bench --save-subproblems DIR` "
+            "(each with cones and in the conservative QP form) with every installed solver, "
+            "or those of --solvers, and compare with the numbers stored at the time; exit "
+            "code 1 where a solution changed."
+        ),
     )
     rep.add_argument("directory", help="folder written by bench --save-subproblems")
-    rep.add_argument("--solvers", nargs="+", default=None, help="only these solvers")
+    rep.add_argument(
+        "--solvers", nargs="+", default=None, help="only these solvers (default: every installed)"
+    )
     rep.set_defaults(func=main_replay)

@@ -24,10 +24,11 @@ from ltv_lstm_mpc.command_arguments import (
     positive_float,
     positive_int,
 )
-from ltv_lstm_mpc.exceptions import LtvMpcError
+from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.plants.registry import plant_name_of, resolve_plant
 from ltv_lstm_mpc.training.datasets import (
     IdentificationDataset,
+    _input_range,
     generate_dataset,
     hold_range_for,
     input_coverage,
@@ -41,6 +42,9 @@ QUADTANK_NEURONS = resolve_plant("quadtank").neurons
 
 
 def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
+    """The options of the identification data (``generate-data``, and ``train`` without
+    ``--data``)."""
+    from_data = ", or the plant of the --data file" if seed_flag == "--data-seed" else ""
     parser.add_argument(
         "--plant",
         type=plant_name,
@@ -48,24 +52,24 @@ def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
         help=(
             f"plant to identify: {plant_help()}; ph: pH neutralization, one input; "
             "quadtank: quadruple tank, pump voltages v1, v2 in V -> levels h1, h2 in cm, "
-            "Ts = 10 s; a class of yours needs u_phi_min and u_phi_max (its input range). "
-            "Default ph, or the plant of the --data file"
+            "Ts = 10 s; a class of yours needs u_phi_min and u_phi_max (its input range) "
+            f"(default: ph{from_data})"
         ),
     )
     parser.add_argument(
-        seed_flag, dest="data_seed", type=int, default=0, help="master seed of the data (default 0)"
+        seed_flag, dest="data_seed", type=int, default=0, help="master seed of the data"
     )
     parser.add_argument(
         "--sequences",
         type=positive_int,
         default=15,
-        help="number of sequences (default 15, the paper's)",
+        help="number of sequences (15: the paper's)",
     )
     parser.add_argument(
         "--steps",
         type=positive_int,
         default=1500,
-        help="samples per sequence, Ts = 10 s (default 1500)",
+        help="samples per sequence, at the plant's sampling time",
     )
     parser.add_argument(
         "--split",
@@ -73,27 +77,26 @@ def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
         nargs=3,
         metavar=("TRAIN", "VAL", "TEST"),
         default=None,
-        help="sequences per split (default 10 3 2, scaled to --sequences when it differs)",
+        help="sequences per split (default: 10 3 2, scaled to --sequences when it differs)",
     )
     parser.add_argument(
         "--min-hold",
         type=positive_int,
         default=None,
-        help="shortest hold of a level, samples (default 10, the paper's)",
+        help="shortest hold of a level, samples (default: 10, the paper's)",
     )
     parser.add_argument(
         "--max-hold",
         type=positive_int,
         default=None,
-        help="longest hold of a level, samples (default 100, the paper's)",
+        help="longest hold of a level, samples (default: 100, the paper's)",
     )
     parser.add_argument(
         "--hold-from-plant",
         action="store_true",
         help=(
             "hold range matched to the plant's step responses: shortest = fastest time "
-            "constant, longest = 2 x slowest settling time (pH: 8..76 samples; overrides "
-            "--min-hold/--max-hold)"
+            "constant, longest = 2 x slowest settling time (overrides --min-hold/--max-hold)"
         ),
     )
     parser.add_argument(
@@ -102,7 +105,7 @@ def _add_data_options(parser: argparse.ArgumentParser, seed_flag: str) -> None:
         default=0,
         help=(
             "amplitudes from this many equally spaced values of the input range, its edges "
-            "included (default 0: uniform in the range, the paper's)"
+            "included; 0: uniform in the range, the paper's"
         ),
     )
 
@@ -145,12 +148,19 @@ def _generate(args: argparse.Namespace) -> IdentificationDataset:
             "the LSTM plant is a model, not a process to identify: choose the plant the "
             f"data come from ({plant_help()})"
         )
-    print(
-        f"simulating {args.sequences} sequences x {args.steps} steps of the {entry.title} "
-        f"(seed {args.data_seed})...",
-        file=sys.stderr,
-    )
     plant = entry.build()
+    try:  # everything checked before the long part
+        _input_range(plant)
+    except InvalidValueError as error:
+        raise UsageError(f"--plant {entry.name}: {error}") from None
+    if args.steps < 2:
+        raise UsageError(f"--steps must be >= 2, got {args.steps}")
+    split = _split_sizes(args)
+    if sum(split) != args.sequences or min(split) < 0:
+        raise UsageError(
+            f"--split {' '.join(map(str, split))} must be >= 0 and add up to --sequences "
+            f"{args.sequences}"
+        )
     min_hold = args.min_hold if args.min_hold is not None else 10
     max_hold = args.max_hold if args.max_hold is not None else 100
     if args.hold_from_plant:
@@ -159,6 +169,11 @@ def _generate(args: argparse.Namespace) -> IdentificationDataset:
         raise UsageError(f"--min-hold {min_hold} is longer than --max-hold {max_hold}")
     if args.levels == 1 or args.levels < 0:
         raise UsageError(f"--levels must be 0 (uniform) or >= 2, got {args.levels}")
+    print(
+        f"simulating {args.sequences} sequences x {args.steps} steps of the {entry.title} "
+        f"(seed {args.data_seed})...",
+        file=sys.stderr,
+    )
     dataset = generate_dataset(
         seed=args.data_seed,
         sequences=args.sequences,
@@ -199,6 +214,8 @@ def generate_data_command(args: argparse.Namespace) -> int:
         if args.csv is not None:
             csv_path = dataset.to_csv(args.csv)
             print(f"wrote {csv_path}")
+    except UsageError:
+        raise
     except (LtvMpcError, OSError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
@@ -296,6 +313,8 @@ def train_command(args: argparse.Namespace) -> int:
     except ImportError as error:  # pragma: no cover - torch missing
         print(f"error: {error}", file=sys.stderr)
         return 1
+    except UsageError:
+        raise
     except (LtvMpcError, OSError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
@@ -326,20 +345,20 @@ def register(subparsers: Any) -> None:
     """Add ``generate-data`` and ``train`` to ``subparsers`` (from ``add_subparsers()``)."""
     gen = subparsers.add_parser(
         "generate-data",
-        help="simulate identification data (pH plant, paper Section V; or the quadruple tank)",
+        help="simulate identification data of a plant (--plant: ph, quadtank or a class of yours)",
         description=(
-            "Simulate the pH-neutralization plant under multilevel pseudo-random base flow "
-            "q3 in [12.5, 17] mL/s (levels held 10..100 samples, Ts = 10 s, q2 = 0.55 mL/s), "
-            "starting from the nominal steady state, and save the sequences split "
-            "train/val/test as .npz (optionally CSV). --plant quadtank: the quadruple-tank "
-            "process, one such signal per pump voltage in [1.5, 4] V, from the steady state "
-            "of (3, 3) V."
+            "Simulate the plant (--plant) under a multilevel pseudo-random signal per input, "
+            "drawn in the plant's input range (u_phi_min..u_phi_max) with levels held "
+            "--min-hold..--max-hold samples at the plant's sampling time, from its nominal "
+            "steady state, and save the sequences split train/val/test as .npz (optionally "
+            "CSV). ph (the default, the paper's Section V): base flow q3 in [12.5, 17] mL/s, "
+            "Ts = 10 s; quadtank: pump voltages in [1.5, 4] V."
         ),
     )
     gen.add_argument(
         "--out",
         default=_DEFAULT_DATA,
-        help=f"output .npz file (default {_DEFAULT_DATA})",
+        help="output .npz file",
     )
     _add_data_options(gen, "--seed")
     gen.add_argument("--csv", default=None, help="also write a tidy CSV to this file")
@@ -348,7 +367,7 @@ def register(subparsers: Any) -> None:
 
     tr = subparsers.add_parser(
         "train",
-        help="train a delta-ISS LSTM on the pH (or --plant quadtank) data (needs torch)",
+        help="train a delta-ISS LSTM on a plant's identification data (needs torch)",
         description=(
             "Train an LSTM with the paper's delta-ISS-penalized loss (MSE + lambda1 max(r1,0) "
             "+ lambda1 max(r2,0) + lambda2 min(r1,0) + lambda2 min(r2,0)), Adam, stopping after "
@@ -363,79 +382,77 @@ def register(subparsers: Any) -> None:
     tr.add_argument(
         "--data",
         default=None,
-        help="dataset .npz from generate-data (default: generate it with --data-seed/--sequences/"
-        "--steps and save it in --out)",
+        help="dataset .npz from generate-data (default: generate it with --plant/--data-seed/"
+        "--sequences/--steps and save it in --out)",
     )
-    tr.add_argument(
-        "--out", default="training_output", help="output folder (default training_output)"
-    )
+    tr.add_argument("--out", default="training_output", help="output folder")
     _add_data_options(tr, "--data-seed")
     tr.add_argument(
         "--seed",
         type=int,
         default=None,
-        help="training seed (initialization, shuffling; default 0)",
+        help="training seed (initialization, shuffling; default: 0)",
     )
     tr.add_argument(
         "--neurons",
         type=positive_int,
         default=None,
-        help=f"LSTM neurons n (default 5; --plant quadtank: {QUADTANK_NEURONS})",
+        help=f"LSTM neurons n (default: 5; --plant quadtank: {QUADTANK_NEURONS})",
     )
     tr.add_argument(
         "--epochs",
         type=positive_int,
         default=None,
-        help="planned epochs (default 1500; --preset paper: 1000)",
+        help="planned epochs (default: 1500; --preset paper: 1000)",
     )
     tr.add_argument(
         "--max-extra-epochs",
         type=int,
         default=None,
-        help="extra epochs allowed until delta-ISS holds (default 500; --preset paper: 1000)",
+        help="extra epochs allowed until delta-ISS holds (default: 500; --preset paper: 1000)",
     )
     tr.add_argument(
-        "--lambda1", type=nonnegative_float, default=None, help="delta-ISS penalty (default 0.03)"
+        "--lambda1", type=nonnegative_float, default=None, help="delta-ISS penalty (default: 0.03)"
     )
     tr.add_argument(
         "--lambda2",
         type=nonnegative_float,
         default=None,
-        help="delta-ISS margin reward (default 0.02)",
+        help="delta-ISS margin reward (default: 0.02)",
     )
     tr.add_argument(
         "--lr",
         type=positive_float,
         default=None,
-        help="Adam learning rate (default 3e-3; --preset paper: 1e-3)",
+        help="Adam learning rate (default: 3e-3; --preset paper: 1e-3)",
     )
     tr.add_argument(
         "--truncation",
         type=int,
         default=None,
-        help="truncated-BPTT chunk length in samples, 0 = whole sequences (default 100)",
+        help="truncated-BPTT chunk length in samples, 0 = whole sequences (default: 100)",
     )
     tr.add_argument(
-        "--batch-size", type=int, default=None, help="sequences per batch, 0 = all (default 0)"
+        "--batch-size", type=int, default=None, help="sequences per batch, 0 = all (default: 0)"
     )
     tr.add_argument(
         "--washout",
         type=int,
         default=None,
-        help="initial samples excluded from the loss (default 0)",
+        help="initial samples excluded from the loss (default: 0)",
     )
     tr.add_argument(
         "--forget-bias-init",
         type=float,
         default=None,
-        help="initial forget-gate bias (default 2.0: slow memory, like the plant)",
+        help="initial forget-gate bias, 2.0: slow memory (default: 2.0)",
     )
     tr.add_argument(
         "--lr-final-factor",
         type=float,
         default=None,
         help=(
-            "cosine learning-rate decay to lr * factor over the epochs (default 0.03; "
+            "cosine learning-rate decay to lr * factor over the epochs (default: 0.03; "
             "--preset paper: 1, constant)"
         ),
     )
@@ -443,7 +460,9 @@ def register(subparsers: Any) -> None:
         "--lr-warmup-epochs",
         type=int,
         default=None,
-        help="linear learning-rate warm-up over these first epochs (default 20; --preset paper: 0)",
+        help=(
+            "linear learning-rate warm-up over these first epochs (default: 20; --preset paper: 0)"
+        ),
     )
     tr.add_argument(
         "--delta-iss-margin",
@@ -451,14 +470,14 @@ def register(subparsers: Any) -> None:
         default=None,
         help=(
             "switch the lambda2 margin term off while rho(A_delta) <= 1 - margin, on again "
-            "if the margin is lost (default 0.12; --preset paper: always on)"
+            "if the margin is lost (default: 0.12; --preset paper: always on)"
         ),
     )
     tr.add_argument(
         "--grad-clip-norm",
         type=nonnegative_float,
         default=None,
-        help="clip the gradient norm of each step to this value (default 0: no clipping)",
+        help="clip the gradient norm of each step to this value, 0: no clipping (default: 0)",
     )
     tr.add_argument(
         "--selection-rho-s-max",
@@ -466,31 +485,39 @@ def register(subparsers: Any) -> None:
         default=None,
         help=(
             "select only checkpoints with rho_s (Lemma 2, Q_s = 1000 I) at most this "
-            "(default 0.92; --preset paper: any certified checkpoint)"
+            "(default: 0.92; --preset paper: any certified checkpoint)"
         ),
     )
     tr.add_argument(
         "--threads",
         type=int,
         default=None,
-        help="torch.set_num_threads (default 1, fastest for n=5)",
+        help="torch.set_num_threads, 1: fastest for n = 5 (default: 1)",
     )
     tr.add_argument(
-        "--checkpoint-every", type=int, default=None, help="epochs between checkpoints (default 50)"
+        "--checkpoint-every",
+        type=int,
+        default=None,
+        help="epochs between checkpoints (default: 50)",
     )
-    tr.add_argument("--dtype", choices=("float64", "float32"), default=None, help="default float64")
+    tr.add_argument(
+        "--dtype",
+        choices=("float64", "float32"),
+        default=None,
+        help="float type of the training (default: float64)",
+    )
     tr.add_argument(
         "--resume",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="continue from <out>/checkpoint.pt when present (default on)",
+        help="continue from <out>/checkpoint.pt when present",
     )
     tr.add_argument(
         "--preset",
         choices=("fidelity", "paper"),
         default="fidelity",
         help=(
-            "fidelity (default; with the default data it gives the shipped ph_lstm_n5.npz): "
+            "fidelity (with the default data it gives the shipped ph_lstm_n5.npz): "
             "1500 epochs, lr 3e-3 with warm-up and cosine decay, the lambda2 margin term off "
             "while rho(A_delta) <= 0.88, selection among checkpoints with rho_s <= 0.92 "
             "(TrainingConfig.fidelity()); paper: the paper's settings (TrainingConfig(): "
@@ -504,7 +531,7 @@ def register(subparsers: Any) -> None:
         default=1,
         help=(
             "train this many models, seeds --seed, --seed + 1, ..., each in <out>/seed_<s>, "
-            "and keep the best validation FIT (default 1)"
+            "and keep the best validation FIT"
         ),
     )
     tr.add_argument(
@@ -512,7 +539,7 @@ def register(subparsers: Any) -> None:
         type=int,
         default=0,
         help=(
-            "processes for --restarts (default 0: one after the other); keep workers x "
+            "processes for --restarts, 0: one after the other; keep --workers x "
             "--threads within the cores"
         ),
     )
