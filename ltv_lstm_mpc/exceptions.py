@@ -14,8 +14,10 @@ __all__ = [
     "DimensionError",
     "InvalidValueError",
     "LtvMpcError",
+    "ModelFileNotFoundError",
     "ModelFormatError",
     "NotDeltaISSError",
+    "NumberTypeError",
     "ObserverGainError",
     "SamplingTimeError",
     "SolverError",
@@ -31,10 +33,11 @@ class LtvMpcError(Exception):
 
 class ArgumentTypeError(LtvMpcError, TypeError):
     """An argument has the wrong type (a file name where a model is expected, a dict for a
-    configuration, a string for a scalar setting, ...); the message names the argument,
-    the type given and what is expected. Array-valued arguments (measurements, set-points,
-    states) with entries that are not real numbers, strings included, raise
-    :class:`InvalidValueError` instead, as their other invalid entries do."""
+    configuration, a string for a number, ...); the message names the argument, the type
+    given and what is expected. A string where a number or an array of numbers is expected
+    (``controller.step("7.0", 7.5)``) raises :class:`NumberTypeError`, which is also an
+    :class:`InvalidValueError`; arrays whose entries are not real numbers (booleans,
+    complex numbers, string entries) raise :class:`InvalidValueError`."""
 
 
 class DimensionError(LtvMpcError, ValueError):
@@ -43,6 +46,12 @@ class DimensionError(LtvMpcError, ValueError):
 
 class InvalidValueError(LtvMpcError, ValueError):
     """A value is out of its admissible range (NaN, inf, negative weight, ...)."""
+
+
+class NumberTypeError(ArgumentTypeError, InvalidValueError):
+    """A string (or bytes) given where a number or an array of numbers is expected, e.g. a
+    measurement ``"7.0"``: an :class:`ArgumentTypeError` (a ``TypeError``) and, as the
+    other refusals of numeric arguments, an :class:`InvalidValueError` (a ``ValueError``)."""
 
 
 class NotDeltaISSError(LtvMpcError, ValueError):
@@ -93,6 +102,11 @@ class SolverNotFound(LtvMpcError, ImportError):
 
 class SolverError(LtvMpcError, RuntimeError):
     """A solver failed in a way the caller asked to be raised rather than recorded."""
+
+
+class ModelFileNotFoundError(LtvMpcError, FileNotFoundError):
+    """No model file at the path given and no shipped model of that name; the message names
+    the path looked at and the shipped models."""
 
 
 class ModelFormatError(LtvMpcError, ValueError):

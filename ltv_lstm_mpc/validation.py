@@ -28,7 +28,12 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ltv_lstm_mpc.exceptions import ArgumentTypeError, DimensionError, InvalidValueError
+from ltv_lstm_mpc.exceptions import (
+    ArgumentTypeError,
+    DimensionError,
+    InvalidValueError,
+    NumberTypeError,
+)
 
 __all__ = [
     "expect_bool",
@@ -57,10 +62,27 @@ def _describe(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def _string_for_number(name: str, value: str | bytes) -> NumberTypeError:
+    """The error for a string given where numbers are expected (convert it first)."""
+    hint = ""
+    try:
+        number = float(value)
+    except ValueError:
+        pass
+    else:
+        hint = f"; convert it first, e.g. {name}={number!r}"
+    return NumberTypeError(
+        f"{name} must be real numbers, got {type(value).__name__} {_describe(value)}{hint}"
+    )
+
+
 def real_array(name: str, value: Any, *, kinds: str = "biuf") -> NDArray[Any]:
     """``value`` as an array whose dtype kind is in ``kinds`` (real numbers; booleans too
     by default), else :class:`InvalidValueError` naming it: complex numbers, strings and
-    objects are refused, never converted."""
+    objects are refused, never converted; a string itself is :class:`NumberTypeError` (an
+    ``ArgumentTypeError``, ``TypeError``, and an ``InvalidValueError``)."""
+    if isinstance(value, (str, bytes)):
+        raise _string_for_number(name, value)
     try:
         array = value if isinstance(value, np.ndarray) else np.asarray(value)
     except (TypeError, ValueError):  # ragged nesting, objects numpy cannot convert
@@ -114,7 +136,9 @@ def real_vector(name: str, value: Any, size: int) -> FloatArray:
         if not math.isfinite(sum(value.tolist())) and not bool(np.isfinite(value).all()):
             raise InvalidValueError(f"{name} contains NaN or inf: {_describe(value)}")
         return value
-    if isinstance(value, (bool, np.bool_, str, bytes)):
+    if isinstance(value, (str, bytes)):
+        raise _string_for_number(name, value)
+    if isinstance(value, (bool, np.bool_)):
         raise InvalidValueError(
             f"{name} must be real numbers, got {type(value).__name__} {_describe(value)}"
         )
@@ -257,7 +281,7 @@ def finite_array(name: str, value: Any) -> FloatArray:
     """``value`` as a float64 array of real, finite numbers (any shape), else
     :class:`InvalidValueError` naming it."""
     if isinstance(value, (str, bytes)):
-        raise InvalidValueError(f"{name} must be real numbers, got {_given(value)}")
+        raise _string_for_number(name, value)
     array = np.asarray(real_array(name, value, kinds="iuf"), dtype=np.float64)
     if not bool(np.isfinite(array).all()):
         raise InvalidValueError(f"{name} contains NaN or inf: {_describe(value)}")

@@ -512,6 +512,29 @@ class OffsetFreeController(DeferredState):
                 f"set-point {self._physical_y(requested)} (physical units) at step {k} is {where}"
             )
 
+    def _check_first_measurement(self, y: FloatArray, y_phi: ArrayLike) -> None:
+        """Refuse a first measurement more than one range width outside the model's
+        normalization range (in the measurement's own units), before any reference
+        calculation: the observer (and the set-point rate limiter) start from it, so the
+        controller would fail later naming a set-point the caller never gave."""
+        if max(abs(v) for v in y.tolist()) <= IMPLAUSIBLE_MEASUREMENT_LIMIT:
+            return
+        norm = self.model.normalization
+        assert norm is not None  # checked at construction
+
+        def physical(values: Any) -> str:
+            numbers = [f"{float(v):.4g}" for v in np.ravel(values)]
+            return numbers[0] if len(numbers) == 1 else "[" + ", ".join(numbers) + "]"
+
+        raise InvalidValueError(
+            f"the first measurement y_phi = {physical(y_phi)} lies far outside the model's "
+            f"output range {physical(norm.y_phi_min)} .. {physical(norm.y_phi_max)} (the "
+            "physical units of its normalization; more than one range width outside): "
+            "wrong units or a sensor fault? The controller starts its observer and the "
+            "set-point rate limiter from the first measurement, so it cannot start from this "
+            "one; give the measurement in the model's units"
+        )
+
     def _measurement_status(self, y: FloatArray, y_phi: ArrayLike) -> str:
         """``"ok"``, ``"outside_training_range"`` or ``"implausible"`` (see
         :class:`ControllerStep`); warns once per run, or raises, on an implausible one."""
@@ -1214,6 +1237,8 @@ class OffsetFreeController(DeferredState):
         it and did not accept it (the reference calculator goes on from it);
         ``skip_native``: the one-call feedback already declined this step's point."""
         y, y0_target = self._normalize(y_phi, y0_phi)
+        if not self._initialized:
+            self._check_first_measurement(y, y_phi)
         measurement_status = self._measurement_status(y, y_phi)
         t0 = time.perf_counter()
         if not self._initialized:

@@ -645,7 +645,9 @@ class LSTMModel:
         """
         path = Path(path)
         if not path.exists():
-            raise FileNotFoundError(f"model file {path} does not exist")
+            from ltv_lstm_mpc.lstm.shipped import missing_model
+
+            raise missing_model(path)
         if path.is_dir():
             raise ModelFormatError(f"{path} is a folder, not a model file (.npz)")
         arrays = _read_npz(path)

@@ -5,10 +5,11 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
+from ltv_lstm_mpc.exceptions import ModelFileNotFoundError
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.validation import expect_instance, expect_path
 
-__all__ = ["load_model", "model_path", "shipped_models", "shipped_path"]
+__all__ = ["load_model", "missing_model", "model_path", "shipped_models", "shipped_path"]
 
 
 def shipped_models() -> list[str]:
@@ -17,12 +18,30 @@ def shipped_models() -> list[str]:
     return sorted(entry.name for entry in folder.iterdir() if entry.name.endswith(".npz"))
 
 
+def missing_model(path: str | Path) -> ModelFileNotFoundError:
+    """The error for a model that is neither a file at ``path`` nor a shipped model: it
+    names the path looked at (absolute) and the shipped models."""
+    absolute = Path(path).expanduser().absolute()
+    return ModelFileNotFoundError(
+        f"no model file {str(path)!r} (looked at {absolute}) and no shipped model of that "
+        f"name; shipped models: {', '.join(shipped_models())}"
+    )
+
+
 def shipped_path(name: str) -> Path:
-    """Path of a file shipped in ``ltv_lstm_mpc/data`` (e.g. ``"example_delta_iss_n3.npz"``)."""
+    """Path of a file shipped in ``ltv_lstm_mpc/data`` (e.g. ``"example_delta_iss_n3.npz"``).
+
+    Raises
+    ------
+    ModelFileNotFoundError
+        No shipped file of that name (a ``FileNotFoundError``; the message lists them).
+    """
     expect_instance("name", name, str, f"one of {shipped_models()}", expected="a file name")
     candidate = resources.files("ltv_lstm_mpc") / "data" / name
     if not candidate.is_file():
-        raise FileNotFoundError(f"no shipped file {name!r}; shipped models: {shipped_models()}")
+        raise ModelFileNotFoundError(
+            f"no shipped file {name!r}; shipped models: {', '.join(shipped_models())}"
+        )
     return Path(str(candidate))
 
 
@@ -31,11 +50,16 @@ def model_path(name: str) -> Path:
 
     Raises
     ------
-    FileNotFoundError
-        Neither exists (the message lists the shipped models).
+    ModelFileNotFoundError
+        Neither exists (a ``FileNotFoundError`` and an ``LtvMpcError``; the message names
+        the path and lists the shipped models).
     """
     path = Path(name)
-    return path if path.exists() else shipped_path(name)
+    if path.exists():
+        return path
+    if not (resources.files("ltv_lstm_mpc") / "data" / str(name)).is_file():
+        raise missing_model(name)
+    return shipped_path(str(name))
 
 
 def load_model(name_or_path: str | Path) -> LSTMModel:
@@ -47,8 +71,9 @@ def load_model(name_or_path: str | Path) -> LSTMModel:
     ------
     ArgumentTypeError
         ``name_or_path`` is not a ``str`` or ``os.PathLike``.
-    FileNotFoundError
-        No such file and no shipped model of that name (the message lists them).
+    ModelFileNotFoundError
+        No such file and no shipped model of that name (a ``FileNotFoundError``; the
+        message names the path and lists the shipped models).
     """
     path = expect_path(
         "name_or_path", name_or_path, f"a .npz, .onnx or .keras file or one of {shipped_models()}"
@@ -61,8 +86,5 @@ def load_model(name_or_path: str | Path) -> LSTMModel:
         return LSTMModel.load(path)
     candidate = resources.files("ltv_lstm_mpc") / "data" / str(name_or_path)
     if not candidate.is_file():
-        raise FileNotFoundError(
-            f"no model file {str(path)!r} and no shipped model of that name; shipped models: "
-            f"{shipped_models()}"
-        )
+        raise missing_model(path)
     return LSTMModel.load(Path(str(candidate)))
