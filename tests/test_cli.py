@@ -47,7 +47,9 @@ def test_certify_table_and_help(capsys) -> None:
 
 def test_certify_errors_are_clean(capsys, tmp_path) -> None:
     assert main(["certify", str(tmp_path / "missing.npz")]) == 1
-    assert "no shipped file" in capsys.readouterr().err
+    err = capsys.readouterr().err  # the path and the shipped models, one line
+    assert str(tmp_path / "missing.npz") in err and "ph_lstm_n5.npz" in err
+    assert err.count("\n") == 1
     with pytest.raises(SystemExit) as stop:  # now a usage error, found by the parser
         main(["certify", "--L-d", "3.0"])
     assert stop.value.code == 2
@@ -179,7 +181,7 @@ def test_simulate_accepts_a_mimo_model(tmp_path, capsys) -> None:
     out = tmp_path / "out"
     argv = ["simulate", "--model", str(path), "--plant", "lstm", "--solver", "daqp",
             "--setpoints", *targets, "--disturbances", "0", "0.005,-0.005",
-            "--segment", "300", "--no-progress", "--out", str(out),
+            "--segment", "300", "--no-progress", "--out", str(out), "--L-d", "0.1",
             "--max-offset", "1e-6"]  # fmt: skip
     code, _ = _run_main(argv, capsys)
     assert code == 0

@@ -59,7 +59,7 @@ from ltv_lstm_mpc.command_arguments import (
     real,
     solver_name,
 )
-from ltv_lstm_mpc.exceptions import LtvMpcError, ModelFileNotFoundError
+from ltv_lstm_mpc.exceptions import LtvMpcError
 from ltv_lstm_mpc.loop.schedules import segments as schedule_segments
 from ltv_lstm_mpc.loop.statuses import SETPOINT_STATUSES
 from ltv_lstm_mpc.lstm.model import LSTMModel
@@ -668,12 +668,12 @@ def _command_parser(parser: argparse.ArgumentParser, command: str) -> Any:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``ltv-lstm-mpc``; returns the exit status.
 
-    Exit codes: 0 success; 1 an error while working (a library error, a file that cannot be
-    read); 2 a bad option or input found before the work starts (an unknown solver, a
-    set-point that is not a finite number, a model file that does not exist, a plant
-    without an input range, ...: one line on stderr, ``ltv-lstm-mpc COMMAND: error:
-    ...``); 3 a final offset above ``--max-offset``; 130
-    interrupted. Warnings print as one line each, ``ltv-lstm-mpc COMMAND: warning: ...``.
+    Exit codes: 0 success; 1 a library or file error (a model file that does not exist
+    or cannot be read, ...); 2 a bad option or input found before the work starts (an
+    unknown solver, a set-point that is not a finite number, a plant without an input
+    range, ...: one line on stderr, ``ltv-lstm-mpc COMMAND: error: ...``); 3 a final
+    offset above ``--max-offset``; 130 interrupted. Warnings print as one line each,
+    ``ltv-lstm-mpc COMMAND: warning: ...``.
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -690,7 +690,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.showwarning = show
             return int(args.func(args))
-    except (UsageError, ModelFileNotFoundError) as error:  # a bad option or input: 2
+    except UsageError as error:
         print(f"{prog}: error: {_for_command(str(error), command)}", file=sys.stderr)
         return 2
     except (LtvMpcError, OSError, ValueError) as error:
