@@ -67,8 +67,8 @@ def parse_vectors(name: str, tokens: list[str], size: int, *, repeat: bool = Tru
             values = values * size
         if len(values) != size:
             raise UsageError(
-                f"{name}: {token!r} (segment {number}) has {len(values)} values; give {what} "
-                "per segment"
+                f"{name}: {token!r} needs {size} finite value{'s' if size > 1 else ''} (one per "
+                f"output), got {len(values)} (segment {number})"
             )
         if not np.all(np.isfinite(values)):
             raise UsageError(

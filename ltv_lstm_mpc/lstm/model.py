@@ -30,6 +30,7 @@ from ltv_lstm_mpc.exceptions import (
     DimensionError,
     InvalidValueError,
     LtvMpcError,
+    ModelFileNotFoundError,
     ModelFormatError,
 )
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
@@ -117,6 +118,25 @@ def _read_npz(path: Path) -> dict[str, Any]:
 def _sigmoid(z: FloatArray) -> FloatArray:
     # 0.5 (1 + tanh(z/2)) is the overflow-free logistic function.
     return 0.5 * (1.0 + np.tanh(0.5 * z))
+
+
+def shipped_model_names() -> list[str]:
+    """Names of the ``.npz`` models shipped in ``ltv_lstm_mpc/data``
+    (:func:`ltv_lstm_mpc.shipped_models`)."""
+    from importlib import resources
+
+    folder = resources.files("ltv_lstm_mpc") / "data"
+    return sorted(entry.name for entry in folder.iterdir() if entry.name.endswith(".npz"))
+
+
+def missing_model(path: str | Path) -> ModelFileNotFoundError:
+    """The error for a model that is neither a file at ``path`` nor a shipped model: it
+    names the path looked at (absolute) and the shipped models."""
+    absolute = Path(path).expanduser().absolute()
+    return ModelFileNotFoundError(
+        f"no model file {str(path)!r} (looked at {absolute}) and no shipped model of that "
+        f"name; shipped models: {', '.join(shipped_model_names())}"
+    )
 
 
 @dataclass(frozen=True)
@@ -645,8 +665,6 @@ class LSTMModel:
         """
         path = Path(path)
         if not path.exists():
-            from ltv_lstm_mpc.lstm.shipped import missing_model
-
             raise missing_model(path)
         if path.is_dir():
             raise ModelFormatError(f"{path} is a folder, not a model file (.npz)")

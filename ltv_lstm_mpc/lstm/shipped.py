@@ -6,7 +6,7 @@ from importlib import resources
 from pathlib import Path
 
 from ltv_lstm_mpc.exceptions import ModelFileNotFoundError
-from ltv_lstm_mpc.lstm.model import LSTMModel
+from ltv_lstm_mpc.lstm.model import LSTMModel, missing_model, shipped_model_names
 from ltv_lstm_mpc.validation import expect_instance, expect_path
 
 __all__ = ["load_model", "missing_model", "model_path", "shipped_models", "shipped_path"]
@@ -14,18 +14,7 @@ __all__ = ["load_model", "missing_model", "model_path", "shipped_models", "shipp
 
 def shipped_models() -> list[str]:
     """Names of the ``.npz`` models shipped in ``ltv_lstm_mpc/data``."""
-    folder = resources.files("ltv_lstm_mpc") / "data"
-    return sorted(entry.name for entry in folder.iterdir() if entry.name.endswith(".npz"))
-
-
-def missing_model(path: str | Path) -> ModelFileNotFoundError:
-    """The error for a model that is neither a file at ``path`` nor a shipped model: it
-    names the path looked at (absolute) and the shipped models."""
-    absolute = Path(path).expanduser().absolute()
-    return ModelFileNotFoundError(
-        f"no model file {str(path)!r} (looked at {absolute}) and no shipped model of that "
-        f"name; shipped models: {', '.join(shipped_models())}"
-    )
+    return shipped_model_names()
 
 
 def shipped_path(name: str) -> Path:

@@ -82,8 +82,9 @@ def test_install_advice_only_where_the_package_is_missing(monkeypatch: pytest.Mo
 
 
 def test_default_solver_is_the_fastest_exact_one_installed() -> None:
-    from ltv_lstm_mpc import MPCConfig
     from ltv_lstm_mpc.solvers import default_solver, solver_info
+
+    from ltv_lstm_mpc import MPCConfig
 
     name = default_solver()
     assert solver_info(name).supports_cones
