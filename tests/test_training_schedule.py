@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import training_factories
 
+from ltv_lstm_mpc.command_arguments import UsageError
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.plants.quadtank import QuadrupleTankPlant
 from ltv_lstm_mpc.training.datasets import (
@@ -146,7 +147,8 @@ def test_cli_generate_data_design_options(
     data = IdentificationDataset.load(out)
     assert data.metadata["levels"] == 6 and data.metadata["hold_range"] == [8, 76]
     bad = _parser().parse_args(["generate-data", "--out", str(out), "--levels", "1"])
-    assert bad.func(bad) == 1
+    with pytest.raises(UsageError, match="--levels"):  # exit code 2 through main
+        bad.func(bad)
 
 
 # ------------------------------------------------------------------------- torch
