@@ -48,10 +48,12 @@ from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.registry import resolve_plant
 
 __all__ = [
+    "ADMISSIBLE_SETPOINT_FRACTIONS",
     "PH_SCHEDULE_BAND",
     "SETTLE_SAMPLES",
     "Scenario",
     "ScenarioResult",
+    "admissible_setpoints",
     "initial_output",
     "is_ph_model",
     "paper_scenarios",
@@ -267,7 +269,11 @@ def is_ph_model(model: LSTMModel) -> bool:
 def initial_output(model: LSTMModel, certification: Certification | None = None) -> float:
     """The initial output of the LSTM plant when none is given: the middle of the model's
     admissible set-point interval (Assumption 5, ``certification.y0_interval_phi``; default
-    the certification of ``MPCConfig()``), physical units.
+    the certification of ``MPCConfig()``), physical units, moved into the range of
+    equilibrium outputs of the input range's ends where it lies outside it (the plant starts
+    at an equilibrium, :class:`~ltv_lstm_mpc.plants.lstm_plant.LSTMPlant`): the middle of
+    the admissible interval narrowed to the equilibrium outputs between those of the input
+    range's ends (1 % inside).
 
     Raises
     ------
@@ -288,7 +294,56 @@ def initial_output(model: LSTMModel, certification: Certification | None = None)
             "output is implied: give it (simulate --y0-initial, campaign y0_initial, "
             "Scenario.y0_phi_initial) in the model's physical output units"
         )
-    return 0.5 * (float(interval[0][0]) + float(interval[1][0]))
+    low, high = _reachable(model, interval)
+    return 0.5 * (float(low[0]) + float(high[0]))
+
+
+def _reachable(model: LSTMModel, interval: tuple[Any, Any]) -> tuple[FloatArray, FloatArray]:
+    """The admissible interval narrowed, for m = p = 1, to the equilibrium outputs between
+    those of the input range's ends (1 % inside; a set-point or start outside them has no
+    equilibrium with the input in U, Assumption 5 does not exclude that); as given where
+    the two do not overlap or the model has several inputs or outputs."""
+    low, high = (np.ravel(np.asarray(v, dtype=np.float64)).copy() for v in interval)
+    if model.m != 1 or model.p != 1:
+        return low, high
+    ends = [
+        float(model.denormalize_y(model.output(model.equilibrium(np.full(1, u))))[0])
+        for u in (-1.0, 1.0)
+    ]
+    margin = 0.01 * (max(ends) - min(ends))
+    narrowed = (max(float(low[0]), min(ends) + margin), min(float(high[0]), max(ends) - margin))
+    if narrowed[0] >= narrowed[1]:
+        return low, high
+    return np.array([narrowed[0]]), np.array([narrowed[1]])
+
+
+#: Where default set-points lie in the admissible interval (fractions from its low end).
+ADMISSIBLE_SETPOINT_FRACTIONS = (0.25, 0.75, 0.5)
+
+
+def admissible_setpoints(model: LSTMModel, certification: Certification) -> list[str]:
+    """Default set-points of a model with none of its own: one per segment at
+    :data:`ADMISSIBLE_SETPOINT_FRACTIONS` of the admissible set-point interval
+    (Assumption 5, ``certification.y0_interval_phi``) within the model's equilibrium
+    outputs over the input range (:func:`initial_output`), physical units, as ``simulate
+    --setpoints`` tokens (comma-separated per output for p > 1), 4 significant digits.
+
+    Raises
+    ------
+    InvalidValueError
+        The admissible interval is empty (the message says to give the set-points).
+    """
+    interval = certification.y0_interval_phi
+    if interval is None:
+        raise InvalidValueError(
+            "the model's admissible set-point interval (Assumption 5) is empty, so no default "
+            "set-points follow from it: give them (--setpoints) in the model's output units"
+        )
+    low, high = _reachable(model, interval)
+    return [
+        ",".join(f"{a + f * (b - a):.4g}" for a, b in zip(low, high, strict=True))
+        for f in ADMISSIBLE_SETPOINT_FRACTIONS
+    ]
 
 
 def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:

@@ -56,6 +56,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -83,7 +84,7 @@ PH_INITIAL_OUTPUT = 7.0
 
 #: The pH plant's entry in the plant registry (:func:`ltv_lstm_mpc.plants.register_plant`):
 #: its title, units, default model, set-points (pH) and nominal buffer flow q2 (mL/s).
-PH_REGISTRY_DEFAULTS: dict[str, object] = {
+PH_REGISTRY_DEFAULTS: dict[str, Any] = {
     "title": "pH plant",
     "description": "pH neutralization (paper Section V): base flow q3 (mL/s) -> pH; "
     "disturbance: buffer flow q2 (mL/s)",

@@ -151,6 +151,22 @@ class RegisteredPlant:
         plant.reset()
         return plant
 
+    def setpoints_for(self, model: LSTMModel) -> tuple[str, ...]:
+        """The default set-points of this plant for ``model``: the entry's own of the model's
+        output count; for a plant without signals of its own (the LSTM plant is the model
+        itself) those of the registered plant whose default model has ``model``'s weights;
+        empty when neither applies (then they follow from the model's admissible interval,
+        :func:`ltv_lstm_mpc.paper.scenarios.admissible_setpoints`)."""
+        own = tuple(t for t in self.setpoints if len(str(t).split(",")) == model.p)
+        if own or self.output_labels:
+            return own
+        from ltv_lstm_mpc.plotting import plant_of_model
+
+        twin = plant_of_model(model)
+        if twin is None:
+            return ()
+        return tuple(t for t in twin.setpoints if len(str(t).split(",")) == model.p)
+
 
 _REGISTRY: dict[str, RegisteredPlant] = {}
 
