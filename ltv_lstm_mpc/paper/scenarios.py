@@ -19,8 +19,9 @@ Physical units: pH for outputs and the LSTM plant's output disturbance, mL/s for
 
 Another single-output model (``reproduce --model``): scenarios 1-3 run on its LSTM plant
 with the same schedules mapped affinely from the pH band [6.5, 8.5] onto the model's
-admissible set-point interval (Assumption 5, :attr:`Certification.y0_interval_phi`), output
-disturbances scaled alike; scenarios 4-5 need the pH plant and run only for a pH model (one
+admissible set-point interval (Assumption 5, :attr:`Certification.y0_interval_phi`) within
+its equilibrium outputs over the input range, output disturbances scaled alike; scenarios
+4-5 need the pH plant and run only for a pH model (one
 whose stored output constraint is the paper's [6, 9] pH).
 """
 
@@ -391,7 +392,8 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
                 "paper's scenarios set their set-points inside it (train a model with a "
                 "non-empty interval, or lower d_max)"
             )
-        low, high = float(interval[0][0]), float(interval[1][0])
+        reachable = _reachable(model, interval)
+        low, high = float(reachable[0][0]), float(reachable[1][0])
         band_low, band_high = PH_SCHEDULE_BAND
         size = (high - low) / (band_high - band_low)
         unit = signal_labels("lstm", model).output_unit
@@ -410,7 +412,12 @@ def paper_scenarios(model: LSTMModel, *, short: bool = False) -> list[Scenario]:
     )
     slow_cert = certify(model, settings)
     if not slow_cert.rate_bound.holds:
-        raise InvalidValueError("Theorem 3's rate condition cannot hold for this model and range")
+        raise InvalidValueError(
+            "Theorem 3's rate condition (paper notes 2.10c) cannot hold for this model over "
+            f"scenario 1's set-point range [{range1[0]:.4g}, {range1[1]:.4g}] {unit}, so the "
+            "paper's scenario 1 has no rate limit to use: run this model with simulate, or "
+            "certify it (ltv-lstm-mpc certify) to see K_bar and the rate bound"
+        )
     rate = slow_cert.rate_bound.delta_y0_max
     y_scale = float(model.normalization.y_scale[0]) if model.normalization is not None else 1.0
     w_max_phi = slow_cert.observer.w_max * y_scale  # output units per step

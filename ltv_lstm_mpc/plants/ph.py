@@ -65,6 +65,7 @@ from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcErr
 from ltv_lstm_mpc.validation import expect_instance, expect_int, expect_real, real_vector
 
 __all__ = [
+    "PH_DATA_UNITS",
     "PH_INITIAL_OUTPUT",
     "PH_OUTPUT_CONSTRAINT",
     "PH_REGISTRY_DEFAULTS",
@@ -78,6 +79,15 @@ __all__ = [
 #: the shipped pH models (``y_phi_constraint_min/max``). The only place the library holds it:
 #: every other module takes the constraint from the plant or the model.
 PH_OUTPUT_CONSTRAINT: tuple[float, float] = (6.0, 9.0)
+
+#: Units of the stored signals of the pH identification data
+#: (:mod:`ltv_lstm_mpc.training.datasets`).
+PH_DATA_UNITS: dict[str, str] = {
+    "u_phi": "mL/s (base flow q3)",
+    "y_phi": "pH",
+    "d_phi": "mL/s (buffer flow q2)",
+    "Ts": "s",
+}
 
 #: pH of the paper's initial condition (the LSTM-plant scenarios of Section V start there).
 PH_INITIAL_OUTPUT = 7.0
