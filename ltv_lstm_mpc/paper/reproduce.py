@@ -289,7 +289,7 @@ def format_certificates(comparison: dict[str, Any]) -> str:
     lines = [f"{'certificate':<22} {'ours':>22} {'paper':>16}"]
     if papers is None:
         lines = [
-            f"{'certificate':<22} {'ours':>22}   (the paper's values are for its pH model: "
+            f"{'certificate':<22} {'ours':>22}   (the paper's values belong to its own model: "
             "not compared)"
         ]
     for key in ("L_d=0.01", "L_d=0.1"):

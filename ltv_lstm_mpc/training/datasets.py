@@ -779,7 +779,7 @@ def _step_times(
 ) -> tuple[FloatArray, FloatArray]:
     if not isinstance(plant, (PHNeutralizationPlant, QuadrupleTankPlant)):
         raise InvalidValueError(
-            "step responses are simulated for the pH and quadruple-tank plants; for another "
+            "step responses are simulated for the shipped plants (ph, quadtank) only; for another "
             "plant choose min_hold / max_hold from its known time constants"
         )
     if amplitudes < 2 or steps < 10:
