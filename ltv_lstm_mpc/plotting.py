@@ -45,6 +45,7 @@ __all__ = [
     "legend",
     "mark_clipped_setpoints",
     "name_of",
+    "plant_of_model",
     "shade_infeasible",
     "signal_labels",
     "titled",
@@ -134,7 +135,7 @@ def signal_labels(plant: str | None, model: LSTMModel) -> SignalLabels:
     inputs: tuple[str, ...] = () if entry is None else entry.input_labels
     outputs: tuple[str, ...] = () if entry is None else entry.output_labels
     if (len(inputs), len(outputs)) != (m, p):
-        twin = _plant_of_model(model)
+        twin = plant_of_model(model)
         inputs, outputs = ((), ()) if twin is None else (twin.input_labels, twin.output_labels)
     if len(inputs) != m:
         inputs = ("u (input units)",) if m == 1 else tuple(f"u_{j} (input units)" for j in range(m))
@@ -205,7 +206,7 @@ def _file_signature(name: str) -> tuple[FloatArray, ...] | None:
         return None
 
 
-def _plant_of_model(model: LSTMModel) -> RegisteredPlant | None:
+def plant_of_model(model: LSTMModel) -> RegisteredPlant | None:
     """The registered plant with labels whose default model has ``model``'s weights."""
     from ltv_lstm_mpc.plants.registry import registered_plants, resolve_plant
 

@@ -193,7 +193,12 @@ def test_simulate_accepts_a_mimo_model(tmp_path, capsys) -> None:
     for bad, text in (
         (["--plant", "ph", "--setpoints", "0.5,0.4"], "use --plant lstm"),
         (["--plant", "lstm", "--setpoints", "1,2,3"], "needs 2 finite values"),
-        (["--plant", "lstm"], "give --setpoints"),
+        (["--plant", "lstm", "--y0-initial", "0.5"], "--y0-initial"),
     ):
         code, err = _run_main(["simulate", "--model", str(path), *bad], capsys)
         assert code == 2 and text in err
+    # no set-points given: the model's admissible interval gives them, and says so
+    argv = ["simulate", "--model", str(path), "--plant", "lstm", "--solver", "daqp",
+            "--segment", "5", "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    assert "of its admissible set-point interval" in capsys.readouterr().out

@@ -53,13 +53,21 @@ _FACTOR_UNITS = {
 }
 
 
+#: Columns of the overall table in the plant's output unit.
+_OUTPUT_UNIT_COLUMNS = ("final_offset", "max_violation")
+
+
 def output_unit(rows: Sequence[Mapping[str, Any]]) -> str:
-    """The output unit of the campaign's plant(s) for plot labels: from the plant registry's
-    output labels ("pH", "h1 (cm)" -> "cm"); "output units" when the plants differ, state
-    none, or a plant class is not importable here."""
+    """The output unit of the campaign's plant(s) for labels and tables: the rows'
+    ``output_unit`` (each task's, from the plant registry), else the registry's output labels
+    ("pH", "h1 (cm)" -> "cm"); "output units" when the plants differ, state none, or a
+    plant class is not importable here."""
     from ltv_lstm_mpc.exceptions import LtvMpcError
     from ltv_lstm_mpc.plants.registry import resolve_plant
 
+    recorded = {str(r["output_unit"]) for r in rows if r.get("output_unit")}
+    if recorded:  # the task's own (the plant's, or the model's on the LSTM plant)
+        return recorded.pop() if len(recorded) == 1 else "output units"
     units = set()
     for plant in {str(r.get("plant")) for r in rows if r.get("plant")}:
         try:
@@ -402,6 +410,7 @@ def write_report(
         if truncated
         else []
     )
+    unit = output_unit(rows)
     wall = sum(v for v in (_number(r.get("wall_s")) for r in rows) if math.isfinite(v))
     lines = [
         f"# Campaign `{title}`",
@@ -410,7 +419,8 @@ def write_report(
         f"Factors (levels): {levels or 'none'}.",
         "",
         *truncated_note,
-        "Metrics in physical units on the true plant output; step times of the controller.",
+        f"Metrics in physical units ({unit}) on the true plant output; step times of the "
+        "controller.",
         "",
         "## Overall",
         "",
@@ -427,7 +437,8 @@ def write_report(
         "closed_loop_cost",
     ):
         mean, median, top = _stats(_values(rows, column))
-        lines.append(f"| {column} | {_fmt(mean)} | {_fmt(median)} | {_fmt(top)} |")
+        shown = f"{column} ({unit})" if column in _OUTPUT_UNIT_COLUMNS else column
+        lines.append(f"| {shown} | {_fmt(mean)} | {_fmt(median)} | {_fmt(top)} |")
     for column in ("median_step_s", "p95_step_s", "max_step_s"):
         mean, median, top = _stats(_values(rows, column, 1e3))
         lines.append(f"| {column[:-2]} (ms) | {_fmt(mean)} | {_fmt(median)} | {_fmt(top)} |")
@@ -436,7 +447,7 @@ def write_report(
             "",
             f"## By `{name}`",
             "",
-            f"| {name} | tasks | errors | final offset mean / max | violations mean | "
+            f"| {name} | tasks | errors | final offset mean / max ({unit}) | violations mean | "
             "infeasible mean | median step (ms) |",
             "|---|---|---|---|---|---|---|",
         ]
@@ -470,7 +481,7 @@ def write_report(
             "Zero failures in N loops give 1 - beta^(1/N); `ltv-lstm-mpc campaign --plan-epsilon "
             "EPS` sizes N.",
             "",
-            *format_statements(stated),
+            *(line.replace("(output units)", f"({unit})") for line in format_statements(stated)),
         ]
         files.append(_write_statements(stated, root / "statements.csv"))
         if plots:

@@ -13,7 +13,8 @@ Metrics (physical units; the true plant output, not the noisy measurement):
 * ``final_offset``: largest :math:`|y_k - y^0_k|` at the last sample of the constant
   segments (set-point and disturbance both constant); ``segment_offsets`` lists them.
 * ``violations``: samples of the true plant output outside the model's output
-  constraint (``y_phi_constraint``, the paper's [6, 9] pH for the shipped models);
+  constraint (the plant's ``y_phi_constraint``, else the model's stored one; the row's
+  ``output_constraint``, JSON [low, high], and ``output_unit``, from the plant registry);
   ``max_violation`` and ``violation_sum`` their size.
 * ``closed_loop_cost``: mean of :math:`\|y_k - y^0_k\|^2` over the run (requested set-point).
 * ``infeasible_steps`` (nominal FHOCP not solved), ``fallback_steps`` and
@@ -88,6 +89,8 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "violations",
     "max_violation",
     "violation_sum",
+    "output_constraint",
+    "output_unit",
     "closed_loop_cost",
     "infeasible_steps",
     "fallback_steps",
@@ -297,12 +300,16 @@ def _base_row(task: Task) -> dict[str, Any]:
 
 
 def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatArray]:
+    from ltv_lstm_mpc.loop.simulation import output_constraint
+    from ltv_lstm_mpc.plotting import signal_labels
+
     done = int(sim.y_phi.shape[0])
     y_true = sim.y_phi_true.reshape(done, -1)  # without the measurement noise
     y0 = np.asarray(sim.y0_phi, dtype=np.float64).reshape(done, -1)
     error = np.abs(y_true - y0).max(axis=1) if done else np.zeros(0)
     offsets = [float(error[end - 1]) for _, end in loop.segments if 0 < end <= done]
-    constraint = model.y_phi_constraint
+    # the plant's output constraint, else the model's: the one sim.plant_violation measured
+    constraint = output_constraint(loop.plant, model)
     violation = sim.plant_violation  # of the true plant output (simulate)
     statuses = Counter(str(v) for v in sim.status)
     counts = sim.summary_counts()
@@ -314,6 +321,10 @@ def _metrics(loop: _Loop, sim: Any, model: Any) -> tuple[dict[str, Any], FloatAr
         "violations": int(np.sum(violation > 1e-9)) if constraint is not None else None,
         "max_violation": float(np.max(violation, initial=0.0)) if constraint is not None else None,
         "violation_sum": float(np.sum(violation)) if constraint is not None else None,
+        "output_constraint": None
+        if constraint is None
+        else json.dumps([constraint[0].tolist(), constraint[1].tolist()]),
+        "output_unit": signal_labels(loop.facts["plant"], model).output_unit,
         "closed_loop_cost": float(np.mean(np.sum((y_true - y0) ** 2, axis=1))) if done else None,
         "infeasible_steps": int(np.sum(~sim.feasible)),
         "fallback_steps": int(np.sum(sim.policy != "nominal")),

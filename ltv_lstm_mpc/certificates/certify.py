@@ -49,8 +49,16 @@ __all__ = ["Certification", "CertificationSettings", "certify", "u_max_extrapola
 
 FloatArray = NDArray[np.float64]
 
-#: The paper's output constraint Y_phi = [6.0, 9.0] pH (Section V), stored in the pH models.
-PAPER_Y_PHI_BOUNDS = (6.0, 9.0)
+
+def __getattr__(name: str) -> Any:
+    """``PAPER_Y_PHI_BOUNDS``, the pH benchmark's output constraint, now held by the pH
+    plant's module only (:data:`ltv_lstm_mpc.plants.ph.PH_OUTPUT_CONSTRAINT`); kept here
+    for code that imported it from this module."""
+    if name == "PAPER_Y_PHI_BOUNDS":
+        from ltv_lstm_mpc.plants.ph import PH_OUTPUT_CONSTRAINT
+
+        return PH_OUTPUT_CONSTRAINT
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass(frozen=True)

@@ -388,6 +388,15 @@ def _add_simulate(subparsers: Any) -> None:
         ),
     )
     add_n_option(parser)
+    parser.add_argument(
+        "--y0-initial",
+        type=real,
+        default=None,
+        help=(
+            "initial output of the LSTM plant, physical units (default: the middle of the "
+            "model's admissible set-point interval); other plants start from their own reset"
+        ),
+    )
     add_l_d_option(parser)
     add_d_max_option(parser)
     parser.add_argument(
@@ -419,6 +428,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
     from ltv_lstm_mpc.paper.reproduce import format_table, write_scenario_outputs
     from ltv_lstm_mpc.paper.scenarios import Scenario, run_scenario
     from ltv_lstm_mpc.plants.registry import resolve_plant
+    from ltv_lstm_mpc.plotting import name_of, signal_labels
 
     entry = resolve_plant(args.plant)
     model_name = args.model or entry.model
@@ -436,7 +446,32 @@ def _run_simulate(args: argparse.Namespace) -> int:
         sqp_iterations=args.sqp_iterations,
     )
     rate_limit = args.rate_limit if args.rate_limit > 0 else None
-    default_setpoints = [t for t in entry.setpoints if len(t.split(",")) == model.p]
+    y0_initial = getattr(args, "y0_initial", None)
+    if y0_initial is not None and ("y0_phi" not in entry.options or model.p != 1):
+        raise UsageError(
+            f"--y0-initial {y0_initial:g}: the {entry.name} plant starts from its own reset "
+            "state; --y0-initial sets the initial output of the single-output LSTM plant "
+            "(--plant lstm) only"
+        )
+    default_setpoints = list(entry.setpoints_for(model))
+    if not args.setpoints and not default_setpoints:
+        from ltv_lstm_mpc.certificates.certify import certify
+        from ltv_lstm_mpc.paper.scenarios import (
+            ADMISSIBLE_SETPOINT_FRACTIONS,
+            admissible_setpoints,
+        )
+
+        certification = certify(model, config.certification_settings(model))
+        default_setpoints = admissible_setpoints(model, certification)
+        low, high = (np.ravel(v) for v in certification.y0_interval_phi or ((), ()))
+        interval = ", ".join(f"[{a:.4g}, {b:.4g}]" for a, b in zip(low, high, strict=True))
+        print(
+            f"set-points {' '.join(default_setpoints)} "
+            f"{signal_labels(entry.name, model).output_unit}: {entry.name} names none for this "
+            f"model, so they lie at {', '.join(f'{f:g}' for f in ADMISSIBLE_SETPOINT_FRACTIONS)} "
+            f"of its admissible set-point interval {interval} (within the equilibrium outputs "
+            "of its input range; give --setpoints to choose)"
+        )
     if model.p > 1:
         from ltv_lstm_mpc.cli.simulate_mimo import run_mimo
 
@@ -461,12 +496,20 @@ def _run_simulate(args: argparse.Namespace) -> int:
             check_sampling_time=args.check_sampling_time,
         )
         offsets = mimo["segment_offsets"]
-        print(f"{'segment':>7}  " + "  ".join(f"offset y_{j:<6}" for j in range(model.p)))
+        outputs = _plot_labels(entry, model)[1]
+        print(
+            f"{'segment':>7}  "
+            + "  ".join(f"{'offset ' + name_of(label):<14}" for label in outputs)
+            + f"  ({signal_labels(entry.name, model).output_unit})"
+        )
         for number, row in enumerate(offsets):
             print(f"{number:>7}  " + "  ".join(f"{v:<14.3e}" for v in row))
         counts = sim.summary_counts()
+        largest = mimo.get("max_constraint_violation")
         print(
-            f"constraint violations {mimo.get('constraint_violation_steps', '-')} steps; "
+            f"constraint violations {mimo.get('constraint_violation_steps', '-')} steps"
+            + ("" if largest is None else f" (largest {largest:.3g})")
+            + "; "
             f"set-points ok {counts['setpoint_ok_steps']} / {mimo['steps']}; d_hat saturated "
             f"{counts['d_hat_saturated_steps']}; infeasible {counts['infeasible_steps']}; median "
             f"step {1e6 * mimo['median_step_time_s']:.0f} us ({sim.transcription})"
@@ -498,10 +541,22 @@ def _run_simulate(args: argparse.Namespace) -> int:
         config=config,
         setpoint_rate_limit=rate_limit,
         segments=schedule_segments(lengths),
+        y0_phi_initial=y0_initial,
     )
     result = run_scenario(
         scenario, model, progress=not args.no_progress, check_sampling_time=args.check_sampling_time
     )
+    if "y0_phi" in entry.options:
+        print(
+            f"initial output {result.simulation.y_phi[0, 0]:.4g} "
+            f"{signal_labels(entry.name, model).output_unit}"
+            + (
+                " (--y0-initial)"
+                if y0_initial is not None
+                else " (the middle of the model's admissible set-point interval; --y0-initial "
+                "to choose)"
+            )
+        )
     summary = write_scenario_outputs(result, args.out) if args.out is not None else result.summary()
     print(format_table([summary]))
     sim = result.simulation

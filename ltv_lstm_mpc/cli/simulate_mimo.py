@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from ltv_lstm_mpc.command_arguments import UsageError
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
-from ltv_lstm_mpc.loop.simulation import SimulationResult, simulate
+from ltv_lstm_mpc.loop.simulation import SimulationResult, output_constraint, simulate
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
@@ -142,16 +142,17 @@ def run_mimo(
         **sim.summary_counts(),
         "median_step_time_s": float(np.median(sim.time_total)),
     }
-    if model.y_phi_constraint is not None:
-        low, high = model.y_phi_constraint
-        violation = np.maximum(low - sim.y_phi, sim.y_phi - high).max(axis=1)
+    constraint = output_constraint(plant, model)  # the same as sim.plant_violation's
+    violation = sim.plant_violation
+    if constraint is not None and violation is not None:
+        summary["output_constraint"] = [constraint[0].tolist(), constraint[1].tolist()]
         summary["constraint_violation_steps"] = int(np.sum(violation > 1e-9))
-        summary["max_constraint_violation"] = float(max(0.0, violation.max()))
+        summary["max_constraint_violation"] = float(np.max(violation, initial=0.0))
     if out is not None:
         _write(out, sim, y0_schedule, d_schedule, summary)
         bounds = controller.input_bounds_phi
         _plot(out / "simulate.png", sim, y0_schedule, model, bounds, labels, title,
-              config.d_max)  # fmt: skip
+              config.d_max, constraint)  # fmt: skip
     return summary, sim
 
 
@@ -187,9 +188,12 @@ def _plot(
     labels: tuple[tuple[str, ...], tuple[str, ...]],
     title: str,
     d_max: float | None = None,
+    constraint: tuple[FloatArray, FloatArray] | None = None,
 ) -> None:
     """Save :func:`mimo_figure` as a PNG."""
-    mimo_figure(sim, y0, model, input_bounds, labels, title, d_max).savefig(path, dpi=110)
+    mimo_figure(sim, y0, model, input_bounds, labels, title, d_max, constraint).savefig(
+        path, dpi=110
+    )
 
 
 def mimo_figure(
@@ -200,11 +204,13 @@ def mimo_figure(
     labels: tuple[tuple[str, ...], tuple[str, ...]],
     title: str,
     d_max: float | None = None,
+    constraint: tuple[FloatArray, FloatArray] | None = None,
 ) -> Figure:
     """Outputs with set-points (a marker at the axis edge where one lies outside the plotted
     range) and the output constraint, inputs with their bounds U, and the disturbance
     estimate with +-``d_max``, against time; signals named with units where the plant
-    states them (``labels`` = (input labels, output labels))."""
+    states them (``labels`` = (input labels, output labels)). ``constraint``: the output
+    constraint the violations were measured against (default: the model's)."""
     from matplotlib.figure import Figure
 
     from ltv_lstm_mpc.plotting import (
@@ -229,7 +235,8 @@ def mimo_figure(
     t, unit = (samples * Ts / 60.0, "time (min)") if Ts else (samples, "sample k")
     fig = Figure(figsize=(9, 9), layout="constrained")
     axes = fig.subplots(3, 1, sharex=True)
-    constraint = model.y_phi_constraint
+    if constraint is None:
+        constraint = model.y_phi_constraint
     for j in range(p):
         axes[0].plot(t, sim.y_phi[:, j], color=f"C{j}", label=outputs[j])
         axes[0].plot(t, y0[: samples.size, j], "--", color=f"C{j}", alpha=0.7,

@@ -28,7 +28,13 @@ from ltv_lstm_mpc.validation import (
     real_vector,
 )
 
-__all__ = ["SimulationResult", "garbage_collection_paused", "simulate", "single_threaded_blas"]
+__all__ = [
+    "SimulationResult",
+    "garbage_collection_paused",
+    "output_constraint",
+    "simulate",
+    "single_threaded_blas",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -74,9 +80,10 @@ class SimulationResult:
     d_hat_saturated : (steps, p) bool
         :math:`|\hat d_k| = d_{max}` per output.
     plant_violation : (steps,)
-        Violation (>= 0, physical units) of the model's stored output constraint
-        (``y_phi_constraint``) by the true plant output ``y_phi_true``; NaN when the model
-        has none. Unlike ``output_violation`` (the plan on the model) this is the true plant.
+        Violation (>= 0, physical units) of the output constraint of
+        :func:`output_constraint` (the plant's ``y_phi_constraint``, else the model's
+        stored one) by the true plant output ``y_phi_true``; NaN when neither states one.
+        Unlike ``output_violation`` (the plan on the model) this is the true plant.
     y_phi_true : (steps, p)
         True plant output at sample k: ``y_phi`` without the measurement noise of a
         :class:`~ltv_lstm_mpc.plants.measurement.NoisyMeasurement` (equal to ``y_phi``
@@ -256,6 +263,49 @@ def _as_schedule(
     return [series[k] for k in range(steps)]
 
 
+def output_constraint(plant: Any, model: Any) -> tuple[FloatArray, FloatArray] | None:
+    """The output constraint (low, high) the plant's output is judged against, physical units.
+
+    The plant's own ``y_phi_constraint`` where it states one (a user plant class, see
+    :mod:`ltv_lstm_mpc.plants.registry`), else the model's stored constraint
+    (``y_phi_constraint_min/max`` of its file); None when neither states one. Every
+    violation the library reports (``plant_violation`` here, the summaries of ``simulate``,
+    ``reproduce`` and campaigns) is measured against this one pair.
+
+    Parameters
+    ----------
+    plant : Plant
+        The plant (a wrapper such as :class:`~ltv_lstm_mpc.plants.measurement.NoisyMeasurement`
+        forwards the attribute).
+    model : LSTMModel
+        The controller's model.
+
+    Returns
+    -------
+    (low, high) of shape (p,), or None
+    """
+    p = int(model.p)
+    stated = getattr(plant, "y_phi_constraint", None)
+    if stated is None:
+        stated = model.y_phi_constraint
+    if stated is None:
+        return None
+    try:
+        low, high = (np.broadcast_to(np.asarray(v, dtype=np.float64), (p,)).copy() for v in stated)
+    except (TypeError, ValueError):
+        raise InvalidValueError(
+            f"the plant's y_phi_constraint must be (low, high) with one value or {p} values "
+            f"each (physical output units), got {stated!r}"
+        ) from None
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(low < high)):
+        raise InvalidValueError(
+            f"the output constraint must be finite with low < high on every output, got "
+            f"low {low.tolist()}, high {high.tolist()} (the plant's y_phi_constraint or the "
+            "model's y_phi_constraint_min/max)"
+        )
+    return low, high
+
+
 def simulate(
     plant: Plant,
     controller: OffsetFreeController,
@@ -364,7 +414,7 @@ def simulate(
                 break
     records = controller.records
     y_array = np.array(ys_true)
-    constraint = controller.model.y_phi_constraint
+    constraint = output_constraint(plant, controller.model)
     if constraint is None or not len(ys):
         plant_violation = np.full(len(ys), np.nan)
     else:

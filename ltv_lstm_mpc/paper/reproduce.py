@@ -24,6 +24,7 @@ from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.paper.scenarios import (
     Scenario,
     ScenarioResult,
+    is_ph_model,
     paper_scenarios,
     run_scenario,
 )
@@ -53,7 +54,14 @@ PAPER_VALUES: dict[str, Any] = {
 
 
 def certificate_comparison(model: LSTMModel) -> dict[str, Any]:
-    """Our certificate numbers for ``model`` next to the paper's, for L_d = 0.01 and 0.1."""
+    """Our certificate numbers for ``model`` next to the paper's, for L_d = 0.01 and 0.1.
+
+    The paper's numbers belong to its pH model: for a model that is not a pH model
+    (:func:`~ltv_lstm_mpc.paper.scenarios.is_ph_model`) ``"paper"`` is None (nothing to
+    compare with) and ``"output_unit"`` names the unit of ``y0_interval_phi``.
+    """
+    from ltv_lstm_mpc.plotting import signal_labels
+
     ours: dict[str, Any] = {}
     for l_d in (0.01, 0.1):
         cert = certify(model, CertificationSettings(l_d=l_d))
@@ -69,7 +77,12 @@ def certificate_comparison(model: LSTMModel) -> dict[str, Any]:
             "delta_y0_max": cert.rate_bound.delta_y0_max if cert.rate_bound.holds else None,
             "y0_interval_phi": None if interval is None else [float(v[0]) for v in interval],
         }
-    return {"ours": ours, "paper": PAPER_VALUES}
+    ph = is_ph_model(model)
+    return {
+        "ours": ours,
+        "paper": PAPER_VALUES if ph else None,
+        "output_unit": "pH" if ph else signal_labels("lstm", model).output_unit,
+    }
 
 
 def scenario_figure(result: ScenarioResult) -> Figure:
@@ -120,7 +133,7 @@ def scenario_figure(result: ScenarioResult) -> Figure:
             ls=":",
             label="rate-limited set-point",
         )
-    constraint = model.y_phi_constraint
+    constraint = result.output_constraint
     if constraint is not None:
         draw_bounds(
             ax,
@@ -137,9 +150,11 @@ def scenario_figure(result: ScenarioResult) -> Figure:
     title = titled(labels.plant, sc.title)
     solver = controller.config.solver
     settings = "" if solver in title else f"{solver}: "
+    violation = summary["max_output_violation"]
     ax.set_title(
         f"{title}\n{settings}infeasible steps {summary['infeasible_steps']}, max violation "
-        f"{summary['max_output_violation']:.2g} {unit}, final offset "
+        + ("- (no output constraint)" if violation is None else f"{violation:.2g} {unit}")
+        + ", final offset "
         + ("-" if offset is None else f"{offset:.1e} {unit}"),
         fontsize=10,
     )
@@ -209,6 +224,9 @@ def write_scenario_outputs(
         "time_observer_s": sim.time_observer,
         "time_reference_s": sim.time_reference,
         "time_mpc_s": sim.time_mpc,
+        "plant_violation": sim.plant_violation
+        if sim.plant_violation is not None
+        else np.full(sc.steps, np.nan),
     }
     with (out / f"{name}.csv").open("w", newline="") as handle:
         writer = csv.writer(handle)
@@ -224,8 +242,10 @@ def write_scenario_outputs(
 def format_table(summaries: Sequence[dict[str, Any]]) -> str:
     r"""Plain-text summary table, one row per scenario.
 
-    ``segment offsets`` is :math:`|y_\phi - y^0_\phi|` (pH) at the end of each constant
-    segment; ``final offset`` is their maximum. ``d_hat sat`` counts the steps with
+    ``segment offsets`` is :math:`|y_\phi - y^0_\phi|` (the plant's output unit,
+    ``output_unit`` of the summaries) at the end of each constant segment; ``final offset``
+    is their maximum; ``max viol`` the largest violation of the output constraint by the
+    plant (``-``: no constraint stated). ``d_hat sat`` counts the steps with
     :math:`|\hat d| = d_{max}`, ``bad y0`` those whose set-point was not ``ok``
     (outside the admissible interval or unreachable). ``held`` counts the steps where
     Theorem 3's guarantee held (:mod:`ltv_lstm_mpc.loop.monitor`) and ``viol|held`` the
@@ -235,15 +255,17 @@ def format_table(summaries: Sequence[dict[str, Any]]) -> str:
     header = (
         f"{'scenario':<16} {'steps':>5} {'final offset':>12} {'max viol':>8} {'infeas':>6} "
         f"{'fallback':>8} {'d_hat sat':>9} {'bad y0':>6} {'held':>5} {'viol|held':>9} "
-        f"{'median ms':>9} {'max ms':>7}  segment offsets (pH)"
+        f"{'median ms':>9} {'max ms':>7}  segment offsets ({_common_unit(summaries)})"
     )
     lines = [header, "-" * len(header)]
     for s in summaries:
         offset = "-" if s["final_offset"] is None else f"{s['final_offset']:.1e}"
+        violation = s["max_output_violation"]
+        violation_shown = "-" if violation is None else f"{violation:.2g}"
         segments = " ".join(f"{o:.1e}" for o in s["segment_offsets"])
         bad_y0 = s["steps"] - s.get("setpoint_ok_steps", s["steps"])
         lines.append(
-            f"{s['name']:<16} {s['steps']:>5} {offset:>12} {s['max_output_violation']:>8.2g} "
+            f"{s['name']:<16} {s['steps']:>5} {offset:>12} {violation_shown:>8} "
             f"{s['infeasible_steps']:>6} {s['fallback_steps']:>8} "
             f"{s.get('d_hat_saturated_steps', 0):>9} {bad_y0:>6} "
             f"{s.get('guarantee_held_steps', '-'):>5} "
@@ -253,26 +275,51 @@ def format_table(summaries: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _common_unit(summaries: Sequence[dict[str, Any]]) -> str:
+    """The output unit shared by the summaries (``output_unit``), else ``"output units"``."""
+    units = {s.get("output_unit") or "output units" for s in summaries}
+    return units.pop() if len(units) == 1 else "output units"
+
+
 def format_certificates(comparison: dict[str, Any]) -> str:
-    """Certificate numbers of the model next to the paper's."""
+    """Certificate numbers of the model next to the paper's (the paper's column only for a
+    pH model; ``y0_interval_phi`` in the model's output unit)."""
+    papers = comparison.get("paper")
+    unit = comparison.get("output_unit")
     lines = [f"{'certificate':<22} {'ours':>22} {'paper':>16}"]
+    if papers is None:
+        lines = [
+            f"{'certificate':<22} {'ours':>22}   (the paper's values belong to its own model: "
+            "not compared)"
+        ]
     for key in ("L_d=0.01", "L_d=0.1"):
-        ours, paper = comparison["ours"][key], comparison["paper"][key]
+        ours = comparison["ours"][key]
+        paper = {} if papers is None else papers[key]
         for name in ("rho_o", "L_max", "w_max", "e_inf", "K_bar", "y0_interval_phi"):
             value = ours[name]
-            if isinstance(value, list):
-                shown = f"[{value[0]:.2f}, {value[1]:.2f}]"
+            if value is None:
+                shown = "- (empty)" if name == "y0_interval_phi" else "-"
+            elif isinstance(value, list):
+                shown = f"[{value[0]:.4g}, {value[1]:.4g}]" if papers is None else (
+                    f"[{value[0]:.2f}, {value[1]:.2f}]"
+                )  # fmt: skip
             else:
                 shown = f"{value:.3g}"
             ref = paper.get(name)
             ref_shown = "-" if ref is None else (
                 f"[{ref[0]:.2f}, {ref[1]:.2f}]" if isinstance(ref, list) else f"{ref:.3g}"
             )  # fmt: skip
-            lines.append(f"{key + ' ' + name:<22} {shown:>22} {ref_shown:>16}")
+            if papers is None:
+                if name == "y0_interval_phi" and unit:
+                    shown = f"{shown} {unit}"
+                lines.append(f"{key + ' ' + name:<22} {shown:>22}")
+            else:
+                lines.append(f"{key + ' ' + name:<22} {shown:>22} {ref_shown:>16}")
     rho_s = comparison["ours"]["L_d=0.01"]["rho_s"]
-    lines.append(
-        f"{'rho_s (Q_s = 1000 I)':<22} {rho_s:>22.3g} {comparison['paper']['rho_s']:>16.3g}"
-    )
+    if papers is None:
+        lines.append(f"{'rho_s (Q_s = 1000 I)':<22} {rho_s:>22.3g}")
+    else:
+        lines.append(f"{'rho_s (Q_s = 1000 I)':<22} {rho_s:>22.3g} {papers['rho_s']:>16.3g}")
     return "\n".join(lines)
 
 

@@ -56,6 +56,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -63,7 +64,53 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.validation import expect_instance, expect_int, expect_real, real_vector
 
-__all__ = ["PHNeutralizationPlant", "PHParameters", "ph_from_state", "simulate_ph_batch"]
+__all__ = [
+    "PH_DATA_UNITS",
+    "PH_INITIAL_OUTPUT",
+    "PH_OUTPUT_CONSTRAINT",
+    "PH_REGISTRY_DEFAULTS",
+    "PHNeutralizationPlant",
+    "PHParameters",
+    "ph_from_state",
+    "simulate_ph_batch",
+]
+
+#: The paper's output constraint :math:`\mathcal{Y}_\phi = [6, 9]` pH (Section V), stored in
+#: the shipped pH models (``y_phi_constraint_min/max``). The only place the library holds it:
+#: every other module takes the constraint from the plant or the model.
+PH_OUTPUT_CONSTRAINT: tuple[float, float] = (6.0, 9.0)
+
+#: Units of the stored signals of the pH identification data
+#: (:mod:`ltv_lstm_mpc.training.datasets`).
+PH_DATA_UNITS: dict[str, str] = {
+    "u_phi": "mL/s (base flow q3)",
+    "y_phi": "pH",
+    "d_phi": "mL/s (buffer flow q2)",
+    "Ts": "s",
+}
+
+#: pH of the paper's initial condition (the LSTM-plant scenarios of Section V start there).
+PH_INITIAL_OUTPUT = 7.0
+
+#: The pH plant's entry in the plant registry (:func:`ltv_lstm_mpc.plants.register_plant`):
+#: its title, units, default model, set-points (pH) and nominal buffer flow q2 (mL/s).
+PH_REGISTRY_DEFAULTS: dict[str, Any] = {
+    "title": "pH plant",
+    "description": "pH neutralization (paper Section V): base flow q3 (mL/s) -> pH; "
+    "disturbance: buffer flow q2 (mL/s)",
+    "model": "ph_lstm_n5.npz",
+    "setpoints": ("7.5", "6.8", "8.0"),
+    "nominal_disturbance": (0.55,),
+    "disturbance": "buffer flow q2 in mL/s",
+    "Ts": 10.0,
+    "input_labels": ("q3 (mL/s)",),
+    "output_labels": ("pH",),
+    "y_phi_constraint": PH_OUTPUT_CONSTRAINT,
+    "data_file": "ph_identification_data.npz",
+    "neurons": 5,
+    "options": ("mismatch",),
+    "class_name": "PHNeutralizationPlant",
+}
 
 FloatArray = NDArray[np.float64]
 

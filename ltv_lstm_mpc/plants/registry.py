@@ -21,7 +21,10 @@ Two kinds of names
     ``Ts``                                 sampling time, s (checked against the model's)
     ``u_phi_min``, ``u_phi_max``           input range (identification data, physical units)
     ``u_phi_initial``                      input of the state ``reset()`` puts the plant in
-    ``y_phi_constraint``                   output constraint (low, high) stated in generated data
+                                           (the closed loop starts from ``reset()``)
+    ``y_phi_constraint``                   output constraint (low, high): stated in generated
+                                           data; violations of the plant output are measured
+                                           against it
     ``default_model``                      model file used when none is given
     ``default_setpoints``                  set-point per segment (strings, ``"a,b"`` for p > 1)
     ``nominal_disturbance``                disturbance of each segment when none is given
@@ -45,6 +48,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from ltv_lstm_mpc.exceptions import ArgumentTypeError, UnknownPlantError
+from ltv_lstm_mpc.plants.ph import PH_REGISTRY_DEFAULTS
+from ltv_lstm_mpc.plants.quadtank import QUADTANK_LEVEL_CONSTRAINT
 from ltv_lstm_mpc.validation import expect_methods
 
 if TYPE_CHECKING:
@@ -88,6 +93,10 @@ class RegisteredPlant:
         What the plant's disturbance ``d_phi`` is, with units (help texts).
     Ts : float or None
         Sampling time, s, where the plant states one.
+    y_phi_constraint : (low, high) or None
+        The plant's output constraint, physical units, where it states one; violations are
+        measured against it (else against the model's stored constraint, see
+        :func:`ltv_lstm_mpc.loop.simulation.output_constraint`).
     input_labels, output_labels : tuple of str
         Names with units per input / output (plots, data files); empty: ``u_0``, ``y_0``, ...
     data_file : str
@@ -109,6 +118,7 @@ class RegisteredPlant:
     nominal_disturbance: tuple[float, ...] | None = None
     disturbance: str = "the plant's disturbance"
     Ts: float | None = None
+    y_phi_constraint: tuple[Any, Any] | None = None
     input_labels: tuple[str, ...] = ()
     output_labels: tuple[str, ...] = ()
     data_file: str = "identification_data.npz"
@@ -140,6 +150,22 @@ class RegisteredPlant:
         )  # fmt: skip
         plant.reset()
         return plant
+
+    def setpoints_for(self, model: LSTMModel) -> tuple[str, ...]:
+        """The default set-points of this plant for ``model``: the entry's own of the model's
+        output count; for a plant without signals of its own (the LSTM plant is the model
+        itself) those of the registered plant whose default model has ``model``'s weights;
+        empty when neither applies (then they follow from the model's admissible interval,
+        :func:`ltv_lstm_mpc.paper.scenarios.admissible_setpoints`)."""
+        own = tuple(t for t in self.setpoints if len(str(t).split(",")) == model.p)
+        if own or self.output_labels:
+            return own
+        from ltv_lstm_mpc.plotting import plant_of_model
+
+        twin = plant_of_model(model)
+        if twin is None:
+            return ()
+        return tuple(t for t in twin.setpoints if len(str(t).split(",")) == model.p)
 
 
 _REGISTRY: dict[str, RegisteredPlant] = {}
@@ -273,6 +299,7 @@ def _from_class_path(path: str) -> RegisteredPlant:
         if disturbance is None
         else tuple(float(v) for v in _as_tuple(disturbance)),
         Ts=float(Ts) if isinstance(Ts, (int, float)) else None,
+        y_phi_constraint=getattr(cls, "y_phi_constraint", None),
         input_labels=tuple(getattr(cls, "input_labels", ())),
         output_labels=tuple(getattr(cls, "output_labels", ())),
         data_file=f"{getattr(cls, '__name__', 'plant').lower()}_identification_data.npz",
@@ -318,31 +345,15 @@ def _quadtank_plant(model: Any = None) -> Plant:
     return QuadrupleTankPlant(Ts=Ts if Ts is not None else QUADTANK_TS)
 
 
-register_plant(
-    "ph",
-    _ph_plant,
-    title="pH plant",
-    description="pH neutralization (paper Section V): base flow q3 (mL/s) -> pH; "
-    "disturbance: buffer flow q2 (mL/s)",
-    model="ph_lstm_n5.npz",
-    setpoints=("7.5", "6.8", "8.0"),
-    nominal_disturbance=(0.55,),
-    disturbance="buffer flow q2 in mL/s",
-    Ts=10.0,
-    input_labels=("q3 (mL/s)",),
-    output_labels=("pH",),
-    data_file="ph_identification_data.npz",
-    neurons=5,
-    options=("mismatch",),
-    class_name="PHNeutralizationPlant",
-)
+register_plant("ph", _ph_plant, **PH_REGISTRY_DEFAULTS)
+# The LSTM plant is the model itself: its set-points, units and initial output come from the
+# model (those of the plant whose default model it is, else its admissible interval).
 register_plant(
     "lstm",
     _lstm_plant,
     title="LSTM plant",
     description="the LSTM model itself with an additive output disturbance (Fig. 2)",
-    model="ph_lstm_n5.npz",
-    setpoints=("7.5", "6.8", "8.0"),
+    model=PH_REGISTRY_DEFAULTS["model"],
     nominal_disturbance=(0.0,),
     disturbance="output offset in output units",
     options=("y0_phi",),
@@ -362,6 +373,7 @@ register_plant(
     input_labels=("v1 (V)", "v2 (V)"),
     output_labels=("h1 (cm)", "h2 (cm)"),
     data_file="quadtank_identification_data.npz",
+    y_phi_constraint=QUADTANK_LEVEL_CONSTRAINT,
     neurons=8,
     class_name="QuadrupleTankPlant",
 )

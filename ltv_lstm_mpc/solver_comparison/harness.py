@@ -125,7 +125,7 @@ class BenchScenario:
     name : str
     plant : {"lstm", "ph"}
     setpoints, disturbances : ndarray (steps,)
-        Physical set-point (pH) and disturbance per sample.
+        Physical set-point and disturbance per sample (the model's output units).
     config : MPCConfig
     setpoint_rate_limit : float or None
     make_plant : callable model -> plant
@@ -145,14 +145,22 @@ class BenchScenario:
         return int(self.setpoints.shape[0])
 
 
+#: Normalized outputs of the stand-in scenario: start, then two set-points.
+STANDIN_LEVELS = (-0.293, 0.0468, -0.429)
+
+
 def standin_scenario(model: LSTMModel, steps: int = 300) -> BenchScenario:
-    """LSTM plant from pH 7.0, set-point 7.0 -> 7.5 -> 6.8 (rate 0.01/step normalized),
-    output disturbance 0.03 pH after step 100 (used when the paper scenarios are absent)."""
+    """LSTM plant from the normalized output -0.293, set-point steps to 0.0468 and -0.429
+    (rate 0.01/step normalized) and an output disturbance of 1 % of the output range after
+    step 100, in the model's own physical units (on the shipped pH model: pH 7.0 -> 7.5 ->
+    6.8, 0.03 pH); used when the paper scenarios are absent."""
     from ltv_lstm_mpc.plants.lstm_plant import LSTMPlant
 
     k = np.arange(steps)
-    setpoints = np.where(k < 60, 7.0, np.where(k < 130, 7.5, 6.8)).astype(np.float64)
-    disturbances = np.where(k < 100, 0.0, 0.03).astype(np.float64)
+    first, second, third = (float(model.denormalize_y(np.array([v]))[0]) for v in STANDIN_LEVELS)
+    setpoints = np.where(k < 60, first, np.where(k < 130, second, third)).astype(np.float64)
+    span = float(model.denormalize_y(np.ones(1))[0] - model.denormalize_y(-np.ones(1))[0])
+    disturbances = np.where(k < 100, 0.0, 0.01 * span).astype(np.float64)
     return BenchScenario(
         name="standin_lstm",
         plant="lstm",
@@ -160,7 +168,7 @@ def standin_scenario(model: LSTMModel, steps: int = 300) -> BenchScenario:
         disturbances=disturbances,
         config=MPCConfig(),
         setpoint_rate_limit=0.01,
-        make_plant=lambda m: LSTMPlant(m, y0_phi=7.0),
+        make_plant=lambda m: LSTMPlant(m, y0_phi=first),
     )
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -50,7 +51,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel, Normalization
-from ltv_lstm_mpc.plants.ph import PHNeutralizationPlant, ph_from_state, simulate_ph_batch
+from ltv_lstm_mpc.plants.ph import (
+    PH_DATA_UNITS,
+    PHNeutralizationPlant,
+    ph_from_state,
+    simulate_ph_batch,
+)
 from ltv_lstm_mpc.plants.protocol import Plant
 from ltv_lstm_mpc.plants.quadtank import (
     QUADTANK_LEVEL_CONSTRAINT,
@@ -80,13 +86,8 @@ FloatArray = NDArray[np.float64]
 #: Split names, in the order the sequences are assigned to them.
 SPLITS: tuple[str, ...] = ("train", "val", "test")
 
-#: Units of the stored signals.
-UNITS: dict[str, str] = {
-    "u_phi": "mL/s (base flow q3)",
-    "y_phi": "pH",
-    "d_phi": "mL/s (buffer flow q2)",
-    "Ts": "s",
-}
+#: Units of the stored signals of the pH data (held by the pH plant's module).
+UNITS: dict[str, str] = PH_DATA_UNITS
 
 #: Units of the stored signals of the quadruple-tank data.
 QUADTANK_UNITS: dict[str, str] = {
@@ -450,8 +451,10 @@ class IdentificationDataset:
         return cls(u_phi=u, y_phi=y, metadata=meta)
 
     def to_csv(self, path: str | Path) -> Path:
-        """Write one tidy CSV: ``split, sequence, k, time_s, u_phi_mL_s, y_phi_pH`` (pH
-        data) or ``..., u_phi_0, u_phi_1, y_phi_0, y_phi_1`` (several channels)."""
+        """Write one tidy CSV: ``split, sequence, k, time_s, u_phi_<unit>, y_phi_<unit>``
+        (one channel; the units of the data's metadata, e.g. ``u_phi_mL_s`` for the pH
+        data's base flow, plain ``u_phi`` where none is stated) or ``..., u_phi_0, u_phi_1,
+        y_phi_0, y_phi_1`` (several channels)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         Ts = float(self.metadata.get("Ts", 10.0))
@@ -460,7 +463,11 @@ class IdentificationDataset:
             return self._to_csv_channels(path, Ts, indices)
         with path.open("w", newline="") as handle:
             writer = csv.writer(handle)
-            writer.writerow(["split", "sequence", "k", "time_s", "u_phi_mL_s", "y_phi_pH"])
+            units = self.metadata.get("units", {})
+            writer.writerow(
+                ["split", "sequence", "k", "time_s"]
+                + [_unit_column(kind, units.get(kind)) for kind in ("u_phi", "y_phi")]
+            )
             for name in SPLITS:
                 u, y = self.split(name)
                 seq_ids = indices.get(name, list(range(u.shape[0])))
@@ -551,6 +558,20 @@ def _metadata(
         "q3_initial": plant.q3_nominal,
         "initial_state": "nominal steady state (q3 = q3_initial, q2 = q2)",
     }
+
+
+def _unit_column(kind: str, text: Any) -> str:
+    """CSV column of a signal with its unit: ``("y_phi", "level h (cm)")`` ->
+    ``"y_phi_cm"``, ``("u_phi", "mL/s (base flow q3)")`` -> ``"u_phi_mL_s"``; ``kind`` alone
+    when no unit is stated."""
+    if not isinstance(text, str) or not text.strip() or text.strip().endswith("units"):
+        return kind
+    text = text.strip()
+    head, _, rest = text.partition(" (")
+    inside = rest.rstrip(")") if rest.endswith(")") else ""
+    unit = inside if inside and " " not in inside else head
+    slug = re.sub(r"[^0-9A-Za-z]+", "_", unit).strip("_")
+    return f"{kind}_{slug}" if slug else kind
 
 
 def _plain(value: Any) -> Any:
@@ -758,7 +779,7 @@ def _step_times(
 ) -> tuple[FloatArray, FloatArray]:
     if not isinstance(plant, (PHNeutralizationPlant, QuadrupleTankPlant)):
         raise InvalidValueError(
-            "step responses are simulated for the pH and quadruple-tank plants; for another "
+            "step responses are simulated for the shipped plants (ph, quadtank) only; for another "
             "plant choose min_hold / max_hold from its known time constants"
         )
     if amplitudes < 2 or steps < 10:
