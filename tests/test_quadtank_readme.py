@@ -1,4 +1,6 @@
-"""The README's "Bring your own process" code runs exactly as printed and does what it says."""
+"""The user guide's "The whole path for a new process" code (docs/user-guide/extending.md,
+linked from the README) runs exactly as printed and does what it says; then the README's
+"Your own plant and model" code on the model it trained."""
 
 from __future__ import annotations
 
@@ -10,16 +12,16 @@ import pytest
 
 from ltv_lstm_mpc.lstm.model import LSTMModel
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "user-guide" / "extending.md"
 
 
-def readme_block(marker: str) -> str:
-    """The fenced code between ``<!-- marker -->`` and ``<!-- /marker -->`` in the README."""
-    text = README.read_text()
+def page_block(marker: str) -> str:
+    """The fenced code between ``<!-- marker -->`` and ``<!-- /marker -->`` on the page."""
+    text = PAGE.read_text()
     match = re.search(
         rf"<!-- {marker} -->\s*```python\n(.*?)```\s*<!-- /{marker} -->", text, flags=re.S
     )
-    assert match is not None, f"README has no python block between <!-- {marker} --> markers"
+    assert match is not None, f"{PAGE.name} has no python block between <!-- {marker} --> markers"
     return match.group(1)
 
 
@@ -30,7 +32,7 @@ def test_bring_your_own_process_code_runs(
     pytest.importorskip("torch")
     monkeypatch.chdir(tmp_path)
     namespace: dict[str, object] = {"__name__": "readme_byop"}
-    exec(compile(readme_block("byop-code"), "README.md (byop-code)", "exec"), namespace)
+    exec(compile(page_block("byop-code"), "extending.md (byop-code)", "exec"), namespace)
     printed = capsys.readouterr().out
     assert "rho(A_delta) =" in printed and "final offsets" in printed
     cert, sim, setpoints = namespace["cert"], namespace["sim"], namespace["setpoints"]
@@ -47,3 +49,18 @@ def test_bring_your_own_process_code_runs(
     model = LSTMModel.load(tmp_path / "tank_model" / "tank_lstm_n3.npz")
     assert model.Ts == 10.0 and model.y_phi_constraint is not None
     np.testing.assert_array_equal(model.y_phi_constraint[0], [5.0])
+
+    # The README's "Your own plant and model" code runs on that model, as printed.
+    readme = Path(__file__).resolve().parents[1] / "README.md"
+    match = re.search(
+        r"<!-- own-plant-code -->\s*```python\n(.*?)```\s*<!-- /own-plant-code -->",
+        readme.read_text(),
+        flags=re.S,
+    )
+    assert match is not None, "README has no own-plant-code block"
+    own: dict[str, object] = {"__name__": "readme_own_plant"}
+    exec(compile(match.group(1), "README.md (own-plant-code)", "exec"), own)
+    assert "final offset" in capsys.readouterr().out
+    own_sim = own["sim"]
+    assert abs(own_sim.y_phi[-1, 0] - 10.6) < 1e-2  # type: ignore[attr-defined]
+    assert own_sim.feasible.all()  # type: ignore[attr-defined]
