@@ -87,6 +87,12 @@ import numpy as np
 from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
 from ._base import FloatArray, RawResult, WarmStart, check_settings, warm_start_vectors
+from .acceptance import (
+    CERTIFICATE_TOLERANCE,
+    ProblemView,
+    check_infeasibility_certificate,
+    check_unbounded_direction,
+)
 from .daqp_ import dense_status
 from .daqp_native import native, quadprog, solver_seconds
 from .dense import DenseBackend, DenseQP
@@ -125,6 +131,16 @@ MAX_ITERATIONS = 50
 #: subproblems converge in 3-6); from the next one on, each step's length comes from a
 #: line search on the l1 merit function (module docstring, globalization).
 FULL_STEPS = 8
+#: Proximal weight of an unbounded subproblem's second solve, relative to ``1 +`` the
+#: largest diagonal entry of :math:`W_k` (module docstring, unbounded subproblems).
+PROXIMAL = 1.0
+#: Factor of the proximal weight from one regularized iteration to the next (the steps
+#: grow tenfold: a problem whose scale the first weight misjudges is reached in a few
+#: iterations; an unbounded one runs out along its direction), and its floor relative to
+#: the first weight of a run of regularized iterations (smaller weights leave DAQP with a
+#: numerically singular Hessian).
+PROXIMAL_DECREASE = 0.1
+PROXIMAL_FLOOR = 1e-8
 #: Sufficient decrease of the line search (Armijo) and its most halvings.
 ARMIJO = 1e-4
 BACKTRACKS = 30
@@ -146,7 +162,8 @@ SOCP_FIELDS = (
     "gradient_bounds", "cone_products", "formed", "kept", "lam_k", "row_values", "row_norms",
     "epigraph", "eliminated", "first_active", "reduced_index", "tau", "tau_offset", "coupled",
     "reduced_hessian", "reduced_linear", "reduced_rows", "reduced_upper", "reduced_lower",
-    "reduced_sense", "reduced_x", "reduced_lam", "problem", "result", "settings",
+    "reduced_sense", "reduced_x", "reduced_lam", "direction", "regularized", "problem",
+    "result", "settings",
 )  # fmt: skip
 
 SocpWorkspace = workspace_type(
@@ -175,7 +192,10 @@ SocpWorkspace = workspace_type(
     them), ``coupled`` (rows of :math:`W_k T` at the eliminated variables) and the reduced
     subproblem as DAQP gets it (``reduced_hessian`` and ``reduced_rows`` flat, row by row,
     ``reduced_linear``, ``reduced_upper``, ``reduced_lower``, ``reduced_sense``,
-    ``reduced_x``, ``reduced_lam``); ``problem``, ``result``, ``settings``: DAQP's C structs.
+    ``reduced_x``, ``reduced_lam``); for the proximal steps (module docstring,
+    unbounded subproblems): ``direction`` (the last regularized step) and ``regularized``
+    (the number of regularized iterations of the last solve, and 1 where its last
+    iteration was one); ``problem``, ``result``, ``settings``: DAQP's C structs.
     """,
     __name__,
 )
@@ -188,7 +208,7 @@ def _new_socp_workspace(  # type: ignore[no-untyped-def]
     sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed, kept, lam_k,
     row_values, row_norms, epigraph, eliminated, first_active, reduced_index, tau, tau_offset,
     coupled, reduced_hessian, reduced_linear, reduced_rows, reduced_upper, reduced_lower,
-    reduced_sense, reduced_x, reduced_lam, problem, result, settings,
+    reduced_sense, reduced_x, reduced_lam, direction, regularized, problem, result, settings,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return SocpWorkspace(
@@ -196,7 +216,7 @@ def _new_socp_workspace(  # type: ignore[no-untyped-def]
         sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed, kept, lam_k,
         row_values, row_norms, epigraph, eliminated, first_active, reduced_index, tau, tau_offset,
         coupled, reduced_hessian, reduced_linear, reduced_rows, reduced_upper, reduced_lower,
-        reduced_sense, reduced_x, reduced_lam, problem, result, settings,
+        reduced_sense, reduced_x, reduced_lam, direction, regularized, problem, result, settings,
     )  # fmt: skip
 
 
@@ -720,7 +740,13 @@ def socp_solve(
     violation = np.inf
     step = 0.0
     weight = 0.0  # of the merit function's cone violations, once it is used
+    counts = ws.regularized  # regularized iterations, and whether the last one was
+    proximal = 0.0  # the last proximal weight
+    first_weight = 0.0  # the first of a run of regularized iterations
+    counts[0] = 0
+    counts[1] = 0
     for iteration in range(1, max_iterations + 1):
+        rho = 0.0  # the proximal weight of this iteration's subproblem (0: none)
         for a in range(n):  # W_k on the upper triangle (mirrored below), from H's
             target = hessian[a, a:]  # symmetric part (H itself where it is symmetric)
             if symmetric:
@@ -813,6 +839,27 @@ def socp_solve(
                 )  # fmt: skip
                 total += iterations
                 seconds += solver_seconds(ws.result)
+            if (flag == -3 or flag == -1) and rho == 0.0:
+                # unbounded subproblem (the cones' curvature is not known yet, e.g. the
+                # first one, with mu = 0), or infeasible by DAQP on a singular W_k: solve
+                # it again with the proximal term rho/2 |x - z_k|^2 (strictly convex:
+                # bounded, and DAQP's verdict on feasibility reliable), and go on; rho
+                # shrinks tenfold per consecutive such iteration (module docstring)
+                if counts[1] and proximal > 0.0:
+                    rho = max(proximal * PROXIMAL_DECREASE, PROXIMAL_FLOOR * first_weight)
+                else:
+                    largest = 0.0
+                    for a in range(n):
+                        largest = max(largest, abs(hessian[a, a]))
+                    rho = PROXIMAL * (1.0 + largest)
+                    first_weight = rho
+                proximal = rho
+                for a in range(n):
+                    hessian[a, a] += rho
+                    linear[a] -= rho * z[a]
+                for q in range(used):
+                    sense[q] = 0
+                continue
             if flag < 0:
                 return flag, iteration, total, np.inf, seconds
             if not _add_violated_rows(ws):
@@ -826,6 +873,12 @@ def socp_solve(
         step = 0.0
         for b in range(n):
             step = max(step, abs(x[b] - z[b]))
+        counts[1] = 0
+        if rho > 0.0:
+            counts[0] += 1
+            counts[1] = 1
+            for b in range(n):
+                ws.direction[b] = x[b] - z[b]
         if iteration > FULL_STEPS:  # a line search on the l1 merit function
             weight = max(weight, 2.0 * largest)
             length = _line_search(ws, weight)
@@ -888,6 +941,7 @@ def socp_arrays(n: int, m: int, sizes: list[int], buffers: Any) -> dict[str, Any
         "reduced_lower": np.zeros(n + m + cones),
         "reduced_sense": np.zeros(n + m + cones, dtype=np.intc), "reduced_x": np.zeros(n),
         "reduced_lam": np.zeros(n + m + cones),
+        "direction": np.zeros(n), "regularized": np.zeros(2, dtype=np.int64),
         "problem": buffers.problem, "result": buffers.result, "settings": buffers.settings,
     }  # fmt: skip
 
@@ -926,6 +980,7 @@ class DaqpSocpDense(DenseBackend):
 
     def update(self, qp: DenseQP) -> None:
         """Copy the values of ``qp`` into the workspace."""
+        self._qp = qp  # read only on the rare paths (certificates)
         arrays = self._arrays
         for name, value in (("H", qp.H), ("f", qp.f), ("A", qp.A), ("lb", qp.lb),
                             ("ub", qp.ub), ("lo", qp.lo), ("up", qp.up)):  # fmt: skip
@@ -954,8 +1009,16 @@ class DaqpSocpDense(DenseBackend):
         cones = np.concatenate(pieces) if pieces else np.zeros(0)
         return {"ineq": lam[n : n + m].copy(), "bounds": lam[:n].copy(), "cones": cones}
 
-    def _run(self, warm_start: WarmStart | None) -> tuple[SolverStatus, str, int, float]:
-        """One SQP solve; (status, native status, iterations, wall time)."""
+    def _run(
+        self, warm_start: WarmStart | None
+    ) -> tuple[SolverStatus, str, int, float, Mapping[str, FloatArray] | None]:
+        """One SQP solve; (status, native status, iterations, wall time, certificate).
+
+        ``INFEASIBLE`` and ``UNBOUNDED`` come only with a certificate of the SOCP itself,
+        checked here (:func:`infeasibility_certificate`, :func:`unbounded_certificate`),
+        never from one subproblem's exit flag; without one, ``FAILED`` or ``MAX_ITER``
+        with the reason.
+        """
         a = self._arrays
         z0, solution = warm_start_vectors(warm_start, self._n)
         warm = z0 is not None
@@ -969,21 +1032,78 @@ class DaqpSocpDense(DenseBackend):
         start = time.perf_counter()
         flag, sqp, total, violation, _seconds = socp_solve(self._ws, warm, MAX_ITERATIONS)
         wall = time.perf_counter() - start
-        if flag < 0:
-            status, _notes = dense_status(int(flag))
-            return status, f"exitflag {int(flag)} at SQP iteration {sqp}", total, wall
-        if sqp > MAX_ITERATIONS:
+        if flag == 1 or flag == 2:
+            if sqp <= MAX_ITERATIONS:
+                return (
+                    SolverStatus.OPTIMAL,
+                    f"exitflag {int(flag)}, {sqp} SQP iterations",
+                    total,
+                    wall,
+                    None,
+                )
+            return self._not_converged(violation, total, wall)
+        where = f"exitflag {int(flag)} at SQP iteration {sqp}"
+        if flag == -1:  # a subproblem is infeasible: certify the SOCP's infeasibility
+            certificate, numbers = infeasibility_certificate(a, self._view())
+            if certificate is not None:
+                return SolverStatus.INFEASIBLE, f"{where}; {numbers}", total, wall, certificate
             return (
-                SolverStatus.MAX_ITER,
-                f"{MAX_ITERATIONS} SQP iterations, cone violation {violation:.1e}",
+                SolverStatus.FAILED,
+                f"{where}: a subproblem is infeasible, but no certificate of the problem's "
+                f"infeasibility checks ({numbers})",
                 total,
                 wall,
+                None,
             )
-        return SolverStatus.OPTIMAL, f"exitflag {int(flag)}, {sqp} SQP iterations", total, wall
+        if flag == -3 and a["regularized"][0]:  # unbounded even with the proximal term
+            certificate, numbers = unbounded_certificate(a, self._view())
+            if certificate is not None:
+                return SolverStatus.UNBOUNDED, f"{where}; {numbers}", total, wall, certificate
+            where += f"; the last proximal step is no direction of unbounded descent ({numbers})"
+        status, _notes = dense_status(int(flag))
+        if status in (SolverStatus.INFEASIBLE, SolverStatus.UNBOUNDED):
+            status = SolverStatus.FAILED  # a subproblem's verdict is not the problem's
+        return status, where, total, wall, None
+
+    def _not_converged(
+        self, violation: float, total: int, wall: float
+    ) -> tuple[SolverStatus, str, int, float, Mapping[str, FloatArray] | None]:
+        """The status after :data:`MAX_ITERATIONS` SQP iterations: ``UNBOUNDED`` where the
+        last iterations were proximal steps of unbounded subproblems along a checked
+        direction of unbounded descent, else ``MAX_ITER`` with the reason."""
+        a = self._arrays
+        where = f"{MAX_ITERATIONS} SQP iterations, cone violation {violation:.1e}"
+        regularized = int(a["regularized"][0])
+        if a["regularized"][1]:
+            certificate, numbers = unbounded_certificate(a, self._view())
+            if certificate is not None:
+                return (
+                    SolverStatus.UNBOUNDED,
+                    f"{where}; {regularized} subproblems unbounded; {numbers}",
+                    total,
+                    wall,
+                    certificate,
+                )
+            where += (
+                f"; {regularized} subproblems unbounded (proximal steps), the last step is "
+                f"no direction of unbounded descent ({numbers})"
+            )
+        apex = apex_cones(a)
+        if apex:
+            where += (
+                f"; the iterate is at the apex of cone(s) {apex}, where the smoothed cone's "
+                "curvature grows and the steps shrink (an interior-point solver, e.g. "
+                "clarabel, suits such a problem)"
+            )
+        return SolverStatus.MAX_ITER, where, total, wall, None
+
+    def _view(self) -> ProblemView:
+        """The problem solved, as the acceptance layer reads it."""
+        return ProblemView.of_dense(self._qp)
 
     def solve(self, warm_start: WarmStart | None) -> RawResult:
         """One SQP solve (warm: from the given point and cone multipliers)."""
-        status, native_status, iterations, wall = self._run(warm_start)
+        status, native_status, iterations, wall, certificate = self._run(warm_start)
         z = duals = None
         objective = None
         if status.has_solution:
@@ -999,13 +1119,114 @@ class DaqpSocpDense(DenseBackend):
             solve_time=wall,
             iterations=iterations,
             objective=objective,
+            certificate=certificate,
         )
 
     def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
         """One cold SQP solve without multipliers; the status mapped as in :meth:`solve`."""
-        status, native_status, iterations, _wall = self._run(None)
+        status, native_status, iterations, _wall, _certificate = self._run(None)
         z = self._arrays["z"].copy() if status.has_solution else None
         return status, z, iterations, native_status
+
+
+def _cone_parts(arrays: Mapping[str, Any], j: int) -> tuple[FloatArray, FloatArray, float]:
+    """Cone j's :math:`v = F_j z + g_j` at the iterate, its rows of ``F`` and the smoothed
+    :math:`r_j = \\sqrt{\\|v\\|^2 + s^2}`."""
+    start, stop = int(arrays["cone_rows"][j]), int(arrays["cone_rows"][j + 1])
+    F = arrays["F"][start:stop]
+    v = F @ arrays["z"] + arrays["g"][start:stop]
+    return v, F, float(np.sqrt(v @ v + SMOOTHING**2))
+
+
+def apex_cones(arrays: Mapping[str, Any]) -> list[int]:
+    """The cones whose :math:`\\|F_j z + g_j\\|` at the iterate is within 100 times
+    :data:`SMOOTHING` of the apex (relative to ``1 + |z|``)."""
+    scale = 1.0 + float(np.max(np.abs(arrays["z"]), initial=0.0))
+    out = []
+    for j in range(arrays["offsets"].shape[0]):
+        v, _F, _r = _cone_parts(arrays, j)
+        if float(np.linalg.norm(v)) <= 100.0 * SMOOTHING * scale:
+            out.append(j)
+    return out
+
+
+def infeasibility_certificate(
+    arrays: Mapping[str, Any], view: ProblemView
+) -> tuple[dict[str, FloatArray] | None, str]:
+    r"""A Farkas vector of the SOCP from its last subproblem, checked; ``(None, why)`` if none.
+
+    The subproblem's rows are the problem's rows and bounds and each cone's linearization
+    at the iterate :math:`z_k`, :math:`a_j^\top x \le b_j` with :math:`a_j = F_j^\top
+    v_j / r_j - e_j` (an outer cutting plane of the smoothed cone). Stacked as
+    :math:`l \le C x \le u`, the vector :math:`y = y^+ - y^-` of the least-norm problem
+
+    .. math::
+
+        \min_{y^\pm \ge 0} \tfrac12 \|y^+\|^2 + \tfrac12 \|y^-\|^2 + u^\top y^+ -
+        l^\top y^- \quad\text{s.t.}\quad C^\top (y^+ - y^-) = 0
+
+    (the dual of the least squared violation; solved by DAQP) has a negative support value
+    :math:`u^\top y^+ - l^\top y^- = -\|y\|^2` where the subproblem is infeasible. A
+    cut's multiplier :math:`\mu_j` is the cone multiplier :math:`(\lambda_0, \lambda_1)
+    = \mu_j (1, -v_j / r_j)` (in the cone: :math:`\|v_j\| \le r_j`), so :math:`y` is
+    a certificate of the SOCP itself, checked on it by
+    :func:`~ltv_lstm_mpc.solvers.acceptance.check_infeasibility_certificate` (its support
+    value exceeds the subproblem's by :math:`\mu_j s^2 / r_j`, the smoothing).
+    """
+    import daqp
+
+    H, A = arrays["H"], arrays["A"]
+    n, m = H.shape[0], A.shape[0]
+    cones = arrays["offsets"].shape[0]
+    cuts = np.zeros((cones, n))
+    cut_bounds = np.zeros(cones)
+    parts = []
+    for j in range(cones):
+        v, F, r = _cone_parts(arrays, j)
+        cuts[j] = F.T @ v / r - arrays["e"][j]
+        value = r - float(arrays["e"][j] @ arrays["z"]) - float(arrays["offsets"][j])
+        cut_bounds[j] = float(cuts[j] @ arrays["z"]) - value
+        parts.append((v, r))
+    C = np.vstack([A, np.eye(n), cuts])
+    upper = np.concatenate([arrays["up"], arrays["ub"], cut_bounds])
+    lower = np.concatenate([arrays["lo"], arrays["lb"], np.full(cones, -np.inf)])
+    p = C.shape[0]
+    upper_w = np.where(np.isfinite(upper), np.inf, 0.0)  # y+ only at a finite upper bound
+    lower_w = np.where(np.isfinite(lower), np.inf, 0.0)
+    cost = np.concatenate([np.where(np.isfinite(upper), upper, 0.0),
+                           -np.where(np.isfinite(lower), lower, 0.0)])  # fmt: skip
+    rows = np.hstack([C.T, -C.T])
+    bounds_up = np.concatenate([np.minimum(np.concatenate([upper_w, lower_w]), _BIG), np.zeros(n)])
+    bounds_lo = np.concatenate([np.zeros(2 * p), np.zeros(n)])
+    sense = np.zeros(2 * p + n, dtype=np.int32)
+    sense[2 * p :] = 5  # equalities (DAQP: active and immutable)
+    w, _value, flag, _info = daqp.solve(np.eye(2 * p), cost, rows, bounds_up, bounds_lo, sense)
+    if flag not in (1, 2):
+        return None, f"the certificate's QP ended with DAQP exit flag {flag}"
+    y = w[:p] - w[p:]
+    lam = np.concatenate(
+        [np.concatenate([[y[m + n + j]], -y[m + n + j] * v / r]) for j, (v, r) in enumerate(parts)]
+    ) if cones else np.zeros(0)  # fmt: skip
+    certificate = {"ineq": y[:m], "bounds": y[m : m + n], "cones": lam}
+    valid, numbers = check_infeasibility_certificate(view, certificate, CERTIFICATE_TOLERANCE)
+    if not valid:
+        return None, numbers
+    return certificate, f"infeasibility certificate of the SOCP ({numbers})"
+
+
+def unbounded_certificate(
+    arrays: Mapping[str, Any], view: ProblemView
+) -> tuple[dict[str, FloatArray] | None, str]:
+    """The last proximal step (``arrays["direction"]``) as a direction of unbounded descent
+    of the SOCP, checked by
+    :func:`~ltv_lstm_mpc.solvers.acceptance.check_unbounded_direction`; ``(None, why)``
+    where it does not check."""
+    direction = np.array(arrays["direction"])
+    valid, numbers = check_unbounded_direction(view, direction, CERTIFICATE_TOLERANCE)
+    if not valid:
+        return None, numbers
+    size = float(np.max(np.abs(direction)))
+    return {"direction": direction / size}, f"direction of unbounded descent ({numbers})"
 
 
 def warm_up() -> None:
