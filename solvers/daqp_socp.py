@@ -1229,6 +1229,30 @@ def unbounded_certificate(
     return {"direction": direction / size}, f"direction of unbounded descent ({numbers})"
 
 
+def local_solution(
+    qp: DenseQP, z: FloatArray, cone_duals: FloatArray | None
+) -> tuple[FloatArray | None, str]:
+    """The point the SQP converges to from ``z`` (and the cone multipliers ``cone_duals``
+    in the layer's convention, where given): a point another backend returned, refined by
+    the local method (quadratic convergence near the solution, so from a point close to it
+    one or two iterations). ``(None, why)`` where DAQP is not bound natively or the SQP
+    does not converge."""
+    if native({}) is None:
+        return None, "daqp:socp is not available (DAQP not bound natively)"
+    backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+    backend.setup(qp)
+    a = backend._arrays
+    a["z"][:] = z
+    a["mu"][:] = 0.0
+    sizes = np.diff(a["cone_rows"]) + 1
+    if cone_duals is not None and np.shape(cone_duals) == (int(sizes.sum()),):
+        a["mu"][:] = np.maximum(np.asarray(cone_duals)[np.cumsum(sizes) - sizes], 0.0)
+    flag, sqp, _total, _violation, _seconds = socp_solve(backend._ws, True, MAX_ITERATIONS)
+    if flag not in (1, 2) or sqp > MAX_ITERATIONS:
+        return None, f"the SQP from the point did not converge (exit flag {flag}, {sqp} iterations)"
+    return np.array(a["z"]), f"{sqp} SQP iterations"
+
+
 def warm_up() -> None:
     """Solve a two-variable problem with one cone from Python, as :class:`DaqpSocpDense`
     does: compiles :func:`socp_solve` for those argument types (or loads it from numba's

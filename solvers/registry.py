@@ -19,8 +19,8 @@ from ltv_lstm_mpc.validation import expect_bool, real_scalar
 
 from ._adapters import convex_from_dense, dense_from_convex
 from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart, raise_backend_error
-from .acceptance import ProblemView, accept
-from .dense import DenseBackendFactory
+from .acceptance import ProblemView, accept, check_cone_point
+from .dense import DenseBackendFactory, DenseQP
 from .problem import ConvexProblem, Solution, SolverStatus
 from .reformulation import ConeReformulation
 from .tolerances import FIRST_ORDER, feasibility_tolerance, note_registered, optimality_tolerance
@@ -587,6 +587,9 @@ class Session:
             raw, residuals = accept(
                 ProblemView.of_convex(self._solved), raw, self._feasibility, self._optimality
             )
+            if self._solved.has_cones and self.solver != "daqp:socp":  # daqp:socp: the SQP's
+                qp = DenseQP.from_convex_problem(self._solved)
+                raw = check_cone_point(qp, raw, self._optimality)
             raw_z = raw.z
             if raw_z is not None:
                 objective = self._solved.objective(raw_z)
