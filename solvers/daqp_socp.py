@@ -995,19 +995,50 @@ class DaqpSocpDense(DenseBackend):
             start += k
 
     def _duals(self) -> dict[str, FloatArray]:
-        """The multipliers in the layer's convention (module docstring)."""
+        """The multipliers in the layer's convention (module docstring).
+
+        At a cone's apex (:func:`apex_cones`) the smoothed cone's :math:`-\\mu_j v_j /
+        r_j` is no multiplier of the cone (:math:`v_j \\approx 0` there, while the
+        cone's :math:`\\lambda_1` may have any norm up to :math:`\\lambda_0`): those
+        cones' :math:`\\lambda_1` are then the least-squares solution of the
+        stationarity condition, each shortened into its cone where it is outside, so the
+        acceptance check reads the multipliers of the cone itself.
+        """
         a = self._arrays
         n, m = self._n, self._m
         lam = a["lam"]
         pieces = []
         for j in range(self._cones):
-            start, stop = int(a["cone_rows"][j]), int(a["cone_rows"][j + 1])
-            v = a["F"][start:stop] @ a["z"] + a["g"][start:stop]
-            r = float(np.sqrt(v @ v + SMOOTHING**2))
+            v, _F, r = _cone_parts(a, j)
             mu = float(a["mu"][j])
             pieces.append(np.concatenate([[mu], -mu * v / r]))
+        apex = apex_cones(a) if self._cones else []
+        if apex:
+            self._apex_multipliers(pieces, apex)
         cones = np.concatenate(pieces) if pieces else np.zeros(0)
         return {"ineq": lam[n : n + m].copy(), "bounds": lam[:n].copy(), "cones": cones}
+
+    def _apex_multipliers(self, pieces: list[FloatArray], apex: list[int]) -> None:
+        """Replace the :math:`\\lambda_1` of the cones in ``apex`` (see :meth:`_duals`)."""
+        a = self._arrays
+        n, m = self._n, self._m
+        z, lam = a["z"], a["lam"]
+        rhs = a["H"] @ z + a["f"] + a["A"].T @ lam[n : n + m] + lam[:n]
+        for j in range(self._cones):
+            rhs -= pieces[j][0] * a["e"][j]
+            if j not in apex:
+                _v, F, _r = _cone_parts(a, j)
+                rhs -= F.T @ pieces[j][1:]
+        blocks = [_cone_parts(a, j)[1] for j in apex]
+        solution = np.linalg.lstsq(np.vstack(blocks).T, rhs, rcond=None)[0]
+        start = 0
+        for j, F in zip(apex, blocks, strict=True):
+            lam1 = solution[start : start + F.shape[0]]
+            start += F.shape[0]
+            size = float(np.linalg.norm(lam1))
+            if size > pieces[j][0]:
+                lam1 = lam1 * (pieces[j][0] / size)
+            pieces[j] = np.concatenate([[pieces[j][0]], lam1])
 
     def _run(
         self, warm_start: WarmStart | None

@@ -418,6 +418,9 @@ class Session:
         self.last_update: str | None = None
         #: Number of solver workspaces built so far.
         self.n_setups = 0
+        # hold a cone problem's OPTIMAL point to its distance from the local solution
+        # (acceptance.check_cone_point): set by solve(), off on the closed loops' sessions
+        self._check_points = False
 
     # ---------------------------------------------------------------------------------
     @property
@@ -587,8 +590,8 @@ class Session:
             raw, residuals = accept(
                 ProblemView.of_convex(self._solved), raw, self._feasibility, self._optimality
             )
-            if self._solved.has_cones and self.solver != "daqp:socp":  # daqp:socp: the SQP's
-                qp = DenseQP.from_convex_problem(self._solved)
+            if self._check_points and self._solved.has_cones and self.solver != "daqp:socp":
+                qp = DenseQP.from_convex_problem(self._solved)  # one-shot solve() only
                 raw = check_cone_point(qp, raw, self._optimality)
             raw_z = raw.z
             if raw_z is not None:
@@ -637,5 +640,6 @@ def solve(
         raise_on_failure=raise_on_failure,
         **settings,
     )
+    session._check_points = True
     session.setup(problem)
     return session.solve(warm_start)
