@@ -38,7 +38,8 @@ until the l1 merit function :math:`\tfrac12 z^\top H z + f^\top z + w \sum_j
 the largest cone multiplier so far (the SQP direction then descends on it). The stop test
 reads the full step. Solutions at a cone's apex stay slow: the smoothed cone's curvature
 :math:`\mu_j / r_j` grows as :math:`r_j \to s` and the accepted steps shrink; such a
-problem ends with ``MAX_ITER`` (an interior-point solver such as CLARABEL suits it).
+problem converges slowly, or ends with ``MAX_ITER`` naming the cone (an interior-point solver
+such as CLARABEL suits it).
 
 Row screening: DAQP forms :math:`M = A R^{-1}` for every general row of a subproblem
 (:math:`R^\top R = W_k`), which is most of its time on the MPC's problems, whose output
@@ -68,12 +69,30 @@ solved. The prediction changes only the time: the SQP takes the same iterates, t
 rounding (``eliminate=False`` gives the reference the tests compare with). Where one
 such cone's :math:`F_j` holds another's epigraph variable, none is eliminated.
 
-DAQP reports infeasibility of a linearized subproblem; the cones' linearizations are outer
-cutting planes, so an infeasible subproblem proves the problem infeasible (and a subproblem
-with fewer rows that is infeasible proves the full one infeasible; one with equalities for
-inequalities proves nothing, so the whole subproblem is solved then). Needs DAQP's C
-entry point bound natively (:mod:`ltv_lstm_mpc.solvers.daqp_native`): the loop is compiled
-around it.
+Unbounded and infeasible subproblems (issue 43): the first subproblem of a solve knows no
+cone curvature (:math:`\mu = 0`, :math:`W_1 = H`), so where the curvature of a variable is
+all in a cone (an epigraph variable with a linear cost, the form qpsolvers hands a QP to
+ECOS in) it is unbounded; DAQP's "unbounded" (exit flag -3) is a verdict on that
+subproblem, not on the problem. Such a subproblem (and one DAQP calls infeasible, exit flag
+-1, which on a singular :math:`W_k` need not be so) is solved again with the proximal term
+:math:`\tfrac\rho2 \|x - z_k\|^2` (:math:`\rho` = :data:`PROXIMAL` times ``1 +`` the
+largest diagonal entry of :math:`W_k`: strictly convex, so bounded, and DAQP's verdict on
+feasibility reliable), and the SQP goes on with its multipliers, which bring the cones'
+curvature into the next subproblem; over consecutive such iterations :math:`\rho` shrinks
+tenfold each (:data:`PROXIMAL_DECREASE`, down to :data:`PROXIMAL_FLOOR` of the first), so
+the steps grow where the first weight misjudged the problem's scale. A converged point is a
+KKT point of the problem (the proximal term vanishes with the step). The statuses
+(:class:`DaqpSocpDense`): ``INFEASIBLE`` only where the regularized subproblem is
+infeasible too and a Farkas vector of the cone problem itself, built from that
+subproblem's rows and cutting planes (:func:`infeasibility_certificate`), checks;
+``UNBOUNDED`` only where the iterations end in proximal steps of unbounded subproblems and
+the last step is a direction of unbounded descent of the problem that checks
+(:func:`unbounded_certificate`); the layer's acceptance check reads both certificates
+again. Otherwise ``FAILED`` or ``MAX_ITER`` (after :data:`MAX_ITERATIONS`) with the reason,
+naming the cones at whose apex the iterate is (:func:`apex_cones`). At an apex the cone
+multipliers reported are fitted to the stationarity condition (:meth:`DaqpSocpDense._duals`).
+Needs DAQP's C entry point bound natively (:mod:`ltv_lstm_mpc.solvers.daqp_native`): the
+loop is compiled around it.
 """
 
 from __future__ import annotations
