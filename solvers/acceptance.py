@@ -376,11 +376,14 @@ def check_infeasibility_certificate(
     r"""Check a Farkas vector: :math:`\sum M^\top y \approx 0` and the support value ``< 0``.
 
     Cones' entries (``certificate["cones"]``, :math:`(\lambda_0, \lambda_1)` per cone)
-    are included where the problem has cones. Returns ``(valid, measured numbers)``.
+    are included where the problem has cones, and must lie in the (self-dual) cone,
+    :math:`\|\lambda_1\| \le \lambda_0`, to the tolerance relative to ``|y|``.
+    Returns ``(valid, measured numbers)``.
     """
     total = np.zeros(view.n)
     support = 0.0
     size = 0.0
+    outside = 0.0  # largest |lambda_1| - lambda_0 of the cones' entries
     for block in view.rows:
         y, why = _dual_vector(certificate, block.key, block.size)
         if y is None:
@@ -405,12 +408,16 @@ def check_infeasibility_certificate(
             total -= l0 * np.asarray(cone.e) + np.asarray(cone.F.T @ l1)
             support += l0 * cone.f + float(l1 @ cone.g)
             size = max(size, abs(l0), _inf_norm(l1))
+            outside = max(outside, math.sqrt(float(l1 @ l1)) - l0)
     if size == 0.0:
         return False, "the certificate is zero"
     residual = _inf_norm(total) / size
     value = support / size
-    valid = residual <= tolerance and value < -tolerance
-    return valid, f"|sum M'y| / |y| = {residual:.2e}, support value / |y| = {value:.2e}"
+    valid = residual <= tolerance and value < -tolerance and outside / size <= tolerance
+    numbers = f"|sum M'y| / |y| = {residual:.2e}, support value / |y| = {value:.2e}"
+    if outside > 0.0:
+        numbers += f", cone multipliers outside their cone by {outside / size:.2e} (relative)"
+    return valid, numbers
 
 
 def check_unbounded_direction(

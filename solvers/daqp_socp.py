@@ -144,6 +144,8 @@ SMOOTHING = 1e-6
 STEP_TOLERANCE = 1e-7
 #: Largest cone violation :math:`\|F_j z + g_j\| - e_j^\top z - f_j` accepted at the end.
 CONE_TOLERANCE = 1e-9
+#: Rounds of alternating projections of :meth:`DaqpSocpDense._multiplier_certificate`.
+CERTIFICATE_ROUNDS = 20
 #: Most SQP iterations per solve (then ``MAX_ITER``).
 MAX_ITERATIONS = 50
 #: Iterations taken as full steps (the local method, quadratic near the solution: the MPC's
@@ -876,8 +878,8 @@ def socp_solve(
                 for a in range(n):
                     hessian[a, a] += rho
                     linear[a] -= rho * z[a]
-                for q in range(used):
-                    sense[q] = 0
+                for q in range(lam.shape[0]):  # cold: DAQP's working set from none
+                    lam[q] = 0.0
                 continue
             if flag < 0:
                 return flag, iteration, total, np.inf, seconds
@@ -1079,6 +1081,7 @@ class DaqpSocpDense(DenseBackend):
             sizes = np.diff(a["cone_rows"]) + 1
             if self._cones and cones is not None and cones.shape == (int(sizes.sum()),):
                 a["mu"][:] = cones[np.concatenate([[0], np.cumsum(sizes)[:-1]])]
+        self._start = (warm, a["z"].copy(), a["mu"].copy())  # for a rerun on a rare path
         start = time.perf_counter()
         flag, sqp, total, violation, _seconds = socp_solve(self._ws, warm, MAX_ITERATIONS)
         wall = time.perf_counter() - start
@@ -1095,6 +1098,8 @@ class DaqpSocpDense(DenseBackend):
         where = f"exitflag {int(flag)} at SQP iteration {sqp}"
         if flag == -1:  # a subproblem is infeasible: certify the SOCP's infeasibility
             certificate, numbers = infeasibility_certificate(a, self._view())
+            if certificate is None and sqp > 1:
+                certificate, numbers = self._multiplier_certificate(sqp - 1, numbers)
             if certificate is not None:
                 return SolverStatus.INFEASIBLE, f"{where}; {numbers}", total, wall, certificate
             return (
@@ -1147,6 +1152,67 @@ class DaqpSocpDense(DenseBackend):
             )
         return SolverStatus.MAX_ITER, where, total, wall, None
 
+    def _multiplier_certificate(
+        self, iterations: int, why: str
+    ) -> tuple[dict[str, FloatArray] | None, str]:
+        """A Farkas vector from the multipliers of the last solved subproblem.
+
+        On an infeasible problem the SQP's multipliers grow without bound along a Farkas
+        direction (the cutting planes at the last iterate may still be feasible, so that
+        :func:`infeasibility_certificate` finds none). The solve is run again for
+        ``iterations`` (the same iterates: it is deterministic), and the multipliers of
+        its last subproblem, rows, bounds and each cone's :math:`\\mu_j (1, -v_j / r_j)`,
+        are projected onto :math:`\\sum M^\\top y - \\sum (\\lambda_0 e +
+        F^\\top \\lambda_1) = 0` (least change of their nonzero entries), then checked
+        by :func:`~ltv_lstm_mpc.solvers.acceptance.check_infeasibility_certificate`.
+        Returns ``(None, why)`` with the reasons where it does not check.
+        """
+        a = self._arrays
+        warm, z0, mu0 = self._start
+        a["z"][:] = z0
+        a["mu"][:] = mu0
+        socp_solve(self._ws, warm, iterations)
+        n, m = self._n, self._m
+        lam = a["lam"]
+        y = np.concatenate([lam[n : n + m], lam[:n]])
+        columns = [self._arrays["A"].T, np.eye(n)]  # d total / d y, rows then bounds
+        pieces = []
+        for j in range(self._cones):
+            v, F, r = _cone_parts(a, j)
+            mu = float(a["mu"][j])
+            pieces.append(np.concatenate([[mu], -mu * v / r]))
+            columns.append(-np.hstack([a["e"][j][:, None], F.T]))
+        vector = np.concatenate([y, *pieces])
+        K = np.hstack(columns)
+        free = vector != 0.0  # the nonzero entries move (a zero stays: its sign is free)
+        for j, piece in enumerate(pieces):  # a cone with mu > 0: all its entries
+            if piece[0] > 0.0:
+                start = m + n + sum(p.shape[0] for p in pieces[:j])
+                free[start : start + piece.shape[0]] = True
+        if not free.any():
+            return None, why
+        sizes = [p.shape[0] for p in pieces]
+        vector = vector.copy()
+        numbers = ""
+        for _ in range(CERTIFICATE_ROUNDS):  # alternating projections
+            delta = np.linalg.lstsq(K[:, free], -(K @ vector), rcond=None)[0]
+            vector[free] += delta
+            certificate = {
+                "ineq": vector[:m].copy(),
+                "bounds": vector[m : m + n].copy(),
+                "cones": vector[m + n :].copy(),
+            }
+            valid, numbers = check_infeasibility_certificate(
+                self._view(), certificate, CERTIFICATE_TOLERANCE
+            )
+            if valid:
+                return certificate, f"infeasibility certificate of the SOCP ({numbers})"
+            start = m + n
+            for size in sizes:  # each cone's entries onto the second-order cone
+                vector[start : start + size] = _cone_projection(vector[start : start + size])
+                start += size
+        return None, f"{why}; from the multipliers: {numbers}"
+
     def _view(self) -> ProblemView:
         """The problem solved, as the acceptance layer reads it."""
         return ProblemView.of_dense(self._qp)
@@ -1186,6 +1252,18 @@ def _cone_parts(arrays: Mapping[str, Any], j: int) -> tuple[FloatArray, FloatArr
     F = arrays["F"][start:stop]
     v = F @ arrays["z"] + arrays["g"][start:stop]
     return v, F, float(np.sqrt(v @ v + SMOOTHING**2))
+
+
+def _cone_projection(entries: FloatArray) -> FloatArray:
+    """The projection of :math:`(\\lambda_0, \\lambda_1)` onto the second-order cone."""
+    l0, l1 = float(entries[0]), entries[1:]
+    size = float(np.linalg.norm(l1))
+    if size <= l0:
+        return entries
+    if size <= -l0:
+        return np.zeros_like(entries)
+    scale = 0.5 * (l0 + size)
+    return np.concatenate([[scale], scale * l1 / size])
 
 
 def apex_cones(arrays: Mapping[str, Any]) -> list[int]:
