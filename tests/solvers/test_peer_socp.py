@@ -30,10 +30,10 @@ WRONG = (SolverStatus.INFEASIBLE, SolverStatus.UNBOUNDED)
 
 #: (solver, problem, entry) -> the honest non-optimal status it reports on the SOCP
 #: version, measured on the installed versions. daqp:socp: DAQP refuses the near-singular
-#: equality rows (exit flag -6, as on the QP); on the cond-1e8 problem and on the
-#: unbounded problem with bounds DAQP's own iteration limit ends a subproblem (-4,
-#: MAX_ITER). CLARABEL (native; cvxpy's on the cond-1e8 problem) stops with
-#: InsufficientProgress / NumericalError (FAILED), or AlmostSolved (OPTIMAL_INACCURATE),
+#: equality rows (exit flag -6, as on the QP); on the cond-1e8 problem the SQP ends at its
+#: iteration bound (MAX_ITER, with the reason). CLARABEL (native; cvxpy's on the cond-1e8
+#: problem) stops with InsufficientProgress / NumericalError (FAILED), or AlmostSolved
+#: (OPTIMAL_INACCURATE),
 #: on the epigraph form of some problems. OPTIMAL_INACCURATE after the layer's check of
 #: the distance from the local solution (acceptance.check_cone_point): the point is
 #: farther than 10 times the optimality tolerance from it. ECOS and SCS: see the notes.
@@ -46,7 +46,6 @@ def _honest() -> dict[tuple[str, str, str], SolverStatus]:
     table = {
         ("daqp:socp", "near-singular equalities", BOTH): F,
         ("daqp:socp", ill, BOTH): M,
-        ("daqp:socp", "unbounded below with bounds", BOTH): M,
         ("cvxpy:CLARABEL", "QPSUT05 (unconstrained, n = 1)", SOLVE): I,  # 5.7e-5 away
         ("cvxpy:CLARABEL", "QPTEST (Maros-Meszaros)", DENSE): I,  # 1.1e-5
         ("cvxpy:CLARABEL", "QPGURDU (inequalities)", SOLVE): I,  # 1.1e-5
