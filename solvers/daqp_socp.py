@@ -38,7 +38,8 @@ until the l1 merit function :math:`\tfrac12 z^\top H z + f^\top z + w \sum_j
 the largest cone multiplier so far (the SQP direction then descends on it). The stop test
 reads the full step. Solutions at a cone's apex stay slow: the smoothed cone's curvature
 :math:`\mu_j / r_j` grows as :math:`r_j \to s` and the accepted steps shrink; such a
-problem ends with ``MAX_ITER`` (an interior-point solver such as CLARABEL suits it).
+problem converges slowly, or ends with ``MAX_ITER`` naming the cone (an interior-point solver
+such as CLARABEL suits it).
 
 Row screening: DAQP forms :math:`M = A R^{-1}` for every general row of a subproblem
 (:math:`R^\top R = W_k`), which is most of its time on the MPC's problems, whose output
@@ -68,12 +69,30 @@ solved. The prediction changes only the time: the SQP takes the same iterates, t
 rounding (``eliminate=False`` gives the reference the tests compare with). Where one
 such cone's :math:`F_j` holds another's epigraph variable, none is eliminated.
 
-DAQP reports infeasibility of a linearized subproblem; the cones' linearizations are outer
-cutting planes, so an infeasible subproblem proves the problem infeasible (and a subproblem
-with fewer rows that is infeasible proves the full one infeasible; one with equalities for
-inequalities proves nothing, so the whole subproblem is solved then). Needs DAQP's C
-entry point bound natively (:mod:`ltv_lstm_mpc.solvers.daqp_native`): the loop is compiled
-around it.
+Unbounded and infeasible subproblems (issue 43): the first subproblem of a solve knows no
+cone curvature (:math:`\mu = 0`, :math:`W_1 = H`), so where the curvature of a variable is
+all in a cone (an epigraph variable with a linear cost, the form qpsolvers hands a QP to
+ECOS in) it is unbounded; DAQP's "unbounded" (exit flag -3) is a verdict on that
+subproblem, not on the problem. Such a subproblem (and one DAQP calls infeasible, exit flag
+-1, which on a singular :math:`W_k` need not be so) is solved again with the proximal term
+:math:`\tfrac\rho2 \|x - z_k\|^2` (:math:`\rho` = :data:`PROXIMAL` times ``1 +`` the
+largest diagonal entry of :math:`W_k`: strictly convex, so bounded, and DAQP's verdict on
+feasibility reliable), and the SQP goes on with its multipliers, which bring the cones'
+curvature into the next subproblem; over consecutive such iterations :math:`\rho` shrinks
+tenfold each (:data:`PROXIMAL_DECREASE`, down to :data:`PROXIMAL_FLOOR` of the first), so
+the steps grow where the first weight misjudged the problem's scale. A converged point is a
+KKT point of the problem (the proximal term vanishes with the step). The statuses
+(:class:`DaqpSocpDense`): ``INFEASIBLE`` only where the regularized subproblem is
+infeasible too and a Farkas vector of the cone problem itself, built from that
+subproblem's rows and cutting planes (:func:`infeasibility_certificate`), checks;
+``UNBOUNDED`` only where the iterations end in proximal steps of unbounded subproblems and
+the last step is a direction of unbounded descent of the problem that checks
+(:func:`unbounded_certificate`); the layer's acceptance check reads both certificates
+again. Otherwise ``FAILED`` or ``MAX_ITER`` (after :data:`MAX_ITERATIONS`) with the reason,
+naming the cones at whose apex the iterate is (:func:`apex_cones`). At an apex the cone
+multipliers reported are fitted to the stationarity condition (:meth:`DaqpSocpDense._duals`).
+Needs DAQP's C entry point bound natively (:mod:`ltv_lstm_mpc.solvers.daqp_native`): the
+loop is compiled around it.
 """
 
 from __future__ import annotations
@@ -87,6 +106,12 @@ import numpy as np
 from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
 from ._base import FloatArray, RawResult, WarmStart, check_settings, warm_start_vectors
+from .acceptance import (
+    CERTIFICATE_TOLERANCE,
+    ProblemView,
+    check_infeasibility_certificate,
+    check_unbounded_direction,
+)
 from .daqp_ import dense_status
 from .daqp_native import native, quadprog, solver_seconds
 from .dense import DenseBackend, DenseQP
@@ -119,12 +144,24 @@ SMOOTHING = 1e-6
 STEP_TOLERANCE = 1e-7
 #: Largest cone violation :math:`\|F_j z + g_j\| - e_j^\top z - f_j` accepted at the end.
 CONE_TOLERANCE = 1e-9
+#: Rounds of alternating projections of :meth:`DaqpSocpDense._multiplier_certificate`.
+CERTIFICATE_ROUNDS = 20
 #: Most SQP iterations per solve (then ``MAX_ITER``).
 MAX_ITERATIONS = 50
 #: Iterations taken as full steps (the local method, quadratic near the solution: the MPC's
 #: subproblems converge in 3-6); from the next one on, each step's length comes from a
 #: line search on the l1 merit function (module docstring, globalization).
 FULL_STEPS = 8
+#: Proximal weight of an unbounded subproblem's second solve, relative to ``1 +`` the
+#: largest diagonal entry of :math:`W_k` (module docstring, unbounded subproblems).
+PROXIMAL = 1.0
+#: Factor of the proximal weight from one regularized iteration to the next (the steps
+#: grow tenfold: a problem whose scale the first weight misjudges is reached in a few
+#: iterations; an unbounded one runs out along its direction), and its floor relative to
+#: the first weight of a run of regularized iterations (smaller weights leave DAQP with a
+#: numerically singular Hessian).
+PROXIMAL_DECREASE = 0.1
+PROXIMAL_FLOOR = 1e-8
 #: Sufficient decrease of the line search (Armijo) and its most halvings.
 ARMIJO = 1e-4
 BACKTRACKS = 30
@@ -146,7 +183,8 @@ SOCP_FIELDS = (
     "gradient_bounds", "cone_products", "formed", "kept", "lam_k", "row_values", "row_norms",
     "epigraph", "eliminated", "first_active", "reduced_index", "tau", "tau_offset", "coupled",
     "reduced_hessian", "reduced_linear", "reduced_rows", "reduced_upper", "reduced_lower",
-    "reduced_sense", "reduced_x", "reduced_lam", "problem", "result", "settings",
+    "reduced_sense", "reduced_x", "reduced_lam", "direction", "regularized", "problem",
+    "result", "settings",
 )  # fmt: skip
 
 SocpWorkspace = workspace_type(
@@ -175,7 +213,10 @@ SocpWorkspace = workspace_type(
     them), ``coupled`` (rows of :math:`W_k T` at the eliminated variables) and the reduced
     subproblem as DAQP gets it (``reduced_hessian`` and ``reduced_rows`` flat, row by row,
     ``reduced_linear``, ``reduced_upper``, ``reduced_lower``, ``reduced_sense``,
-    ``reduced_x``, ``reduced_lam``); ``problem``, ``result``, ``settings``: DAQP's C structs.
+    ``reduced_x``, ``reduced_lam``); for the proximal steps (module docstring,
+    unbounded subproblems): ``direction`` (the last regularized step) and ``regularized``
+    (the number of regularized iterations of the last solve, and 1 where its last
+    iteration was one); ``problem``, ``result``, ``settings``: DAQP's C structs.
     """,
     __name__,
 )
@@ -188,7 +229,7 @@ def _new_socp_workspace(  # type: ignore[no-untyped-def]
     sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed, kept, lam_k,
     row_values, row_norms, epigraph, eliminated, first_active, reduced_index, tau, tau_offset,
     coupled, reduced_hessian, reduced_linear, reduced_rows, reduced_upper, reduced_lower,
-    reduced_sense, reduced_x, reduced_lam, problem, result, settings,
+    reduced_sense, reduced_x, reduced_lam, direction, regularized, problem, result, settings,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return SocpWorkspace(
@@ -196,7 +237,7 @@ def _new_socp_workspace(  # type: ignore[no-untyped-def]
         sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed, kept, lam_k,
         row_values, row_norms, epigraph, eliminated, first_active, reduced_index, tau, tau_offset,
         coupled, reduced_hessian, reduced_linear, reduced_rows, reduced_upper, reduced_lower,
-        reduced_sense, reduced_x, reduced_lam, problem, result, settings,
+        reduced_sense, reduced_x, reduced_lam, direction, regularized, problem, result, settings,
     )  # fmt: skip
 
 
@@ -720,7 +761,13 @@ def socp_solve(
     violation = np.inf
     step = 0.0
     weight = 0.0  # of the merit function's cone violations, once it is used
+    counts = ws.regularized  # regularized iterations, and whether the last one was
+    proximal = 0.0  # the last proximal weight
+    first_weight = 0.0  # the first of a run of regularized iterations
+    counts[0] = 0
+    counts[1] = 0
     for iteration in range(1, max_iterations + 1):
+        rho = 0.0  # the proximal weight of this iteration's subproblem (0: none)
         for a in range(n):  # W_k on the upper triangle (mirrored below), from H's
             target = hessian[a, a:]  # symmetric part (H itself where it is symmetric)
             if symmetric:
@@ -813,6 +860,27 @@ def socp_solve(
                 )  # fmt: skip
                 total += iterations
                 seconds += solver_seconds(ws.result)
+            if (flag == -3 or flag == -1) and rho == 0.0:
+                # unbounded subproblem (the cones' curvature is not known yet, e.g. the
+                # first one, with mu = 0), or infeasible by DAQP on a singular W_k: solve
+                # it again with the proximal term rho/2 |x - z_k|^2 (strictly convex:
+                # bounded, and DAQP's verdict on feasibility reliable), and go on; rho
+                # shrinks tenfold per consecutive such iteration (module docstring)
+                if counts[1] and proximal > 0.0:
+                    rho = max(proximal * PROXIMAL_DECREASE, PROXIMAL_FLOOR * first_weight)
+                else:
+                    largest = 0.0
+                    for a in range(n):
+                        largest = max(largest, abs(hessian[a, a]))
+                    rho = PROXIMAL * (1.0 + largest)
+                    first_weight = rho
+                proximal = rho
+                for a in range(n):
+                    hessian[a, a] += rho
+                    linear[a] -= rho * z[a]
+                for q in range(lam.shape[0]):  # cold: DAQP's working set from none
+                    lam[q] = 0.0
+                continue
             if flag < 0:
                 return flag, iteration, total, np.inf, seconds
             if not _add_violated_rows(ws):
@@ -826,6 +894,12 @@ def socp_solve(
         step = 0.0
         for b in range(n):
             step = max(step, abs(x[b] - z[b]))
+        counts[1] = 0
+        if rho > 0.0:
+            counts[0] += 1
+            counts[1] = 1
+            for b in range(n):
+                ws.direction[b] = x[b] - z[b]
         if iteration > FULL_STEPS:  # a line search on the l1 merit function
             weight = max(weight, 2.0 * largest)
             length = _line_search(ws, weight)
@@ -888,6 +962,7 @@ def socp_arrays(n: int, m: int, sizes: list[int], buffers: Any) -> dict[str, Any
         "reduced_lower": np.zeros(n + m + cones),
         "reduced_sense": np.zeros(n + m + cones, dtype=np.intc), "reduced_x": np.zeros(n),
         "reduced_lam": np.zeros(n + m + cones),
+        "direction": np.zeros(n), "regularized": np.zeros(2, dtype=np.int64),
         "problem": buffers.problem, "result": buffers.result, "settings": buffers.settings,
     }  # fmt: skip
 
@@ -926,6 +1001,7 @@ class DaqpSocpDense(DenseBackend):
 
     def update(self, qp: DenseQP) -> None:
         """Copy the values of ``qp`` into the workspace."""
+        self._qp = qp  # read only on the rare paths (certificates)
         arrays = self._arrays
         for name, value in (("H", qp.H), ("f", qp.f), ("A", qp.A), ("lb", qp.lb),
                             ("ub", qp.ub), ("lo", qp.lo), ("up", qp.up)):  # fmt: skip
@@ -940,22 +1016,61 @@ class DaqpSocpDense(DenseBackend):
             start += k
 
     def _duals(self) -> dict[str, FloatArray]:
-        """The multipliers in the layer's convention (module docstring)."""
+        """The multipliers in the layer's convention (module docstring).
+
+        At a cone's apex (:func:`apex_cones`) the smoothed cone's :math:`-\\mu_j v_j /
+        r_j` is no multiplier of the cone (:math:`v_j \\approx 0` there, while the
+        cone's :math:`\\lambda_1` may have any norm up to :math:`\\lambda_0`): those
+        cones' :math:`\\lambda_1` are then the least-squares solution of the
+        stationarity condition, each shortened into its cone where it is outside, so the
+        acceptance check reads the multipliers of the cone itself.
+        """
         a = self._arrays
         n, m = self._n, self._m
         lam = a["lam"]
         pieces = []
         for j in range(self._cones):
-            start, stop = int(a["cone_rows"][j]), int(a["cone_rows"][j + 1])
-            v = a["F"][start:stop] @ a["z"] + a["g"][start:stop]
-            r = float(np.sqrt(v @ v + SMOOTHING**2))
+            v, _F, r = _cone_parts(a, j)
             mu = float(a["mu"][j])
             pieces.append(np.concatenate([[mu], -mu * v / r]))
+        apex = apex_cones(a) if self._cones else []
+        if apex:
+            self._apex_multipliers(pieces, apex)
         cones = np.concatenate(pieces) if pieces else np.zeros(0)
         return {"ineq": lam[n : n + m].copy(), "bounds": lam[:n].copy(), "cones": cones}
 
-    def _run(self, warm_start: WarmStart | None) -> tuple[SolverStatus, str, int, float]:
-        """One SQP solve; (status, native status, iterations, wall time)."""
+    def _apex_multipliers(self, pieces: list[FloatArray], apex: list[int]) -> None:
+        """Replace the :math:`\\lambda_1` of the cones in ``apex`` (see :meth:`_duals`)."""
+        a = self._arrays
+        n, m = self._n, self._m
+        z, lam = a["z"], a["lam"]
+        rhs = a["H"] @ z + a["f"] + a["A"].T @ lam[n : n + m] + lam[:n]
+        for j in range(self._cones):
+            rhs -= pieces[j][0] * a["e"][j]
+            if j not in apex:
+                _v, F, _r = _cone_parts(a, j)
+                rhs -= F.T @ pieces[j][1:]
+        blocks = [_cone_parts(a, j)[1] for j in apex]
+        solution = np.linalg.lstsq(np.vstack(blocks).T, rhs, rcond=None)[0]
+        start = 0
+        for j, F in zip(apex, blocks, strict=True):
+            lam1 = solution[start : start + F.shape[0]]
+            start += F.shape[0]
+            size = float(np.linalg.norm(lam1))
+            if size > pieces[j][0]:
+                lam1 = lam1 * (pieces[j][0] / size)
+            pieces[j] = np.concatenate([[pieces[j][0]], lam1])
+
+    def _run(
+        self, warm_start: WarmStart | None
+    ) -> tuple[SolverStatus, str, int, float, Mapping[str, FloatArray] | None]:
+        """One SQP solve; (status, native status, iterations, wall time, certificate).
+
+        ``INFEASIBLE`` and ``UNBOUNDED`` come only with a certificate of the SOCP itself,
+        checked here (:func:`infeasibility_certificate`, :func:`unbounded_certificate`),
+        never from one subproblem's exit flag; without one, ``FAILED`` or ``MAX_ITER``
+        with the reason.
+        """
         a = self._arrays
         z0, solution = warm_start_vectors(warm_start, self._n)
         warm = z0 is not None
@@ -966,24 +1081,145 @@ class DaqpSocpDense(DenseBackend):
             sizes = np.diff(a["cone_rows"]) + 1
             if self._cones and cones is not None and cones.shape == (int(sizes.sum()),):
                 a["mu"][:] = cones[np.concatenate([[0], np.cumsum(sizes)[:-1]])]
+        self._start = (warm, a["z"].copy(), a["mu"].copy())  # for a rerun on a rare path
         start = time.perf_counter()
         flag, sqp, total, violation, _seconds = socp_solve(self._ws, warm, MAX_ITERATIONS)
         wall = time.perf_counter() - start
-        if flag < 0:
-            status, _notes = dense_status(int(flag))
-            return status, f"exitflag {int(flag)} at SQP iteration {sqp}", total, wall
-        if sqp > MAX_ITERATIONS:
+        if flag == 1 or flag == 2:
+            if sqp <= MAX_ITERATIONS:
+                return (
+                    SolverStatus.OPTIMAL,
+                    f"exitflag {int(flag)}, {sqp} SQP iterations",
+                    total,
+                    wall,
+                    None,
+                )
+            return self._not_converged(violation, total, wall)
+        where = f"exitflag {int(flag)} at SQP iteration {sqp}"
+        if flag == -1:  # a subproblem is infeasible: certify the SOCP's infeasibility
+            certificate, numbers = infeasibility_certificate(a, self._view())
+            if certificate is None and sqp > 1:
+                certificate, numbers = self._multiplier_certificate(sqp - 1, numbers)
+            if certificate is not None:
+                return SolverStatus.INFEASIBLE, f"{where}; {numbers}", total, wall, certificate
             return (
-                SolverStatus.MAX_ITER,
-                f"{MAX_ITERATIONS} SQP iterations, cone violation {violation:.1e}",
+                SolverStatus.FAILED,
+                f"{where}: a subproblem is infeasible, but no certificate of the problem's "
+                f"infeasibility checks ({numbers})",
                 total,
                 wall,
+                None,
             )
-        return SolverStatus.OPTIMAL, f"exitflag {int(flag)}, {sqp} SQP iterations", total, wall
+        if flag == -3 and a["regularized"][0]:  # unbounded even with the proximal term
+            certificate, numbers = unbounded_certificate(a, self._view())
+            if certificate is not None:
+                return SolverStatus.UNBOUNDED, f"{where}; {numbers}", total, wall, certificate
+            where += f"; the last proximal step is no direction of unbounded descent ({numbers})"
+        status, _notes = dense_status(int(flag))
+        if status in (SolverStatus.INFEASIBLE, SolverStatus.UNBOUNDED):
+            status = SolverStatus.FAILED  # a subproblem's verdict is not the problem's
+        return status, where, total, wall, None
+
+    def _not_converged(
+        self, violation: float, total: int, wall: float
+    ) -> tuple[SolverStatus, str, int, float, Mapping[str, FloatArray] | None]:
+        """The status after :data:`MAX_ITERATIONS` SQP iterations: ``UNBOUNDED`` where the
+        last iterations were proximal steps of unbounded subproblems along a checked
+        direction of unbounded descent, else ``MAX_ITER`` with the reason."""
+        a = self._arrays
+        where = f"{MAX_ITERATIONS} SQP iterations, cone violation {violation:.1e}"
+        regularized = int(a["regularized"][0])
+        if a["regularized"][1]:
+            certificate, numbers = unbounded_certificate(a, self._view())
+            if certificate is not None:
+                return (
+                    SolverStatus.UNBOUNDED,
+                    f"{where}; {regularized} subproblems unbounded; {numbers}",
+                    total,
+                    wall,
+                    certificate,
+                )
+            where += (
+                f"; {regularized} subproblems unbounded (proximal steps), the last step is "
+                f"no direction of unbounded descent ({numbers})"
+            )
+        apex = apex_cones(a)
+        if apex:
+            where += (
+                f"; the iterate is at the apex of cone(s) {apex}, where the smoothed cone's "
+                "curvature grows and the steps shrink (an interior-point solver, e.g. "
+                "clarabel, suits such a problem)"
+            )
+        return SolverStatus.MAX_ITER, where, total, wall, None
+
+    def _multiplier_certificate(
+        self, iterations: int, why: str
+    ) -> tuple[dict[str, FloatArray] | None, str]:
+        """A Farkas vector from the multipliers of the last solved subproblem.
+
+        On an infeasible problem the SQP's multipliers grow without bound along a Farkas
+        direction (the cutting planes at the last iterate may still be feasible, so that
+        :func:`infeasibility_certificate` finds none). The solve is run again for
+        ``iterations`` (the same iterates: it is deterministic), and the multipliers of
+        its last subproblem, rows, bounds and each cone's :math:`\\mu_j (1, -v_j / r_j)`,
+        are projected onto :math:`\\sum M^\\top y - \\sum (\\lambda_0 e +
+        F^\\top \\lambda_1) = 0` (least change of their nonzero entries), then checked
+        by :func:`~ltv_lstm_mpc.solvers.acceptance.check_infeasibility_certificate`.
+        Returns ``(None, why)`` with the reasons where it does not check.
+        """
+        a = self._arrays
+        warm, z0, mu0 = self._start
+        a["z"][:] = z0
+        a["mu"][:] = mu0
+        socp_solve(self._ws, warm, iterations)
+        n, m = self._n, self._m
+        lam = a["lam"]
+        y = np.concatenate([lam[n : n + m], lam[:n]])
+        columns = [self._arrays["A"].T, np.eye(n)]  # d total / d y, rows then bounds
+        pieces = []
+        for j in range(self._cones):
+            v, F, r = _cone_parts(a, j)
+            mu = float(a["mu"][j])
+            pieces.append(np.concatenate([[mu], -mu * v / r]))
+            columns.append(-np.hstack([a["e"][j][:, None], F.T]))
+        vector = np.concatenate([y, *pieces])
+        K = np.hstack(columns)
+        free = vector != 0.0  # the nonzero entries move (a zero stays: its sign is free)
+        for j, piece in enumerate(pieces):  # a cone with mu > 0: all its entries
+            if piece[0] > 0.0:
+                start = m + n + sum(p.shape[0] for p in pieces[:j])
+                free[start : start + piece.shape[0]] = True
+        if not free.any():
+            return None, why
+        sizes = [p.shape[0] for p in pieces]
+        vector = vector.copy()
+        numbers = ""
+        for _ in range(CERTIFICATE_ROUNDS):  # alternating projections
+            delta = np.linalg.lstsq(K[:, free], -(K @ vector), rcond=None)[0]
+            vector[free] += delta
+            certificate = {
+                "ineq": vector[:m].copy(),
+                "bounds": vector[m : m + n].copy(),
+                "cones": vector[m + n :].copy(),
+            }
+            valid, numbers = check_infeasibility_certificate(
+                self._view(), certificate, CERTIFICATE_TOLERANCE
+            )
+            if valid:
+                return certificate, f"infeasibility certificate of the SOCP ({numbers})"
+            start = m + n
+            for size in sizes:  # each cone's entries onto the second-order cone
+                vector[start : start + size] = _cone_projection(vector[start : start + size])
+                start += size
+        return None, f"{why}; from the multipliers: {numbers}"
+
+    def _view(self) -> ProblemView:
+        """The problem solved, as the acceptance layer reads it."""
+        return ProblemView.of_dense(self._qp)
 
     def solve(self, warm_start: WarmStart | None) -> RawResult:
         """One SQP solve (warm: from the given point and cone multipliers)."""
-        status, native_status, iterations, wall = self._run(warm_start)
+        status, native_status, iterations, wall, certificate = self._run(warm_start)
         z = duals = None
         objective = None
         if status.has_solution:
@@ -999,13 +1235,150 @@ class DaqpSocpDense(DenseBackend):
             solve_time=wall,
             iterations=iterations,
             objective=objective,
+            certificate=certificate,
         )
 
     def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
         """One cold SQP solve without multipliers; the status mapped as in :meth:`solve`."""
-        status, native_status, iterations, _wall = self._run(None)
+        status, native_status, iterations, _wall, _certificate = self._run(None)
         z = self._arrays["z"].copy() if status.has_solution else None
         return status, z, iterations, native_status
+
+
+def _cone_parts(arrays: Mapping[str, Any], j: int) -> tuple[FloatArray, FloatArray, float]:
+    """Cone j's :math:`v = F_j z + g_j` at the iterate, its rows of ``F`` and the smoothed
+    :math:`r_j = \\sqrt{\\|v\\|^2 + s^2}`."""
+    start, stop = int(arrays["cone_rows"][j]), int(arrays["cone_rows"][j + 1])
+    F = arrays["F"][start:stop]
+    v = F @ arrays["z"] + arrays["g"][start:stop]
+    return v, F, float(np.sqrt(v @ v + SMOOTHING**2))
+
+
+def _cone_projection(entries: FloatArray) -> FloatArray:
+    """The projection of :math:`(\\lambda_0, \\lambda_1)` onto the second-order cone."""
+    l0, l1 = float(entries[0]), entries[1:]
+    size = float(np.linalg.norm(l1))
+    if size <= l0:
+        return entries
+    if size <= -l0:
+        return np.zeros_like(entries)
+    scale = 0.5 * (l0 + size)
+    return np.concatenate([[scale], scale * l1 / size])
+
+
+def apex_cones(arrays: Mapping[str, Any]) -> list[int]:
+    """The cones whose :math:`\\|F_j z + g_j\\|` at the iterate is within 100 times
+    :data:`SMOOTHING` of the apex (relative to ``1 + |z|``)."""
+    scale = 1.0 + float(np.max(np.abs(arrays["z"]), initial=0.0))
+    out = []
+    for j in range(arrays["offsets"].shape[0]):
+        v, _F, _r = _cone_parts(arrays, j)
+        if float(np.linalg.norm(v)) <= 100.0 * SMOOTHING * scale:
+            out.append(j)
+    return out
+
+
+def infeasibility_certificate(
+    arrays: Mapping[str, Any], view: ProblemView
+) -> tuple[dict[str, FloatArray] | None, str]:
+    r"""A Farkas vector of the SOCP from its last subproblem, checked; ``(None, why)`` if none.
+
+    The subproblem's rows are the problem's rows and bounds and each cone's linearization
+    at the iterate :math:`z_k`, :math:`a_j^\top x \le b_j` with :math:`a_j = F_j^\top
+    v_j / r_j - e_j` (an outer cutting plane of the smoothed cone). Stacked as
+    :math:`l \le C x \le u`, the vector :math:`y = y^+ - y^-` of the least-norm problem
+
+    .. math::
+
+        \min_{y^\pm \ge 0} \tfrac12 \|y^+\|^2 + \tfrac12 \|y^-\|^2 + u^\top y^+ -
+        l^\top y^- \quad\text{s.t.}\quad C^\top (y^+ - y^-) = 0
+
+    (the dual of the least squared violation; solved by DAQP) has a negative support value
+    :math:`u^\top y^+ - l^\top y^- = -\|y\|^2` where the subproblem is infeasible. A
+    cut's multiplier :math:`\mu_j` is the cone multiplier :math:`(\lambda_0, \lambda_1)
+    = \mu_j (1, -v_j / r_j)` (in the cone: :math:`\|v_j\| \le r_j`), so :math:`y` is
+    a certificate of the SOCP itself, checked on it by
+    :func:`~ltv_lstm_mpc.solvers.acceptance.check_infeasibility_certificate` (its support
+    value exceeds the subproblem's by :math:`\mu_j s^2 / r_j`, the smoothing).
+    """
+    import daqp
+
+    H, A = arrays["H"], arrays["A"]
+    n, m = H.shape[0], A.shape[0]
+    cones = arrays["offsets"].shape[0]
+    cuts = np.zeros((cones, n))
+    cut_bounds = np.zeros(cones)
+    parts = []
+    for j in range(cones):
+        v, F, r = _cone_parts(arrays, j)
+        cuts[j] = F.T @ v / r - arrays["e"][j]
+        value = r - float(arrays["e"][j] @ arrays["z"]) - float(arrays["offsets"][j])
+        cut_bounds[j] = float(cuts[j] @ arrays["z"]) - value
+        parts.append((v, r))
+    C = np.vstack([A, np.eye(n), cuts])
+    upper = np.concatenate([arrays["up"], arrays["ub"], cut_bounds])
+    lower = np.concatenate([arrays["lo"], arrays["lb"], np.full(cones, -np.inf)])
+    p = C.shape[0]
+    upper_w = np.where(np.isfinite(upper), np.inf, 0.0)  # y+ only at a finite upper bound
+    lower_w = np.where(np.isfinite(lower), np.inf, 0.0)
+    cost = np.concatenate([np.where(np.isfinite(upper), upper, 0.0),
+                           -np.where(np.isfinite(lower), lower, 0.0)])  # fmt: skip
+    rows = np.hstack([C.T, -C.T])
+    bounds_up = np.concatenate([np.minimum(np.concatenate([upper_w, lower_w]), _BIG), np.zeros(n)])
+    bounds_lo = np.concatenate([np.zeros(2 * p), np.zeros(n)])
+    sense = np.zeros(2 * p + n, dtype=np.int32)
+    sense[2 * p :] = 5  # equalities (DAQP: active and immutable)
+    w, _value, flag, _info = daqp.solve(np.eye(2 * p), cost, rows, bounds_up, bounds_lo, sense)
+    if flag not in (1, 2):
+        return None, f"the certificate's QP ended with DAQP exit flag {flag}"
+    y = w[:p] - w[p:]
+    lam = np.concatenate(
+        [np.concatenate([[y[m + n + j]], -y[m + n + j] * v / r]) for j, (v, r) in enumerate(parts)]
+    ) if cones else np.zeros(0)  # fmt: skip
+    certificate = {"ineq": y[:m], "bounds": y[m : m + n], "cones": lam}
+    valid, numbers = check_infeasibility_certificate(view, certificate, CERTIFICATE_TOLERANCE)
+    if not valid:
+        return None, numbers
+    return certificate, f"infeasibility certificate of the SOCP ({numbers})"
+
+
+def unbounded_certificate(
+    arrays: Mapping[str, Any], view: ProblemView
+) -> tuple[dict[str, FloatArray] | None, str]:
+    """The last proximal step (``arrays["direction"]``) as a direction of unbounded descent
+    of the SOCP, checked by
+    :func:`~ltv_lstm_mpc.solvers.acceptance.check_unbounded_direction`; ``(None, why)``
+    where it does not check."""
+    direction = np.array(arrays["direction"])
+    valid, numbers = check_unbounded_direction(view, direction, CERTIFICATE_TOLERANCE)
+    if not valid:
+        return None, numbers
+    size = float(np.max(np.abs(direction)))
+    return {"direction": direction / size}, f"direction of unbounded descent ({numbers})"
+
+
+def local_solution(
+    qp: DenseQP, z: FloatArray, cone_duals: FloatArray | None
+) -> tuple[FloatArray | None, str]:
+    """The point the SQP converges to from ``z`` (and the cone multipliers ``cone_duals``
+    in the layer's convention, where given): a point another backend returned, refined by
+    the local method (quadratic convergence near the solution, so from a point close to it
+    one or two iterations). ``(None, why)`` where DAQP is not bound natively or the SQP
+    does not converge."""
+    if native({}) is None:
+        return None, "daqp:socp is not available (DAQP not bound natively)"
+    backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+    backend.setup(qp)
+    a = backend._arrays
+    a["z"][:] = z
+    a["mu"][:] = 0.0
+    sizes = np.diff(a["cone_rows"]) + 1
+    if cone_duals is not None and np.shape(cone_duals) == (int(sizes.sum()),):
+        a["mu"][:] = np.maximum(np.asarray(cone_duals)[np.cumsum(sizes) - sizes], 0.0)
+    flag, sqp, _total, _violation, _seconds = socp_solve(backend._ws, True, MAX_ITERATIONS)
+    if flag not in (1, 2) or sqp > MAX_ITERATIONS:
+        return None, f"the SQP from the point did not converge (exit flag {flag}, {sqp} iterations)"
+    return np.array(a["z"]), f"{sqp} SQP iterations"
 
 
 def warm_up() -> None:

@@ -20,7 +20,7 @@ from ltv_lstm_mpc.exceptions import InvalidValueError, SolverError
 from ltv_lstm_mpc.validation import expect_bool
 
 from ._base import FloatArray, RawResult, WarmStart, raise_backend_error
-from .acceptance import ProblemView, accept
+from .acceptance import ProblemView, accept, check_cone_point
 from .dense import DenseBackend, DenseQP
 from .problem import Solution, SolverStatus
 from .registry import cone_solvers, get_dense_backend
@@ -93,6 +93,8 @@ class DenseSession:
         self._qp: DenseQP | None = None
         self._in_place = self._backend.supports_update
         self._backend_name = self._backend.backend
+        # daqp:socp's own points are the local SQP's (no refinement check on them)
+        self._refines = type(self._backend).__name__ == "DaqpSocpDense"
         #: ``"setup"``, ``"in_place"`` or ``"fresh_setup"``: what the last call did.
         self.last_update: str | None = None
         #: Number of workspaces built so far.
@@ -279,6 +281,8 @@ class DenseSession:
             checked, residuals = accept(
                 ProblemView.of_dense(qp), raw, self._feasibility, self._optimality
             )
+            if qp.cones and checked.status is SolverStatus.OPTIMAL and not self._refines:
+                checked = check_cone_point(qp, checked, self._optimality)
             status, notes, certificate = checked.status, checked.notes, checked.certificate
             if checked.z is None:
                 z, duals, objective = None, None, float("nan")

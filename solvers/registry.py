@@ -20,8 +20,8 @@ from ltv_lstm_mpc.validation import expect_bool, real_scalar
 
 from ._adapters import convex_from_dense, dense_from_convex
 from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart, raise_backend_error
-from .acceptance import ProblemView, accept
-from .dense import DenseBackendFactory
+from .acceptance import ProblemView, accept, check_cone_point
+from .dense import DenseBackendFactory, DenseQP
 from .problem import ConvexProblem, Solution, SolverStatus
 from .reformulation import ConeReformulation
 from .tolerances import FIRST_ORDER, feasibility_tolerance, note_registered, optimality_tolerance
@@ -508,6 +508,9 @@ class Session:
         self.last_update: str | None = None
         #: Number of solver workspaces built so far.
         self.n_setups = 0
+        # hold a cone problem's OPTIMAL point to its distance from the local solution
+        # (acceptance.check_cone_point): set by solve(), off on the closed loops' sessions
+        self._check_points = False
 
     # ---------------------------------------------------------------------------------
     @property
@@ -677,6 +680,9 @@ class Session:
             raw, residuals = accept(
                 ProblemView.of_convex(self._solved), raw, self._feasibility, self._optimality
             )
+            if self._check_points and self._solved.has_cones and self.solver != "daqp:socp":
+                qp = DenseQP.from_convex_problem(self._solved)  # one-shot solve() only
+                raw = check_cone_point(qp, raw, self._optimality)
             raw_z = raw.z
             if raw_z is not None:
                 objective = self._solved.objective(raw_z)
@@ -724,5 +730,6 @@ def solve(
         raise_on_failure=raise_on_failure,
         **settings,
     )
+    session._check_points = True
     session.setup(problem)
     return session.solve(warm_start)

@@ -29,6 +29,7 @@ from .problem import ConvexProblem, SecondOrderCone, SolverStatus
 __all__ = [
     "FAULTS",
     "MpcLayout",
+    "epigraph_socp",
     "faulty",
     "infeasible_dense_qp",
     "infeasible_problem",
@@ -113,6 +114,62 @@ def infeasible_problem(n: int = 6, *, seed: int = 0, cone: bool = False) -> Conv
         lb=np.full(n, -10.0),
         ub=np.full(n, 10.0),
         cones=cones,
+    )
+
+
+def epigraph_socp(problem: ConvexProblem) -> ConvexProblem:
+    r"""The QP ``problem`` as a second-order-cone problem: its objective's epigraph as one cone.
+
+    The construction qpsolvers uses to hand a QP to ECOS: with :math:`P = L L^\top`
+    (here from the eigendecomposition, so a singular :math:`P` is allowed: its zero
+    eigenvalues are dropped) and a new last variable :math:`t`,
+
+    .. math::
+
+        \min_{x, t}\; t \quad\text{s.t. the rows and bounds of the QP and}\quad
+        \left\| \begin{pmatrix} L^\top x \\ t - q^\top x - \tfrac12 \end{pmatrix}
+        \right\| \le t - q^\top x + \tfrac12,
+
+    the cone being :math:`\tfrac12 x^\top P x + q^\top x \le t` (squared: :math:`\|L^\top
+    x\|^2 \le 2 (t - q^\top x)`). The SOCP has no quadratic term: all its curvature is in
+    the cone. It is solvable, infeasible or unbounded as the QP is, with solution
+    :math:`(x^*, \tfrac12 x^{*\top} P x^* + q^\top x^*)`.
+    """
+    n = problem.n_variables
+    P = problem.P.toarray() if sp.issparse(problem.P) else np.asarray(problem.P, dtype=np.float64)
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    keep = w > 1e-12 * max(1.0, float(w.max(initial=0.0)))
+    L = V[:, keep] * np.sqrt(w[keep])
+    q = np.asarray(problem.q, dtype=np.float64)
+    k = L.shape[1]
+    F = np.zeros((k + 1, n + 1))
+    F[:k, :n] = L.T
+    F[k, :n] = -q
+    F[k, n] = 1.0
+    g = np.zeros(k + 1)
+    g[k] = -0.5
+    e = np.zeros(n + 1)
+    e[:n] = -q
+    e[n] = 1.0
+
+    def pad(M: Any) -> sp.csc_matrix | None:
+        if M is None:
+            return None
+        return sp.csc_matrix(sp.hstack([sp.csc_matrix(M), sp.csc_matrix((M.shape[0], 1))]))
+
+    cost = np.zeros(n + 1)
+    cost[n] = 1.0
+    return ConvexProblem(
+        P=sp.csc_matrix((n + 1, n + 1)),
+        q=cost,
+        A_eq=pad(problem.A_eq),
+        b_eq=problem.b_eq,
+        G=pad(problem.G),
+        l=problem.l,
+        u=problem.u,
+        lb=None if problem.lb is None else np.append(problem.lb, -np.inf),
+        ub=None if problem.ub is None else np.append(problem.ub, np.inf),
+        cones=(SecondOrderCone(F=F, g=g, e=e, f=0.5),),
     )
 
 

@@ -2,7 +2,7 @@
 
 Re-created from their published data and solutions (no code copied):
 
-- ``QPSUT01`` ... ``QPSUT05``, ``QPTEST`` (Maros-Meszaros), ``QPGURDU``/``QPGURABS``/
+- ``QPSUT01`` ... ``QPSUT05``, ``sd3310``, ``QPTEST`` (Maros-Meszaros), ``QPGURDU``/``QPGURABS``/
   ``QPGUREQ`` (random, no published solution: the reference is the solution of its KKT
   system found by an active-set solver and checked here) and the sparse least-squares
   problem: qpsolvers, ``qpsolvers/problems.py`` and ``tests/problems.py``
@@ -129,6 +129,17 @@ def peers() -> dict[str, Peer]:
         SolverStatus.OPTIMAL,
         np.array([0.4, -0.4, 1.0]),
         {"eq": np.array([-5.8]), "ineq": np.zeros(2), "bounds": np.array([0.0, -1.8, 3.0])},
+    )
+    out["sd3310"] = Peer(  # qpsolvers' tests: 3 variables, 3 inequalities, 1 equality
+        _qp(
+            M.T @ M,
+            np.array([3.0, 2.0, 3.0]) @ M,
+            G=np.array([[1.0, 2.0, 1.0], [2.0, 0.0, 1.0], [-1.0, 2.0, -1.0]]),
+            h=np.array([3.0, 2.0, -2.0]),
+            A=np.ones((1, 3)),
+            b=np.array([1.0]),
+        ),
+        SolverStatus.OPTIMAL,
     )
     M2 = _m2()
     out["QPSUT02"] = Peer(
