@@ -68,14 +68,17 @@ from .dense import DenseBackend, DenseQP
 from .problem import ConvexProblem, SolverStatus
 from .tolerances import known_settings, solver_options
 
-#: cvxpy status string -> SolverStatus.
+#: cvxpy status string -> SolverStatus. cvxpy's ``*_inaccurate`` infeasible / unbounded
+#: statuses come without a certificate that meets the solver's tolerance (SCS returned
+#: ``unbounded_inaccurate`` on a solvable ill-conditioned SOCP): they map to FAILED, never to a
+#: statement about the problem (``native_status`` keeps cvxpy's word).
 STATUS_MAP: Mapping[str, SolverStatus] = {
     "optimal": SolverStatus.OPTIMAL,
     "optimal_inaccurate": SolverStatus.OPTIMAL_INACCURATE,
     "infeasible": SolverStatus.INFEASIBLE,
-    "infeasible_inaccurate": SolverStatus.INFEASIBLE,
+    "infeasible_inaccurate": SolverStatus.FAILED,
     "unbounded": SolverStatus.UNBOUNDED,
-    "unbounded_inaccurate": SolverStatus.UNBOUNDED,
+    "unbounded_inaccurate": SolverStatus.FAILED,
     "infeasible_or_unbounded": SolverStatus.FAILED,
     "user_limit": SolverStatus.MAX_ITER,
     "solver_error": SolverStatus.FAILED,

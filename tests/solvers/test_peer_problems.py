@@ -302,6 +302,8 @@ HONEST: dict[tuple[str, str, str], SolverStatus] = {
         SolverStatus.OPTIMAL_INACCURATE
     ),
     ("cvxpy:ECOS", "sparse least squares", BOTH): SolverStatus.OPTIMAL_INACCURATE,
+    # cvxpy's unbounded_inaccurate (no certificate at the tolerance) is FAILED, not UNBOUNDED
+    ("cvxpy:CLARABEL", "unbounded below with bounds", BOTH): SolverStatus.FAILED,
     ("daqp", "near-singular equalities", BOTH): SolverStatus.FAILED,
     ("daqp:socp", "near-singular equalities", BOTH): SolverStatus.FAILED,  # DAQP's -6
     ("osqp", "ill-conditioned (cond 1e8)", "solve"): SolverStatus.OPTIMAL_INACCURATE,

@@ -53,6 +53,9 @@ def _honest() -> dict[tuple[str, str, str], SolverStatus]:
         ("cvxpy:CLARABEL", "empty and infinite rows", SOLVE): I,  # 3.3e-5
         ("cvxpy:CLARABEL", ill, BOTH): F,  # cvxpy: "Solver 'CLARABEL' failed"
         ("cvxpy:ECOS", ill, SOLVE): M,
+        ("cvxpy:SCS", ill, BOTH): F,  # cvxpy's unbounded_inaccurate: no certificate
+        # right but uncertified: cvxpy's unbounded_inaccurate is FAILED, not UNBOUNDED
+        ("cvxpy:CLARABEL", "unbounded below with bounds", DENSE): F,
         ("cvxpy:ECOS", ill, DENSE): F,
         ("cvxpy:ECOS", "unbounded (P = vv', q not in range)", DENSE): F,
         ("clarabel", "QPSUT01", BOTH): F,  # InsufficientProgress
@@ -64,10 +67,10 @@ def _honest() -> dict[tuple[str, str, str], SolverStatus]:
     return table
 
 
-#: Wrong answers of other backends, out of issue 43's scope, kept visible (xfail; drop
-#: the entry once right). cvxpy maps SCS's ``unbounded_inaccurate`` on the
-#: cond-1e8 SOCP (solvable) to UNBOUNDED, without a certificate the layer could check.
-KNOWN_WRONG = {("cvxpy:SCS", "ill-conditioned (cond 1e8)")}
+#: Wrong answers of other backends, kept visible (xfail; drop the entry once right). Empty:
+#: SCS's ``unbounded_inaccurate`` on the cond-1e8 SOCP (solvable) was one until cvxpy's
+#: ``*_inaccurate`` infeasible / unbounded statuses mapped to FAILED (solvers/cvxpy_.py).
+KNOWN_WRONG: set[tuple[str, str]] = set()
 
 
 HONEST.update(_honest())
