@@ -17,6 +17,7 @@ from typing import Any
 __all__ = [
     "AVAILABLE",
     "REDUCTIONS",
+    "SOURCES_FINGERPRINT",
     "announce_compile",
     "build_workspace",
     "compile_notice",
@@ -59,9 +60,10 @@ def sources_fingerprint(roots: Sequence[Path]) -> str:
     return digest.hexdigest()
 
 
-def make_njit(roots: Sequence[Path]) -> Any:
+def make_njit(roots: Sequence[Path], fingerprint: str | None = None) -> Any:
     """numba's ``njit`` whose on-disk caches are valid only while no Python file under
-    ``roots`` has changed (the fingerprint of :func:`sources_fingerprint`, taken now).
+    ``roots`` has changed (the fingerprint of :func:`sources_fingerprint`, taken now
+    unless given as ``fingerprint``).
 
     numba checks a cached function against its own source file only, so a kernel that
     calls a kernel of another file (the one-call step calls the observer, the chord
@@ -87,7 +89,8 @@ def make_njit(roots: Sequence[Path]) -> Any:
             return wrap
 
         return stand_in
-    fingerprint = sources_fingerprint(roots)
+    if fingerprint is None:
+        fingerprint = sources_fingerprint(roots)
 
     def stamped(dispatcher: Any) -> Any:
         cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
@@ -112,9 +115,14 @@ try:  # pragma: no cover - numba is a core dependency
 except ImportError:  # pragma: no cover - exercised in a subprocess by the tests
     AVAILABLE = False
 
+#: The fingerprint of every source file of this package and its solver layer, taken at
+#: import (:func:`sources_fingerprint`): what the kernels' cache stamps carry, and what a
+#: failed background compile's marker records (:mod:`ltv_lstm_mpc.loop.kernels`).
+SOURCES_FINGERPRINT = sources_fingerprint(_kernel_packages()) if AVAILABLE else ""
+
 #: The one ``njit`` of every compiled kernel of this package and its solver layer
 #: (:func:`make_njit`: caches valid only while none of their source files has changed).
-njit = make_njit(_kernel_packages())
+njit = make_njit(_kernel_packages(), SOURCES_FINGERPRINT)
 
 
 #: LLVM flags of the compiled loops whose sums may run in any order (vectorized reductions,

@@ -234,8 +234,11 @@ def test_warm_up_caches_every_listed_kernel_from_an_empty_cache(config, tmp_path
 
 def test_the_background_process_compiles_and_cleans_up(tmp_path, monkeypatch) -> None:
     """start_background_compile: a detached process that runs warm_up and removes its
-    folder (kept, with the traceback, on a failure); once per set of missing kernels."""
+    folder (kept, with the traceback, on a failure: tests/test_background_compile.py);
+    once per set of missing kernels."""
     monkeypatch.setattr(kernels, "_started", set())
+    monkeypatch.setattr(kernels.tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
     monkeypatch.setattr(kernels.tempfile, "mkdtemp", lambda prefix: str(tmp_path / "job"))
     (tmp_path / "job").mkdir()
     model = load_model("ph_lstm_n5.npz")
@@ -253,7 +256,8 @@ def test_the_background_process_compiles_and_cleans_up(tmp_path, monkeypatch) ->
         pickle.dump(CONFIG, handle)
     monkeypatch.setattr(warmup, "uncached", lambda dispatchers: ["condense"])
     warmup.compile_in_background(str(failing))  # no model.npz: fails, folder kept
-    assert (failing / "config.pickle").exists()
+    assert not failing.exists()
+    assert (kernels.failure_folder() / "config.pickle").exists()
 
 
 def test_warm_up_leaves_the_configuration_cached() -> None:
