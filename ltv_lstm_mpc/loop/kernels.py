@@ -48,7 +48,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 from ltv_lstm_mpc import numba_support
 from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.numba_support import AVAILABLE, uncached
+from ltv_lstm_mpc.numba_support import AVAILABLE, load_cached, uncached
 
 if TYPE_CHECKING:  # pragma: no cover
     from ltv_lstm_mpc.lstm.model import LSTMModel
@@ -63,6 +63,7 @@ __all__ = [
     "controller_kernels",
     "failure_folder",
     "forget_failure",
+    "load_kernels",
     "record_failure",
     "start_background_compile",
 ]
@@ -146,6 +147,20 @@ def choose_kernels(config: MPCConfig, kernels: str = "auto") -> tuple[bool, list
     if kernels == "compiled":
         return True, missing
     return not missing, missing
+
+
+def load_kernels(config: MPCConfig, *, one_call_step: bool = True) -> list[str]:
+    """Load every compiled function a controller with ``config`` calls
+    (:func:`controller_kernels`; the one-call step's only with ``one_call_step``) from
+    numba's on-disk cache now, at the controller's construction, rather than at each
+    one's first call during the first steps
+    (:func:`~ltv_lstm_mpc.numba_support.load_cached`). Returns the names of those the
+    cache could not serve (they compile at their first call)."""
+    used = controller_kernels(config)
+    if not one_call_step:
+        step_module = "ltv_lstm_mpc.loop.compiled_step"
+        used = [kernel for kernel in used if getattr(kernel, "__module__", "") != step_module]
+    return load_cached(used)
 
 
 _started: set[tuple[str, ...]] = set()
