@@ -279,6 +279,9 @@ def load_cached(dispatchers: Sequence[Any]) -> list[str]:
     ``Dispatcher.compile``, which reads them from the cache): nothing compiles here unless
     such a file cannot be read (then it compiles now instead of at its first call).
 
+    A function that already has a compiled version in this process is skipped (the
+    next controllers of a process read no cache index).
+
     Returns
     -------
     list of str
@@ -290,6 +293,8 @@ def load_cached(dispatchers: Sequence[Any]) -> list[str]:
     nothing = []
     for dispatcher in dispatchers:
         name = getattr(dispatcher, "__name__", str(dispatcher))
+        if getattr(dispatcher, "signatures", None):
+            continue  # loaded or compiled in this process already (a later controller)
         try:
             cache = dispatcher._cache
             cache_file = cache._cache_file

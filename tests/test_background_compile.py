@@ -37,7 +37,7 @@ def temp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     monkeypatch.setenv("TMPDIR", str(tmp_path))
     monkeypatch.setattr(kernels, "_started", set())
-    monkeypatch.setattr(kernels, "_failure_reported", set())
+    monkeypatch.setattr(kernels, "_failure_reported", set(), raising=False)  # (older code)
     return tmp_path
 
 
@@ -185,8 +185,8 @@ def test_the_background_compile_of_a_model_without_ts(temp: Path) -> None:
         job,
         "import ltv_lstm_mpc.loop.warmup as w\nw.uncached = lambda dispatchers: ['condense']",
     )
-    log = kernels.failure_folder() / "log.txt"
-    assert _folders(temp) == [], log.read_text() if log.exists() else "no log"
+    left = {path.name: (path / "log.txt").read_text()[-2000:] for path in _folders(temp)}
+    assert left == {}  # the job's folder removed, no failure kept
 
 
 @pytest.mark.slow
