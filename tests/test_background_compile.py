@@ -68,7 +68,11 @@ def _failing_job(root: Path, name: str = "ltv_lstm_mpc-compile-test") -> Path:
     job = root / name
     job.mkdir()
     (job / "config.pickle").write_bytes(b"not a pickle")
-    job_spec = {"missing": MISSING, "fingerprint": numba_support.SOURCES_FINGERPRINT}
+    job_spec = {
+        "missing": MISSING,
+        "fingerprint": numba_support.SOURCES_FINGERPRINT,
+        "installation": kernels.failure_folder().name,
+    }
     (job / "job.json").write_text(json.dumps(job_spec))
     return job
 
@@ -125,6 +129,7 @@ def test_edited_sources_retry_once_and_a_second_failure_replaces_the_first(
     assert json.loads((job / "job.json").read_text()) == {
         "missing": MISSING,
         "fingerprint": "edited sources",
+        "installation": kept.name,
     }
     # that attempt fails too: it replaces the record, one folder kept, no more retries
     (job / "config.pickle").write_bytes(b"still not a pickle")
@@ -160,10 +165,14 @@ def test_a_killed_background_compile_is_recorded_not_piled_up(temp: Path, monkey
         (job / "log.txt").write_text("compiling...\n")
     unknown = temp / "ltv_lstm_mpc-compile-not-ours"  # no pid file: left alone
     unknown.mkdir()
+    other = _failing_job(temp, "ltv_lstm_mpc-compile-other-installation")
+    (other / "pid").write_text(str(finished.pid))
+    spec = json.loads((other / "job.json").read_text())
+    (other / "job.json").write_text(json.dumps({**spec, "installation": "elsewhere"}))
     monkeypatch.setattr(kernels.subprocess, "Popen", None)  # must not start
     with pytest.warns(RuntimeWarning, match=r"ended without finishing \(killed\?\)"):
         assert not kernels.start_background_compile(load_model("ph_lstm_n5.npz"), CONFIG, MISSING)
-    assert _folders(temp) == sorted([kernels.failure_folder(), unknown])
+    assert _folders(temp) == sorted([kernels.failure_folder(), unknown, other])
 
 
 def test_the_background_compile_of_a_model_without_ts(temp: Path) -> None:

@@ -306,9 +306,9 @@ def record_failure(job: Path, missing: Sequence[str], fingerprint: str, last_lin
             with contextlib.suppress(OSError):
                 shutil.copyfile(job / _LOG, target / _LOG)
             shutil.rmtree(job, ignore_errors=True)
-    with contextlib.suppress(OSError):
-        (target / _JOB).unlink(missing_ok=True)
-        (target / "pid").unlink(missing_ok=True)
+    for leftover in (_JOB, "pid"):
+        with contextlib.suppress(OSError):
+            (target / leftover).unlink(missing_ok=True)
     record = {"fingerprint": fingerprint, "missing": failed, "last_line": last_line}
     (target / _MARKER).write_text(json.dumps(record, indent=1))
     return target
@@ -352,10 +352,12 @@ def _sweep_abandoned() -> None:
     """Background compiles that ended without removing their folder or recording a failure
     (killed): recorded as failures (their folder becomes the one kept), so that folders do
     not pile up and the kernels are not retried every run. Only while no background compile
-    holds the lock; only folders this package started (with ``pid`` and ``job.json``)."""
+    holds the lock; only folders this installation started (``pid`` and ``job.json``
+    naming its :func:`failure_folder`: another installation's are its own to record)."""
     with compile_lock(wait=False) as held:
         if not held:
             return
+        target = failure_folder()
         for job in sorted(_temp_root().glob(_JOB_PREFIX + "*")):
             if job.name.startswith(_FAILED_PREFIX) or not job.is_dir():
                 continue
@@ -364,7 +366,7 @@ def _sweep_abandoned() -> None:
                 spec = json.loads((job / _JOB).read_text())
             except (OSError, ValueError):
                 continue  # not started yet, or not ours
-            if _alive(pid):
+            if spec.get("installation") != target.name or _alive(pid):
                 continue
             last = _last_line(job / _LOG)
             record_failure(
@@ -406,7 +408,11 @@ def start_background_compile(model: LSTMModel, config: MPCConfig, missing: list[
         model.save(folder / "model.npz")
         with open(folder / "config.pickle", "wb") as handle:
             pickle.dump(config, handle)
-        job = {"missing": list(missing), "fingerprint": numba_support.SOURCES_FINGERPRINT}
+        job = {
+            "missing": list(missing),
+            "fingerprint": numba_support.SOURCES_FINGERPRINT,
+            "installation": failure_folder().name,
+        }
         (folder / _JOB).write_text(json.dumps(job))
         code = (
             f"import sys; sys.path[:0] = {[p for p in sys.path if p]!r}; "
