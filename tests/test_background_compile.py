@@ -108,6 +108,38 @@ def test_a_failure_is_kept_reported_once_and_not_retried(temp: Path, monkeypatch
     assert _folders(temp) == [kept]
 
 
+def test_a_failing_background_compile_is_not_started_again(temp: Path, monkeypatch) -> None:
+    """Through start_background_compile alone (the issue's symptom, as a user sees it):
+    a background compile that fails (here: an unreadable model file, with an empty numba
+    cache so that it reads it) is not started again by the next run, which warns once
+    with the log's last line and the log file; one folder is left."""
+    from ltv_lstm_mpc.lstm.model import LSTMModel
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(temp / "empty-cache"))
+    monkeypatch.setattr(LSTMModel, "save", lambda self, path: Path(path).write_bytes(b"no"))
+    model = load_model("ph_lstm_n5.npz")
+    assert kernels.start_background_compile(model, CONFIG, MISSING)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline:  # until its traceback's last line is in a log
+        logs = [path / "log.txt" for path in _folders(temp)]
+        if any("Error" in log.read_text().strip()[-300:] for log in logs if log.exists()):
+            break
+        time.sleep(0.5)
+    time.sleep(1.0)  # its last writes
+    (folder,) = _folders(temp)
+    last = (folder / "log.txt").read_text().strip().splitlines()[-1]
+
+    monkeypatch.setattr(kernels, "_started", set())  # the next run
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        started = kernels.start_background_compile(model, CONFIG, MISSING)
+    assert not started
+    assert [str(w.category.__name__) for w in caught] == ["RuntimeWarning"]
+    assert last in str(caught[0].message)
+    assert str(folder / "log.txt") in str(caught[0].message)
+    assert _folders(temp) == [folder]
+
+
 def test_edited_sources_retry_once_and_a_second_failure_replaces_the_first(
     temp: Path, monkeypatch
 ) -> None:
