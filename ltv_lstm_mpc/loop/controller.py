@@ -44,7 +44,7 @@ from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
 from ltv_lstm_mpc.mpc.rti import RobustMPC
-from ltv_lstm_mpc.numba_support import entry_point
+from ltv_lstm_mpc.numba_support import entry_point, prime_typeof
 from ltv_lstm_mpc.validation import (
     expect_bool,
     expect_instance,
@@ -352,6 +352,8 @@ class OffsetFreeController(DeferredState):
         self._prepared: tuple[Any, ...] | None = None  # what prepare_next prepared
         #: The one-call step's constants and buffers (None: the general path only).
         self._one_call: Any = self._one_call_workspace() if mpc is None and one_call_step else None
+        if self.kernels == "compiled":
+            prime_typeof()  # the first compiled steps then type their workspaces at once
         #: This run's records (a read-only sequence of :class:`ControllerStep`).
         self.records: ControllerRecords = ControllerRecords(self._recorded_step)
         self.reset()
