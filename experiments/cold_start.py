@@ -12,9 +12,15 @@ on-disk cache starts empty there), then runs one child process per row:
 
 Each row prints wall times of ``import ltv_lstm_mpc``, of the first use of the names, of
 the controller's construction (``OffsetFreeController(model, MPCConfig(solver=...))``), of
-its first step on the pH plant and of the next 20 steps, and the kernels it ran.
+its first step on the pH plant and of the next 20 steps (and their mean step against the
+median step of the 200 steps after them: near 1 where no kernel loads during the first
+steps), and the kernels it ran.
 
-    python experiments/cold_start.py [--solver daqp] [--blocking]
+``--source DIR`` measures the warm-cache row alone on a copy made before (a folder holding
+``ltv_lstm_mpc`` with ``solvers`` inside it, its numba cache warm: e.g. ``git archive`` of
+an older commit, warmed once), ``--repeats`` times.
+
+    python experiments/cold_start.py [--solver daqp] [--blocking] [--source DIR] [--repeats K]
 """
 
 from __future__ import annotations
@@ -48,8 +54,16 @@ t4 = time.perf_counter()
 for _ in range(20):
     u = controller.step(plant.step(u), np.array([7.2]))
 t5 = time.perf_counter()
+steps = []
+for _ in range(200):
+    start = time.perf_counter()
+    u = controller.step(plant.step(u), np.array([7.2]))
+    steps.append(time.perf_counter() - start)
+median = float(np.median(steps))
 print(f"import {{t1 - t0:.3f}} s, names {{t2 - t1:.2f}} s, construction {{t3 - t2:.2f}} s, "
-      f"first step {{t4 - t3:.2f}} s, next 20 steps {{t5 - t4:.3f}} s ({{controller.kernels}})")
+      f"first step {{t4 - t3:.2f}} s, next 20 steps {{t5 - t4:.3f}} s "
+      f"({{(t5 - t4) / 20 / median:.1f}}x the median step of the 200 after them, "
+      f"{{median * 1e3:.3f}} ms) ({{controller.kernels}})")
 if {wait!r}:
     from ltv_lstm_mpc.loop.kernels import choose_kernels
     while choose_kernels(config)[1] and time.perf_counter() - t3 < 600:
@@ -64,10 +78,20 @@ def main() -> None:
     parser.add_argument(
         "--blocking", action="store_true", help="also: empty cache, kernels='compiled'"
     )
+    parser.add_argument(
+        "--source",
+        type=Path,
+        help="measure the warm-cache row alone on this copy (its numba cache warm)",
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=1, help="warm-cache rows (default: %(default)s)"
+    )
     args = parser.parse_args()
-    runs = [("empty cache", "auto", True, True), ("warm cache", "auto", False, False)]
+    runs = [("empty cache", "auto", True, True)] if args.source is None else []
+    runs += [("warm cache", "auto", False, False)] * args.repeats
     if args.blocking:
         runs.append(("empty cache", "compiled", False, True))
+    source = args.source
     with tempfile.TemporaryDirectory() as tmp:
         for label, kernels, wait, fresh in runs:
             folder = Path(tmp) / f"{label}-{kernels}".replace(" ", "-")

@@ -13,6 +13,7 @@ and counts every occurrence of each kind, shown or not.
 
 from __future__ import annotations
 
+import linecache
 import sys
 import warnings
 from types import FrameType
@@ -55,15 +56,35 @@ def warn_at_caller(
     if frame is None:  # pragma: no cover - the library is always called from somewhere
         warnings.warn(message, category, stacklevel=2)
         return
+    filename = frame.f_code.co_filename
+    _prime_source_lines(filename, frame.f_globals)
     warnings.warn_explicit(
         message,
         category,
-        frame.f_code.co_filename,
+        filename,
         frame.f_lineno,
         module=frame.f_globals.get("__name__"),
         registry={} if registry is None else registry,
-        module_globals=frame.f_globals,
     )
+
+
+def _prime_source_lines(filename: str, module_globals: dict[str, Any]) -> None:
+    """Let :mod:`linecache` find the source of ``filename`` through its module's loader
+    (a zip import, a notebook cell), so the warning shows the caller's line.
+
+    What ``warnings.warn_explicit(..., module_globals=...)`` would do, minus its failure:
+    CPython's implementation asks the loader ``get_source(module_globals["__name__"])``
+    itself and lets its error escape, and the module named ``__main__`` is one no loader
+    serves under that name (``python -c``, ``python -`` and a frozen ``__main__``: the
+    built-in or frozen importer raises ``ImportError: '__main__' is not a built-in
+    module``; ``python -m pkg.mod``: its file loader refuses the name ``__main__``).
+    :func:`linecache.getlines` tolerates that; any other error of a loader costs only
+    the source line.
+    """
+    try:
+        linecache.getlines(filename, module_globals)
+    except Exception:  # a loader's own failure: the warning goes out without the line
+        pass
 
 
 class RunWarnings:

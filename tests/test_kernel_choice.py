@@ -234,8 +234,11 @@ def test_warm_up_caches_every_listed_kernel_from_an_empty_cache(config, tmp_path
 
 def test_the_background_process_compiles_and_cleans_up(tmp_path, monkeypatch) -> None:
     """start_background_compile: a detached process that runs warm_up and removes its
-    folder (kept, with the traceback, on a failure); once per set of missing kernels."""
+    folder (kept, with the traceback, on a failure: tests/test_background_compile.py);
+    once per set of missing kernels."""
     monkeypatch.setattr(kernels, "_started", set())
+    monkeypatch.setattr(kernels.tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
     monkeypatch.setattr(kernels.tempfile, "mkdtemp", lambda prefix: str(tmp_path / "job"))
     (tmp_path / "job").mkdir()
     model = load_model("ph_lstm_n5.npz")
@@ -253,7 +256,40 @@ def test_the_background_process_compiles_and_cleans_up(tmp_path, monkeypatch) ->
         pickle.dump(CONFIG, handle)
     monkeypatch.setattr(warmup, "uncached", lambda dispatchers: ["condense"])
     warmup.compile_in_background(str(failing))  # no model.npz: fails, folder kept
-    assert (failing / "config.pickle").exists()
+    assert not failing.exists()
+    assert (kernels.failure_folder() / "config.pickle").exists()
+
+
+LOADED = """
+import json
+from ltv_lstm_mpc import MPCConfig, OffsetFreeController, load_model
+from ltv_lstm_mpc.loop.kernels import controller_kernels
+config = MPCConfig(solver="daqp", L_d=0.1)
+controller = OffsetFreeController(load_model("ph_lstm_n5.npz"), config)
+print(json.dumps({
+    "kernels": controller.kernels,
+    "unloaded": sorted(k.__name__ for k in controller_kernels(config) if not k.signatures),
+}))
+"""
+
+
+def test_a_warm_cache_is_loaded_at_construction() -> None:
+    """Issue 42: with a warm cache, numba loaded each kernel at its first call, so the
+    first steps took some 5 ms each; now the construction loads every kernel of the
+    configuration (checked in a fresh process: each has its compiled version)."""
+    import os
+
+    warmup.warm_up(load_model("ph_lstm_n5.npz"), CONFIG)  # the cache is warm
+    environment = dict(os.environ)
+    environment.pop("LTV_LSTM_MPC_KERNEL", None)  # "auto", as a user has it
+    result = subprocess.run(
+        [sys.executable, "-c", LOADED], capture_output=True, text=True, env=environment
+    )
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout.strip().splitlines()[-1]) == {
+        "kernels": "compiled",
+        "unloaded": sorted(kernels.PREPARED_STEP_KERNELS),  # at the first prepare_next
+    }
 
 
 def test_warm_up_leaves_the_configuration_cached() -> None:

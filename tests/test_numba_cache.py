@@ -108,3 +108,42 @@ def test_a_cached_caller_sees_its_edited_callee(tmp_path: Path, plain: bool) -> 
     callee.write_text(callee.read_text().replace("return 1", "return 2"))
     _touch_later(callee)
     assert run() == ("11" if plain else "12")
+
+
+LOADER_FILES = {
+    "__init__.py": "",
+    "kernels.py": (
+        "from pathlib import Path\n\nfrom ltv_lstm_mpc.numba_support import make_njit\n\n"
+        "njit = make_njit([Path(__file__).parent])\n\n\n"
+        "@njit(cache=True)\ndef used(x):\n    return x + 1\n\n\n"
+        "@njit(cache=True)\ndef never_called(x):\n    return x - 1\n"
+    ),
+}
+
+
+def test_load_cached_loads_what_the_cache_holds_and_compiles_nothing(tmp_path: Path) -> None:
+    """numba loads a cached kernel at its first call; load_cached loads it now (the
+    controller's construction), and leaves a kernel the cache lacks uncompiled."""
+    pytest.importorskip("numba")
+    package = tmp_path / "pkgl"
+    package.mkdir()
+    for name, text in LOADER_FILES.items():
+        (package / name).write_text(text)
+    prelude = f"import sys\nsys.path.insert(0, {str(tmp_path)!r})\nfrom pkgl import kernels\n"
+
+    def run(code: str) -> str:
+        result = subprocess.run(
+            [sys.executable, "-c", prelude + code], capture_output=True, text=True, check=True
+        )
+        return result.stdout.strip()
+
+    assert run("print(kernels.used(1))") == "2"  # compiled and cached
+    loaded = run(
+        "from ltv_lstm_mpc.numba_support import load_cached\n"
+        "nothing = load_cached([kernels.used, kernels.never_called])\n"
+        "print(nothing, len(kernels.used.signatures), len(kernels.never_called.signatures),"
+        " sum(kernels.used.stats.cache_hits.values()),"
+        " sum(kernels.used.stats.cache_misses.values()))\n"
+        "print(kernels.used(1))\n"
+    )
+    assert loaded.splitlines() == ["['never_called'] 1 0 1 0", "2"]

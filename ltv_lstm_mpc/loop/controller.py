@@ -44,7 +44,7 @@ from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.config import MPCConfig, require_config
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution, MPCSolver
 from ltv_lstm_mpc.mpc.rti import RobustMPC
-from ltv_lstm_mpc.numba_support import entry_point
+from ltv_lstm_mpc.numba_support import entry_point, prime_typeof
 from ltv_lstm_mpc.validation import (
     expect_bool,
     expect_instance,
@@ -87,11 +87,18 @@ def _same_arguments(now: tuple[int, float, float], prepared: tuple[int, float, f
     return now[0] == prepared[0] and now[1] == prepared[1] and same_limit
 
 
-def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
+def _choose_kernels(
+    model: LSTMModel, config: MPCConfig, kernels: str, *, one_call_step: bool = True
+) -> None:
     """Give ``model`` the kernel ``kernels`` asks for (:mod:`ltv_lstm_mpc.loop.kernels`):
     compiled or the numpy reference; say once what happens (compiling now, or the numpy
-    reference while a background process compiles)."""
-    from ltv_lstm_mpc.loop.kernels import choose_kernels, start_background_compile
+    reference while a background process compiles). Compiled: load now every kernel the
+    cache holds (not at the first steps: :func:`~ltv_lstm_mpc.loop.kernels.load_kernels`)."""
+    from ltv_lstm_mpc.loop.kernels import (
+        choose_kernels,
+        load_kernels,
+        start_background_compile,
+    )
     from ltv_lstm_mpc.lstm.kernel import LSTMKernel
     from ltv_lstm_mpc.numba_support import compile_notice, compile_on_demand, say_once
 
@@ -101,6 +108,7 @@ def _choose_kernels(model: LSTMModel, config: MPCConfig, kernels: str) -> None:
         model.kernel.automatic = kernels == "auto"
     if model.kernel.compiled:
         compile_on_demand()  # the solver layer's helpers compile too
+        load_kernels(config, one_call_step=one_call_step)
     if not missing:
         return
     if model.kernel.compiled:
@@ -304,7 +312,7 @@ class OffsetFreeController(DeferredState):
         self.model = model
         self.config = config = config or MPCConfig()
         if mpc is None:
-            _choose_kernels(model, config, kernels)
+            _choose_kernels(model, config, kernels, one_call_step=one_call_step)
         #: ``"compiled"`` or ``"numpy"``: the kernels this controller runs (see ``kernels``).
         self.kernels = "compiled" if model.kernel.compiled else "numpy"
         self.mpc: MPCSolver = mpc if mpc is not None else RobustMPC(model, config)
@@ -344,6 +352,8 @@ class OffsetFreeController(DeferredState):
         self._prepared: tuple[Any, ...] | None = None  # what prepare_next prepared
         #: The one-call step's constants and buffers (None: the general path only).
         self._one_call: Any = self._one_call_workspace() if mpc is None and one_call_step else None
+        if self.kernels == "compiled":
+            prime_typeof()  # the first compiled steps then type their workspaces at once
         #: This run's records (a read-only sequence of :class:`ControllerStep`).
         self.records: ControllerRecords = ControllerRecords(self._recorded_step)
         self.reset()

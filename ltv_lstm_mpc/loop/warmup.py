@@ -5,16 +5,22 @@ background process that ``kernels="auto"`` starts on an empty numba cache."""
 from __future__ import annotations
 
 import copy
+import json
 import pickle
 import shutil
-import tempfile
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ltv_lstm_mpc.loop.controller import OffsetFreeController
-from ltv_lstm_mpc.loop.kernels import controller_kernels
+from ltv_lstm_mpc.loop.kernels import (
+    compile_lock,
+    controller_kernels,
+    forget_failure,
+    record_failure,
+)
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
 from ltv_lstm_mpc.lstm.model import LSTMModel
 from ltv_lstm_mpc.numba_support import uncached
@@ -31,10 +37,13 @@ def warm_up(model: LSTMModel, config: MPCConfig, *, steps: int = 3) -> float:
     the equilibrium of ``u = 0`` with the model as its own plant (and a few steps
     prepared between samples, :meth:`OffsetFreeController.prepare_next
     <ltv_lstm_mpc.OffsetFreeController.prepare_next>`). Returns the wall time
-    in seconds. ``ltv-lstm-mpc warmup`` calls it."""
+    in seconds. ``ltv-lstm-mpc warmup`` calls it. A failed background compile recorded
+    for these kernels (:func:`~ltv_lstm_mpc.loop.kernels.compile_failure`) is forgotten
+    once they compiled."""
     import time
 
     start = time.perf_counter()
+    missing = uncached(controller_kernels(config))
     twin = copy.copy(model)  # the same weights, its own compiled kernel
     twin.kernel = LSTMKernel(twin, compiled=True)
     controller = OffsetFreeController(twin, config, kernels="compiled")
@@ -51,31 +60,44 @@ def warm_up(model: LSTMModel, config: MPCConfig, *, steps: int = 3) -> float:
 
     if daqp_socp.socp_solve in controller_kernels(config):  # its Python entry: the
         daqp_socp.warm_up()  # general path's, where the one-call feedback falls back
+    if missing:
+        forget_failure(missing)
     return time.perf_counter() - start
 
 
 def compile_in_background(folder: str) -> None:
     """The background process of
     :func:`~ltv_lstm_mpc.loop.kernels.start_background_compile`: one at a time (a lock
-    file in the temporary folder), skip if another has compiled everything meanwhile;
-    remove ``folder`` when done, keep it with the traceback in ``log.txt`` on a failure."""
+    file in the temporary folder), skip if another has compiled everything meanwhile.
+    Removes ``folder`` when done (and the record of an earlier failure of the same
+    kernels); on a failure, prints the traceback into ``log.txt`` and keeps the folder as
+    the one :func:`~ltv_lstm_mpc.loop.kernels.failure_folder`, marked with the fingerprint
+    of the sources, so that the next runs report it instead of trying again."""
+    import sys
     import traceback
 
-    path = Path(folder)
-    lock_path = Path(tempfile.gettempdir()) / "ltv_lstm_mpc-compile.lock"
-    try:
-        with open(lock_path, "a") as lock:
-            try:
-                import fcntl
+    from ltv_lstm_mpc.numba_support import SOURCES_FINGERPRINT
 
-                fcntl.flock(lock, fcntl.LOCK_EX)
-            except ImportError:  # pragma: no cover - no POSIX locks: compile anyway
-                pass
+    path = Path(folder)
+    try:
+        missing = list(json.loads((path / "job.json").read_text())["missing"])
+    except (OSError, ValueError, KeyError, TypeError):  # started by an older version
+        missing = []
+    with compile_lock():
+        try:
             with open(path / "config.pickle", "rb") as handle:
                 config = pickle.load(handle)
             if uncached(controller_kernels(config)):
-                warm_up(LSTMModel.load(path / "model.npz"), config)
-    except Exception:
-        traceback.print_exc()  # into log.txt (the folder stays for a look)
-        return
+                with warnings.catch_warnings():  # e.g. a model file without Ts: not news
+                    warnings.simplefilter("ignore", UserWarning)
+                    model = LSTMModel.load(path / "model.npz")
+                warm_up(model, config)
+        except Exception:
+            traceback.print_exc()  # into log.txt
+            sys.stdout.flush()
+            sys.stderr.flush()
+            last = traceback.format_exc().strip().splitlines()[-1]
+            record_failure(path, missing, SOURCES_FINGERPRINT, last)
+            return
+        forget_failure(missing)
     shutil.rmtree(path, ignore_errors=True)
