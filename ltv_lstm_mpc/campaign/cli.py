@@ -93,9 +93,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--offset-tolerance",
         type=nonnegative_float,
-        default=1e-3,
+        default=None,
         metavar="TOL",
-        help="final offset (output units) above which a loop counts as failed (default 1e-3)",
+        help=(
+            "offset (output units) above which a loop counts as failed (default: the spec's "
+            "[campaign].offset_tolerance, else 1e-3)"
+        ),
     )
     parser.add_argument("--no-report", action="store_true", help="skip report.md and the plots")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
