@@ -119,12 +119,21 @@ def _plan(args: argparse.Namespace) -> int:
     if args.spec is None:
         return 0
     spec = _load(args.spec)
-    strata = len(spec.tasks) // max(spec.random.samples, 1)
-    if not spec.random.active:
+    strata = len({repr([t.settings.get(n) for n in spec.strata]) for t in spec.tasks})
+    per_stratum = len(spec.tasks) // max(strata, 1)
+    if not spec.random.active and not spec.replications:
         print(
-            f"{args.spec}: no [random] table, so its {len(spec.tasks)} tasks are not i.i.d. "
-            f"draws; add [random] with samples = {needed} (and the distributions of the "
-            "settings to sample)"
+            f"{args.spec}: no [random] table and no replications, so its {len(spec.tasks)} "
+            f"tasks are not i.i.d. draws; add [random] with samples = {needed} (and the "
+            "distributions of the settings to sample), or a seed factor with that many seeds"
+        )
+        return 0
+    if spec.replications:
+        enough = "enough" if per_stratum >= needed else f"{needed} needed"
+        pooled = ", ".join(spec.replications)
+        print(
+            f"{args.spec}: {per_stratum} loops per stratum (replications {pooled} pooled), "
+            f"{strata} strata, {len(spec.tasks)} tasks: {enough}"
         )
         return 0
     enough = "enough" if spec.random.samples >= needed else f"set samples = {needed}"

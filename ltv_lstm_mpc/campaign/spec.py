@@ -51,6 +51,20 @@ in every stratum (common random numbers; :class:`RandomFactors`). The strata of 
 statistical statements (:mod:`~ltv_lstm_mpc.campaign.statements`) are the levels of the
 ``[factors]`` and ``[[cases]]`` settings (:attr:`CampaignSpec.strata`): within one, the
 draws are i.i.d., which is what the Clopper-Pearson bound assumes.
+
+Replications are not strata: a ``seed`` factor (``seed = [0, 1, ..., 7]``, the natural way
+to ask for eight replications) and any factor listed in ``[campaign].replications``
+(default ``["seed"]``; an explicit list replaces it, ``[]`` keeps the seeds as strata) are
+pooled into their stratum's statement, so eight seeds give one statement over eight loops
+(bound 0.31 at 95 % without a failure). With ``[random]``, replication r takes the draws
+``r * samples + j`` so that no two pooled loops share a draw; seeds without measurement
+noise (``noise_std = 0``) repeat one deterministic loop and count once.
+
+The ``offset`` outcome of the statements tests the offset measured over the last
+``offset_window`` samples of each constant segment (a setting, default
+:data:`DEFAULT_OFFSET_WINDOW`; the mean of the noise-free plant output's error) against
+``[campaign].offset_tolerance`` (output units, default 1e-3; ``campaign
+--offset-tolerance`` overrides it).
 """
 
 from __future__ import annotations

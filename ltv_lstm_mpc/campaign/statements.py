@@ -350,4 +350,19 @@ def format_statements(statements: Sequence[Statement]) -> list[str]:
             f"| {cells} | {statement.description} | {statement.failures} / {statement.loops} "
             f"| {statement.errors} | {statement.upper_bound:.3g} |"
         )
+    pooled = sorted({name for statement in statements for name in statement.pooled})
+    if pooled:
+        lines += [
+            "",
+            f"Replications pooled into each stratum: {', '.join(pooled)} (its levels repeat "
+            "the stratum's loop with other noise; they are loops of one statement, not strata).",
+        ]
+    duplicates = max((statement.duplicates for statement in statements), default=0)
+    if duplicates:
+        lines += [
+            "",
+            "Rows without measurement noise (noise_std = 0) that differ only in the noise "
+            "seed are one deterministic loop and count once (the loops column counts "
+            "distinct loops).",
+        ]
     return lines
