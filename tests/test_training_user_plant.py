@@ -21,12 +21,7 @@ import pytest
 import training_factories
 
 from ltv_lstm_mpc.training.datasets import IdentificationDataset, generate_dataset
-from ltv_lstm_mpc.training.train import (
-    TrainingConfig,
-    TrainingError,
-    escalation_factor,
-    preflight,
-)
+from ltv_lstm_mpc.training.train import TrainingConfig, TrainingError
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +58,8 @@ def test_tank_plant_is_no_ph_plant(tank_dataset: IdentificationDataset) -> None:
 def test_preflight_states_range_constraint_and_time_constant_in_the_plants_units(
     tank_dataset: IdentificationDataset,
 ) -> None:
+    from ltv_lstm_mpc.training.train import preflight
+
     lines = preflight(tank_dataset, TrainingConfig.fidelity())
     text = "\n".join(lines)
     assert "h (cm)" in text and "[10, 45]" in text
@@ -73,6 +70,8 @@ def test_preflight_states_range_constraint_and_time_constant_in_the_plants_units
 def test_preflight_refuses_a_constraint_that_leaves_no_setpoint_before_training(
     tiny_dataset: IdentificationDataset,
 ) -> None:
+    from ltv_lstm_mpc.training.train import preflight
+
     narrow = _with_constraint(tiny_dataset, 7.0, 7.2)
     with pytest.raises(TrainingError, match=r"before training: .* 4 d_max = 0\.4") as info:
         preflight(narrow, TrainingConfig.fidelity())
@@ -86,6 +85,8 @@ def test_preflight_refuses_a_constraint_that_leaves_no_setpoint_before_training(
 
 
 def test_escalation_only_in_the_extra_epochs() -> None:
+    from ltv_lstm_mpc.training.train import escalation_factor
+
     config = TrainingConfig(epochs=80, escalate_every=50)
     assert [escalation_factor(e, config) for e in (0, 79, 80, 129, 130, 180)] == [
         1.0,
@@ -180,8 +181,8 @@ def test_the_planned_epochs_are_unchanged_by_the_escalation(
     from ltv_lstm_mpc.training.train import train
 
     config = training_factories.tiny_config(epochs=6, max_extra_epochs=6)
-    runs = []
-    for every in (50, 0):
+    histories: dict[int, list[dict[str, float]]] = {50: [], 0: []}
+    for every, history in histories.items():
         try:
             train(
                 tiny_dataset,
@@ -189,12 +190,11 @@ def test_the_planned_epochs_are_unchanged_by_the_escalation(
                 tmp_path / str(every),
                 progress=False,
                 resume=False,
-                callback=lambda record, every=every: runs.append((every, record)),
+                callback=history.append,
             )
         except TrainingError:
             pass  # 12 epochs may not certify: the histories are what is compared
-    escalated = [r for e, r in runs if e == 50]
-    paper = [r for e, r in runs if e == 0]
+    escalated, paper = histories[50], histories[0]
     assert escalated[:6] == paper[:6]
     assert escalated[6]["loss"] != paper[6]["loss"]
 
@@ -212,7 +212,7 @@ def test_cli_train_reports_the_interval_and_has_the_switch(
     args = parser.parse_args(
         [
             *("train", "--data", str(data), "--out", str(tmp_path / "run"), "--epochs", "5"),
-            *("--lr", "0.02", "--no-progress", "--checkpoint-every", "0"),
+            *("--preset", "paper", "--lr", "0.02", "--no-progress", "--checkpoint-every", "0"),
             *("--max-extra-epochs", "25", "--selection-rho-s-max", "0.05"),
         ]
     )
