@@ -39,14 +39,26 @@ Design choices the paper leaves open
 * **Stopping rule (paper).** After ``epochs`` epochs training stops only if the current weights
   are certified delta-ISS (numpy certificate on the exported float64 weights,
   :math:`\rho(A_\delta) < 1`) and an eligible checkpoint exists; otherwise it continues, at
-  most ``max_extra_epochs`` more. If no evaluated weights were ever eligible,
-  :class:`TrainingError` is raised.
+  most ``max_extra_epochs`` more, with :math:`\lambda_1, \lambda_2` doubled every
+  ``escalate_every`` of them (:func:`escalation_factor`; a run that stops at the planned
+  epochs is untouched). If no evaluated weights were ever eligible,
+  :class:`TrainingError` is raised, naming the first selection constraint that failed
+  (Assumption 2, certify, the :math:`\rho_s` bound, the set-point interval) and its number.
 * **Model selection.** At every evaluation the exported float64 model is simulated on the
   validation split from its exact equilibrium (the FIT below). A checkpoint is eligible if
   it passes :func:`~ltv_lstm_mpc.certify` with the paper's settings
-  (Assumption 2, Lemma 2, Theorem 2, tightening) and, with ``selection_rho_s_max``, has
-  :math:`\rho_s` at most that; the exported model is the eligible one with the best
-  validation FIT. The test split is evaluated once, on the exported model.
+  (Assumption 2, Lemma 2, Theorem 2, tightening), has a non-empty admissible set-point
+  interval (Assumption 5) at the paper's :math:`d_{max} = 0.1` and, with
+  ``selection_rho_s_max``, :math:`\rho_s` at most that; the exported model is the
+  eligible one with the best validation FIT. Where no checkpoint meets the
+  :math:`\rho_s` bound (tuned on the pH data) the best certified one with a non-empty
+  interval is kept and the report says so (``selection_fallback``); one with an empty
+  interval only with ``allow_empty_interval``. The test split is evaluated once, on the
+  exported model.
+* **Checks before training.** :func:`preflight` compares the output constraint with the
+  data's output range (no model has an admissible set-point where the normalized
+  constraint is at most :math:`4 d_{max}` wide) and states the data's first-order time
+  constant in samples (slow dynamics per sample push :math:`\rho_s` towards 1).
 * **Loss schedule.** ``delta_iss_margin`` switches the :math:`\lambda_2` margin term off
   while :math:`\rho(A_\delta) \le 1 - margin` (with it always on, the margin keeps
   growing at the expense of the fit: measured in ``experiments/training_log.md``);
@@ -569,10 +581,10 @@ def selection_certificate(model: LSTMModel, config: TrainingConfig) -> tuple[boo
     :func:`~ltv_lstm_mpc.certify` with the paper's settings
     (``u_max`` and ``Q_s`` of the config) succeeds (Assumption 2, Lemma 2, Theorem 2 and
     the tightening of eq. constraint_tightening_parameters) and, with
-    ``selection_rho_s_max``, :math:`\rho_s` is at most that. The admissible set-point
-    interval of Assumption 5 depends on the :math:`d_{max}` the user will choose, so an
-    empty one at the paper's :math:`d_{max}` is reported (``setpoint_interval_phi``), not
-    a reason to reject.
+    ``selection_rho_s_max``, :math:`\rho_s` is at most that. :func:`train` also needs a
+    non-empty admissible set-point interval of Assumption 5 at the paper's
+    :math:`d_{max} = 0.1` (:func:`check_checkpoint`; the default :math:`d_{max}` of the
+    controller), unless ``allow_empty_interval``.
 
     Returns
     -------
@@ -792,6 +804,7 @@ def preflight(dataset: IdentificationDataset, config: TrainingConfig) -> list[st
     high_v = np.broadcast_to(np.asarray(high, dtype=np.float64), (p,))
     low_n, high_n = normalization.normalize_y(low_v), normalization.normalize_y(high_v)
     unit = str(dataset.metadata.get("units", {}).get("y_phi", "output units"))
+    labels = unit.split(", ") if len(unit.split(", ")) == p else [unit] * p
     Ts = dataset.metadata.get("Ts")
     lines: list[str] = []
     u_n, y_n = normalization.normalize_u(u), normalization.normalize_y(y)
@@ -800,20 +813,20 @@ def preflight(dataset: IdentificationDataset, config: TrainingConfig) -> list[st
         width = float(high_n[j] - low_n[j])
         overlap = min(high_v[j], y_hi) - max(low_v[j], y_lo)
         lines.append(
-            f"output {j}: training data span [{y_lo:.4g}, {y_hi:.4g}] {unit}, output "
+            f"output {j} ({labels[j]}): training data span [{y_lo:.4g}, {y_hi:.4g}], output "
             f"constraint [{low_v[j]:.4g}, {high_v[j]:.4g}] (normalized "
             f"[{low_n[j]:.3f}, {high_n[j]:.3f}], width {width:.3f})"
         )
         problem = ""
         if overlap <= 0:
             problem = (
-                f"the output constraint [{low_v[j]:.4g}, {high_v[j]:.4g}] {unit} does not "
+                f"the output constraint [{low_v[j]:.4g}, {high_v[j]:.4g}] ({labels[j]}) does not "
                 f"overlap the data's outputs [{y_lo:.4g}, {y_hi:.4g}]: check the plant's "
                 "y_phi_constraint and its units, or generate data that reach the constraint"
             )
         elif width <= 4.0 * 0.1:
             problem = (
-                f"the output constraint [{low_v[j]:.4g}, {high_v[j]:.4g}] {unit} is "
+                f"the output constraint [{low_v[j]:.4g}, {high_v[j]:.4g}] ({labels[j]}) is "
                 f"{width:.3f} wide in normalized units (the data's outputs "
                 f"[{y_lo:.4g}, {y_hi:.4g}] map to [-1, 1]), not more than 4 d_max = 0.4: "
                 "the admissible set-point interval of Assumption 5 is empty for any model. "
