@@ -360,9 +360,10 @@ def _interval_lines(report: dict[str, Any]) -> list[str]:
             continue
         value = intervals[key]
         if value is None:
+            reason = str(errors.get(key, "empty"))
             lines.append(
-                f"admissible set-point interval (Assumption 5, {label}): empty "
-                f"({errors.get(key, 'no admissible set-point')})"
+                f"admissible set-point interval (Assumption 5, {label}): "
+                + ("empty" if reason.startswith("empty") else f"none ({reason})")
             )
             continue
         if key == "estimated_d_max":
