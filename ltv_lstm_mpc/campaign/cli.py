@@ -94,9 +94,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--offset-tolerance",
         type=nonnegative_float,
-        default=1e-3,
+        default=None,
         metavar="TOL",
-        help="final offset (output units) above which a loop counts as failed",
+        help=(
+            "offset (output units) above which a loop counts as failed (default: the spec's "
+            "[campaign].offset_tolerance, else 1e-3)"
+        ),
     )
     parser.add_argument("--no-report", action="store_true", help="skip report.md and the plots")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -117,12 +120,21 @@ def _plan(args: argparse.Namespace) -> int:
     if args.spec is None:
         return 0
     spec = _load(args.spec)
-    strata = len(spec.tasks) // max(spec.random.samples, 1)
-    if not spec.random.active:
+    strata = len({repr([t.settings.get(n) for n in spec.strata]) for t in spec.tasks})
+    per_stratum = len(spec.tasks) // max(strata, 1)
+    if not spec.random.active and not spec.replications:
         print(
-            f"{args.spec}: no [random] table, so its {len(spec.tasks)} tasks are not i.i.d. "
-            f"draws; add [random] with samples = {needed} (and the distributions of the "
-            "settings to sample)"
+            f"{args.spec}: no [random] table and no replications, so its {len(spec.tasks)} "
+            f"tasks are not i.i.d. draws; add [random] with samples = {needed} (and the "
+            "distributions of the settings to sample), or a seed factor with that many seeds"
+        )
+        return 0
+    if spec.replications:
+        enough = "enough" if per_stratum >= needed else f"{needed} needed"
+        pooled = ", ".join(spec.replications)
+        print(
+            f"{args.spec}: {per_stratum} loops per stratum (replications {pooled} pooled), "
+            f"{strata} strata, {len(spec.tasks)} tasks: {enough}"
         )
         return 0
     enough = "enough" if spec.random.samples >= needed else f"set samples = {needed}"

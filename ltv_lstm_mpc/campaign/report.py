@@ -349,6 +349,8 @@ def write_report(
     strata: Sequence[str] | None = None,
     beta: float = 0.05,
     offset_tolerance: float = 1e-3,
+    replications: Sequence[str] = (),
+    offset_window: int | None = None,
 ) -> list[Path]:
     """Write ``report.md`` (and the plots, and ``statements.csv``) for a results table.
 
@@ -368,6 +370,10 @@ def write_report(
         1 - confidence of the statements (:mod:`~ltv_lstm_mpc.campaign.statements`).
     offset_tolerance : float
         Final offset above which a loop counts as a failure (output units).
+    replications : sequence of str
+        Replication settings pooled into the strata (``campaign_statements``).
+    offset_window : int, optional
+        Window of the measured offset, named in the statements.
 
     Returns
     -------
@@ -468,6 +474,8 @@ def write_report(
         [n for n in (factors if strata is None else strata) if n in _varying(rows, factors)],
         beta=beta,
         offset_tolerance=offset_tolerance,
+        replications=replications,
+        offset_window=offset_window,
     )
     if stated:
         lines += [

@@ -274,7 +274,7 @@ def run_campaign(
     task_function: TaskFunction = run_task,
     log: Callable[[str], None] | None = None,
     beta: float = 0.05,
-    offset_tolerance: float = 1e-3,
+    offset_tolerance: float | None = None,
 ) -> CampaignRun:
     """Run every unfinished task of ``spec``, store each at once, then the tables and report.
 
@@ -295,8 +295,12 @@ def run_campaign(
         Progress bar over the tasks.
     report : bool
         Write ``report.md``, the plots and ``statements.csv``.
-    beta, offset_tolerance : float
-        Of the report's statistical statements (:mod:`~ltv_lstm_mpc.campaign.statements`).
+    beta : float
+        1 - confidence of the report's statistical statements
+        (:mod:`~ltv_lstm_mpc.campaign.statements`).
+    offset_tolerance : float, optional
+        Tolerance of their ``offset`` outcome (output units); default the spec's
+        ``[campaign].offset_tolerance`` (1e-3 when it sets none).
     task_function : callable
         What runs one task (default :func:`~ltv_lstm_mpc.campaign.task.run_task`); it
         must be picklable for Dask (see :mod:`ltv_lstm_mpc.campaign.testing`).
@@ -366,7 +370,11 @@ def run_campaign(
                 title=spec.name,
                 strata=spec.strata,
                 beta=beta,
-                offset_tolerance=offset_tolerance,
+                offset_tolerance=(
+                    spec.offset_tolerance if offset_tolerance is None else offset_tolerance
+                ),
+                replications=[n for n in spec.replications if n in spec.varying],
+                offset_window=_offset_window(spec),
             )
         )
     errors = sum(1 for row in rows if row.get("status") in ("error", "lost"))
@@ -510,3 +518,11 @@ def estimate_campaign(
             for (solver, N, transcription), values in calibration.items()
         ],
     )
+
+
+def _offset_window(spec: CampaignSpec) -> int | None:
+    """The spec's offset window when every task uses the same (None: they differ)."""
+    from ltv_lstm_mpc.campaign.spec import DEFAULT_OFFSET_WINDOW
+
+    windows = {t.settings.get("offset_window", DEFAULT_OFFSET_WINDOW) for t in spec.tasks}
+    return windows.pop() if len(windows) == 1 else None

@@ -51,6 +51,20 @@ in every stratum (common random numbers; :class:`RandomFactors`). The strata of 
 statistical statements (:mod:`~ltv_lstm_mpc.campaign.statements`) are the levels of the
 ``[factors]`` and ``[[cases]]`` settings (:attr:`CampaignSpec.strata`): within one, the
 draws are i.i.d., which is what the Clopper-Pearson bound assumes.
+
+Replications are not strata: a ``seed`` factor (``seed = [0, 1, ..., 7]``, the natural way
+to ask for eight replications) and any factor listed in ``[campaign].replications``
+(default ``["seed"]``; an explicit list replaces it, ``[]`` keeps the seeds as strata) are
+pooled into their stratum's statement, so eight seeds give one statement over eight loops
+(bound 0.31 at 95 % without a failure). With ``[random]``, replication r takes the draws
+``r * samples + j`` so that no two pooled loops share a draw; seeds without measurement
+noise (``noise_std = 0``) repeat one deterministic loop and count once.
+
+The ``offset`` outcome of the statements tests the offset measured over the last
+``offset_window`` samples of each constant segment (a setting, default
+:data:`DEFAULT_OFFSET_WINDOW`; the mean of the noise-free plant output's error) against
+``[campaign].offset_tolerance`` (output units, default 1e-3; ``campaign
+--offset-tolerance`` overrides it).
 """
 
 from __future__ import annotations
@@ -101,7 +115,15 @@ INSTALLED = "installed"
 #: Settings a scenario fixes itself (a task with ``scenario`` must not set them).
 SCENARIO_FIXED = ("plant", "steps", "setpoints", "q2", "disturbances", "rate_limit", "y0_initial")
 #: Keys of ``[campaign]`` that are not settings.
-CAMPAIGN_ONLY = ("name", "trace")
+CAMPAIGN_ONLY = ("name", "trace", "replications", "offset_tolerance")
+#: Factors that are replications by default (``[campaign].replications`` replaces the list):
+#: their levels repeat a stratum's loop with other noise and are pooled into its statement.
+DEFAULT_REPLICATIONS: tuple[str, ...] = ("seed",)
+#: Default tolerance of the ``offset`` outcome of the statements (output units).
+DEFAULT_OFFSET_TOLERANCE = 1e-3
+#: Default window (samples) of the measured offset: the mean of the noise-free plant
+#: output's error over the last ``offset_window`` samples of each constant segment.
+DEFAULT_OFFSET_WINDOW = 50
 #: Values of the settings a task does not set (``L_d`` and ``rate_limit`` of a scenario task
 #: come from the scenario).
 DEFAULTS: dict[str, Any] = {
@@ -317,6 +339,12 @@ SETTINGS: dict[str, Setting] = {
     "max_seconds": Setting(
         _number(0.0, open_low=True), "stop a closed loop after this wall time, s"
     ),
+    "offset_window": Setting(
+        _integer(1),
+        "samples at the end of each constant segment over which the offset outcome "
+        f"averages the noise-free plant output's error (default {DEFAULT_OFFSET_WINDOW}; "
+        "1: the last sample)",
+    ),
     "sample": Setting(_integer(0), "index of the draw of the [random] factors (set by them)"),
 }
 
@@ -442,6 +470,14 @@ class CampaignSpec:
         The spec's TOML text (copied into the output folder).
     random : RandomFactors
         The ``[random]`` table (no distributions: one draw, nothing sampled).
+    replications : tuple of str
+        The factors that are replications, not strata (``[campaign].replications``,
+        default ``["seed"]`` where ``seed`` is a factor): their levels are pooled into
+        their stratum's statement. With ``[random]``, replication r takes the draws
+        ``r * samples + j``, so that no two pooled loops share a draw.
+    offset_tolerance : float
+        ``[campaign].offset_tolerance``: the ``offset`` outcome's tolerance (output units,
+        default 1e-3), applied to the offset measured over ``offset_window``.
     """
 
     name: str
@@ -453,13 +489,17 @@ class CampaignSpec:
     source: Path | None = None
     text: str = ""
     random: RandomFactors = field(default_factory=RandomFactors)
+    replications: tuple[str, ...] = ()
+    offset_tolerance: float = DEFAULT_OFFSET_TOLERANCE
 
     @property
     def strata(self) -> list[str]:
         """Settings whose levels define the strata of the statistical statements: the
-        varying settings without the ``[random]`` ones (:mod:`.statements`)."""
+        varying settings without the ``[random]`` ones and the replications
+        (:mod:`.statements`)."""
         drawn = {name.split(".", 1)[0] for name in self.random.distributions}
         drawn |= {"sample", "seed"} if self.random.noise_seed else {"sample"}
+        drawn |= set(self.replications)
         return [name for name in self.varying if name not in drawn]
 
     @property
@@ -773,6 +813,32 @@ def _random_factors(
     return RandomFactors(samples, sampling_seed, distributions, not seed_set, active=True)
 
 
+def _replications(
+    value: Any, factors: Mapping[str, Sequence[Any]], random: RandomFactors
+) -> tuple[str, ...]:
+    """Check ``[campaign].replications`` (default: ``seed`` where it is a factor)."""
+    where = "[campaign].replications"
+    if value is None:
+        return tuple(name for name in DEFAULT_REPLICATIONS if name in factors)
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise CampaignSpecError(
+            where, f'expected a list of factor names, e.g. ["seed"], got {value!r}'
+        )
+    drawn = {name.split(".", 1)[0] for name in random.distributions}
+    for name in value:
+        if name not in factors:
+            raise CampaignSpecError(
+                where,
+                f"{name!r} is not a [factors] entry; replications are factors whose levels "
+                f"repeat a stratum's loop (factors: {list(factors)})",
+            )
+        if name in drawn:
+            raise CampaignSpecError(where, f"{name!r} is drawn in [random]: it is no factor")
+    if len(set(value)) != len(value):
+        raise CampaignSpecError(where, f"{value!r} lists a factor twice")
+    return tuple(value)
+
+
 def _distribution(name: str, value: Any) -> Distribution:
     where = f"[random].{name}"
     table = _table(value, where)
@@ -894,17 +960,31 @@ def parse_spec(
                     f"[[cases]][{index}].{key}", "also a factor: keep one of the two"
                 )
     random = _random_factors(data.get("random"), fixed, factors, cases)
+    replications = _replications(campaign.get("replications"), factors, random)
+    offset_tolerance = DEFAULT_OFFSET_TOLERANCE
+    if "offset_tolerance" in campaign:
+        try:
+            offset_tolerance = _number(0.0, open_low=False)(campaign["offset_tolerance"])
+        except _Bad as error:
+            raise CampaignSpecError("[campaign].offset_tolerance", str(error)) from None
 
     tasks: list[Task] = []
     seen: set[str] = set()
     models: dict[str, _ModelFile] = {}
     names = list(factors)
-    draws = [random.draw(j) for j in range(random.samples)] if random.active else [{}]
+    levels = {name: {repr(v): i for i, v in enumerate(factors[name])} for name in replications}
     for index, case in enumerate(cases):
-        for combination, (sample, drawn) in itertools.product(
-            itertools.product(*(factors[n] for n in names)), enumerate(draws)
+        for combination, j in itertools.product(
+            itertools.product(*(factors[n] for n in names)), range(random.samples)
         ):
-            given = {**fixed, **case, **dict(zip(names, combination, strict=True))}
+            chosen = dict(zip(names, combination, strict=True))
+            # replication r of a stratum takes the draws r * samples + j (none shared)
+            replication = 0
+            for name in replications:
+                replication = replication * len(factors[name]) + levels[name][repr(chosen[name])]
+            sample = replication * random.samples + j
+            drawn = random.draw(sample) if random.active else {}
+            given = {**fixed, **case, **chosen}
             origin = {name: f"[campaign].{name}" for name in fixed}
             origin.update({name: f"[[cases]][{index}].{name}" for name in case})
             origin.update({name: f"[factors].{name}" for name in names})
@@ -941,6 +1021,8 @@ def parse_spec(
         source=source,
         text=text,
         random=random,
+        replications=replications,
+        offset_tolerance=offset_tolerance,
     )
     for name_ in spec.trace.match:
         if name_ not in fixed and name_ not in spec.varying and name_ not in DEFAULTS:

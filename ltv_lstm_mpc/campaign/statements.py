@@ -128,6 +128,10 @@ class Outcome:
     failed: Callable[[Mapping[str, Any]], bool | None]
 
 
+#: Row column of the measured offset the ``offset`` outcome uses (:mod:`.task`).
+OFFSET_COLUMN = "final_offset_mean"
+
+
 def _greater(column: str, threshold: float) -> Callable[[Mapping[str, Any]], bool | None]:
     def failed(row: Mapping[str, Any]) -> bool | None:
         value = row.get(column)
@@ -138,8 +142,28 @@ def _greater(column: str, threshold: float) -> Callable[[Mapping[str, Any]], boo
     return failed
 
 
-def default_outcomes(offset_tolerance: float = 1e-3) -> list[Outcome]:
-    """The outcomes stated by default; ``offset_tolerance`` in output units."""
+def _offset_failed(tolerance: float) -> Callable[[Mapping[str, Any]], bool | None]:
+    mean, last = _greater(OFFSET_COLUMN, tolerance), _greater("final_offset", tolerance)
+
+    def failed(row: Mapping[str, Any]) -> bool | None:
+        return mean(row) if OFFSET_COLUMN in row else last(row)
+
+    return failed
+
+
+def default_outcomes(
+    offset_tolerance: float = 1e-3, offset_window: int | None = None
+) -> list[Outcome]:
+    r"""The outcomes stated by default; ``offset_tolerance`` in output units.
+
+    The ``offset`` outcome reads :data:`OFFSET_COLUMN`: the largest over the constant
+    segments of :math:`|\mathrm{mean}(y_k - y^0_k)|` over the last samples of the segment
+    (``offset_window`` of the spec, 1 = the last sample), on the noise-free plant output
+    (the measurement noise is not in it; the loop's reaction to it is, and the mean
+    filters it). A row without that column (older results) falls back to
+    ``final_offset`` (the last sample).
+    """
+    window = "the last samples" if offset_window is None else f"the last {offset_window} samples"
     return [
         Outcome("violation", "the plant output violated its constraint", _greater("violations", 0)),
         Outcome(
@@ -149,8 +173,9 @@ def default_outcomes(offset_tolerance: float = 1e-3) -> list[Outcome]:
         ),
         Outcome(
             "offset",
-            f"a final offset above {offset_tolerance:g} (output units)",
-            _greater("final_offset", offset_tolerance),
+            f"a final offset above {offset_tolerance:g} (output units; |mean error| of the "
+            f"noise-free plant output over {window} of each constant segment)",
+            _offset_failed(offset_tolerance),
         ),
         Outcome("infeasible", "an infeasible FHOCP step", _greater("infeasible_steps", 0)),
     ]
@@ -176,6 +201,12 @@ class Statement:
     errors : int
         Tasks of the stratum left out because they raised (not draws of the family's
         closed loops; count them as failures to be pessimistic).
+    pooled : tuple of str
+        The replication settings pooled into this stratum (e.g. ``("seed",)``).
+    duplicates : int
+        Rows counted once because they repeat another row's loop exactly: a noise seed
+        without measurement noise (``noise_std = 0``) changes nothing, so such
+        replications are one loop, not independent ones.
     """
 
     stratum: dict[str, Any]
@@ -186,10 +217,18 @@ class Statement:
     beta: float
     upper_bound: float
     errors: int = 0
+    pooled: tuple[str, ...] = ()
+    duplicates: int = 0
 
     def sentence(self) -> str:
         """The statement in words."""
         left_out = f"; {self.errors} task(s) with errors left out" if self.errors else ""
+        if self.pooled:
+            left_out += f"; {', '.join(self.pooled)} pooled"
+        if self.duplicates:
+            left_out += (
+                f"; {self.duplicates} noise-free replication(s) of the same loop counted once"
+            )
         return (
             f"with confidence {1 - self.beta:.0%}, P({self.description}) <= "
             f"{self.upper_bound:.3g} ({self.failures} of {self.loops} loops{left_out})"
@@ -203,6 +242,8 @@ def campaign_statements(
     beta: float = 0.05,
     offset_tolerance: float = 1e-3,
     outcomes: Sequence[Outcome] | None = None,
+    replications: Sequence[str] = (),
+    offset_window: int | None = None,
 ) -> list[Statement]:
     """Bounds for every outcome in every stratum of a campaign's rows.
 
@@ -218,18 +259,37 @@ def campaign_statements(
         1 - confidence.
     offset_tolerance : float
         Of the ``offset`` outcome, output units.
+    outcomes : sequence of Outcome, optional
+        Default :func:`default_outcomes`.
+    replications : sequence of str
+        Replication settings (:attr:`~ltv_lstm_mpc.campaign.spec.CampaignSpec.replications`)
+        pooled into each stratum (they must not be in ``strata``). Rows of a stratum that
+        differ only in the noise ``seed`` and have ``noise_std = 0`` are one loop and count
+        once (:attr:`Statement.duplicates`).
+    offset_window : int, optional
+        The window of the measured offset, for the outcome's description.
     """
     beta = _probability("beta", beta)
     expect_real("offset_tolerance", offset_tolerance, low=0.0)
-    chosen = list(outcomes) if outcomes is not None else default_outcomes(offset_tolerance)
+    overlap = sorted(set(strata) & set(replications))
+    if overlap:
+        raise InvalidValueError(f"{overlap} are both strata and replications: choose one")
+    chosen = (
+        list(outcomes)
+        if outcomes is not None
+        else default_outcomes(offset_tolerance, offset_window)
+    )
     groups: dict[tuple[Any, ...], list[Mapping[str, Any]]] = {}
     for row in rows:
         groups.setdefault(tuple(row.get(name) for name in strata), []).append(row)
+    pooled = tuple(name for name in replications if len({repr(row.get(name)) for row in rows}) > 1)
     statements = []
     for levels, members in groups.items():
         stratum = dict(zip(strata, levels, strict=True))
-        finished = [row for row in members if row.get("status") == "ok"]
-        errors = len(members) - len(finished)
+        finished, duplicates = _distinct_loops(
+            [row for row in members if row.get("status") == "ok"]
+        )
+        errors = len(members) - len(finished) - duplicates
         for outcome in chosen:
             measured = [v for v in (outcome.failed(row) for row in finished) if v is not None]
             if finished and not measured:  # not measurable here (e.g. no output constraint)
@@ -246,9 +306,31 @@ def campaign_statements(
                     beta,
                     bound,
                     errors,
+                    pooled,
+                    duplicates,
                 )
             )
     return statements
+
+
+def _distinct_loops(rows: Sequence[Mapping[str, Any]]) -> tuple[list[Mapping[str, Any]], int]:
+    """The rows without exact repeats of a loop, and how many were dropped: rows with
+    ``noise_std = 0`` whose settings agree except the noise ``seed`` ran the same
+    deterministic loop."""
+    from ltv_lstm_mpc.campaign.spec import SETTINGS
+
+    seen: set[str] = set()
+    distinct: list[Mapping[str, Any]] = []
+    for row in rows:
+        noise = row.get("noise_std")
+        if noise is None or float(noise) != 0.0:
+            distinct.append(row)
+            continue
+        identity = repr(sorted((k, repr(row[k])) for k in row if k in SETTINGS and k != "seed"))
+        if identity not in seen:
+            seen.add(identity)
+            distinct.append(row)
+    return distinct, len(rows) - len(distinct)
 
 
 def format_statements(statements: Sequence[Statement]) -> list[str]:
@@ -268,4 +350,19 @@ def format_statements(statements: Sequence[Statement]) -> list[str]:
             f"| {cells} | {statement.description} | {statement.failures} / {statement.loops} "
             f"| {statement.errors} | {statement.upper_bound:.3g} |"
         )
+    pooled = sorted({name for statement in statements for name in statement.pooled})
+    if pooled:
+        lines += [
+            "",
+            f"Replications pooled into each stratum: {', '.join(pooled)} (its levels repeat "
+            "the stratum's loop with other noise; they are loops of one statement, not strata).",
+        ]
+    duplicates = max((statement.duplicates for statement in statements), default=0)
+    if duplicates:
+        lines += [
+            "",
+            "Rows without measurement noise (noise_std = 0) that differ only in the noise "
+            "seed are one deterministic loop and count once (the loops column counts "
+            "distinct loops).",
+        ]
     return lines

@@ -225,7 +225,7 @@ def generate_data_command(args: argparse.Namespace) -> int:
 def train_command(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc train``: train a delta-ISS LSTM, write model, report and plot."""
     try:
-        from ltv_lstm_mpc.training.train import TrainingConfig, train
+        from ltv_lstm_mpc.training.train import TrainingConfig, TrainingError, preflight, train
     except ImportError as error:  # pragma: no cover - torch missing
         print(f"error: {error}", file=sys.stderr)
         return 1
@@ -268,6 +268,7 @@ def train_command(args: argparse.Namespace) -> int:
         "delta_iss_margin": args.delta_iss_margin,
         "grad_clip_norm": args.grad_clip_norm,
         "selection_rho_s_max": args.selection_rho_s_max,
+        "allow_empty_interval": True if args.allow_empty_interval else None,
     }
     try:
         config = dataclasses.replace(
@@ -280,6 +281,13 @@ def train_command(args: argparse.Namespace) -> int:
             out.mkdir(parents=True, exist_ok=True)
             data_name = resolve_plant(plant_name).data_file
             print(f"wrote {dataset.save(out / data_name)}", file=sys.stderr)
+        try:
+            findings = preflight(dataset, config)
+        except TrainingError as error:  # found before training: a bad input
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        for line in findings:
+            print(f"data check: {line}", file=sys.stderr)
         if args.restarts > 1:
             from ltv_lstm_mpc.training.restarts import train_restarts
 
@@ -335,10 +343,55 @@ def train_command(args: argparse.Namespace) -> int:
         f"r1 = {report['r1']:.4f}, r2 = {report['r2']:.4f}; {report['epochs_run']} epochs in "
         f"{report['wall_time_s']:.0f} s"
     )
+    for line in _interval_lines(report):
+        print(line)
+    outcome = report.get("selection_outcome", {})
+    if outcome.get("pool") == "interval":
+        print(
+            f"warning: no checkpoint met the selection bound rho_s <= "
+            f"{report['config'].get('selection_rho_s_max')} (the smallest rho_s seen was "
+            f"{outcome.get('smallest_rho_s_seen', float('nan')):.4f}); kept the best validation "
+            "FIT among the certified checkpoints with a non-empty set-point interval",
+            file=sys.stderr,
+        )
+    elif outcome.get("pool") == "empty_interval":
+        print(
+            "warning: the model's admissible set-point interval (Assumption 5) is empty at "
+            "d_max = 0.1 (written because of --allow-empty-interval): simulate refuses it "
+            "there; run it with a smaller --d-max",
+            file=sys.stderr,
+        )
     for path in paths:
         if path is not None:
             print(f"wrote {path}")
     return 0
+
+
+def _interval_lines(report: dict[str, Any]) -> list[str]:
+    """The admissible set-point intervals of the training report, one line per d_max, in
+    the data's output units."""
+    unit = str(report.get("dataset", {}).get("units", {}).get("y_phi", "output units"))
+    intervals = report.get("setpoint_interval_phi") or {}
+    errors = report.get("setpoint_interval_errors") or {}
+    lines = []
+    for key, label in (("paper_d_max", "d_max = 0.1"), ("estimated_d_max", "estimated d_max")):
+        if key not in intervals:
+            continue
+        value = intervals[key]
+        if value is None:
+            reason = str(errors.get(key, "empty"))
+            lines.append(
+                f"admissible set-point interval (Assumption 5, {label}): "
+                + ("empty" if reason.startswith("empty") else f"none ({reason})")
+            )
+            continue
+        if key == "estimated_d_max":
+            label = f"estimated d_max = {value['d_max']:.3g}"
+        bounds = ", ".join(
+            f"[{lo:.4g}, {hi:.4g}]" for lo, hi in zip(value["low"], value["high"], strict=True)
+        )
+        lines.append(f"admissible set-point interval (Assumption 5, {label}): {bounds} {unit}")
+    return lines
 
 
 def register(subparsers: Any) -> None:
@@ -523,6 +576,14 @@ def register(subparsers: Any) -> None:
             "(TrainingConfig.fidelity()); paper: the paper's settings (TrainingConfig(): "
             "1000 epochs, lr 1e-3, the margin term always on); the other options override "
             "either"
+        ),
+    )
+    tr.add_argument(
+        "--allow-empty-interval",
+        action="store_true",
+        help=(
+            "write the model even if no checkpoint has a non-empty admissible set-point "
+            "interval (Assumption 5) at d_max = 0.1 (default: refuse, naming the cause)"
         ),
     )
     tr.add_argument(

@@ -39,14 +39,26 @@ Design choices the paper leaves open
 * **Stopping rule (paper).** After ``epochs`` epochs training stops only if the current weights
   are certified delta-ISS (numpy certificate on the exported float64 weights,
   :math:`\rho(A_\delta) < 1`) and an eligible checkpoint exists; otherwise it continues, at
-  most ``max_extra_epochs`` more. If no evaluated weights were ever eligible,
-  :class:`TrainingError` is raised.
+  most ``max_extra_epochs`` more, with :math:`\lambda_1, \lambda_2` doubled every
+  ``escalate_every`` of them (:func:`escalation_factor`; a run that stops at the planned
+  epochs is untouched). If no evaluated weights were ever eligible,
+  :class:`TrainingError` is raised, naming the first selection constraint that failed
+  (Assumption 2, certify, the :math:`\rho_s` bound, the set-point interval) and its number.
 * **Model selection.** At every evaluation the exported float64 model is simulated on the
   validation split from its exact equilibrium (the FIT below). A checkpoint is eligible if
   it passes :func:`~ltv_lstm_mpc.certify` with the paper's settings
-  (Assumption 2, Lemma 2, Theorem 2, tightening) and, with ``selection_rho_s_max``, has
-  :math:`\rho_s` at most that; the exported model is the eligible one with the best
-  validation FIT. The test split is evaluated once, on the exported model.
+  (Assumption 2, Lemma 2, Theorem 2, tightening), has a non-empty admissible set-point
+  interval (Assumption 5) at the paper's :math:`d_{max} = 0.1` and, with
+  ``selection_rho_s_max``, :math:`\rho_s` at most that; the exported model is the
+  eligible one with the best validation FIT. Where no checkpoint meets the
+  :math:`\rho_s` bound (tuned on the pH data) the best certified one with a non-empty
+  interval is kept and the report says so (``selection_fallback``); one with an empty
+  interval only with ``allow_empty_interval``. The test split is evaluated once, on the
+  exported model.
+* **Checks before training.** :func:`preflight` compares the output constraint with the
+  data's output range (no model has an admissible set-point where the normalized
+  constraint is at most :math:`4 d_{max}` wide) and states the data's first-order time
+  constant in samples (slow dynamics per sample push :math:`\rho_s` towards 1).
 * **Loss schedule.** ``delta_iss_margin`` switches the :math:`\lambda_2` margin term off
   while :math:`\rho(A_\delta) \le 1 - margin` (with it always on, the margin keeps
   growing at the expense of the fit: measured in ``experiments/training_log.md``);
@@ -96,10 +108,14 @@ from ltv_lstm_mpc.training.datasets import (
 )
 
 __all__ = [
+    "SELECTION_POOLS",
     "TORCH_INSTALL_HINT",
+    "CheckpointCheck",
     "TrainingConfig",
     "TrainingError",
     "TrainingResult",
+    "check_checkpoint",
+    "escalation_factor",
     "evaluate_model",
     "fit_index",
     "guarantee_numbers",
@@ -107,6 +123,7 @@ __all__ = [
     "margin_term_active",
     "plot_prediction",
     "plot_training_curves",
+    "preflight",
     "selection_certificate",
     "torch_residuals",
     "train",
@@ -216,6 +233,24 @@ class TrainingConfig:
         Input bound of the delta-ISS certificate (normalized units, 1).
     Q_s : float
         :math:`Q_s = q I_2` of Lemma 2 for the reported :math:`\\rho_s` (paper: 1000).
+    selection_fallback : bool
+        When no checkpoint meets ``selection_rho_s_max`` (a bound tuned on the pH data: a
+        plant whose data need slower dynamics may never reach it), select the best
+        validation FIT among the certified checkpoints whose admissible set-point interval
+        (Assumption 5) is non-empty, whatever their :math:`\\rho_s`; the report
+        (``selection_outcome``) and ``train`` say so. False: no model (a
+        :class:`TrainingError` naming the bound) in that case. Default True.
+    escalate_every : int
+        The extra epochs of the stopping rule run only while no checkpoint qualifies (not
+        delta-ISS, or no eligible checkpoint); during them :math:`\\lambda_1` and
+        :math:`\\lambda_2` are doubled at once and again every ``escalate_every`` epochs
+        (:func:`escalation_factor`; 0: never, the paper's rule). Runs that stop at the
+        planned epochs (the shipped models' runs) are unaffected. Default 50.
+    allow_empty_interval : bool
+        Also accept a checkpoint whose admissible set-point interval of Assumption 5 at the
+        paper's :math:`d_{max} = 0.1` is empty (such a model is refused by ``simulate`` at
+        that :math:`d_{max}`), when no checkpoint has a non-empty one. Default False:
+        :func:`train` raises :class:`TrainingError` instead of writing it.
     """
 
     n: int = 5
@@ -242,6 +277,9 @@ class TrainingConfig:
     eval_every: int = 1
     u_max: float = 1.0
     Q_s: float = 1000.0
+    selection_fallback: bool = True
+    allow_empty_interval: bool = False
+    escalate_every: int = 50
 
     def __post_init__(self) -> None:
         positive_ints = ("n", "epochs", "threads", "eval_every")
@@ -259,6 +297,7 @@ class TrainingConfig:
             "equilibrium_grad_steps",
             "checkpoint_every",
             "lr_warmup_epochs",
+            "escalate_every",
         )
         for name in nonnegative_ints:
             value = getattr(self, name)
@@ -286,6 +325,11 @@ class TrainingConfig:
                 isinstance(value, (int, float)) and 0.0 < float(value) < 1.0
             ):
                 raise InvalidValueError(f"{name} must be None or in (0, 1), got {value!r}")
+        for name in ("selection_fallback", "allow_empty_interval"):
+            if not isinstance(getattr(self, name), bool):
+                raise InvalidValueError(
+                    f"{name} must be True or False, got {getattr(self, name)!r}"
+                )
         if self.dtype not in ("float64", "float32"):
             raise InvalidValueError(f"dtype must be 'float64' or 'float32', got {self.dtype!r}")
 
@@ -482,20 +526,33 @@ def torch_residuals(blocks: dict[str, tuple[Any, Any, Any]], u_max: float = 1.0)
     return r1, r2
 
 
-def _delta_iss_penalty(r1: Any, r2: Any, config: TrainingConfig, margin_term: bool = True) -> Any:
+def _delta_iss_penalty(
+    r1: Any, r2: Any, config: TrainingConfig, margin_term: bool = True, scale: float = 1.0
+) -> Any:
     r"""The delta-ISS terms of the loss: :math:`\lambda_1 \max\{r_j, 0\}` always, the margin
     reward :math:`\lambda_2 \min\{r_j, 0\}` only when ``margin_term`` (see
-    ``TrainingConfig.delta_iss_margin``)."""
+    ``TrainingConfig.delta_iss_margin``); both weights times ``scale``
+    (:func:`escalation_factor`)."""
     torch = _import_torch()
     zero = torch.zeros((), dtype=r1.dtype)
-    penalty = config.lambda1 * torch.maximum(r1, zero) + config.lambda1 * torch.maximum(r2, zero)
+    lambda1, lambda2 = config.lambda1, config.lambda2
+    if scale != 1.0:
+        lambda1, lambda2 = lambda1 * scale, lambda2 * scale
+    penalty = lambda1 * torch.maximum(r1, zero) + lambda1 * torch.maximum(r2, zero)
     if margin_term:
-        penalty = (
-            penalty
-            + config.lambda2 * torch.minimum(r1, zero)
-            + config.lambda2 * torch.minimum(r2, zero)
-        )
+        penalty = penalty + lambda2 * torch.minimum(r1, zero) + lambda2 * torch.minimum(r2, zero)
     return penalty
+
+
+def escalation_factor(epoch: int, config: TrainingConfig) -> float:
+    r"""Factor on :math:`\lambda_1, \lambda_2` in epoch ``epoch`` (0-based): 1 in the
+    planned epochs; in the extra epochs of the stopping rule (which run only while no
+    checkpoint qualifies) it doubles every ``escalate_every`` epochs (0: never, the paper's
+    rule), so the delta-ISS terms eventually outweigh a fit that wants slower dynamics than
+    Assumption 2 and the selection allow."""
+    if config.escalate_every == 0 or epoch < config.epochs:
+        return 1.0
+    return float(2.0 ** ((epoch - config.epochs) // config.escalate_every + 1))
 
 
 def margin_term_active(rho_A_delta: float, config: TrainingConfig) -> bool:
@@ -524,10 +581,10 @@ def selection_certificate(model: LSTMModel, config: TrainingConfig) -> tuple[boo
     :func:`~ltv_lstm_mpc.certify` with the paper's settings
     (``u_max`` and ``Q_s`` of the config) succeeds (Assumption 2, Lemma 2, Theorem 2 and
     the tightening of eq. constraint_tightening_parameters) and, with
-    ``selection_rho_s_max``, :math:`\rho_s` is at most that. The admissible set-point
-    interval of Assumption 5 depends on the :math:`d_{max}` the user will choose, so an
-    empty one at the paper's :math:`d_{max}` is reported (``setpoint_interval_phi``), not
-    a reason to reject.
+    ``selection_rho_s_max``, :math:`\rho_s` is at most that. :func:`train` also needs a
+    non-empty admissible set-point interval of Assumption 5 at the paper's
+    :math:`d_{max} = 0.1` (:func:`check_checkpoint`; the default :math:`d_{max}` of the
+    controller), unless ``allow_empty_interval``.
 
     Returns
     -------
@@ -545,6 +602,268 @@ def selection_certificate(model: LSTMModel, config: TrainingConfig) -> tuple[boo
     if config.selection_rho_s_max is not None and rho_s > config.selection_rho_s_max:
         return False, f"rho_s = {rho_s:.4f} > {config.selection_rho_s_max}"
     return True, ""
+
+
+@dataclass(frozen=True)
+class CheckpointCheck:
+    r"""What model selection needs to know about one checkpoint (:func:`check_checkpoint`).
+
+    Attributes
+    ----------
+    certified : bool
+        :func:`~ltv_lstm_mpc.certify` with the paper's settings succeeded (Assumption 2,
+        Lemma 2, Theorem 2, tightening).
+    reason : str
+        Why certify failed (empty when it succeeded).
+    rho_s : float
+        :math:`\rho_s` of Lemma 2 (nan when certify failed).
+    interval_phi : (list, list) or None
+        The admissible set-point interval of Assumption 5 at the paper's
+        :math:`d_{max} = 0.1` in physical units, (low, high) per output; None when certify
+        failed or the interval is empty.
+    interval_margin : float
+        :math:`2 d_{max} + a_N \tilde e_o + b_N` (normalized, largest over the outputs): the
+        interval is non-empty where it is below half the normalized output constraint's
+        width (``constraint_half_width``).
+    constraint_half_width : float
+        Half the width of the normalized output constraint (smallest over the outputs).
+    """
+
+    certified: bool
+    reason: str
+    rho_s: float
+    interval_phi: tuple[list[float], list[float]] | None
+    interval_margin: float = math.nan
+    constraint_half_width: float = math.nan
+
+    @property
+    def has_interval(self) -> bool:
+        """Certified with a non-empty admissible set-point interval (Assumption 5)."""
+        return self.certified and self.interval_phi is not None
+
+
+def check_checkpoint(model: LSTMModel, config: TrainingConfig) -> CheckpointCheck:
+    r"""Certify a checkpoint with the paper's settings (``u_max``, ``Q_s`` of the config,
+    :math:`d_{max} = 0.1`) and read its :math:`\rho_s` and admissible set-point interval
+    (Assumption 5), for model selection in :func:`train`."""
+    from ltv_lstm_mpc.certificates.certify import CertificationSettings, certify
+
+    try:
+        certification = certify(model, CertificationSettings(u_max=config.u_max, Q_s=config.Q_s))
+    except LtvMpcError as error:
+        return CheckpointCheck(False, f"certify failed: {error}", math.nan, None)
+    tightening = certification.tightening
+    margin = 2.0 * tightening.d_max + tightening.a[tightening.N] * tightening.e_inf
+    margin = margin + tightening.b[tightening.N]
+    half_width = 0.5 * (np.asarray(tightening.y_max) - np.asarray(tightening.y_min))
+    low, high = certification.y0_interval
+    phi = certification.y0_interval_phi
+    interval: tuple[list[float], list[float]] | None = None
+    if np.all(low < high):
+        bounds = phi if phi is not None else (low, high)
+        interval = (np.asarray(bounds[0]).tolist(), np.asarray(bounds[1]).tolist())
+    return CheckpointCheck(
+        True,
+        "",
+        float(certification.lyapunov.rho_s),
+        interval,
+        float(np.max(margin)),
+        float(np.min(half_width)),
+    )
+
+
+#: The selection pools of :func:`train`, in order of preference.
+SELECTION_POOLS = ("bound", "interval", "empty_interval")
+
+
+def _selection_tracker() -> dict[str, Any]:
+    """What :func:`train` records about the checkpoints for its message when no model
+    qualifies (plain values: it travels in the torch checkpoint)."""
+    return {
+        "delta_iss": 0,
+        "first_delta_iss_epoch": None,
+        "min_rho_s": math.inf,
+        "min_rho_s_epoch": None,
+        "checked": 0,
+        "certify_failed": 0,
+        "certify_reason": "",
+        "interval_empty": 0,
+        "min_margin_excess": math.inf,
+        "min_margin_excess_epoch": None,
+        "within_bound": 0,
+    }
+
+
+def _pick(pools: dict[str, Any], config: TrainingConfig) -> tuple[dict[str, Any] | None, str]:
+    """The checkpoint to export and the pool it comes from (see :func:`train`)."""
+    if pools.get("bound") is not None:
+        return pools["bound"], "bound"
+    if (config.selection_fallback or config.selection_rho_s_max is None) and pools.get(
+        "interval"
+    ) is not None:
+        return pools["interval"], "interval"
+    if config.allow_empty_interval and pools.get("empty_interval") is not None:
+        return pools["empty_interval"], "empty_interval"
+    return None, ""
+
+
+def _no_model_message(
+    config: TrainingConfig, epoch: int, tracker: dict[str, Any], last: dict[str, float]
+) -> str:
+    """Why no checkpoint qualified, naming the first selection constraint that failed."""
+    tail = " The checkpoint in the output folder allows resuming."
+    if not tracker["delta_iss"]:
+        return (
+            f"no delta-ISS certified weights after {epoch} epochs (the planned "
+            f"{config.epochs} plus at most {config.max_extra_epochs} extra): Assumption 2 "
+            f"never held, last r1 = {last['r1']:.4g}, r2 = {last['r2']:.4g} (rho(A_delta) = "
+            f"{last.get('rho_A_delta', math.nan):.4g}), both r1 and r2 must be < 0. Train "
+            "longer (--epochs; with --preset fidelity the learning rate has decayed to "
+            "lr_final_factor x lr at the planned epochs, so extra epochs move slowly), "
+            "increase lambda1, or raise the learning rate." + tail
+        )
+    counted = (
+        f"{tracker['delta_iss']} evaluations of the {epoch} epochs were delta-ISS (first at "
+        f"epoch {tracker['first_delta_iss_epoch']})"
+    )
+    bound = config.selection_rho_s_max
+    if tracker["checked"] and tracker["certify_failed"] == tracker["checked"]:
+        return (
+            f"{counted}, but certify() with the paper's settings failed on every one checked "
+            f"({tracker['checked']}); the last: {tracker['certify_reason']}." + tail
+        )
+    if bound is not None and not tracker["within_bound"] and not config.selection_fallback:
+        return (
+            f"{counted}, but none met the selection bound rho_s <= {bound}: the smallest "
+            f"rho_s was {tracker['min_rho_s']:.4f} (epoch {tracker['min_rho_s_epoch']}). "
+            f"Raise --selection-rho-s-max above {tracker['min_rho_s']:.3f}, or shrink rho_s "
+            "with a larger delta_iss_margin or lambda2; selection_fallback = True selects "
+            "by a non-empty set-point interval instead." + tail
+        )
+    excess = tracker["min_margin_excess"]
+    return (
+        f"{counted} and {tracker['checked'] - tracker['certify_failed']} passed certify(), "
+        "but the admissible set-point interval of Assumption 5 (at the paper's d_max = 0.1) "
+        f"is empty for every one: 2 d_max + a_N e_inf + b_N exceeds half the normalized "
+        f"output constraint by at least {excess:.4g} (epoch "
+        f"{tracker['min_margin_excess_epoch']}); their smallest rho_s was "
+        f"{tracker['min_rho_s']:.4f}, and the tightening grows as rho_s -> 1. Shrink rho_s "
+        "(a larger delta_iss_margin or lambda2, more epochs), give the model a wider "
+        "output constraint relative to the data's output range, or pass "
+        "--allow-empty-interval (TrainingConfig.allow_empty_interval) to write the model "
+        "anyway and run it with a smaller d_max." + tail
+    )
+
+
+def _estimated_pole(y: FloatArray, u: FloatArray) -> float:
+    """Pole of a first-order ARX model y[k+1] = a y[k] + b u[k] + c fitted by least
+    squares to one output (normalized data, shape (S, T) and (S, T, m))."""
+    target = y[:, 1:].ravel()
+    regressors = np.column_stack(
+        [y[:, :-1].ravel(), u[:, :-1].reshape(target.size, -1), np.ones(target.size)]
+    )
+    theta, *_ = np.linalg.lstsq(regressors, target, rcond=None)
+    return float(theta[0])
+
+
+def preflight(dataset: IdentificationDataset, config: TrainingConfig) -> list[str]:
+    r"""Check the data against what a certified model needs, before training.
+
+    * The output constraint (the data's ``y_phi_constraint``) against the data's output
+      range: the normalization maps the training outputs onto [-1, 1]; the admissible
+      set-point interval of Assumption 5 is empty for every model where the normalized
+      constraint is no wider than :math:`4 d_{max}` (0.4 at the paper's
+      :math:`d_{max} = 0.1`), or where it does not overlap the data.
+    * The sampling time: the time constant of a first-order ARX fit of each output, in
+      samples. A model reproduces it with a pole near :math:`e^{-1/\tau}`, and
+      :math:`\rho_s \ge \rho(A_\delta) \ge` the model's slowest pole, so slow dynamics in
+      samples (a short ``Ts``) push :math:`\rho_s` towards 1, where the tightening of
+      Assumption 5 grows without bound.
+
+    Parameters
+    ----------
+    dataset : IdentificationDataset
+    config : TrainingConfig
+
+    Returns
+    -------
+    list of str
+        Findings, one line each (facts and advice).
+
+    Raises
+    ------
+    TrainingError
+        The constraint leaves no admissible set-point for any model (unless
+        ``config.allow_empty_interval``); the message names the numbers and the fix.
+    """
+    normalization = dataset.normalization()
+    u, y = dataset.channels("train")
+    low, high = _data_constraint(dataset)
+    p = normalization.y_phi_min.shape[0]
+    low_v = np.broadcast_to(np.asarray(low, dtype=np.float64), (p,))
+    high_v = np.broadcast_to(np.asarray(high, dtype=np.float64), (p,))
+    low_n, high_n = normalization.normalize_y(low_v), normalization.normalize_y(high_v)
+    unit = str(dataset.metadata.get("units", {}).get("y_phi", "output units"))
+    labels = unit.split(", ") if len(unit.split(", ")) == p else [unit] * p
+    Ts = dataset.metadata.get("Ts")
+    lines: list[str] = []
+    u_n, y_n = normalization.normalize_u(u), normalization.normalize_y(y)
+    for j in range(p):
+        y_lo, y_hi = float(normalization.y_phi_min[j]), float(normalization.y_phi_max[j])
+        width = float(high_n[j] - low_n[j])
+        overlap = min(high_v[j], y_hi) - max(low_v[j], y_lo)
+        lines.append(
+            f"output {j} ({labels[j]}): training data span [{y_lo:.4g}, {y_hi:.4g}], output "
+            f"constraint [{low_v[j]:.4g}, {high_v[j]:.4g}] (normalized "
+            f"[{low_n[j]:.3f}, {high_n[j]:.3f}], width {width:.3f})"
+        )
+        problem = ""
+        if overlap <= 0:
+            problem = (
+                f"the output constraint [{low_v[j]:.4g}, {high_v[j]:.4g}] ({labels[j]}) does not "
+                f"overlap the data's outputs [{y_lo:.4g}, {y_hi:.4g}]: check the plant's "
+                "y_phi_constraint and its units, or generate data that reach the constraint"
+            )
+        elif width <= 4.0 * 0.1:
+            problem = (
+                f"the output constraint [{low_v[j]:.4g}, {high_v[j]:.4g}] ({labels[j]}) is "
+                f"{width:.3f} wide in normalized units (the data's outputs "
+                f"[{y_lo:.4g}, {y_hi:.4g}] map to [-1, 1]), not more than 4 d_max = 0.4: "
+                "the admissible set-point interval of Assumption 5 is empty for any model. "
+                "Generate data over an output range closer to the constraint (a narrower "
+                "input range), or widen the constraint"
+            )
+        if problem and not config.allow_empty_interval:
+            raise TrainingError(
+                f"before training: {problem} (or pass --allow-empty-interval to train anyway)"
+            )
+        if problem:
+            lines.append("warning: " + problem)
+        pole = _estimated_pole(y_n[..., j], u_n)
+        if 0.0 < pole < 1.0:
+            tau = -1.0 / math.log(pole)
+            seconds = "" if Ts is None else f" = {tau * float(Ts):.3g} s at Ts = {float(Ts):g} s"
+            lines.append(
+                f"output {j}: first-order time constant {tau:.3g} samples{seconds} (pole "
+                f"{pole:.3f} per sample; rho_s is at least the model's slowest pole)"
+            )
+            if tau > 100.0:
+                lines.append(
+                    f"warning: output {j} settles over hundreds of samples: rho_s will be "
+                    "close to 1 and the admissible set-point interval small or empty; "
+                    "sample slower (a longer Ts, about 5-30 samples per time constant)"
+                )
+            elif tau < 1.0:
+                lines.append(
+                    f"warning: output {j} settles within a sample: Ts is long for its "
+                    "dynamics; sample faster (about 5-30 samples per time constant)"
+                )
+        else:
+            lines.append(
+                f"output {j}: no first-order time constant fits the data (pole {pole:.3f}); "
+                "check that the outputs respond to the inputs"
+            )
+    return lines
 
 
 def _build_network(config: TrainingConfig, m: int = 1, p: int = 1) -> tuple[Any, Any]:
@@ -906,6 +1225,7 @@ def train(
     from tqdm.auto import tqdm
 
     config = config if config is not None else TrainingConfig()
+    findings = preflight(dataset, config)  # raises before training where no model can do
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = str(dataset.metadata.get("model_stem", "ph_lstm"))
@@ -949,7 +1269,11 @@ def train(
     certified_now = False
     margin_on = True
     history: list[dict[str, float]] = []
-    best: dict[str, Any] | None = None
+    # The best validation FIT per selection pool (SELECTION_POOLS): "bound" within
+    # selection_rho_s_max with a non-empty interval, "interval" any rho_s with a non-empty
+    # interval, "empty_interval" within the bound whatever the interval.
+    pools: dict[str, Any] = dict.fromkeys(SELECTION_POOLS)
+    tracker = _selection_tracker()
     elapsed_before = 0.0
     ckpt_path = out / CHECKPOINT_NAME
     if resume and ckpt_path.exists():
@@ -965,7 +1289,8 @@ def train(
         rng.bit_generator.state = ckpt["rng"]
         epoch = int(ckpt["epoch"])
         history = list(ckpt["history"])
-        best = ckpt["best"]
+        pools = dict(ckpt["best"])
+        tracker = dict(ckpt["selection"])
         elapsed_before = float(ckpt["elapsed"])
         resumed_cert = delta_iss_certificate(export(_state_dict(lstm, linear)), config.u_max)
         certified_now = resumed_cert.is_delta_iss
@@ -982,7 +1307,8 @@ def train(
                 "rng": rng.bit_generator.state,
                 "epoch": epoch,
                 "history": history,
-                "best": best,
+                "best": pools,
+                "selection": tracker,
                 "elapsed": elapsed_before + (time.perf_counter() - start),
             },
             tmp,
@@ -995,10 +1321,11 @@ def train(
                desc="train", unit="epoch", dynamic_ncols=True)  # fmt: skip
     try:
         while epoch < max_epochs:
-            if epoch >= config.epochs and certified_now and best is not None:
+            if epoch >= config.epochs and certified_now and _pick(pools, config)[0] is not None:
                 break
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate(epoch, config)
+            escalation = escalation_factor(epoch, config)
             order = rng.permutation(S)
             loss_sum, mse_sum, steps = 0.0, 0.0, 0
             for b0 in range(0, S, batch):
@@ -1011,7 +1338,7 @@ def train(
                     lo = max(config.washout - s0, 0)
                     blocks = _gate_blocks(lstm)
                     r1, r2 = torch_residuals(blocks, config.u_max)
-                    penalty = _delta_iss_penalty(r1, r2, config, margin_on)
+                    penalty = _delta_iss_penalty(r1, r2, config, margin_on, escalation)
                     if lo < s1 - s0:
                         mse = torch.mean((pred[:, lo:] - yb[:, s0 + lo : s1]) ** 2)
                     else:
@@ -1056,17 +1383,9 @@ def train(
                 history.append(record)
                 if callback is not None:
                     callback(record)
-                if (
-                    certified_now
-                    and (best is None or fit_val > best["fit_val"])
-                    # the cheap rho_s bound first, certify (about 0.07 s) only then
-                    and (
-                        config.selection_rho_s_max is None
-                        or record["rho_s"] <= config.selection_rho_s_max
-                    )
-                    and selection_certificate(model_np, config)[0]
-                ):
-                    best = {"state": _state_dict(lstm, linear), "fit_val": fit_val, "epoch": epoch}
+                if certified_now:
+                    _select(model_np, lstm, linear, record, config, pools, tracker)
+                best = _pick(pools, config)[0]
                 bar.set_postfix(
                     loss=f"{record['loss']:.2e}",
                     fit_val=f"{fit_val:.2f}",
@@ -1081,26 +1400,105 @@ def train(
     if config.checkpoint_every:
         save_checkpoint()
     wall_time = elapsed_before + (time.perf_counter() - start)
+    best, pool = _pick(pools, config)
     if best is None:
-        last = history[-1] if history else {"r1": float("nan"), "r2": float("nan")}
-        raise TrainingError(
-            f"no delta-ISS certified weights after {epoch} epochs (the planned {config.epochs} "
-            f"plus at most {config.max_extra_epochs} extra; last r1 = {last['r1']:.4g}, "
-            f"r2 = {last['r2']:.4g}, both must be < 0). Increase lambda1, max_extra_epochs, or "
-            "reduce the learning rate; the checkpoint in the output folder allows resuming."
-            + (
-                ""
-                if config.selection_rho_s_max is None
-                else f" Eligible checkpoints also need rho_s <= {config.selection_rho_s_max}: "
-                "a larger delta_iss_margin or lambda2 shrinks rho(A_delta) and with it rho_s."
-            )
-        )
+        last = history[-1] if history else {"r1": math.nan, "r2": math.nan}
+        raise TrainingError(_no_model_message(config, epoch, tracker, last))
     # If the last weights are not certified (extra epochs exhausted) the best certified ones
     # seen earlier are still exported; the report records it ("final_weights_certified").
     model = export(best["state"])
+    outcome = {
+        "pool": pool,
+        "rho_s_bound_met": pool == "bound" or config.selection_rho_s_max is None,
+        "interval_empty": pool == "empty_interval" and best.get("interval") is None,
+        "smallest_rho_s_seen": None if math.isinf(tracker["min_rho_s"]) else tracker["min_rho_s"],
+        "preflight": findings,
+    }
     return _finish(
-        model, dataset, config, out, name, history, best, epoch, wall_time, certified_now
+        model, dataset, config, out, name, history, best, epoch, wall_time, certified_now,
+        outcome,
+    )  # fmt: skip
+
+
+def _select(
+    model: LSTMModel,
+    lstm: Any,
+    linear: Any,
+    record: dict[str, float],
+    config: TrainingConfig,
+    pools: dict[str, Any],
+    tracker: dict[str, Any],
+) -> None:
+    """Offer a delta-ISS checkpoint to the selection pools of :func:`train` (certify()
+    runs only when its validation FIT beats a pool it could enter)."""
+    epoch, fit_val, rho_s = int(record["epoch"]), record["fit_val"], record["rho_s"]
+    tracker["delta_iss"] += 1
+    if tracker["first_delta_iss_epoch"] is None:
+        tracker["first_delta_iss_epoch"] = epoch
+    if rho_s < tracker["min_rho_s"]:
+        tracker["min_rho_s"], tracker["min_rho_s_epoch"] = rho_s, epoch
+    within = config.selection_rho_s_max is None or rho_s <= config.selection_rho_s_max
+    tracker["within_bound"] += int(within)
+
+    def beats(pool: str) -> bool:
+        return pools[pool] is None or fit_val > pools[pool]["fit_val"]
+
+    wanted = (
+        (within and beats("bound"))
+        or beats("interval")
+        or (within and config.allow_empty_interval and beats("empty_interval"))
     )
+    if not wanted:
+        return
+    check = check_checkpoint(model, config)
+    tracker["checked"] += 1
+    if not check.certified:
+        tracker["certify_failed"] += 1
+        tracker["certify_reason"] = check.reason
+        return
+    if not check.has_interval:
+        tracker["interval_empty"] += 1
+        excess = check.interval_margin - check.constraint_half_width
+        if excess < tracker["min_margin_excess"]:
+            tracker["min_margin_excess"], tracker["min_margin_excess_epoch"] = excess, epoch
+    entry = {
+        "state": _state_dict(lstm, linear),
+        "fit_val": fit_val,
+        "epoch": epoch,
+        "rho_s": check.rho_s,
+        "interval": None if check.interval_phi is None else list(check.interval_phi),
+    }
+    if within and check.has_interval and beats("bound"):
+        pools["bound"] = entry
+    if check.has_interval and beats("interval"):
+        pools["interval"] = entry
+    if within and beats("empty_interval"):
+        pools["empty_interval"] = entry
+
+
+def _selection_sentence(config: TrainingConfig, pool: str) -> str:
+    """The report's ``selection`` text: the rule the exported checkpoint was chosen by."""
+    bound = config.selection_rho_s_max
+    rule = (
+        "best validation FIT (exported float64 model, exact equilibrium) among the "
+        "evaluated checkpoints that pass certify() with the paper's settings"
+    )
+    if pool == "bound":
+        rule += "" if bound is None else f" and have rho_s <= {bound}"
+        rule += " and a non-empty admissible set-point interval (Assumption 5, d_max = 0.1)"
+    elif pool == "interval":
+        rule += (
+            f" and a non-empty admissible set-point interval (Assumption 5, d_max = 0.1); "
+            f"no checkpoint met rho_s <= {bound}, so that bound was dropped "
+            "(selection_fallback)"
+        )
+    else:
+        rule += (
+            ("" if bound is None else f" and have rho_s <= {bound}")
+            + "; none had a non-empty admissible set-point interval (Assumption 5, "
+            "d_max = 0.1): written because allow_empty_interval is set"
+        )
+    return rule + "; the test split is evaluated once, on the selected model"
 
 
 def _finish(
@@ -1114,6 +1512,7 @@ def _finish(
     epochs_run: int,
     wall_time: float,
     final_certified: bool,
+    outcome: dict[str, Any] | None = None,
 ) -> TrainingResult:
     torch = _import_torch()
     cert = delta_iss_certificate(model, config.u_max, require=True)
@@ -1142,16 +1541,9 @@ def _finish(
         "final_weights_certified": bool(final_certified),
         "best_epoch": int(best["epoch"]),
         "best_fit_val": float(best["fit_val"]),
-        "selection": (
-            "best validation FIT (exported float64 model, exact equilibrium) among the "
-            "evaluated checkpoints that pass certify() with the paper's settings"
-            + (
-                ""
-                if config.selection_rho_s_max is None
-                else f" and have rho_s <= {config.selection_rho_s_max}"
-            )
-            + "; the test split is evaluated once, on the selected model"
-        ),
+        "selection": _selection_sentence(config, (outcome or {}).get("pool", "bound")),
+        "selection_outcome": {k: v for k, v in (outcome or {}).items() if k != "preflight"},
+        "preflight": (outcome or {}).get("preflight", []),
         "wall_time_s": wall_time,
         "seed": config.seed,
         "config": config.to_dict(),
