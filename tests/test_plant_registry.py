@@ -108,7 +108,7 @@ def _read_columns(path: Path, *names: str) -> list[np.ndarray]:
 
 def test_simulate_runs_a_user_plant(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "sim"
-    argv = ["simulate", "--plant", USER, "--solver", "daqp", "--segment", "80",
+    argv = ["simulate", "--plant", USER, "--solver", "daqp", "--segment", "80", "--L-d", "0.1",
             "--no-progress", "--out", str(out)]  # fmt: skip
     assert main(argv) == 0
     y, u, y0, d = _read_columns(out / "simulate.csv", "y_phi", "u_phi", "y0_phi", "disturbance")

@@ -127,7 +127,7 @@ def test_cli_certify_prints_the_mimo_numbers(model, capsys) -> None:  # type: ig
 
 def test_cli_simulate_quadtank_runs_briefly(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     code = main(
-        ["simulate", "--plant", "quadtank", "--solver", "daqp", "--segment", "200",
+        ["simulate", "--plant", "quadtank", "--solver", "daqp", "--segment", "200", "--L-d", "0.1",
          "--setpoints", "13,11", "13,11", "--disturbances", "0,0", "0.002,0", "--no-progress",
          "--max-offset", "0.016", "--out", str(tmp_path)]
     )  # fmt: skip
