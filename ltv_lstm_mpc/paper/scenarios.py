@@ -94,10 +94,11 @@ class Scenario:
         LSTM + output disturbance (Fig. 2), ``"ph"``, the pH process (Fig. 1), or another
         registered name or ``"package.module:Class"``.
     setpoints : ndarray (steps,)
-        Requested set-point :math:`y^0_\\phi` (pH) per sample, before the rate limiter.
+        Requested set-point :math:`y^0_\\phi` per sample (the plant's output unit; pH in
+        the paper's scenarios), before the rate limiter.
     disturbances : ndarray (steps,)
-        LSTM plant: output disturbance in pH; pH plant: buffer flow q2 in mL/s; NaN
-        everywhere: the plant's own default disturbance.
+        The plant's disturbance (LSTM plant: output disturbance in output units; pH plant:
+        buffer flow q2 in mL/s); NaN everywhere: the plant's own default disturbance.
     config : MPCConfig
         Controller tuning.
     setpoint_rate_limit : float or None
