@@ -15,7 +15,6 @@ draw (``import ltv_lstm_mpc`` stays light).
 
 from __future__ import annotations
 
-import functools
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -45,7 +44,6 @@ __all__ = [
     "legend",
     "mark_clipped_setpoints",
     "name_of",
-    "plant_of_model",
     "shade_infeasible",
     "signal_labels",
     "titled",
@@ -135,6 +133,8 @@ def signal_labels(plant: str | None, model: LSTMModel) -> SignalLabels:
     inputs: tuple[str, ...] = () if entry is None else entry.input_labels
     outputs: tuple[str, ...] = () if entry is None else entry.output_labels
     if (len(inputs), len(outputs)) != (m, p):
+        from ltv_lstm_mpc.plants.registry import plant_of_model
+
         twin = plant_of_model(model)
         inputs, outputs = ((), ()) if twin is None else (twin.input_labels, twin.output_labels)
     if len(inputs) != m:
@@ -175,56 +175,6 @@ def _disturbance_label(text: str, output_unit: str) -> str:
         return "disturbance d_phi"
     what, found, unit = text.rpartition(" in ")
     return f"{what} ({unit})" if found and what and unit else text
-
-
-_SIGNATURE_NAMES = ("W_y", "b_y", "u_phi_min", "u_phi_max", "y_phi_min", "y_phi_max")
-
-
-def _signature(model: LSTMModel) -> tuple[FloatArray, ...] | None:
-    normalization = model.normalization
-    if normalization is None:
-        return None
-    return (
-        np.asarray(model.W_y),
-        np.asarray(model.b_y),
-        normalization.u_phi_min,
-        normalization.u_phi_max,
-        normalization.y_phi_min,
-        normalization.y_phi_max,
-    )
-
-
-@functools.lru_cache(maxsize=8)
-def _file_signature(name: str) -> tuple[FloatArray, ...] | None:
-    from ltv_lstm_mpc.exceptions import LtvMpcError
-    from ltv_lstm_mpc.lstm.shipped import model_path
-
-    try:
-        with np.load(model_path(name)) as data:
-            return tuple(np.asarray(data[key], dtype=np.float64) for key in _SIGNATURE_NAMES)
-    except (OSError, KeyError, ValueError, LtvMpcError):  # missing or foreign file: no match
-        return None
-
-
-def plant_of_model(model: LSTMModel) -> RegisteredPlant | None:
-    """The registered plant with labels whose default model has ``model``'s weights."""
-    from ltv_lstm_mpc.plants.registry import registered_plants, resolve_plant
-
-    ours = _signature(model)
-    if ours is None:
-        return None
-    for name in registered_plants():
-        entry = resolve_plant(name)
-        if entry.model is None or len(entry.output_labels) != model.p:
-            continue
-        if len(entry.input_labels) != model.m:
-            continue
-        theirs = _file_signature(entry.model)
-        if theirs is not None and all(
-            a.shape == b.shape and np.array_equal(a, b) for a, b in zip(ours, theirs, strict=True)
-        ):
-            return entry
-    return None
 
 
 def titled(plant: str, title: str) -> str:

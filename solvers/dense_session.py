@@ -20,7 +20,8 @@ from ltv_lstm_mpc.exceptions import InvalidValueError, SolverError
 from ltv_lstm_mpc.validation import expect_bool
 
 from ._base import FloatArray, RawResult, WarmStart, raise_backend_error
-from .acceptance import ProblemView, accept, check_cone_point
+from .acceptance import ProblemView, accept
+from .cone_point import check_cone_point
 from .dense import DenseBackend, DenseQP
 from .problem import Solution, SolverStatus
 from .registry import cone_solvers, get_dense_backend

@@ -20,7 +20,8 @@ from ltv_lstm_mpc.validation import expect_bool, real_scalar
 
 from ._adapters import convex_from_dense, dense_from_convex
 from ._base import Backend, BackendFactory, FloatArray, RawResult, WarmStart, raise_backend_error
-from .acceptance import ProblemView, accept, check_cone_point
+from .acceptance import ProblemView, accept
+from .cone_point import check_cone_point
 from .dense import DenseBackendFactory, DenseQP
 from .problem import ConvexProblem, Solution, SolverStatus
 from .reformulation import ConeReformulation
@@ -509,7 +510,7 @@ class Session:
         #: Number of solver workspaces built so far.
         self.n_setups = 0
         # hold a cone problem's OPTIMAL point to its distance from the local solution
-        # (acceptance.check_cone_point): set by solve(), off on the closed loops' sessions
+        # (cone_point.check_cone_point): set by solve(), off on the closed loops' sessions
         self._check_points = False
 
     # ---------------------------------------------------------------------------------

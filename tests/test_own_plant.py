@@ -343,13 +343,9 @@ def test_generate_data_and_train_on_the_tank(
 PACKAGE = Path(__file__).resolve().parents[1] / "ltv_lstm_mpc"
 #: Modules that may hold pH numbers and labels: the pH plant and the paper's benchmark.
 PH_MODULES = ("plants/ph.py", "paper/")
-#: Files of other slices of issue 42 still holding pH text (their owners remove it; the
-#: strict xfail turns into a failure once a file is clean, so the entry goes then).
-PENDING = {
-    "cli/main.py": "the parsers' help texts (command-line slice)",
-    "training/cli.py": "generate-data/train help texts (command-line slice)",
-    "training/train.py": "PAPER_Y_PHI_BOUNDS default and pH labels (training slice)",
-}
+#: Files allowed to hold pH text for a stated reason (a strict xfail: once a file is clean
+#: the test fails and the entry goes). Empty: every module takes units from its plant.
+PENDING: dict[str, str] = {}
 #: "pH" as a unit or a value's label; naming the pH plant ("the pH plant") is not.
 PH_UNIT = re.compile(
     r"\bpH\b(?![- ](plant|neutralization|process|models?|scenarios|loop|data|benchmark)\b)"

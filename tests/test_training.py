@@ -132,8 +132,8 @@ def test_torch_residuals_from_nn_lstm_are_differentiable_and_match_export() -> N
     r1, r2 = torch_residuals(_gate_blocks(lstm), 1.0)
     (r1 + r2).backward()
     assert lstm.weight_hh_l0.grad is not None and torch.all(torch.isfinite(lstm.weight_hh_l0.grad))
-    ds_norm = generate_dataset(seed=0, sequences=3, steps=40, split_sizes=(1, 1, 1)).normalization()
-    model = _export(_state_dict(lstm, linear), ds_norm)
+    dataset = generate_dataset(seed=0, sequences=3, steps=40, split_sizes=(1, 1, 1))
+    model = _export(_state_dict(lstm, linear), dataset.normalization(), (6.0, 9.0))
     cert = delta_iss_certificate(model)
     assert abs(float(r1.detach()) - cert.r1) <= 1e-10
     assert abs(float(r2.detach()) - cert.r2) <= 1e-10

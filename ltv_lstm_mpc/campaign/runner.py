@@ -522,7 +522,7 @@ def estimate_campaign(
 
 def _offset_window(spec: CampaignSpec) -> int | None:
     """The spec's offset window when every task uses the same (None: they differ)."""
-    from ltv_lstm_mpc.campaign.spec import DEFAULT_OFFSET_WINDOW
+    from ltv_lstm_mpc.campaign.task import DEFAULT_OFFSET_WINDOW
 
     windows = {t.settings.get("offset_window", DEFAULT_OFFSET_WINDOW) for t in spec.tasks}
     return windows.pop() if len(windows) == 1 else None

@@ -80,7 +80,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from ltv_lstm_mpc.campaign.task import Task, task_key
+from ltv_lstm_mpc.campaign.task import DEFAULT_OFFSET_WINDOW, Task, task_key
 from ltv_lstm_mpc.exceptions import CampaignSpecError
 from ltv_lstm_mpc.mpc.config import DEFAULT_L_D, TRANSCRIPTIONS, InfeasibilityPolicy, default_solver
 from ltv_lstm_mpc.plants.ph import PHParameters
@@ -121,9 +121,6 @@ CAMPAIGN_ONLY = ("name", "trace", "replications", "offset_tolerance")
 DEFAULT_REPLICATIONS: tuple[str, ...] = ("seed",)
 #: Default tolerance of the ``offset`` outcome of the statements (output units).
 DEFAULT_OFFSET_TOLERANCE = 1e-3
-#: Default window (samples) of the measured offset: the mean of the noise-free plant
-#: output's error over the last ``offset_window`` samples of each constant segment.
-DEFAULT_OFFSET_WINDOW = 50
 #: Values of the settings a task does not set (``L_d`` and ``rate_limit`` of a scenario task
 #: come from the scenario).
 DEFAULTS: dict[str, Any] = {

@@ -14,7 +14,7 @@ Metrics (physical units; the true plant output, not the noisy measurement):
   segments (set-point and disturbance both constant); ``segment_offsets`` lists them.
 * ``final_offset_mean``: largest :math:`|\mathrm{mean}(y_k - y^0_k)|` over the last
   ``offset_window`` samples of each constant segment (the setting; default
-  :data:`~ltv_lstm_mpc.campaign.spec.DEFAULT_OFFSET_WINDOW`, at most the segment),
+  :data:`DEFAULT_OFFSET_WINDOW`, at most the segment),
   recorded in ``offset_window``. Under measurement noise the loop moves the plant with
   the noise, so one sample of even the noise-free output scatters; the window mean is
   the offset the statements test (``offset`` outcome).
@@ -69,6 +69,7 @@ from ltv_lstm_mpc.mpc.config import InfeasibilityPolicy
 from ltv_lstm_mpc.plants.measurement import NoisyMeasurement
 
 __all__ = [
+    "DEFAULT_OFFSET_WINDOW",
     "METRIC_COLUMNS",
     "Task",
     "TaskFunction",
@@ -83,6 +84,10 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 _POLICIES: tuple[str, ...] = typing.get_args(InfeasibilityPolicy)
+
+#: Default window (samples) of the measured offset: the mean of the noise-free plant
+#: output's error over the last ``offset_window`` samples of each constant segment.
+DEFAULT_OFFSET_WINDOW = 50
 
 #: Metric columns of a row, in order (after the key and the settings).
 METRIC_COLUMNS: tuple[str, ...] = (
@@ -296,14 +301,8 @@ def _build_loop(task: Task, model: Any, steps_limit: int | None) -> _Loop:
         disturbances=disturbances,
         segments=segments,
         facts=facts,
-        offset_window=int(s.get("offset_window", _default_offset_window())),
+        offset_window=int(s.get("offset_window", DEFAULT_OFFSET_WINDOW)),
     )
-
-
-def _default_offset_window() -> int:
-    from ltv_lstm_mpc.campaign.spec import DEFAULT_OFFSET_WINDOW
-
-    return DEFAULT_OFFSET_WINDOW
 
 
 def _base_row(task: Task) -> dict[str, Any]:

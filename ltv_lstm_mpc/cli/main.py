@@ -361,9 +361,10 @@ def _add_simulate(subparsers: Any) -> None:
         nargs="+",
         default=None,
         help=(
-            "set-point per segment, physical units (default: the plant's, 7.5 6.8 8.0 pH for "
-            "ph; quadtank: 14,14 13,11 12.3,12.8 cm); for a model with p > 1 outputs one "
-            "comma-separated value per output, e.g. 0.2,0.1 0.3,0.0"
+            "set-point per segment, physical units (default: the plant's own, where it states "
+            "them; otherwise 1/4, 3/4 and 1/2 of the model's admissible set-point interval, "
+            "printed); for a model with p > 1 outputs one comma-separated value per output, "
+            "e.g. 0.2,0.1 0.3,0.0"
         ),
     )
     parser.add_argument(

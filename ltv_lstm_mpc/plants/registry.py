@@ -41,11 +41,15 @@ Example
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
 
 from ltv_lstm_mpc.exceptions import ArgumentTypeError, UnknownPlantError
 from ltv_lstm_mpc.plants.ph import PH_REGISTRY_DEFAULTS
@@ -59,6 +63,7 @@ if TYPE_CHECKING:
 __all__ = [
     "RegisteredPlant",
     "plant_name_of",
+    "plant_of_model",
     "register_plant",
     "registered_plants",
     "resolve_plant",
@@ -160,8 +165,6 @@ class RegisteredPlant:
         own = tuple(t for t in self.setpoints if len(str(t).split(",")) == model.p)
         if own or self.output_labels:
             return own
-        from ltv_lstm_mpc.plotting import plant_of_model
-
         twin = plant_of_model(model)
         if twin is None:
             return ()
@@ -169,6 +172,8 @@ class RegisteredPlant:
 
 
 _REGISTRY: dict[str, RegisteredPlant] = {}
+
+FloatArray = NDArray[np.float64]
 
 #: The methods of the plant role (:class:`~ltv_lstm_mpc.Plant`).
 PLANT_METHODS = ("reset", "output", "step")
@@ -377,3 +382,53 @@ register_plant(
     neurons=8,
     class_name="QuadrupleTankPlant",
 )
+
+
+# -- the registered plant of a model (its shipped weights) ---------------------------------
+
+_SIGNATURE_NAMES = ("W_y", "b_y", "u_phi_min", "u_phi_max", "y_phi_min", "y_phi_max")
+
+
+def _signature(model: LSTMModel) -> tuple[FloatArray, ...] | None:
+    normalization = model.normalization
+    if normalization is None:
+        return None
+    return (
+        np.asarray(model.W_y),
+        np.asarray(model.b_y),
+        normalization.u_phi_min,
+        normalization.u_phi_max,
+        normalization.y_phi_min,
+        normalization.y_phi_max,
+    )
+
+
+@functools.lru_cache(maxsize=8)
+def _file_signature(name: str) -> tuple[FloatArray, ...] | None:
+    from ltv_lstm_mpc.exceptions import LtvMpcError
+    from ltv_lstm_mpc.lstm.shipped import model_path
+
+    try:
+        with np.load(model_path(name)) as data:
+            return tuple(np.asarray(data[key], dtype=np.float64) for key in _SIGNATURE_NAMES)
+    except (OSError, KeyError, ValueError, LtvMpcError):  # missing or foreign file: no match
+        return None
+
+
+def plant_of_model(model: LSTMModel) -> RegisteredPlant | None:
+    """The registered plant with labels whose default model has ``model``'s weights."""
+    ours = _signature(model)
+    if ours is None:
+        return None
+    for name in registered_plants():
+        entry = resolve_plant(name)
+        if entry.model is None or len(entry.output_labels) != model.p:
+            continue
+        if len(entry.input_labels) != model.m:
+            continue
+        theirs = _file_signature(entry.model)
+        if theirs is not None and all(
+            a.shape == b.shape and np.array_equal(a, b) for a, b in zip(ours, theirs, strict=True)
+        ):
+            return entry
+    return None

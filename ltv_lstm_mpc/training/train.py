@@ -92,7 +92,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ltv_lstm_mpc.certificates.certify import PAPER_Y_PHI_BOUNDS
 from ltv_lstm_mpc.certificates.stability import (
     delta_iss_certificate,
     incremental_lyapunov_certificate,
@@ -889,12 +888,12 @@ def _state_dict(lstm: Any, linear: Any) -> dict[str, Any]:
 def _export(
     state: dict[str, Any],
     normalization: Normalization,
-    y_phi_constraint: tuple[Any, Any] = PAPER_Y_PHI_BOUNDS,
+    y_phi_constraint: tuple[Any, Any],
     Ts: float | None = None,
 ) -> LSTMModel:
     arrays = {k: v.detach().cpu().double().numpy() for k, v in state.items()}
-    # The output constraint (pH: the paper's Y_phi = [6, 9] pH, Section V) and the sampling
-    # time travel with the model.
+    # The output constraint (the data's, see _data_constraint) and the sampling time travel
+    # with the model.
     p = normalization.y_phi_min.shape[0]
     low, high = (np.broadcast_to(np.asarray(v, dtype=np.float64), (p,)) for v in y_phi_constraint)
     return LSTMModel.from_torch_state_dict(
@@ -904,18 +903,23 @@ def _export(
 
 def _data_constraint(dataset: IdentificationDataset) -> tuple[Any, Any]:
     """The output constraint stated by the data (``y_phi_constraint``: one (low, high) per
-    output), else the pH benchmark's [6, 9] pH."""
+    output), else the one of the registered plant that made the data (data files written
+    before the constraint was stored: the pH benchmark's)."""
     stated = dataset.metadata.get("y_phi_constraint")
     if stated is None:
+        from ltv_lstm_mpc.plants.registry import plant_name_of, resolve_plant
+
         plant = dataset.metadata.get("plant", "PHNeutralizationPlant")
-        if plant != "PHNeutralizationPlant":
+        name = plant_name_of(plant)
+        registered = None if name is None else resolve_plant(name).y_phi_constraint
+        if registered is None:
             raise InvalidValueError(
                 f"the data of {plant} state no output constraint (metadata y_phi_constraint) "
                 "and the model needs one (the set Y of eq. (optimization)): give the plant a "
                 "y_phi_constraint = (low, high) attribute and generate the data again, or set "
                 "dataset.metadata['y_phi_constraint']"
             )
-        return PAPER_Y_PHI_BOUNDS
+        stated = registered
     pairs = np.asarray(stated, dtype=np.float64).reshape(-1, 2)
     return pairs[:, 0], pairs[:, 1]
 
@@ -1134,7 +1138,7 @@ def plot_prediction(
         ax_y, ax_u = axes[2 * row, 0], axes[2 * row + 1, 0]
         ax_y.plot(t, y[row], label="plant", color="k", lw=1.2)
         ax_y.plot(t, pred[row], label="LSTM", color="tab:blue", lw=1.0, ls="--")
-        ax_y.set_ylabel("pH")
+        ax_y.set_ylabel(str(dataset.metadata.get("units", {}).get("y_phi", "y")))
         ax_y.set_title(f"{split} sequence {row}: FIT {fit_index(y[row], pred[row]):.1f} %")
         ax_y.legend(loc="upper right")
         ax_u.step(t, u[row], where="post", color="tab:orange", lw=1.0)
@@ -1526,7 +1530,8 @@ def _finish(
         "fit_per_sequence": {split: value["fit_per_sequence"] for split, value in fits.items()},
         "fit_definition": (
             "100 (1 - ||y_real - y|| / ||y_real - mean(y_real)||) % on the physical outputs "
-            f"({dataset.metadata.get('units', {}).get('y_phi', 'pH')}) of all sequences of the "
+            f"({dataset.metadata.get('units', {}).get('y_phi', 'output units')}) of all sequences "
+            "of the "
             "split concatenated, per output; 'fit' is the smallest per-output FIT; open-loop "
             "simulation with LSTMModel.simulate from the equilibrium of the data's initial input"
         ),

@@ -16,12 +16,8 @@ from ltv_lstm_mpc.solvers import (
     solve,
 )
 from ltv_lstm_mpc.solvers._base import RawResult
-from ltv_lstm_mpc.solvers.acceptance import (
-    POINT_FACTOR,
-    ProblemView,
-    check_cone_point,
-    check_infeasibility_certificate,
-)
+from ltv_lstm_mpc.solvers.acceptance import ProblemView, check_infeasibility_certificate
+from ltv_lstm_mpc.solvers.cone_point import POINT_FACTOR, check_cone_point
 from ltv_lstm_mpc.solvers.testing import epigraph_socp
 from test_peer_problems import peers
 

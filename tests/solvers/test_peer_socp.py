@@ -35,7 +35,7 @@ WRONG = (SolverStatus.INFEASIBLE, SolverStatus.UNBOUNDED)
 #: problem) stops with InsufficientProgress / NumericalError (FAILED), or AlmostSolved
 #: (OPTIMAL_INACCURATE),
 #: on the epigraph form of some problems. OPTIMAL_INACCURATE after the layer's check of
-#: the distance from the local solution (acceptance.check_cone_point): the point is
+#: the distance from the local solution (cone_point.check_cone_point): the point is
 #: farther than 10 times the optimality tolerance from it. ECOS and SCS: see the notes.
 HONEST: dict[tuple[str, str, str], SolverStatus] = {}
 
