@@ -3,6 +3,8 @@
 Runs bench's scenario 1 (short) step by step interleaved (order alternating ABBA, each
 controller with its own plant) for
 
+- ``daqp:socp``: condensed transcription, exact second-order cones by the SQP over DAQP
+  (the default solver where DAQP is installed);
 - ``clarabel``: condensed transcription, exact second-order cones, CLARABEL's own API;
 - ``cvxpy:CLARABEL``: sparse transcription through cvxpy (the general path and the
   reference the first is checked against);
@@ -10,9 +12,9 @@ controller with its own plant) for
 
 and prints per controller the median / p95 / p99 of the full ``step`` and the jitter
 p95/median, the medians of ``prepare``, ``feedback`` and the solver call (microseconds),
-the ratios of the median step to ``daqp`` (the QP path; the ``clarabel`` row is the cost
-of exact cones relative to it) and to ``cvxpy:CLARABEL``, and the largest difference of the
-applied input to the latter (mL/s).
+the ratios of the median step to ``daqp`` (the QP path; the ``daqp:socp`` and ``clarabel``
+rows are the cost of exact cones relative to it) and to ``cvxpy:CLARABEL``, and the largest
+difference of the applied input to the latter (mL/s).
 
     python experiments/exact_cones_speed.py --steps 200 --N 5 20 50
 """
@@ -34,7 +36,7 @@ from ltv_lstm_mpc import OffsetFreeController  # noqa: E402
 from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
 from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
 
-SOLVERS = ("clarabel", "cvxpy:CLARABEL", "daqp")
+SOLVERS = ("daqp:socp", "clarabel", "cvxpy:CLARABEL", "daqp")
 REFERENCE = "cvxpy:CLARABEL"
 
 

@@ -36,7 +36,13 @@ def test_replay_reproduces_saved_numbers(saved) -> None:
     rows = bench.replay(directory)
     assert len(rows) == 3 * len(solvers)
     for row in rows:
-        assert row["status_replayed"] == row["status_saved"] == "optimal"
+        # the one-shot solve() holds a cone backend's OPTIMAL point to its distance from the
+        # local SQP's solution (solvers/cone_point.py): cvxpy:CLARABEL's points on these
+        # subproblems are OPTIMAL_INACCURATE there (4e-5 away, objective within 2e-9), on the
+        # saved run and the replay alike
+        assert row["status_replayed"] == row["status_saved"], row
+        expected = ("optimal", "optimal_inaccurate") if row["solver"] == "cvxpy:CLARABEL" else ()
+        assert row["status_saved"] in ("optimal", *expected), row
         assert row["u0_diff"] <= 1e-9
         assert row["objective_diff"] <= 1e-8 * (1 + abs(row["u0_saved"]))
     assert (directory / "replay.csv").exists()
