@@ -35,7 +35,7 @@ def check_cone_point(qp: Any, raw: RawResult, optimality: float) -> RawResult:
     order :math:`\sqrt{\epsilon}` (CLARABEL at tolerance 1e-8: residuals 1e-9, distance up
     to 9e-5 on the SOCP versions of qpsolvers' test problems). So the point is refined by
     the local method, the SQP of ``daqp:socp`` started from it and its cone multipliers
-    (:func:`~ltv_lstm_mpc.solvers.daqp_socp.local_solution`: quadratic convergence near the
+    (``daqp_socp.local_solution``: quadratic convergence near the
     solution), and a point farther than :data:`POINT_FACTOR` times ``optimality`` (relative
     to ``1 + |z|``) from the refined one becomes ``OPTIMAL_INACCURATE`` with the distance in
     the notes. Where ``daqp:socp`` is unavailable or does not converge, the status stays and
@@ -48,7 +48,7 @@ def check_cone_point(qp: Any, raw: RawResult, optimality: float) -> RawResult:
     raw : RawResult
         The answer after :func:`accept`.
     optimality : float
-        :func:`~ltv_lstm_mpc.solvers.tolerances.optimality_tolerance` of the solver.
+        :func:`~ltv_lstm_mpc.solvers.optimality_tolerance` of the solver.
     """
     if raw.status is not SolverStatus.OPTIMAL or raw.z is None or not qp.cones:
         return raw

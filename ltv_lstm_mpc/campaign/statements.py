@@ -262,7 +262,7 @@ def campaign_statements(
     outcomes : sequence of Outcome, optional
         Default :func:`default_outcomes`.
     replications : sequence of str
-        Replication settings (:attr:`~ltv_lstm_mpc.campaign.spec.CampaignSpec.replications`)
+        Replication settings (``CampaignSpec.replications``)
         pooled into each stratum (they must not be in ``strata``). Rows of a stratum that
         differ only in the noise ``seed`` and have ``noise_std = 0`` are one loop and count
         once (:attr:`Statement.duplicates`).

@@ -92,7 +92,7 @@ PH_DATA_UNITS: dict[str, str] = {
 #: pH of the paper's initial condition (the LSTM-plant scenarios of Section V start there).
 PH_INITIAL_OUTPUT = 7.0
 
-#: The pH plant's entry in the plant registry (:func:`ltv_lstm_mpc.plants.register_plant`):
+#: The pH plant's entry in the plant registry (:func:`~ltv_lstm_mpc.register_plant`):
 #: its title, units, default model, set-points (pH) and nominal buffer flow q2 (mL/s).
 PH_REGISTRY_DEFAULTS: dict[str, Any] = {
     "title": "pH plant",
