@@ -28,10 +28,10 @@ class GravityTank:
     input_labels = ("q (cm^3/s)",)
     output_labels = ("h (cm)",)
     disturbance_size = 1
-    #: Tank cross-section (cm^2), outlet area (cm^2), gravity (cm/s^2).
+    #: Tank cross-section (cm^2) and orifice coefficient a sqrt(2 g) (cm^2.5/s: outlet area
+    #: 0.5 cm^2, gravity 981 cm/s^2).
     area = 200.0
-    outlet = 0.5
-    gravity = 981.0
+    orifice = 0.5 * math.sqrt(2.0 * 981.0)
     #: Euler substeps per sample.
     substeps = 10
 
@@ -41,7 +41,7 @@ class GravityTank:
 
     def steady_level(self, q: float) -> float:
         """Level (cm) at which the outflow equals the inflow ``q`` (cm^3/s)."""
-        return (q / (self.outlet * math.sqrt(2.0 * self.gravity))) ** 2
+        return (q / self.orifice) ** 2
 
     def reset(self) -> float:
         """The steady state of ``u_phi_initial``; returns the level (cm)."""
@@ -55,10 +55,11 @@ class GravityTank:
     def step(self, u_phi: ArrayLike, d_phi: ArrayLike | None = None) -> NDArray[np.float64]:
         """One sample with inflow ``u_phi`` (saturated to the pump's range) and an additive
         inflow disturbance ``d_phi`` (cm^3/s)."""
-        q = float(np.clip(np.asarray(u_phi, dtype=np.float64).reshape(-1)[0], 65.0, 155.0))
+        u = np.asarray(u_phi, dtype=np.float64).reshape(-1)[0]
+        q = float(np.clip(u, self.u_phi_min, self.u_phi_max))
         d = 0.0 if d_phi is None else float(np.asarray(d_phi, dtype=np.float64).reshape(-1)[0])
         dt = self.Ts / self.substeps
-        k = self.outlet * math.sqrt(2.0 * self.gravity)
+        k = self.orifice
         for _ in range(self.substeps):
             self.h = max(self.h + dt * (q + d - k * math.sqrt(max(self.h, 0.0))) / self.area, 0.0)
         return self.output()

@@ -121,6 +121,12 @@ def _choose_kernels(
             "(once, about 20-40 s on 2 cores); later controllers and runs use them. "
             "OffsetFreeController(..., kernels='compiled') waits for the compilation "
             "instead; `ltv-lstm-mpc warmup` compiles ahead of time"
+            + (
+                ". The daqp:socp solver's SQP has no numpy twin: it compiles in this process "
+                "at the first step (about 10 s on 2 cores, once)"
+                if config.solver == "daqp:socp"
+                else ""
+            )
         )
 
 
