@@ -289,6 +289,34 @@ def test_mismatch_changes_the_plant_and_scenario_tasks_match_the_paper_scenarios
     assert json.loads(row["segment_offsets"]) == pytest.approx(reference["segment_offsets"])
 
 
+def test_lstm_plant_task_starts_where_simulate_does(tmp_path) -> None:
+    """Without y0_initial the LSTM plant of a campaign task starts in the middle of the
+    controller's admissible set-point interval, as simulate's (paper.scenarios.initial_output),
+    not at the equilibrium of the mid-range input."""
+    from ltv_lstm_mpc import MPCConfig, OffsetFreeController
+    from ltv_lstm_mpc.lstm.shipped import load_model
+    from ltv_lstm_mpc.paper.scenarios import initial_output
+
+    data = {
+        "campaign": {
+            "plant": "lstm",
+            "steps": 10,
+            "setpoints": [7.2],
+            "disturbances": [0.0],
+            "solver": "daqp",
+            "trace": True,
+        }
+    }
+    run = run_campaign(parse_spec(data), tmp_path, serial=True, progress=False, report=False)
+    (row,) = run.rows
+    trace = read_trace(tmp_path, row["key"])
+    model = load_model("ph_lstm_n5.npz")
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp", L_d=DEFAULT_L_D))
+    expected = initial_output(model, controller.certification)
+    assert abs(expected - 7.0) > 0.1  # not the mid-range input's equilibrium (about 7.0 pH)
+    assert trace["y_phi"][0] == pytest.approx(expected, abs=1e-8)
+
+
 def test_lstm_plant_task_applies_its_output_disturbance_schedule(tmp_path) -> None:
     data = {
         "campaign": {

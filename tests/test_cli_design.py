@@ -260,3 +260,12 @@ def test_default_solver_runs_the_paper_model(ph_model) -> None:
             u = controller.step(7.0, 7.2)
     assert controller.config.solver == default_solver()
     assert np.all(np.isfinite(u))
+
+
+def test_library_errors_of_train_name_the_command(tmp_path, capsys) -> None:
+    """A library or file error of train is one line prefixed with the command, like every
+    other command's (exit 1)."""
+    code = main(["train", "--data", str(tmp_path / "missing.npz")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1
+    assert len(err) == 1 and err[0].startswith("ltv-lstm-mpc train: error: "), err

@@ -317,7 +317,11 @@ SETTINGS: dict[str, Setting] = {
     "disturbances": Setting(
         _number_list(nonnegative=False), "pH plant: q2 (mL/s); LSTM plant: output disturbance"
     ),
-    "y0_initial": Setting(_real, "LSTM plant: initial output (default: mid-range input)"),
+    "y0_initial": Setting(
+        _real,
+        "LSTM plant: initial output (default: the middle of the model's admissible set-point "
+        "interval, as in simulate)",
+    ),
     "L_d": Setting(_number(0.0, 2.0, open_low=True), "observer gain L_d = l_d I_p"),
     "N": Setting(_integer(1), "prediction horizon"),
     "solver": Setting(_solver, "solver backend (ltv_lstm_mpc.solvers.available_solvers())"),

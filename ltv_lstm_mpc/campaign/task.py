@@ -284,10 +284,15 @@ def _build_loop(task: Task, model: Any, steps_limit: int | None) -> _Loop:
     options: dict[str, Any] = {}
     if "mismatch" in entry.options:
         options["mismatch"] = s["mismatch"]
+    controller = OffsetFreeController(model, config, setpoint_rate_limit=rate_limit)
+    if "y0_phi" in entry.options and y0_initial is None and model.p == 1:
+        # as simulate: the middle of the controller's admissible set-point interval
+        from ltv_lstm_mpc.paper.scenarios import initial_output
+
+        y0_initial = initial_output(model, controller.certification)
     if "y0_phi" in entry.options and y0_initial is not None:
         options["y0_phi"] = y0_initial
     inner = entry.build(model, **options)
-    controller = OffsetFreeController(model, config, setpoint_rate_limit=rate_limit)
     facts = {
         "plant": plant_kind,
         "steps": int(setpoints.shape[0]),

@@ -217,7 +217,7 @@ def generate_data_command(args: argparse.Namespace) -> int:
     except UsageError:
         raise
     except (LtvMpcError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
+        print(f"ltv-lstm-mpc generate-data: error: {error}", file=sys.stderr)
         return 1
     return 0
 
@@ -227,7 +227,7 @@ def train_command(args: argparse.Namespace) -> int:
     try:
         from ltv_lstm_mpc.training.train import TrainingConfig, TrainingError, preflight, train
     except ImportError as error:  # pragma: no cover - torch missing
-        print(f"error: {error}", file=sys.stderr)
+        print(f"ltv-lstm-mpc train: error: {error}", file=sys.stderr)
         return 1
     dataset: IdentificationDataset | None = None
     plant_name = _plant_name(args)
@@ -235,13 +235,14 @@ def train_command(args: argparse.Namespace) -> int:
         try:
             dataset = IdentificationDataset.load(args.data)
         except (LtvMpcError, OSError) as error:
-            print(f"error: {error}", file=sys.stderr)
+            print(f"ltv-lstm-mpc train: error: {error}", file=sys.stderr)
             return 1
         plant_name = _data_plant(dataset)
         if args.plant is not None and args.plant != plant_name:
             print(
-                f"error: --plant {args.plant} but {args.data} holds data of the {plant_name} "
-                f"plant ({dataset.metadata.get('plant')}); drop --plant or use matching data",
+                f"ltv-lstm-mpc train: error: --plant {args.plant} but {args.data} holds data "
+                f"of the {plant_name} plant ({dataset.metadata.get('plant')}); drop --plant or "
+                "use matching data",
                 file=sys.stderr,
             )
             return 2
@@ -284,7 +285,7 @@ def train_command(args: argparse.Namespace) -> int:
         try:
             findings = preflight(dataset, config)
         except TrainingError as error:  # found before training: a bad input
-            print(f"error: {error}", file=sys.stderr)
+            print(f"ltv-lstm-mpc train: error: {error}", file=sys.stderr)
             return 2
         for line in findings:
             print(f"data check: {line}", file=sys.stderr)
@@ -319,12 +320,12 @@ def train_command(args: argparse.Namespace) -> int:
             paths = (result.model_path, result.report_path, result.plot_path, result.curves_path)
             report = result.report
     except ImportError as error:  # pragma: no cover - torch missing
-        print(f"error: {error}", file=sys.stderr)
+        print(f"ltv-lstm-mpc train: error: {error}", file=sys.stderr)
         return 1
     except UsageError:
         raise
     except (LtvMpcError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
+        print(f"ltv-lstm-mpc train: error: {error}", file=sys.stderr)
         return 1
     fit = report["fit"]
     per_output = report.get("fit_per_output", {})
