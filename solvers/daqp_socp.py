@@ -69,7 +69,7 @@ solved. The prediction changes only the time: the SQP takes the same iterates, t
 rounding (``eliminate=False`` gives the reference the tests compare with). Where one
 such cone's :math:`F_j` holds another's epigraph variable, none is eliminated.
 
-Unbounded and infeasible subproblems (issue 43): the first subproblem of a solve knows no
+Unbounded and infeasible subproblems: the first subproblem of a solve knows no
 cone curvature (:math:`\mu = 0`, :math:`W_1 = H`), so where the curvature of a variable is
 all in a cone (an epigraph variable with a linear cost, the form qpsolvers hands a QP to
 ECOS in) it is unbounded; DAQP's "unbounded" (exit flag -3) is a verdict on that

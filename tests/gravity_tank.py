@@ -4,7 +4,7 @@
 (Torricelli): :math:`A \\dot h = q - a \\sqrt{2 g h}`, level :math:`h` in cm, inflow
 :math:`q` in cm^3/s, sampled every ``Ts = 5`` s. Nothing about it is the pH plant's: other
 units, another sampling time, an output range of about 8..50 cm against the constraint
-[10, 45] cm. It is the plant the default training settings were not tuned for (issue 42).
+[10, 45] cm. It is the plant the default training settings were not tuned for.
 """
 
 from __future__ import annotations

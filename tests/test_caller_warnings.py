@@ -3,7 +3,7 @@
 CPython's ``warnings.warn_explicit(..., module_globals=...)`` asks the module's loader for
 the source of ``__name__`` and lets its error escape; no loader serves a module named
 ``__main__`` (``python -c``, ``python -``, ``python -m``, a frozen ``__main__``), so every
-library warning raised from such a process crashed it instead (issue 42: the background
+library warning raised from such a process crashed it instead (the background
 compile of a model file without ``Ts`` died of it).
 """
 

@@ -1,4 +1,4 @@
-"""Campaign statements (issue 42): replications are not strata, and the offset outcome is
+"""Campaign statements: replications are not strata, and the offset outcome is
 measured as a window mean of the noise-free plant output with a spec-level tolerance."""
 
 from __future__ import annotations

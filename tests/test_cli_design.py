@@ -1,4 +1,4 @@
-"""The command line as one design (issue 42): one default solver and L_d, the same option
+"""The command line as one design: one default solver and L_d, the same option
 names for the same things, defaults shown one way, every help text true, bad input exit 2
 with one line, warnings as one clean line; and the messages of the library behind it."""
 

@@ -1,4 +1,4 @@
-"""A user's own plant and model end to end, with no pH number or label in any output (issue 42).
+"""A user's own plant and model end to end, with no pH number or label in any output.
 
 The plant is a gravity-drained tank (``tests/tank_plant.py``: level in cm, Ts = 5 s, level
 constraint [10, 45] cm), nothing like the pH process; the model is a small delta-ISS LSTM made

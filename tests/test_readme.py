@@ -98,7 +98,7 @@ _NEEDS = {
 
 
 def test_docs_extra_holds_what_the_gallery_imports() -> None:
-    """The defect of issue 42: ``.[docs]`` lacked torch and pyarrow, so the README's docs
+    """The former defect: ``.[docs]`` lacked torch and pyarrow, so the README's docs
     command failed in a fresh venv (CI passed only after the test command's install)."""
     installed = _docs_requirements()
     assert {"sphinx", "sphinx-gallery", "sphinx-mathjax-offline"} <= installed

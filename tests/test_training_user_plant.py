@@ -1,4 +1,4 @@
-"""Training on a plant the defaults were not tuned for (issue 42).
+"""Training on a plant the defaults were not tuned for.
 
 The selection of the exported checkpoint (a rho_s bound tuned on the pH data, then a
 non-empty admissible set-point interval of Assumption 5), the message that names the

@@ -1,4 +1,4 @@
-"""The acceptance layer on cone problems (issue 43): Farkas vectors' cone entries, the
+"""The acceptance layer on cone problems: Farkas vectors' cone entries, the
 distance of an OPTIMAL point from the local solution, daqp:socp's certified statuses."""
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def test_daqp_socp_certified_statuses(name: str, status: SolverStatus) -> None:
 @needs_socp
 def test_daqp_socp_unbounded_first_subproblem_goes_on() -> None:
     """QPTEST as an SOCP: the first subproblem is unbounded (no cone curvature yet); the
-    SQP goes on with a proximal step and reaches the QP's solution (issue 43: it
+    SQP goes on with a proximal step and reaches the QP's solution (it once
     returned UNBOUNDED, "exitflag -3 at SQP iteration 1")."""
     sol = DenseSession("daqp:socp").solve(
         DenseQP.from_convex_problem(epigraph_socp(peers()["QPTEST (Maros-Meszaros)"].problem))

@@ -6,7 +6,7 @@ QP to ECOS in: no quadratic term, all the curvature in the cone) and solved thro
 ``solve()`` and ``DenseSession`` by each cone backend. The rule is the peer suite's, on
 the SOCP's solution :math:`(x^*, \\tfrac12 x^{*\\top} P x^* + q^\\top x^*)`: ``OPTIMAL``
 comes with the right point; a non-optimal status is allowed only where
-:data:`HONEST` lists it. Never allowed, listed or not (the wrong answers of issue 43):
+:data:`HONEST` lists it. Never allowed, listed or not (the wrong answers this suite guards against):
 ``INFEASIBLE`` or ``UNBOUNDED`` on a solvable problem, one for the other, or a point on
 an infeasible or unbounded one; and ``daqp:socp`` reports ``INFEASIBLE`` /
 ``UNBOUNDED`` only with a certificate, which the layer checked.

@@ -15,8 +15,8 @@ are, by construction, one of
   cone;
 
 with the terminal cost either :math:`t^\\top P_f t` (the controller's) or linear in
-``t`` (all the curvature of ``t`` in the cones: the first SQP subproblem is unbounded,
-issue 43). CLARABEL's certified status (native ``clarabel``: its infeasibility and
+``t`` (all the curvature of ``t`` in the cones: the first SQP subproblem is unbounded).
+CLARABEL's certified status (native ``clarabel``: its infeasibility and
 unboundedness certificates are checked by the layer) is the reference. ``daqp:socp``
 must never report ``INFEASIBLE`` / ``UNBOUNDED`` where the problem is not, must give them
 only with a certificate the layer checked, never a point where there is none, and where
