@@ -160,6 +160,10 @@ class ConvexFromDense(Backend):
         """Whether the dense backend solves second-order cones."""
         return self._inner.handles_cones()
 
+    def refines_cone_points(self) -> bool:
+        """Whether the dense backend's cone points are the local SQP's solution."""
+        return self._inner.refines_cone_points()
+
     def setup(self, problem: ConvexProblem) -> None:
         """Convert and set the dense backend up."""
         qp = dense_qp_of(problem)

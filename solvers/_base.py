@@ -162,6 +162,8 @@ class Backend(abc.ABC):
     backend: ClassVar[str]
     #: Whether second-order cones are solved exactly.
     supports_cones: ClassVar[bool] = False
+    #: Its cone points are the local SQP's solution (:meth:`refines_cone_points`).
+    local_cone_solutions: ClassVar[bool] = False
     #: Whether :meth:`update` changes values in place.
     supports_update: ClassVar[bool] = False
     #: Whether a warm start is used (otherwise it is ignored with a note).
@@ -176,6 +178,12 @@ class Backend(abc.ABC):
     def handles_cones(self) -> bool:
         """Whether this workspace solves second-order cones exactly."""
         return self.supports_cones
+
+    def refines_cone_points(self) -> bool:
+        """Whether this workspace's ``OPTIMAL`` points on cone problems are already the
+        local SQP's solution (``daqp:socp``): the acceptance layer's distance check
+        (:func:`~ltv_lstm_mpc.solvers.cone_point.check_cone_point`) skips them."""
+        return self.local_cone_solutions
 
     @abc.abstractmethod
     def setup(self, problem: ConvexProblem) -> None:

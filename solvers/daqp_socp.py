@@ -974,6 +974,7 @@ class DaqpSocpDense(DenseBackend):
     supports_update: ClassVar[bool] = True
     supports_warm_start: ClassVar[bool] = True
     supports_cones: ClassVar[bool] = True
+    local_cone_solutions: ClassVar[bool] = True
 
     def __init__(self, name: str, tolerance: float, settings: Mapping[str, Any]) -> None:
         """Check the settings against DAQP's and merge the tolerance options."""

@@ -417,6 +417,8 @@ class DenseBackend(abc.ABC):
     supports_warm_start: ClassVar[bool] = False
     #: Whether second-order cones (:attr:`DenseQP.cones`) are solved exactly.
     supports_cones: ClassVar[bool] = False
+    #: Its cone points are the local SQP's solution (:meth:`refines_cone_points`).
+    local_cone_solutions: ClassVar[bool] = False
     #: Entry point for compiled callers (see :attr:`DenseSession.native`); none by default.
     native: Any = None
 
@@ -429,6 +431,12 @@ class DenseBackend(abc.ABC):
     def handles_cones(self) -> bool:
         """Whether this workspace solves the cones of a :class:`DenseQP` exactly."""
         return self.supports_cones
+
+    def refines_cone_points(self) -> bool:
+        """Whether this workspace's ``OPTIMAL`` points on cone problems are already the
+        local SQP's solution (``daqp:socp``): the acceptance layer's distance check
+        (:func:`~ltv_lstm_mpc.solvers.cone_point.check_cone_point`) skips them."""
+        return self.local_cone_solutions
 
     @abc.abstractmethod
     def setup(self, qp: DenseQP) -> None:

@@ -94,8 +94,7 @@ class DenseSession:
         self._qp: DenseQP | None = None
         self._in_place = self._backend.supports_update
         self._backend_name = self._backend.backend
-        # daqp:socp's own points are the local SQP's (no refinement check on them)
-        self._refines = type(self._backend).__name__ == "DaqpSocpDense"
+        self._refines = self._backend.refines_cone_points()
         #: ``"setup"``, ``"in_place"`` or ``"fresh_setup"``: what the last call did.
         self.last_update: str | None = None
         #: Number of workspaces built so far.

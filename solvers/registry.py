@@ -681,7 +681,11 @@ class Session:
             raw, residuals = accept(
                 ProblemView.of_convex(self._solved), raw, self._feasibility, self._optimality
             )
-            if self._check_points and self._solved.has_cones and self.solver != "daqp:socp":
+            if (
+                self._check_points
+                and self._solved.has_cones
+                and not self._backend.refines_cone_points()
+            ):
                 qp = DenseQP.from_convex_problem(self._solved)  # one-shot solve() only
                 raw = check_cone_point(qp, raw, self._optimality)
             raw_z = raw.z
