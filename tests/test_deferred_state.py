@@ -100,7 +100,7 @@ def _written(controller: OffsetFreeController) -> tuple[Any, ...]:
     return (
         controller.observer.x_hat, controller.observer.d_hat, reference._last_z,
         reference._last_target, reference._Jinv, mpc._previous_u, mpc.solver_time,
-        mpc.prepare_time, mpc.feedback_time, mpc.qp_iterations, controller._y0,
+        mpc.prepare_time, mpc.feedback_time, mpc.qp_iterations, controller.y0_last,
     )  # fmt: skip
 
 
@@ -119,18 +119,18 @@ def test_the_state_left_deferred_is_the_general_paths() -> None:
         u = one_call.step(y, setpoint)
         np.testing.assert_allclose(u, general.step(y, setpoint), rtol=0, atol=1e-10)
         y = 0.5 * (y + setpoint)
-    assert one_call._deferred is not None  # deferred since the first one-call step
-    assert one_call._deferred[1] == len(one_call.records) - 1
+    assert one_call.engine.deferred is not None  # deferred since the first one-call step
+    assert one_call.engine.deferred.k == len(one_call.records) - 1
     mpc: Any = one_call.mpc
     for name in ("x_hat", "d_hat"):
         np.testing.assert_allclose(
             getattr(one_call.observer, name), getattr(general.observer, name), atol=1e-12
         )
-    assert one_call._deferred is None  # the read wrote it into the owners
+    assert one_call.engine.deferred is None  # the read wrote it into the owners
     reference: Any = one_call.reference
     np.testing.assert_allclose(reference._last_z, general.reference._last_z, atol=1e-12)
     np.testing.assert_allclose(mpc._previous_u, general.mpc._previous_u, atol=1e-12)  # type: ignore[attr-defined]
-    np.testing.assert_allclose(one_call._y0, general._y0, atol=1e-12)
+    np.testing.assert_allclose(one_call.y0_last, general.y0_last, atol=1e-12)
     last = one_call.records[-1]
     assert mpc.solver_time == last.mpc.solver_time
     assert (mpc.prepare_time, mpc.feedback_time) == (
@@ -151,7 +151,7 @@ def test_an_estimate_assigned_while_deferred_is_the_one_the_next_step_uses() -> 
             controller.step(y, setpoint)
         _written(eager)
         y += 0.05
-    assert deferring._deferred is not None
+    assert deferring.engine.deferred is not None
     x_hat = eager.observer.x_hat + 0.01
     deferring.observer.x_hat = x_hat.copy()
     eager.observer.x_hat = x_hat.copy()
@@ -173,15 +173,15 @@ def test_a_setting_assigned_while_deferred_is_the_one_the_next_step_uses() -> No
         for controller in (one_call, general):
             controller.step(y, setpoint)
         y += 0.05
-    assert one_call._deferred is not None
-    workspace = one_call._one_call
+    assert one_call.engine.deferred is not None
+    workspace = one_call.engine.workspace
     for controller in (one_call, general):
         controller.reference.tol = 1e-3
     for setpoint in (7.22, 7.24):  # small moves: the warm chord, in the one-call step
         u = one_call.step(y, setpoint)
         np.testing.assert_allclose(u, general.step(y, setpoint), rtol=0, atol=1e-10)
         y += 0.05
-    assert one_call._one_call is not workspace
+    assert one_call.engine.workspace is not workspace
     assert one_call.records[-1].mpc.feedback_time > 0  # one-call records
     for mine, theirs in zip(one_call.records, general.records, strict=True):
         np.testing.assert_allclose(mine.x_bar, theirs.x_bar, rtol=0, atol=1e-10)

@@ -226,7 +226,7 @@ def test_verdicts_are_computed_on_first_read_in_step_order(model) -> None:
     assert len(log._verdicts) == 3 and third is log._verdicts[2]
     assert [v.guarantee for v in log.verdicts()] == ["held"] * 6
     controller.reset()
-    assert controller.records == [] and controller._assumption_log is not log
+    assert controller.records == [] and controller.assumption_log is not log
 
 
 def test_a_custom_mpc_with_its_own_certification_type_is_not_monitored(model) -> None:

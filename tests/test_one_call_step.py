@@ -20,6 +20,7 @@ from ltv_lstm_mpc.solvers import available_solvers, daqp_native
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.loop import compiled_step
+from ltv_lstm_mpc.loop.engines import OneCallEngine
 from ltv_lstm_mpc.lstm.shipped import load_model
 
 needs_binding = pytest.mark.skipif(
@@ -73,7 +74,7 @@ def codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
     arguments, and read from the rows; through ``_compiled`` and through the entry point
     the common step calls directly, ``_step_from_deferred_rows``)."""
     counts: Counter[int] = Counter()
-    original = OffsetFreeController._compiled
+    original = OneCallEngine._compiled
     names = ("controller_step", "controller_step_from_rows")
 
     class CountingEntries(dict[str, Any]):
@@ -92,9 +93,9 @@ def codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
             return counted
 
     def counting(self: Any, name: str, fast: bool, arguments: Any) -> Any:
-        if not isinstance(self._entries, CountingEntries):
-            self._entries = CountingEntries(self._entries)
-        through_entry = fast and bool(dict.get(self._entries, name))  # counted there
+        if not isinstance(self.entries, CountingEntries):
+            self.entries = CountingEntries(self.entries)
+        through_entry = fast and bool(dict.get(self.entries, name))  # counted there
         answer = original(self, name, fast, arguments)
         if name in names and not through_entry:
             counts[answer[0]] += 1
@@ -102,7 +103,7 @@ def codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
 
     # at the controller's calls, not by replacing the compiled functions (the "_from_rows"
     # ones call them from compiled code: a Python stand-in cannot be compiled into them)
-    monkeypatch.setattr(OffsetFreeController, "_compiled", counting)
+    monkeypatch.setattr(OneCallEngine, "_compiled", counting)
     return counts
 
 
@@ -253,21 +254,21 @@ def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch
     scenario = bench_scenarios(model)[0]
     config = replace(scenario.config, solver="daqp", N=5)
     longer_calls = Counter[str]()
-    original = OffsetFreeController._step_one_call
+    original = OneCallEngine._step_one_call
 
     def counted(self: Any, y_phi: Any, y0_phi: Any) -> Any:
-        longer_calls[self.name] += 1
+        longer_calls[self.controller.label] += 1
         return original(self, y_phi, y0_phi)
 
-    monkeypatch.setattr(OffsetFreeController, "_step_one_call", counted)
+    monkeypatch.setattr(OneCallEngine, "_step_one_call", counted)
     short, longer = (
         OffsetFreeController(
             model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
         )
         for _ in range(2)
     )
-    short.name, longer.name = "short", "longer"  # type: ignore[attr-defined]
-    longer._step_from_deferred_rows = lambda *arguments: None  # type: ignore[method-assignment]
+    short.label, longer.label = "short", "longer"  # type: ignore[attr-defined]
+    longer.engine._step_from_deferred_rows = lambda *arguments: None  # type: ignore[attr-defined]
     plants = [scenario.make_plant(model) for _ in range(2)]
     y = [plant.output() for plant in plants]
     kinds = ["float"] * 10 + ["vector"] * 10 + ["float64"] * 10
@@ -396,7 +397,7 @@ def test_entry_points_give_the_dispatched_numbers(solver: str) -> None:
     steps = 120
     fast = _loop(model, config, scenario, True, steps)
     general = _loop(model, config, scenario, False, steps)
-    assert callable(fast._entries.get("controller_step_from_rows"))
+    assert callable(fast.engine.entries.get("controller_step_from_rows"))
     worst, where = _worst(fast.records, general.records)
     assert worst == 0.0, where
     prepared = OffsetFreeController(
@@ -409,7 +410,7 @@ def test_entry_points_give_the_dispatched_numbers(solver: str) -> None:
         d = scenario.disturbances[k]
         y = plant.step(u, None if np.isnan(d) else d)
         assert prepared.prepare_next(scenario.setpoints[min(k + 1, steps - 1)])
-    assert callable(prepared._entries.get("feedback_step_from_rows"))
-    assert callable(prepared._entries.get("prepare_step_from_rows"))
+    assert callable(prepared.engine.entries.get("feedback_step_from_rows"))
+    assert callable(prepared.engine.entries.get("prepare_step_from_rows"))
     worst, where = _worst(prepared.records, general.records)
     assert worst == 0.0, where

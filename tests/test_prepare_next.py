@@ -22,6 +22,7 @@ from test_one_call_step import _worst
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.exceptions import ArgumentTypeError, DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop import compiled_step
+from ltv_lstm_mpc.loop.engines import OneCallEngine
 from ltv_lstm_mpc.lstm.shipped import load_model
 
 pytestmark = pytest.mark.skipif(
@@ -37,7 +38,7 @@ def feedback_codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
     """Counts of the prepared steps' return codes (``feedback_step`` and
     ``feedback_step_from_rows``)."""
     counts: Counter[int] = Counter()
-    original = OffsetFreeController._compiled
+    original = OneCallEngine._compiled
     names = ("feedback_step", "feedback_step_from_rows")
 
     def counting(self: Any, name: str, fast: bool, arguments: Any) -> Any:
@@ -48,7 +49,7 @@ def feedback_codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
 
     # at the controller's call, not by replacing the compiled functions (the "_from_rows"
     # ones call them from compiled code: a Python stand-in cannot be compiled into them)
-    monkeypatch.setattr(OffsetFreeController, "_compiled", counting)
+    monkeypatch.setattr(OneCallEngine, "_compiled", counting)
     return counts
 
 
@@ -353,13 +354,13 @@ def _cached_pair() -> tuple[Any, Any, list[int]]:
             for _ in range(2)
         ]
         feedbacks = [0]
-        compiled = pair[0]._compiled
+        compiled = pair[0].engine._compiled
 
         def counting(name: str, fast: bool, arguments: Any) -> Any:
             if name.startswith("feedback_step"):
                 feedbacks[0] += 1
             return compiled(name, fast, arguments)
 
-        pair[0]._compiled = counting  # type: ignore[method-assign]
+        pair[0].engine._compiled = counting  # type: ignore[method-assign]
         _PAIR.extend([*pair, feedbacks])
     return _PAIR[0], _PAIR[1], _PAIR[2]

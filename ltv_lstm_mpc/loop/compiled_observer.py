@@ -12,7 +12,13 @@ import numpy as np
 from ltv_lstm_mpc.lstm.compiled import lstm_cell
 from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
-__all__ = ["OBSERVER_FIELDS", "ObserverWorkspace", "new_observer_workspace", "observer_update"]
+__all__ = [
+    "CONSTRUCTORS",
+    "OBSERVER_FIELDS",
+    "ObserverWorkspace",
+    "new_observer_workspace",
+    "observer_update",
+]
 
 #: Fields of :data:`ObserverWorkspace`, in the order of its compiled constructor.
 OBSERVER_FIELDS = ("WU", "W_y", "b_y", "L_gates", "L_d", "S", "T", "TC", "extra")
@@ -38,7 +44,17 @@ def new_observer_workspace(**fields: Any) -> Any:
 
 
 @njit(cache=True)
-def _new_observer_workspace(WU, W_y, b_y, L_gates, L_d, S, T, TC, extra):  # type: ignore[no-untyped-def]
+def _new_observer_workspace(
+    WU: Any,
+    W_y: Any,
+    b_y: Any,
+    L_gates: Any,
+    L_d: Any,
+    S: Any,
+    T: Any,
+    TC: Any,
+    extra: Any,
+) -> Any:
     """The compiled constructor (no constructor compile at run time; cached)."""
     return ObserverWorkspace(WU, W_y, b_y, L_gates, L_d, S, T, TC, extra)
 
@@ -88,3 +104,8 @@ def observer_update(
         for l in range(p):
             acc += L_d[j, l] * innovation[l]
         d_out[j] = min(max(acc, -d_max), d_max)
+
+
+#: This module's compiled constructors (the compiled workspace constructor): what compiles with it
+#: (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
+CONSTRUCTORS = (_new_observer_workspace,)

@@ -15,8 +15,13 @@ from ltv_lstm_mpc.lstm.compiled import jacobians, lstm_cell
 from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
 __all__ = [
+    "CHORD_CONVERGED",
+    "CHORD_FACTORIZATIONS",
     "CHORD_FIELDS",
+    "CHORD_ITERATIONS",
+    "CHORD_JINV_VALID",
     "CHORD_REFRESH_CONTRACTION",
+    "CONSTRUCTORS",
     "ChordWorkspace",
     "chord_newton",
     "new_chord_workspace",
@@ -32,6 +37,10 @@ __all__ = [
 #: ``docs/benchmarks.md``). Shared by the numpy reference
 #: (``ReferenceCalculator._chord_numpy``).
 CHORD_REFRESH_CONTRACTION = 0.1
+
+#: Entries of ``ChordWorkspace.state`` (int64): the kept inverse Jacobian is valid (1/0),
+#: iterations, factorizations, converged (1/0) of the last :func:`chord_newton`.
+CHORD_JINV_VALID, CHORD_ITERATIONS, CHORD_FACTORIZATIONS, CHORD_CONVERGED = 0, 1, 2, 3
 
 #: Fields of :data:`ChordWorkspace`, in the order of its compiled constructor.
 CHORD_FIELDS = ("WU", "WU_raw", "W_y", "b_y", "S", "T", "TC", "J", "Jinv", "state", "F", "jacobian")
@@ -57,7 +66,20 @@ def new_chord_workspace(**fields: Any) -> Any:
 
 
 @njit(cache=True)
-def _new_chord_workspace(WU, WU_raw, W_y, b_y, S, T, TC, J, Jinv, state, F, jacobian):  # type: ignore[no-untyped-def]
+def _new_chord_workspace(
+    WU: Any,
+    WU_raw: Any,
+    W_y: Any,
+    b_y: Any,
+    S: Any,
+    T: Any,
+    TC: Any,
+    J: Any,
+    Jinv: Any,
+    state: Any,
+    F: Any,
+    jacobian: Any,
+) -> Any:
     """The compiled constructor (no constructor compile at run time; cached)."""
     return ChordWorkspace(WU, WU_raw, W_y, b_y, S, T, TC, J, Jinv, state, F, jacobian)
 
@@ -201,3 +223,8 @@ def chord_newton(
     state[2] = factorizations
     state[3] = 1 if norm < tol else 0
     return norm
+
+
+#: This module's compiled constructors (the compiled workspace constructor): what compiles with it
+#: (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
+CONSTRUCTORS = (_new_chord_workspace,)

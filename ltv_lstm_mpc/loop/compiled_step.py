@@ -51,8 +51,21 @@ from typing import Any
 
 import numpy as np
 
+from ltv_lstm_mpc.certificates.compiled_tightening import (
+    inside_setpoint_interval,
+    next_e_hat,
+    output_bounds_into,
+    terminal_alpha,
+)
 from ltv_lstm_mpc.loop.compiled_observer import observer_update
-from ltv_lstm_mpc.loop.compiled_reference import chord_newton
+from ltv_lstm_mpc.loop.compiled_reference import (
+    CHORD_CONVERGED,
+    CHORD_FACTORIZATIONS,
+    CHORD_ITERATIONS,
+    CHORD_JINV_VALID,
+    chord_newton,
+)
+from ltv_lstm_mpc.loop.compiled_signals import limit_rate_into, measurement_code, project_into
 from ltv_lstm_mpc.mpc.compiled_prepare import (
     CANDIDATE_GIVEN,
     CANDIDATE_SHIFT,
@@ -62,6 +75,7 @@ from ltv_lstm_mpc.mpc.native_feedback import cone_feedback, nominal_feedback
 from ltv_lstm_mpc.numba_support import AVAILABLE, build_workspace, njit, workspace_type
 
 __all__ = [
+    "CONSTRUCTORS",
     "RECORD_FIELDS",
     "STEP_DONE",
     "STEP_FEEDBACK",
@@ -96,10 +110,8 @@ REAL_COLUMNS = 17
     FACTORIZATIONS, JINV_VALID, CHORD_OK, U_BAR_PROJECTED,
 ) = range(9)  # fmt: skip
 INTEGER_COLUMNS = 9
-#: ``SETPOINT_STATUS`` codes (the strings of ``ControllerStep.setpoint_status``).
-SETPOINT_STATUSES = ("ok", "outside_admissible", "target_outside_admissible")
-#: ``MEASUREMENT_STATUS`` codes.
-MEASUREMENT_STATUSES = ("ok", "outside_training_range")
+# ``SETPOINT_STATUS`` and ``MEASUREMENT_STATUS`` hold indices into
+# :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES` and ``MEASUREMENT_STATUSES``.
 
 #: Fields of :data:`StepWorkspace`, in the order of its compiled constructor.
 STEP_FIELDS = (
@@ -231,12 +243,46 @@ def placeholder_socp() -> Any:
 
 
 @njit(cache=True)
-def _new_step_workspace(  # type: ignore[no-untyped-def]
-    y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max, kappa,
-    lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max, rho_o,
-    w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories, condensing,
-    daqp, plan, observer, cand, cones, socp, tolerance, jinv_backup,
-):  # fmt: skip
+def _new_step_workspace(
+    y_min: Any,
+    y_scale: Any,
+    u_min: Any,
+    u_scale: Any,
+    u_phi_low: Any,
+    u_phi_high: Any,
+    a: Any,
+    b: Any,
+    bound_min: Any,
+    bound_max: Any,
+    kappa: Any,
+    lower: Any,
+    upper: Any,
+    requested: Any,
+    clock: Any,
+    u_max: Any,
+    implausible: Any,
+    d_max: Any,
+    tightening_d_max: Any,
+    rho_o: Any,
+    w_bar: Any,
+    e_inf: Any,
+    backward: Any,
+    tol: Any,
+    max_iter: Any,
+    jump: Any,
+    reuse_tol: Any,
+    chord: Any,
+    trajectories: Any,
+    condensing: Any,
+    daqp: Any,
+    plan: Any,
+    observer: Any,
+    cand: Any,
+    cones: Any,
+    socp: Any,
+    tolerance: Any,
+    jinv_backup: Any,
+) -> Any:
     """The compiled constructor (no constructor compile at run time; cached)."""
     return StepWorkspace(
         y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max,
@@ -247,10 +293,24 @@ def _new_step_workspace(  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def _new_record_arrays(  # type: ignore[no-untyped-def]
-    y, y0, u, u_phi, x_hat, d_hat, x_bar, u_bar, z, target, saturated, u_plan, x_plan,
-    x_linear, real, integer,
-):  # fmt: skip
+def _new_record_arrays(
+    y: Any,
+    y0: Any,
+    u: Any,
+    u_phi: Any,
+    x_hat: Any,
+    d_hat: Any,
+    x_bar: Any,
+    u_bar: Any,
+    z: Any,
+    target: Any,
+    saturated: Any,
+    u_plan: Any,
+    x_plan: Any,
+    x_linear: Any,
+    real: Any,
+    integer: Any,
+) -> Any:
     """The compiled constructor (no constructor compile at run time; cached)."""
     return RecordArrays(
         y, y0, u, u_phi, x_hat, d_hat, x_bar, u_bar, z, target, saturated, u_plan, x_plan,
@@ -276,20 +336,6 @@ def _now(clock: Any) -> float:
 
 
 @njit(cache=True)
-def _inside_interval(
-    values: Any, bound_min: Any, bound_max: Any, margin_base: float, a_N: Any, b_N: Any,
-    e_tilde: float,
-) -> bool:  # fmt: skip
-    r"""``values`` strictly inside the admissible set-point interval of Assumption 5
-    (``TighteningCertificate.setpoint_interval``)."""
-    for j in range(values.shape[0]):
-        margin = margin_base + a_N[j] * e_tilde + b_N[j]
-        if not bound_min[j] + margin < values[j] < bound_max[j] - margin:
-            return False
-    return True
-
-
-@njit(cache=True)
 def _normalize_measurement(step: Any, records: Any, k: int, y_phi: Any) -> bool:
     """The measurement normalized into row ``k`` with its status (paper notes 1); False
     where it is not finite or lies beyond the plausible range (the general path raises or
@@ -301,9 +347,10 @@ def _normalize_measurement(step: Any, records: Any, k: int, y_phi: Any) -> bool:
         if not np.isfinite(y[j]):
             return False
         largest = max(largest, abs(y[j]))
-    if largest > step.implausible:
+    code = measurement_code(largest, step.implausible)
+    if code == 2:
         return False
-    records.integer[k, MEASUREMENT_STATUS] = 0 if largest <= 1.0 else 1
+    records.integer[k, MEASUREMENT_STATUS] = code
     return True
 
 
@@ -356,12 +403,7 @@ def prepare_step(
     # ---- the rate limiter: y0 moves towards the target by at most rate_limit
     limited = not np.isnan(rate_limit)
     if limited:
-        limit = rate_limit
-        requested = step.requested
-        for j in range(p):
-            requested[j] = y0[j]
-            change = min(max(y0[j] - y0_previous[j], -limit), limit)
-            y0[j] = change + y0_previous[j]
+        limit_rate_into(y0, y0_previous, rate_limit, step.requested)
     for q in range(n2):
         records.x_hat[k, q] = x_hat[q]
     for j in range(p):
@@ -372,27 +414,27 @@ def prepare_step(
     for j in range(p):
         target[j] = y0[j] - d_hat[j]
         target_step[j] = target[j] - last_target[j] if last_target.shape[0] else 0.0
-    chord.state[0] = jinv_valid
+    chord.state[CHORD_JINV_VALID] = jinv_valid
     z = records.z[k]
     residual = chord_newton(chord, last_z, target, target_step, step.tol, step.max_iter, z)
     state = chord.state
-    integer[REFERENCE_ITERATIONS] = state[1]
-    integer[FACTORIZATIONS] = state[2]
-    integer[CHORD_OK] = state[3]
-    integer[JINV_VALID] = state[0]
+    integer[REFERENCE_ITERATIONS] = state[CHORD_ITERATIONS]
+    integer[FACTORIZATIONS] = state[CHORD_FACTORIZATIONS]
+    integer[CHORD_OK] = state[CHORD_CONVERGED]
+    integer[JINV_VALID] = state[CHORD_JINV_VALID]
     real[REFERENCE_RESIDUAL] = residual
     u_max = step.u_max
     largest_u = 0.0
     for a in range(m):
         largest_u = max(largest_u, abs(z[n2 + a]))
-    if not (state[3] == 1 and largest_u <= u_max * (1 + 1e-12)):
-        return STEP_REFERENCE, int(state[0]), int(state[2])
+    if not (state[CHORD_CONVERGED] == 1 and largest_u <= u_max * (1 + 1e-12)):
+        return STEP_REFERENCE, int(state[CHORD_JINV_VALID]), int(state[CHORD_FACTORIZATIONS])
     if m > 1:
         largest_jump = 0.0
         for q in range(n2 + m):
             largest_jump = max(largest_jump, abs(z[q] - last_z[q]))
         if largest_jump > step.jump:
-            return STEP_REFERENCE, int(state[0]), int(state[2])
+            return STEP_REFERENCE, int(state[CHORD_JINV_VALID]), int(state[CHORD_FACTORIZATIONS])
     x_bar = records.x_bar[k]
     u_bar = records.u_bar[k]
     for q in range(n2):
@@ -407,9 +449,9 @@ def prepare_step(
     e_tilde = max(e_hat, step.e_inf)
     two_d = 2.0 * step.tightening_d_max
     status = 0
-    if not _inside_interval(y0, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde):
+    if not inside_setpoint_interval(y0, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde):
         status = 1
-    elif limited and not _inside_interval(
+    elif limited and not inside_setpoint_interval(
         step.requested, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
     ):
         status = 2
@@ -417,20 +459,10 @@ def prepare_step(
     t2 = _now(clock)
     # ---- tightened bounds and alpha_k (TighteningCertificate.output_bounds, .alpha)
     lower, upper = step.lower, step.upper
-    for i in range(N):
-        for j in range(p):
-            shrink = step.a[i, j] * e_hat + step.b[i, j] + step.tightening_d_max
-            lower[i, j] = step.bound_min[j] + shrink
-            upper[i, j] = step.bound_max[j] - shrink
-    alpha = np.inf
-    for j in range(p):
-        margin = two_d + a_N[j] * e_tilde + b_N[j]
-        kappa = step.kappa[j]
-        alpha = min(
-            alpha,
-            min((step.bound_max[j] - y0[j] - margin) / kappa,
-                (y0[j] - step.bound_min[j] - margin) / kappa),
-        )  # fmt: skip
+    output_bounds_into(
+        step.a, step.b, step.tightening_d_max, step.bound_min, step.bound_max, e_hat, lower, upper
+    )
+    alpha = terminal_alpha(y0, step.bound_min, step.bound_max, step.kappa, two_d, a_N, b_N, e_tilde)
     real[ALPHA] = alpha
     # ---- prepare: the candidate (Theorem 3, Part 2b), rollout, Jacobians, condensing
     projected = False
@@ -454,7 +486,7 @@ def prepare_step(
     t3 = _now(clock)
     real[TIME_REFERENCE] = t2 - t0
     real[PREPARE_TIME] = t3 - t2
-    return STEP_DONE, int(state[0]), int(state[2])
+    return STEP_DONE, int(state[CHORD_JINV_VALID]), int(state[CHORD_FACTORIZATIONS])
 
 
 @njit(cache=True)
@@ -509,17 +541,14 @@ def _feedback_and_update(
             inside = False
     moved = 0.0
     if not inside:
-        for a in range(m):
-            gated = min(max(u[a], -u_max), u_max)
-            moved = max(moved, abs(gated - u[a]))
-            u[a] = gated
+        moved = project_into(u, u_max)
     real[INPUT_CLIPPED] = moved
     t4 = _now(clock)
     # ---- observer update eq. (lstm_observer) and eq. (eo_evolution)
     observer_update(observer, step.d_max, x_hat, d_hat, records.y[k], u,
                     records.x_hat[k + 1], records.d_hat[k + 1])  # fmt: skip
     real[E_HAT] = e_hat
-    e_hat_next = step.rho_o * e_hat + step.w_bar
+    e_hat_next = next_e_hat(step.rho_o, step.w_bar, e_hat)
     real[E_HAT_NEXT] = e_hat_next
     u_phi = records.u_phi[k]
     for a in range(m):
@@ -648,3 +677,8 @@ def feedback_step_from_rows(
     """:func:`feedback_step` with the estimates of row ``k`` (left by the one-call step
     ``k - 1``)."""
     return feedback_step(step, records, k, y_phi, records.x_hat[k], records.d_hat[k], e_hat)
+
+
+#: This module's compiled constructors (the workspace's and the record arrays'): what
+#: compiles with it (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
+CONSTRUCTORS = (_new_step_workspace, _new_record_arrays)

@@ -67,6 +67,7 @@ __all__ = [
     "load_kernels",
     "record_failure",
     "start_background_compile",
+    "use_kernels",
 ]
 
 #: The values of ``OffsetFreeController(..., kernels=...)``.
@@ -86,8 +87,8 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
 
     kernels = [
         *compiled_kernels(config, native_feedback=native_feedback),
-        compiled_observer.observer_update, compiled_observer._new_observer_workspace,
-        compiled_reference.chord_newton, compiled_reference._new_chord_workspace,
+        compiled_observer.observer_update, *compiled_observer.CONSTRUCTORS,
+        compiled_reference.chord_newton, *compiled_reference.CONSTRUCTORS,
     ]  # fmt: skip
     names = {getattr(kernel, "__name__", "") for kernel in kernels}
     if names & {"nominal_feedback", "cone_feedback"}:
@@ -99,11 +100,11 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
             compiled_step.controller_step, compiled_step.controller_step_from_rows,
             compiled_step.prepare_step, compiled_step.prepare_step_from_rows,
             compiled_step.feedback_step, compiled_step.feedback_step_from_rows,
-            compiled_step._new_step_workspace, compiled_step._new_record_arrays,
+            *compiled_step.CONSTRUCTORS,
         ]  # fmt: skip
         # the workspace of the feedback it does not run is a placeholder of that type
         placeholder = (
-            one_call_feedback._new_daqp_workspace
+            one_call_feedback.CONSTRUCTORS[0]
             if "cone_feedback" in names
             else daqp_socp._new_socp_workspace
         )
@@ -455,3 +456,41 @@ def start_background_compile(model: LSTMModel, config: MPCConfig, missing: list[
         shutil.rmtree(folder, ignore_errors=True)
         return False
     return True
+
+
+def use_kernels(
+    model: LSTMModel, config: MPCConfig, kernels: str, *, one_call_step: bool = True
+) -> None:
+    """Give ``model`` the kernel ``kernels`` asks for (a controller's ``kernels``):
+    compiled or the numpy reference; say once what happens (compiling now, or the numpy
+    reference while a background process compiles). Compiled: load now every kernel the
+    cache holds (not at the first steps: :func:`~ltv_lstm_mpc.loop.kernels.load_kernels`)."""
+    from ltv_lstm_mpc.lstm.kernel import LSTMKernel
+    from ltv_lstm_mpc.numba_support import compile_notice, compile_on_demand, say_once
+
+    compiled, missing = choose_kernels(config, kernels)
+    if model.kernel.compiled != compiled and (kernels != "auto" or model.kernel.automatic):
+        model.kernel = LSTMKernel(model, compiled=compiled)
+        model.kernel.automatic = kernels == "auto"
+    if model.kernel.compiled:
+        compile_on_demand()  # the solver layer's helpers compile too
+        load_kernels(config, one_call_step=one_call_step)
+    if not missing:
+        return
+    if model.kernel.compiled:
+        say_once(compile_notice("the controller kernels", "20-40 s"))
+    elif start_background_compile(model, config, missing):
+        say_once(
+            "ltv_lstm_mpc: the compiled controller kernels are not in numba's cache yet: "
+            "this controller runs the numpy reference kernels (the same numbers to about "
+            "1e-12, a few times slower per step) while a background process compiles them "
+            "(once, about 20-40 s on 2 cores); later controllers and runs use them. "
+            "OffsetFreeController(..., kernels='compiled') waits for the compilation "
+            "instead; `ltv-lstm-mpc warmup` compiles ahead of time"
+            + (
+                ". The daqp:socp solver's SQP has no numpy twin: it compiles in this process "
+                "at the first step (about 10 s on 2 cores, once)"
+                if config.solver == "daqp:socp"
+                else ""
+            )
+        )

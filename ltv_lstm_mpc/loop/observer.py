@@ -16,12 +16,14 @@ input :math:`u_k` is chosen, ``step(y_k, u_k)`` returns :math:`(\hat x_{k+1}, \h
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.stability import ObserverGains
-from ltv_lstm_mpc.deferred_state import Deferred, DeferredState
+from ltv_lstm_mpc.deferred_state import Deferred, DeferredState, settle
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.loop.compiled_observer import new_observer_workspace, observer_update
 from ltv_lstm_mpc.loop.reference import ReferenceCalculator
@@ -86,8 +88,9 @@ class Observer(DeferredState):
         # Compiled update (loop/compiled_observer.py) on a compiled kernel; the numpy
         # code of advance() is its reference.
         self._compiled = model.kernel.compiled
-        self._update = self._update_compiled if self._compiled else self._update_numpy
+        self._update = self._update_numpy
         if self._compiled:
+            self._update = self._update_compiled
             self._W_y = np.ascontiguousarray(model.W_y, dtype=np.float64)
             self._b_y = np.ascontiguousarray(model.b_y, dtype=np.float64)
             self._L_gates_c = np.ascontiguousarray(
@@ -116,6 +119,16 @@ class Observer(DeferredState):
             np.zeros(2 * n) if x_hat0 is None else x_hat0,
             np.zeros(p) if d_hat0 is None else d_hat0,
         )
+
+    def step_workspace(self) -> Any:
+        """The compiled update's :data:`~ltv_lstm_mpc.loop.compiled_observer.ObserverWorkspace`
+        (what a compiled step engine calls eq. lstm_observer with); None on the numpy kernel."""
+        return getattr(self, "_workspace", None)
+
+    def settle_estimates(self, x_hat: FloatArray, d_hat: FloatArray) -> None:
+        """Take :math:`(\\hat x, \\hat d)` that a compiled step left in its record row (views,
+        never written again), ending a deferral (:mod:`ltv_lstm_mpc.deferred_state`)."""
+        settle(self, {"x_hat": x_hat, "d_hat": d_hat})
 
     def reset(self, x_hat: ArrayLike, d_hat: ArrayLike) -> None:
         """Set the estimate :math:`(\\hat x, \\hat d)` (d_hat is saturated to d_max)."""

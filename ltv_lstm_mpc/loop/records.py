@@ -102,7 +102,8 @@ class ControllerRecords(Sequence[Any]):
             return list(self) == list(other)
         return NotImplemented
 
-    __hash__ = None  # type: ignore[assignment]
+    def __hash__(self) -> int:
+        raise TypeError("unhashable type: 'ControllerRecords' (a mutable sequence)")
 
     def __repr__(self) -> str:
         return f"ControllerRecords({len(self)} steps)"

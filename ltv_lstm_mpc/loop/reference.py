@@ -23,9 +23,13 @@ from numpy.typing import ArrayLike, NDArray
 # K_bar of Lemma 5 is a certificate number: its home is certificates/reference_gain.py
 # (re-exported here, where it was first defined).
 from ltv_lstm_mpc.certificates.reference_gain import KBarEstimate, estimate_K_bar
-from ltv_lstm_mpc.deferred_state import Deferred, DeferredSetting, DeferredState
+from ltv_lstm_mpc.deferred_state import Deferred, DeferredSetting, DeferredState, settle
 from ltv_lstm_mpc.exceptions import UnreachableSetpointError
 from ltv_lstm_mpc.loop.compiled_reference import (
+    CHORD_CONVERGED,
+    CHORD_FACTORIZATIONS,
+    CHORD_ITERATIONS,
+    CHORD_JINV_VALID,
     CHORD_REFRESH_CONTRACTION,
     chord_newton,
     new_chord_workspace,
@@ -38,9 +42,52 @@ from ltv_lstm_mpc.validation import (
     real_vector,
 )
 
-__all__ = ["KBarEstimate", "ReferenceCalculator", "ReferenceSolution", "estimate_K_bar"]
+__all__ = [
+    "ChordState",
+    "KBarEstimate",
+    "ReferenceCalculator",
+    "ReferenceSolution",
+    "WarmStart",
+    "estimate_K_bar",
+]
 
 FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class ChordState:
+    """The compiled warm path's parts (:meth:`ReferenceCalculator.chord_state`).
+
+    Attributes
+    ----------
+    workspace : ChordWorkspace
+        :data:`~ltv_lstm_mpc.loop.compiled_reference.ChordWorkspace` of
+        :func:`~ltv_lstm_mpc.loop.compiled_reference.chord_newton`.
+    jinv : ndarray (2n + m, 2n + m)
+        The inverse Jacobian it keeps between steps (written in place).
+    """
+
+    workspace: Any
+    jinv: FloatArray
+
+
+@dataclass(frozen=True, slots=True)
+class WarmStart:
+    """Where the warm path starts (:meth:`ReferenceCalculator.warm_start`).
+
+    Attributes
+    ----------
+    last_z : ndarray (2n + m,)
+        The last solution :math:`[\\bar x; \\bar u]`.
+    last_target : ndarray (p,) or None
+        Its target :math:`y^0 - \\hat d`.
+    jinv_valid : int
+        1 when the kept inverse Jacobian is valid, else 0.
+    """
+
+    last_z: FloatArray
+    last_target: FloatArray | None
+    jinv_valid: int
 
 
 @dataclass(slots=True)  # one per control step: not frozen (2 us less to build)
@@ -168,13 +215,15 @@ class ReferenceCalculator(DeferredState):
         self._last_target = None
         self._compiled = model.kernel.compiled  # the warm path in one numba call
         #: The chord-Newton warm path, chosen once: compiled twin or numpy reference.
-        self._chord = self._chord_compiled if self._compiled else self._chord_numpy
+        self._chord = self._chord_numpy
         self._chord_state = np.zeros(4, dtype=np.int64)
         self._Jinv_buffer = np.zeros((n2 + m, n2 + m))
         self._W_y = np.ascontiguousarray(model.W_y)
         self._b_y = np.ascontiguousarray(model.b_y)
         self._chord_workspace: Any = None  # the compiled warm path's buffers
+        self._chord_parts: ChordState | None = None  # (chord_state)
         if self._compiled:
+            self._chord = self._chord_compiled
             traj, kernel = self._traj, model.kernel
             self._chord_workspace = new_chord_workspace(
                 WU=kernel.WU,
@@ -190,6 +239,7 @@ class ReferenceCalculator(DeferredState):
                 F=self._chord_F,
                 jacobian=self._chord_jacobian,
             )
+            self._chord_parts = ChordState(self._chord_workspace, self._Jinv_buffer)
         #: Chord-Jacobian factorizations / fallbacks from the warm path to damped Newton.
         self.counts = {"factorizations": 0, "fallbacks": 0}
         per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points
@@ -247,14 +297,52 @@ class ReferenceCalculator(DeferredState):
     def _chord_compiled(self, target: FloatArray) -> tuple[FloatArray, float, int, bool]:
         """:meth:`_chord_numpy` in one numba call (``loop/compiled_reference.py``)."""
         state = self._chord_state
-        state[0] = 1 if self._Jinv is not None else 0
+        state[CHORD_JINV_VALID] = 1 if self._Jinv is not None else 0
         step = target - self._last_target if self._last_target is not None else target * 0.0
         z = np.empty_like(self._last_z)
         norm = chord_newton(
             self._chord_workspace, self._last_z, target, step, self.tol, self.max_iter, z
         )
-        self.adopt_chord_state(int(state[0]), int(state[2]))
-        return z, float(norm), int(state[1]), bool(state[3])
+        self.adopt_chord_state(int(state[CHORD_JINV_VALID]), int(state[CHORD_FACTORIZATIONS]))
+        return z, float(norm), int(state[CHORD_ITERATIONS]), bool(state[CHORD_CONVERGED])
+
+    def chord_state(self) -> ChordState | None:
+        """What a compiled step engine runs the warm path with: the compiled chord Newton's
+        workspace and the inverse Jacobian buffer it keeps (None on the numpy kernel)."""
+        return self._chord_parts
+
+    @property
+    def last_z(self) -> FloatArray | None:
+        """The last solution :math:`[\\bar x; \\bar u]` (None: none yet)."""
+        return self._last_z
+
+    @property
+    def last_target(self) -> FloatArray | None:
+        """The target :math:`y^0 - \\hat d` of the last solution (None: none yet)."""
+        return self._last_target
+
+    @property
+    def jinv_valid(self) -> int:
+        """1 when the warm path's kept inverse Jacobian is valid, else 0."""
+        return 0 if self._Jinv is None else 1
+
+    def warm_start(self) -> WarmStart | None:
+        """The warm path's start: the last solution :math:`[\\bar x; \\bar u]`, its target
+        :math:`y^0 - \\hat d` (None: none yet) and whether the kept inverse Jacobian is valid;
+        None before any solution."""
+        last_z = self._last_z
+        if last_z is None:
+            return None
+        return WarmStart(last_z, self._last_target, 0 if self._Jinv is None else 1)
+
+    def settle_warm_start(
+        self, last_z: FloatArray, last_target: FloatArray, inverse_valid: int
+    ) -> None:
+        """Take the warm start a compiled step left in its record row (views, never written
+        again) and its inverse Jacobian's validity, ending a deferral
+        (:mod:`ltv_lstm_mpc.deferred_state`)."""
+        jinv = self._Jinv_buffer if inverse_valid == 1 else None
+        settle(self, {"_last_z": last_z, "_last_target": last_target, "_Jinv": jinv})
 
     def adopt_chord_state(self, inverse_valid: int, factorizations: int) -> None:
         """After a compiled chord Newton (here or in the controller's one-call step): keep
@@ -307,7 +395,7 @@ class ReferenceCalculator(DeferredState):
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         n2 = 2 * self.model.n
         x, u = z[:n2], z[n2:]
-        x_next, A, B = self.model._step_and_jacobians(x, u)
+        x_next, A, B = self.model.step_and_jacobians_arrays(x, u)
         F = np.concatenate([x_next - x, self.model.output(x) - target])
         return F, A, B
 

@@ -505,12 +505,13 @@ class LSTMModel:
         A : ndarray, shape (..., 2n, 2n)
         B : ndarray, shape (..., 2n, m)
         """
-        return self._step_and_jacobians(self._check_state(x), self._check_input(u))
+        return self.step_and_jacobians_arrays(self._check_state(x), self._check_input(u))
 
-    def _step_and_jacobians(
+    def step_and_jacobians_arrays(
         self, x_arr: FloatArray, u_arr: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """:meth:`step_and_jacobians` of checked float arrays (the library's own loops)."""
+        """:meth:`step_and_jacobians` of arrays already checked (float64, the right
+        shapes; the library's own loops: nothing is checked here)."""
         batch, xs, us = self._pairs(x_arr, u_arr)
         traj = self.kernel.pairs(xs, us, jacobians=True)
         n2, K = 2 * self.n, xs.shape[0]
@@ -553,7 +554,7 @@ class LSTMModel:
         max_iter = expect_int("max_iter", max_iter, minimum=1)
         eye = np.eye(2 * self.n)
         for _ in range(max_iter):
-            x_next, A, _ = self._step_and_jacobians(x, u_arr)
+            x_next, A, _ = self.step_and_jacobians_arrays(x, u_arr)
             residual = x_next - x
             if np.max(np.abs(residual)) < tol:
                 return x_next

@@ -45,6 +45,7 @@ DAQP and quadprog solved every one.
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -457,6 +458,12 @@ class CondensedTranscription(TranscriptionBase):
                 "native feedback is not kept: RobustMPC(..., native_feedback=False) keeps it)"
             )
         return self._last[kind].copy()
+
+    def forget_preparation(self) -> None:
+        """The last preparation was solved outside (a compiled step engine): no scaling,
+        no solved subproblems (:meth:`linearize_and_build` or :meth:`build` set them)."""
+        self.scale = math.nan
+        self._last.clear()
 
     def reset(self) -> None:
         """Drop the solver workspaces' warm starts."""

@@ -31,6 +31,7 @@ from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
 from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
 
 __all__ = [
+    "CONSTRUCTORS",
     "DAQP_FIELDS",
     "PRECHECK_MARGIN",
     "DaqpWorkspace",
@@ -272,3 +273,8 @@ def cone_feedback(
             P[i, n2 + a] = u[i, a]
     plan_metrics(plan, x_bar, u_bar, lower, upper, x_linear, x_plan)
     return flag, iterations, step, seconds
+
+
+#: This module's compiled constructors (the compiled workspace constructor): what compiles with it
+#: (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
+CONSTRUCTORS = (_new_daqp_workspace,)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -32,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.caller_warnings import warn_at_caller
 from ltv_lstm_mpc.certificates.certify import Certification, certify, u_max_extrapolation
-from ltv_lstm_mpc.deferred_state import Deferred, DeferredSetting, DeferredState
+from ltv_lstm_mpc.deferred_state import Deferred, DeferredSetting, DeferredState, settle
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.mpc.compiled_plan import new_plan_workspace, plan_metrics
@@ -64,6 +65,7 @@ __all__ = [
     "MPCConfig",
     "MPCSolution",
     "MPCSolver",
+    "OneCallParts",
     "RobustMPC",
     "compiled_kernels",
     "resolve_transcription",
@@ -172,6 +174,37 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
     if config.sqp_iterations == 1 and native_feedback:
         kernels.append(native.nominal_feedback)
     return kernels
+
+
+@dataclass(frozen=True, slots=True)
+class OneCallParts:
+    """The compiled parts of :class:`RobustMPC`'s RTI step (:meth:`RobustMPC.one_call_parts`).
+
+    Attributes
+    ----------
+    trajectories, condensing, plan : workspaces
+        The preparation's (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`),
+        the condensing's and the plan checks' typed workspaces.
+    candidate : ndarray (N, m)
+        The candidate buffer (Theorem 3, Part 2b).
+    daqp, socp : workspace or None
+        The one-call feedback's solver workspace: DAQP's QP
+        (:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`) or the exact cones by SQP
+        on DAQP (:func:`~ltv_lstm_mpc.mpc.native_feedback.cone_feedback`); one is None.
+    tolerance : float
+        The acceptance tolerance of the cone feedback.
+    backward : bool
+        The condensing's recursion.
+    """
+
+    trajectories: Any
+    condensing: Any
+    plan: Any
+    candidate: FloatArray
+    daqp: Any
+    socp: Any
+    tolerance: float
+    backward: bool
 
 
 class RobustMPC(DeferredState):
@@ -301,8 +334,9 @@ class RobustMPC(DeferredState):
         self._prepare_workspace: Any = None
         self._condensing_workspace: Any = None
         #: The plan checks of the feedback, chosen once: compiled twin or numpy reference.
-        self._check_plan = self._check_plan_compiled if kernel.compiled else self._check_plan_numpy
+        self._check_plan = self._check_plan_numpy
         if kernel.compiled:
+            self._check_plan = self._check_plan_compiled
             from ltv_lstm_mpc.numba_support import announce_compile
 
             announce_compile(
@@ -346,15 +380,66 @@ class RobustMPC(DeferredState):
         # One compiled call for the nominal feedback where the transcription offers it
         # (condensed QP, DAQP bound natively, compiled kernel; one SQP iteration).
         self._native_feedback: Any = None
+        self._one_call_parts: OneCallParts | None = None  # (one_call_parts)
         if self._prepare_workspace is not None and config.sqp_iterations == 1 and native_feedback:
             from ltv_lstm_mpc.mpc import native_feedback as one_call_feedback
 
-            if self._problem.daqp_workspace is not None:
-                self._native_feedback = one_call_feedback.nominal_feedback
-            elif self._problem.socp_workspace is not None:  # exact cones on daqp:socp
-                self._native_feedback = one_call_feedback.cone_feedback
+            problem = self._problem
+            daqp, socp = problem.daqp_workspace, problem.socp_workspace
+            feedback = None
+            if daqp is not None:  # the QP on DAQP
+                feedback = one_call_feedback.nominal_feedback
+            elif socp is not None:  # the exact cones by SQP on DAQP (daqp:socp)
+                feedback = one_call_feedback.cone_feedback
+            self._native_feedback = feedback
+            self._one_call_parts = None if feedback is None else OneCallParts(
+                trajectories=self._prepare_workspace, condensing=self._condensing_workspace,
+                plan=self._plan_workspace, candidate=self._cand, daqp=daqp, socp=socp,
+                tolerance=float(problem.tolerance),
+                backward=bool(getattr(problem, "backward_condensing", False)),
+            )  # fmt: skip
         self.prepare_time = self.feedback_time = self.solver_time = 0.0
         self.qp_iterations = 0
+
+    # ------------------------------------------------------------- for a step engine
+    def one_call_parts(self) -> OneCallParts | None:
+        """The compiled parts a one-call step engine runs this MPC's RTI step with
+        (:class:`OneCallParts`); None where there is no one-call feedback (another
+        transcription or solver, the solver not bound natively, the numpy kernel, a
+        globalized SQP, ``native_feedback=False``)."""
+        return self._one_call_parts
+
+    @property
+    def previous_plan(self) -> FloatArray | None:
+        """The last applied plan :math:`u_{\\cdot|k-1}` (N, m), the candidate's source; None
+        after :meth:`reset`."""
+        return self._previous_u
+
+    @property
+    def plan_valid(self) -> bool:
+        """Whether the last feedback left a plan the next candidate shifts."""
+        return self._plan_valid
+
+    def settle_plan(
+        self, previous_u: FloatArray, times: tuple[float, float, float], iterations: int
+    ) -> None:
+        """Take the plan a compiled step left in its record row (a view, never written
+        again), with its (solver, prepare, feedback) times and solver iterations, ending a
+        deferral (:mod:`ltv_lstm_mpc.deferred_state`)."""
+        solver_time, prepare_time, feedback_time = times
+        settle(self, {
+            "_previous_u": previous_u, "solver_time": solver_time,
+            "prepare_time": prepare_time, "feedback_time": feedback_time,
+            "qp_iterations": iterations,
+        })  # fmt: skip
+
+    def forget_preparation(self) -> None:
+        """A compiled step prepared and solved outside this object: its transcription's
+        scaling and solved subproblems are not this step's (:meth:`prepare` sets them again
+        before any feedback here)."""
+        forget = getattr(self._problem, "forget_preparation", None)
+        if forget is not None:
+            forget()
 
     # ---------------------------------------------------------------------------- state
     def reset(self) -> None:
@@ -613,19 +698,21 @@ class RobustMPC(DeferredState):
         name = "optimal_inaccurate" if status is SolverStatus.OPTIMAL_INACCURATE else "optimal"
         return result, name, ""
 
-    def feedback(self, x_hat: ArrayLike) -> MPCSolution:
+    def feedback(self, x_hat: ArrayLike, *, native: bool = True) -> MPCSolution:
         r"""Insert :math:`\hat x_k`, solve, validate, re-simulate (acados ``feedback``).
+
+        Parameters
+        ----------
+        x_hat : array_like (2n,)
+        native : bool
+            Try the one-call feedback first where it exists (default); False skips it (a
+            compiled step engine has run it on this point and it declined).
 
         Returns
         -------
         MPCSolution
             ``solve_time`` is prepare + feedback time; ``solver_time`` the solver calls.
         """
-        return self._feedback(x_hat, native=True)
-
-    def _feedback(self, x_hat: ArrayLike, *, native: bool) -> MPCSolution:
-        """:meth:`feedback`; ``native=False`` skips the one-call feedback (the controller's
-        one-call step has run it on this point and it declined)."""
         start = time.perf_counter()
         if not self._prepared:
             raise LtvMpcError("feedback() needs a prepare() first")
