@@ -126,10 +126,17 @@ CALLEES = {
     "expand_point",
     "terminal_norm_of_squares",
     "solver_seconds",
-    # inside the one-call step (loop/compiled_step.py): its clock and interval test, and the
+    # inside the one-call step (loop/compiled_step.py): its clock, the shared formulas'
+    # compiled twins (certificates/compiled_tightening.py, loop/compiled_signals.py), and the
     # exact-cone feedback it also holds (mpc/native_feedback.py, solvers/daqp_socp.py)
     "_now",
-    "_inside_interval",
+    "inside_setpoint_interval",
+    "output_bounds_into",
+    "terminal_alpha",
+    "next_e_hat",
+    "limit_rate_into",
+    "project_into",
+    "measurement_code",
     "_normalize_measurement",
     "_feedback_and_update",
     "nominal_feedback",

@@ -1,7 +1,10 @@
-r"""One controller step as one compiled call (``OffsetFreeController.step``'s fast path).
+r"""One controller step as one compiled call: the kernels of the one-call step engine.
 
-:meth:`~ltv_lstm_mpc.OffsetFreeController.step` on the condensed transcription with DAQP
-bound natively (one SQP iteration, compiled kernels) runs, in :func:`controller_step`:
+The one-call engine (:mod:`ltv_lstm_mpc.loop.engines.one_call_engine`; the condensed
+transcription with DAQP bound natively, one SQP iteration, compiled kernels) runs, in
+:func:`controller_step`, the stages of the reference engine, calling the same formulas'
+compiled twins (:mod:`ltv_lstm_mpc.loop.compiled_signals`,
+:mod:`ltv_lstm_mpc.certificates.compiled_tightening`) and the same compiled kernels:
 
 1. the normalization of the measurement and the set-point (paper notes 1) and the
    set-point rate limiter (Theorem 3's :math:`\Delta y^0_{max}`);
@@ -10,7 +13,8 @@ bound natively (one SQP iteration, compiled kernels) runs, in :func:`controller_
    test of ``ReferenceCalculator.solve_arrays``;
 3. the set-point status of Assumption 5 and the saturation flags of :math:`\hat d_k`;
 4. the tightened output bounds (eq. optimization_constraint_yub/ylb) and :math:`\alpha_k`
-   (eq. def_alpha) of :class:`~ltv_lstm_mpc.certificates.tightening.TighteningCertificate`;
+   (eq. def_alpha) of :class:`~ltv_lstm_mpc.certificates.tightening.TighteningCertificate`
+   (through their twins in ``certificates/compiled_tightening.py``);
 5. the preparation (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`) on the
    proof candidate (Theorem 3, Part 2b) and the nominal feedback
    (:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`, or
@@ -35,13 +39,13 @@ step.
 
 Like the one-call feedback, it only *accepts*. It returns :data:`STEP_DONE` when every
 test passed; otherwise nothing the controller keeps has changed (the chord's kept inverse
-Jacobian aside, which the general path takes over with the chord's outcome) and the
-general Python path of the step runs: :data:`STEP_GENERAL` (a measurement or set-point that
-is not finite or lies beyond the plausible range: the general path raises or flags it),
+Jacobian aside, which the reference engine takes over with the chord's outcome) and the
+reference engine goes on with the step: :data:`STEP_GENERAL` (a measurement or set-point that
+is not finite or lies beyond the plausible range: the reference engine raises or flags it),
 :data:`STEP_REFERENCE` (the warm chord did not give an admissible equilibrium: the damped
 Newton with restarts runs) and :data:`STEP_FEEDBACK` (the one-call feedback did not accept
 its point: the general feedback runs, with its reasons and fallbacks). The same compiled
-functions run as on the general path, so both give the same numbers (to a few ulps, tested
+functions run as in the reference engine, so both give the same numbers (to a few ulps, tested
 to 1e-12 over closed loops in ``tests/test_one_call_step.py``).
 """
 
@@ -338,7 +342,7 @@ def _now(clock: Any) -> float:
 @njit(cache=True)
 def _normalize_measurement(step: Any, records: Any, k: int, y_phi: Any) -> bool:
     """The measurement normalized into row ``k`` with its status (paper notes 1); False
-    where it is not finite or lies beyond the plausible range (the general path raises or
+    where it is not finite or lies beyond the plausible range (the reference engine raises or
     flags it)."""
     y = records.y[k]
     largest = 0.0

@@ -2,12 +2,12 @@
 
 :attr:`OffsetFreeController.records <ltv_lstm_mpc.OffsetFreeController.records>` is a
 :class:`ControllerRecords`: a read-only sequence of
-:class:`~ltv_lstm_mpc.loop.controller.ControllerStep`. A step that ran as one compiled call
+:class:`~ltv_lstm_mpc.loop.step_record.ControllerStep`. A step that ran as one compiled call
 (:mod:`ltv_lstm_mpc.loop.compiled_step`) writes its numbers into the preallocated rows of a
 :data:`~ltv_lstm_mpc.loop.compiled_step.RecordArrays` and appends a placeholder; its
-:class:`~ltv_lstm_mpc.loop.controller.ControllerStep` is built from those rows the first
+:class:`~ltv_lstm_mpc.loop.step_record.ControllerStep` is built from those rows the first
 time it is read (then kept), so neither allocation nor record-building is part of the
-timed step. A step of the general path appends its record as it is.
+timed step. A step of the reference engine appends its record as it is.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ class ControllerRecords(Sequence[Any]):
         of the :data:`~ltv_lstm_mpc.loop.compiled_step.RecordArrays` fields as numpy
         arrays) and ``records.log``.
     shape : (p, m, 2n, N), optional
-        Row sizes; None: no rows (every step appends its record, the general path only).
+        Row sizes; None: no rows (every step appends its record: the reference engine).
     """
 
     def __init__(
@@ -52,7 +52,7 @@ class ControllerRecords(Sequence[Any]):
 
     # ------------------------------------------------------------------ writing
     def append(self, record: Any) -> None:
-        """Append a record built by the general path."""
+        """Append a finished record (the reference engine)."""
         self._items.append(record)
 
     def append_recorded(self) -> None:
