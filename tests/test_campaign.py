@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import subprocess
@@ -12,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from optional_extras import requires_solver
 
 from ltv_lstm_mpc.campaign import load_spec, parse_spec, run_campaign
 from ltv_lstm_mpc.campaign.store import ResultStore
@@ -63,10 +65,24 @@ def untimed(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def read_trace(out: Path, key: str) -> dict[str, np.ndarray]:
-    import pyarrow.parquet as pq
+    """The trace of task ``key``: its Parquet file, or the CSV written without pyarrow
+    (extra `campaign`), numeric columns as floats."""
+    stem = out / "traces" / key
+    if stem.with_suffix(".parquet").exists():
+        import pyarrow.parquet as pq
 
-    table = pq.read_table(out / "traces" / f"{key}.parquet")
-    return {name: np.asarray(table.column(name).to_pylist()) for name in table.column_names}
+        table = pq.read_table(stem.with_suffix(".parquet"))
+        return {name: np.asarray(table.column(name).to_pylist()) for name in table.column_names}
+    with open(stem.with_suffix(".csv"), newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    trace = {}
+    for name in rows[0]:
+        column = [row[name] for row in rows]
+        try:
+            trace[name] = np.array([float(cell) for cell in column])
+        except ValueError:
+            trace[name] = np.asarray(column)
+    return trace
 
 
 # ----------------------------------------------------------------------------- spec
@@ -423,7 +439,6 @@ def test_resume_after_the_process_is_killed_recomputes_only_unfinished_tasks(tmp
 
 def test_results_tables_hold_every_row(tmp_path) -> None:
     pq = pytest.importorskip("pyarrow.parquet")
-    import csv
 
     run = run_campaign(parse_spec(tiny()), tmp_path, serial=True, progress=False, report=False)
     table = pq.read_table(tmp_path / "results.parquet").to_pylist()
@@ -507,6 +522,7 @@ def test_raising_task_on_dask_is_recorded(tmp_path, cluster) -> None:
 # ----------------------------------------------------------------------------- report, CLI
 
 
+@requires_solver("quadprog")
 def test_report_has_tables_and_plots(tmp_path) -> None:
     data = tiny(solver=["daqp", "quadprog"], N=[3, 5], noise_std=[0.0, 0.02])
     data["campaign"]["trace"] = False
@@ -599,6 +615,11 @@ def test_example_specs_parse() -> None:
     robustness = load_spec(folder / "ph_robustness.toml")
     assert len(robustness.tasks) == 3 * 3 * 2 * 4 * 10
     assert set(robustness.factors) == {"noise_std", "q2", "L_d", "mismatch", "seed"}
+
+
+@requires_solver("cvxpy:CLARABEL")  # the spec traces its runs
+def test_solver_comparison_spec_parses() -> None:
+    folder = Path(__file__).resolve().parents[1] / "experiments" / "campaigns"
     comparison = load_spec(folder / "solver_comparison.toml")
     from ltv_lstm_mpc.solvers import available_solvers
 

@@ -11,6 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
+from optional_extras import requires_solver
 
 from ltv_lstm_mpc import (
     ArgumentTypeError,
@@ -114,7 +115,11 @@ def test_the_same_options_for_the_same_things() -> None:
     ("argv", "text"),
     [
         (["simulate", "--solver", "DAQP"], "did you mean 'daqp'"),
-        (["simulate", "--solver", "clarabel "], "did you mean 'clarabel'"),
+        pytest.param(
+            ["simulate", "--solver", "clarabel "],
+            "did you mean 'clarabel'",
+            marks=requires_solver("clarabel"),
+        ),
         (["warmup", "--solver", "nope"], "solver 'nope' is not available"),
         (["reproduce", "--solver", "Daqp:SOCP"], "did you mean 'daqp:socp'"),
         (["simulate", "--segment", "0"], "--segment"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from optional_extras import requires_solver
 
 from ltv_lstm_mpc import CertificationSettings, certify, load_model
 from ltv_lstm_mpc.exceptions import ArgumentTypeError
@@ -20,6 +21,7 @@ def model():
     return load_model(MODEL)
 
 
+@requires_solver("osqp")
 def test_offset_free_on_lstm_plant_with_constant_output_disturbance(model) -> None:
     plant = LSTMPlant(model, y0_phi=7.0)
     controller = OffsetFreeController(model, MPCConfig(L_d=0.1, solver="osqp"))
@@ -31,6 +33,7 @@ def test_offset_free_on_lstm_plant_with_constant_output_disturbance(model) -> No
     assert result.feasible.all()
 
 
+@requires_solver("cvxpy:CLARABEL")
 def test_constraints_hold_under_slow_setpoint_changes(model) -> None:
     """Theorem 3 conditions: set-points in a range, rate-limited by the bound valid there."""
     low, high = 6.7, 7.6  # pH, inside the admissible interval, 7.0 (start) included
@@ -56,6 +59,7 @@ def controller_rate(model, range_phi: tuple[float, float]) -> float:
     return bound.delta_y0_max
 
 
+@requires_solver("osqp")  # a backend without the one-call step: solve_arrays is patched
 def test_stale_reference_is_recorded_and_consistent(model) -> None:
     """A Newton failure reuses the last equilibrium, flags it, and hands the MPC the
     set-point that equilibrium encodes (g(x_bar) + d_hat), not the new one."""

@@ -14,16 +14,14 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from ltv_lstm_mpc.solvers import DenseSession, SolverStatus, available_solvers
+from ltv_lstm_mpc.solvers import DenseSession, SolverStatus
 from ltv_lstm_mpc.solvers.daqp_socp import FULL_STEPS
+from optional_extras import requires_solver
 
 from ltv_lstm_mpc import OffsetFreeController
 from ltv_lstm_mpc.lstm.shipped import load_model
 
-pytestmark = pytest.mark.skipif(
-    "daqp:socp" not in available_solvers() or "clarabel" not in available_solvers(),
-    reason="needs DAQP bound natively and clarabel",
-)
+pytestmark = requires_solver("daqp:socp", "clarabel")
 
 
 @pytest.mark.parametrize(("index", "N"), [(0, 5), (0, 20), (2, 5), (2, 20)])

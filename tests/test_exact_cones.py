@@ -10,10 +10,10 @@ from ltv_lstm_mpc.solvers import (
     DenseCone,
     DenseQP,
     DenseSession,
-    available_solvers,
     cone_solvers,
     solver_info,
 )
+from optional_extras import requires_solver
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, RobustMPC, load_model
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
@@ -21,9 +21,7 @@ from ltv_lstm_mpc.loop.reference import ReferenceCalculator
 from ltv_lstm_mpc.lstm.kernel import LSTMKernel
 from ltv_lstm_mpc.mpc.rti import resolve_transcription
 
-pytestmark = pytest.mark.skipif(
-    "clarabel" not in available_solvers(), reason="needs clarabel (extra 'solvers')"
-)
+pytestmark = requires_solver("clarabel")
 #: Cone solvers checked against each other on dense SOCPs.
 DENSE_CONE = [s for s in ("clarabel", "cvxpy:CLARABEL", "cvxpy:ECOS") if s in cone_solvers()]
 

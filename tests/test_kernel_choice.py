@@ -198,10 +198,9 @@ CONFIGURATIONS = [
 
 
 def _used_and_listed(config: dict, environment: dict | None = None) -> dict:
-    from ltv_lstm_mpc.solvers import available_solvers
+    from optional_extras import require_solver
 
-    if config["solver"] not in available_solvers():
-        pytest.skip(f"{config['solver']} is not installed")
+    require_solver(config["solver"])
     result = subprocess.run(
         [sys.executable, "-c", USED, json.dumps(config)],
         capture_output=True,

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 from ltv_lstm_mpc.solvers import available_solvers, daqp_native
+from optional_extras import requires_solver
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.loop import compiled_step
@@ -365,8 +366,8 @@ def test_inputs_of_other_layouts_and_bad_inputs() -> None:
 
 
 def test_one_call_applies_only_where_it_can() -> None:
-    """Other solvers, the numpy kernels, a globalized SQP and a given mpc run the general
-    path; the flag is checked."""
+    """The numpy kernels, a globalized SQP and a given mpc run the general path (other
+    solvers: the next test); the flag is checked."""
     from ltv_lstm_mpc import RobustMPC
     from ltv_lstm_mpc.exceptions import ArgumentTypeError
 
@@ -376,12 +377,18 @@ def test_one_call_applies_only_where_it_can() -> None:
     assert not OffsetFreeController(
         model, MPCConfig(solver="daqp", sqp_iterations=3), kernels="compiled"
     ).one_call
-    assert not OffsetFreeController(model, MPCConfig(solver="osqp"), kernels="compiled").one_call
     config = MPCConfig(solver="daqp")
     given = OffsetFreeController(model, config, mpc=RobustMPC(model, config))
     assert not given.one_call
     with pytest.raises(ArgumentTypeError, match="one_call_step"):
         OffsetFreeController(model, config, one_call_step="yes")  # type: ignore[arg-type]
+
+
+@requires_solver("osqp")
+def test_no_one_call_with_another_solver() -> None:
+    """Another solver (OSQP) runs the general path."""
+    model = load_model("ph_lstm_n5.npz")
+    assert not OffsetFreeController(model, MPCConfig(solver="osqp"), kernels="compiled").one_call
 
 
 @pytest.mark.parametrize("solver", SOLVERS)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from ltv_lstm_mpc.solvers import available_solvers, solver_info
 from ltv_lstm_mpc.solvers.testing import faulty
+from optional_extras import backend_params, requires_solver
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, RobustMPC, load_model
 from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError, SolverNotFound
@@ -17,7 +18,10 @@ from ltv_lstm_mpc.mpc.rti import resolve_transcription
 #: First-input agreement of the condensed path with the sparse QP path (same math) per solver.
 # piqp: an interior-point method; 3.6e-6 from an active input bound on the shipped model
 TOL = {"daqp": 1e-9, "quadprog": 1e-9, "osqp": 1e-5, "piqp": 1e-5, "proxqp": 1e-4}
-DENSE = [s for s in ("daqp", "quadprog", "osqp", "piqp", "proxqp") if s in available_solvers()]
+DENSE = backend_params("daqp", "quadprog", "osqp", "piqp", "proxqp")
+#: The transcriptions of the tests that give each its own solver, "daqp" if condensed else
+#: "cvxpy:CLARABEL" (exact cones on the sparse QP).
+KINDS = ["condensed", pytest.param("sparse", marks=requires_solver("cvxpy:CLARABEL"))]
 
 
 @pytest.fixture(scope="module")
@@ -43,9 +47,6 @@ def _random_states(model, k: int, seed: int = 1):
 # ------------------------------------------------------------------------ transcriptions
 def test_auto_transcription_follows_the_solver() -> None:
     assert resolve_transcription(MPCConfig(solver="daqp")) == "condensed"
-    assert resolve_transcription(MPCConfig(solver="cvxpy:CLARABEL")) == "sparse"
-    assert resolve_transcription(MPCConfig(solver="cvxpy:OSQP")) == "sparse"
-    assert resolve_transcription(MPCConfig(solver="qpsolvers:quadprog")) == "condensed"
     assert resolve_transcription(MPCConfig(solver="ipopt")) == "nonlinear"
     assert resolve_transcription(MPCConfig(solver="daqp", transcription="sparse")) == "sparse"
     with pytest.raises(InvalidValueError, match="transcription"):
@@ -58,6 +59,13 @@ def test_auto_transcription_follows_the_solver() -> None:
         resolve_transcription(MPCConfig(solver="nope"))
     with pytest.raises(InvalidValueError, match="transcription"):
         MPCConfig(transcription="dense")  # type: ignore[arg-type]
+
+
+@requires_solver("cvxpy:CLARABEL", "cvxpy:OSQP", "qpsolvers:quadprog")
+def test_auto_transcription_of_cvxpy_and_qpsolvers() -> None:
+    assert resolve_transcription(MPCConfig(solver="cvxpy:CLARABEL")) == "sparse"
+    assert resolve_transcription(MPCConfig(solver="cvxpy:OSQP")) == "sparse"
+    assert resolve_transcription(MPCConfig(solver="qpsolvers:quadprog")) == "condensed"
 
 
 @pytest.mark.parametrize("solver", DENSE)
@@ -118,7 +126,7 @@ def test_sqp_iterations_honoured_on_condensed(model, sparse, reference) -> None:
 
 
 @pytest.mark.parametrize("policy", ["paper", "soft", "shift"])
-@pytest.mark.parametrize("kind", ["condensed", "sparse"])
+@pytest.mark.parametrize("kind", KINDS)
 def test_policies_on_an_infeasible_instant(model, sparse, reference, policy, kind) -> None:
     solver = "daqp" if kind == "condensed" else "cvxpy:CLARABEL"
     config = MPCConfig(solver=solver, transcription=kind, infeasibility_policy=policy)
@@ -263,7 +271,7 @@ def test_field_table_covers_every_config_field() -> None:
     assert names == set(FIELD_VALUES)
 
 
-@pytest.mark.parametrize("kind", ["condensed", "sparse"])
+@pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("name", sorted(FIELD_VALUES))
 def test_every_config_field_is_honoured(model, kind, name) -> None:
     solver = "daqp" if kind == "condensed" else "cvxpy:CLARABEL"
@@ -298,7 +306,8 @@ def test_unknown_solver_settings_are_rejected_on_every_transcription(model) -> N
 
 def test_solver_info_of_a_condensed_backend() -> None:
     assert solver_info("daqp").native_dense and not solver_info("daqp").supports_cones
-    assert solver_info("cvxpy:CLARABEL").supports_cones
+    if "cvxpy:CLARABEL" in available_solvers():
+        assert solver_info("cvxpy:CLARABEL").supports_cones
 
 
 def test_closed_loop_same_inputs_condensed_and_sparse_qp(model) -> None:
@@ -322,7 +331,7 @@ def test_closed_loop_same_inputs_condensed_and_sparse_qp(model) -> None:
     np.testing.assert_allclose(runs["condensed"], runs["sparse"], atol=1e-7)
 
 
-@pytest.mark.parametrize("solver", [s for s in ("daqp", "quadprog") if s in available_solvers()])
+@pytest.mark.parametrize("solver", backend_params("daqp", "quadprog"))
 def test_soft_policy_on_the_states_of_scenario_3(model, solver) -> None:
     """Scenario 3 (short): every infeasible instant is solved by the soft QP (no +shift)."""
     from dataclasses import replace

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from optional_extras import backend_params
 
 from ltv_lstm_mpc.benchmarks.quadtank import (
     OFFSET_TOLERANCE_FRACTION,
@@ -80,7 +81,7 @@ def test_shipped_model_reaches_its_reported_fit_on_regenerated_test_data(model) 
     assert min(fits) > 90.0
 
 
-@pytest.mark.parametrize("solver", ["daqp", "clarabel"])
+@pytest.mark.parametrize("solver", backend_params("daqp", "clarabel"))
 def test_short_mimo_closed_loop_is_offset_free_without_violations(model, solver: str) -> None:  # type: ignore[no-untyped-def]
     """Levels driven apart (the coupling direction), then a leak in tank 1."""
     length = 250

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from optional_extras import requires_solver
 
 from ltv_lstm_mpc import load_model
 from ltv_lstm_mpc.cli.main import main
@@ -57,7 +58,8 @@ def test_reproduce_short_scenario_1_writes_everything(model, tmp_path) -> None:
     assert np.all((y >= 6.0) & (y <= 9.0))
 
 
-def test_cli_reproduce_and_simulate(tmp_path, capsys) -> None:
+@requires_solver("osqp")
+def test_cli_reproduce(tmp_path, capsys) -> None:
     assert main(["reproduce", "--short", "--only", "3_", "--out", str(tmp_path), "--no-progress",
                  "--no-plots", "--solver", "osqp"]) == 0  # fmt: skip
     out = capsys.readouterr().out
@@ -66,6 +68,9 @@ def test_cli_reproduce_and_simulate(tmp_path, capsys) -> None:
     assert summary["infeasible_steps"] > 0  # set-point steps: the fallback is exercised
     assert summary["fallback_steps"] == summary["infeasible_steps"]
     assert summary["solver"] == "osqp"
+
+
+def test_cli_simulate_and_reproduce_of_no_scenario(capsys) -> None:
     assert main(["simulate", "--plant", "lstm", "--setpoints", "7.2", "7.0", "--segment", "60",
                  "--no-progress", "--solver", "daqp"]) == 0  # fmt: skip
     assert "simulate" in capsys.readouterr().out

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from optional_extras import requires_solver
 
 from ltv_lstm_mpc.exceptions import DimensionError, InvalidValueError
 from ltv_lstm_mpc.mpc.terminal import TerminalSet, terminal_norm_of_squares
@@ -84,6 +85,7 @@ def test_contains_and_bad_weights() -> None:
         TerminalSet(np.array([[1.0, -0.1], [-0.1, 1.0]]), 2)
 
 
+@requires_solver("piqp")
 def test_the_soft_qp_box_grows_with_the_terminal_slack() -> None:
     """QP-only backends on the sparse transcription (PIQP): at the infeasible steps of bench
     scenario 3 the soft problem is solved (policy "soft", never "soft+shift": with the

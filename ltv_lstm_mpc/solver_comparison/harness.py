@@ -774,6 +774,8 @@ def _parser_args(parser: argparse.ArgumentParser) -> None:
 
 
 DEFAULT_SCENARIOS = ("1_*", "4_*", "standin*")
+#: The backends of ``bench --smoke`` without ``--backends``: those of them installed (DAQP
+#: and daqp@sparse on the core install).
 SMOKE_BACKENDS = ("ipopt", "daqp", "daqp@sparse", "cvxpy:CLARABEL")
 
 
@@ -828,7 +830,8 @@ def main_bench(args: argparse.Namespace) -> int:
     notes = []
     if args.smoke:
         scenarios, horizons, steps = scenarios[:1], [5], args.steps or 30
-        backends = backends or list(SMOKE_BACKENDS)
+        installed = available_backends()
+        backends = backends or [b for b in SMOKE_BACKENDS if b.partition("@")[0] in installed]
         notes.append("smoke mode: 1 scenario, N = 5, few backends, first steps only")
     notes.append(
         f"first {steps} samples of each scenario (short variants); N >= 20 through "

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import SOLVERS
 from ltv_lstm_mpc.solvers import (
     ConvexProblem,
     DenseCone,
@@ -23,6 +22,7 @@ from ltv_lstm_mpc.solvers.acceptance import (
     residuals,
 )
 from ltv_lstm_mpc.solvers.testing import infeasible_problem
+from optional_extras import backend_params
 
 
 def _qpsut04() -> tuple[ConvexProblem, np.ndarray, dict[str, np.ndarray]]:
@@ -101,7 +101,7 @@ def test_certificates_checked_and_refused() -> None:
     assert not check_unbounded_direction(ProblemView.of_convex(bounded), np.eye(2)[1], 1e-6)[0]
 
 
-@pytest.mark.parametrize("solver", [s for s in ("osqp", "clarabel") if s in SOLVERS])
+@pytest.mark.parametrize("solver", backend_params("osqp", "clarabel"))
 def test_native_certificates_reach_the_solution(solver: str) -> None:
     problem = infeasible_problem(seed=1)
     sol = solve(problem, solver)
@@ -120,7 +120,7 @@ def test_native_certificates_reach_the_solution(solver: str) -> None:
     assert "unboundedness certificate checked" in sol.info
 
 
-@pytest.mark.parametrize("solver", [s for s in ("clarabel", "cvxpy:CLARABEL") if s in SOLVERS])
+@pytest.mark.parametrize("solver", backend_params("clarabel", "cvxpy:CLARABEL"))
 def test_cone_multipliers_are_checked_where_reported(solver: str) -> None:
     """A dense QP with a second-order cone: the cone's multipliers enter stationarity."""
     n = 4

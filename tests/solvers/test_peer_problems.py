@@ -41,6 +41,7 @@ from ltv_lstm_mpc.solvers import (
     available_solvers,
     solve,
 )
+from optional_extras import first_installed
 
 SOLVERS = available_solvers()
 OK = (SolverStatus.OPTIMAL,)
@@ -276,7 +277,7 @@ def reference(name: str) -> np.ndarray | None:
         return None
     if peer.x is not None and name not in ("QPSUT02", "QPSUT03 (bounds only, partly infinite)"):
         return peer.x
-    sol = solve(peer.problem, "quadprog" if "quadprog" in SOLVERS else "cvxpy:CLARABEL")
+    sol = solve(peer.problem, first_installed("quadprog", "cvxpy:CLARABEL"))
     assert sol.status is SolverStatus.OPTIMAL and sol.z is not None
     if peer.x is not None:  # published to 6-8 digits (QPSUT03: 4.3e-7 from quadprog's)
         np.testing.assert_allclose(sol.z, peer.x, rtol=0, atol=1e-6)
@@ -424,7 +425,7 @@ def test_peer_problem_warm_started_sessions(solver: str, name: str) -> None:
         warnings.simplefilter("ignore")
         for k in range(3):
             problem = base.with_values(q=np.asarray(base.q) * (1.0 + 0.05 * k))
-            cold = solve(problem, "quadprog" if "quadprog" in SOLVERS else "cvxpy:CLARABEL")
+            cold = solve(problem, first_installed("quadprog", "cvxpy:CLARABEL"))
             assert cold.z is not None
             if k == 0:
                 session.setup(problem)

@@ -6,13 +6,11 @@ from __future__ import annotations
 import subprocess
 import sys
 
-import pytest
-from ltv_lstm_mpc.solvers import available_solvers
+from optional_extras import requires_solver
 
 
+@requires_solver("cvxpy:HIGHS")
 def test_cvxpy_highs_prints_no_banner() -> None:
-    if "cvxpy:HIGHS" not in available_solvers():
-        pytest.skip("cvxpy:HIGHS not installed")
     code = (
         "import numpy as np\n"
         "from ltv_lstm_mpc.solvers import DenseQP, solve\n"

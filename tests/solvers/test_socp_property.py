@@ -29,14 +29,13 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import SOLVERS
 from ltv_lstm_mpc.solvers import DenseCone, DenseQP, DenseSession, Solution, SolverStatus
+from optional_extras import requires_solver
 
 hypothesis = pytest.importorskip("hypothesis")
 st = hypothesis.strategies
 
-if "daqp:socp" not in SOLVERS or "clarabel" not in SOLVERS:  # pragma: no cover
-    pytest.skip("needs daqp:socp and the native clarabel", allow_module_level=True)
+pytestmark = requires_solver("daqp:socp", "clarabel")
 
 KINDS = ("feasible", "infeasible", "unbounded")
 P_F = np.array([[2.0, 0.5], [0.5, 1.0]])  # the terminal weight: >= 0 entrywise, definite
