@@ -33,7 +33,8 @@ defaults 5.5 ms). Either way the exact cones stay far above the QP path: the one
 daqp *step* takes 46 / 104 / 310 us at N = 5 / 20 / 50 (``experiments/step_speed.py``),
 so a CLARABEL solve alone is 12-13x that step at every horizon. On this machine the sparse
 CLARABEL route cannot bring exact cones within 2x of the QP path; an active-set route can
-(``experiments/cone_sqp_prototype.py``: SQP on DAQP, 31 / 109 / 586 us per subproblem).
+(``daqp:socp``, ``solvers/daqp_socp.py``: SQP on DAQP, 1.2-1.8x the QP step, see
+docs/benchmarks.md, "One compiled call per step").
 """
 
 from __future__ import annotations
