@@ -66,8 +66,8 @@ for n in sizes:
 """
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the table; returns the exit status."""
+def build_parser() -> argparse.ArgumentParser:
+    """The command line."""
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
         epilog='Figures: docs/benchmarks.md, "The solver layer" (dense sessions through cvxpy).',
@@ -79,7 +79,12 @@ def main(argv: list[str] | None = None) -> int:
         "--timeout", type=float, default=120.0, help="seconds per solver process (120)"
     )
     parser.add_argument("--json", help="also write the rows to this file")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the table; returns the exit status."""
+    args = build_parser().parse_args(argv)
     if args.solvers:
         solvers = args.solvers
     else:
