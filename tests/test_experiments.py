@@ -228,6 +228,19 @@ def test_benchmark_runs_on_a_tiny_size(script: str, tmp_path: Path) -> None:
         assert (tmp_path / name).exists(), f"{name} not written\n{output}"
 
 
+@pytest.mark.slow
+def test_cold_start_with_an_empty_cache(tmp_path: Path) -> None:
+    """``cold_start.py``'s default row: a copy of the package with an empty numba cache runs
+    the numpy kernels while they compile in the background, and waits for them (minutes)."""
+    pytest.importorskip("daqp")
+    done = run_script("cold_start.py", ["--steps", "20"], tmp_path, 900.0)
+    output = f"stdout:\n{done.stdout[-3000:]}\nstderr:\n{done.stderr[-3000:]}"
+    assert done.returncode == 0, output
+    assert "empty cache (auto): import" in done.stdout and "(numpy)" in done.stdout, output
+    assert "background compilation done" in done.stdout, output
+    assert "warm cache (auto): import" in done.stdout and "(compiled)" in done.stdout, output
+
+
 def test_example_model_script_rebuilds_the_shipped_file(tmp_path: Path) -> None:
     """``make_example_model.py`` writes the shipped ``example_delta_iss_n3.npz`` again: the
     same arrays (sampling time included) to rounding."""
