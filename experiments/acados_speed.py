@@ -53,6 +53,28 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "Against acados\' SQP-RTI" and "The chord\'s '
+        "refresh, and the jitter of the step's own work\" (--repeats). Smallest run: --N 5 "
+        "--steps 20.",
+    )
+    parser.add_argument("--steps", type=int, default=300, help="closed-loop steps (300, >= 20)")
+    parser.add_argument(
+        "--repeats", type=int, default=1, help="closed loops per horizon, samples pooled"
+    )
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    parser.add_argument("--acados", type=Path, default=Path(".acados"), help="the --target folder")
+    parser.add_argument("--build", type=Path, default=None, help="keep the generated code here")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")  # before numpy: small products, one thread
 
@@ -364,14 +386,7 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument(
-        "--repeats", type=int, default=1, help="closed loops per horizon, samples pooled"
-    )
-    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
-    parser.add_argument("--acados", type=Path, default=Path(".acados"), help="the --target folder")
-    parser.add_argument("--build", type=Path, default=None, help="keep the generated code here")
+    parser = build_parser()
     args = parser.parse_args()
     if args.repeats < 1 or args.steps < 20:
         parser.error("--repeats must be at least 1 and --steps at least 20")

@@ -16,13 +16,45 @@ the controller's compiled feedback makes without the dispatch) and DAQP's own cl
 (setup + solve) of that C call.
 
     python experiments/backend_overhead.py
+    python experiments/backend_overhead.py --N 5 --solvers daqp --states 1 --repeats 5
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 from dataclasses import replace
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "The compiled step" (backend overhead), and '
+        'docs/user-guide/compiled.md, "How to measure".',
+    )
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20], help="horizons (5 20)")
+    parser.add_argument(
+        "--solvers",
+        nargs="+",
+        default=None,
+        help="dense backends (default: every installed one with a native dense session)",
+    )
+    parser.add_argument(
+        "--states", type=int, default=5, help="QPs captured per horizon, from 40 steps (5)"
+    )
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=None,
+        help="timed calls per QP (default: 200, and 300 for the DAQP entry points)",
+    )
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
@@ -35,7 +67,7 @@ from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
 
 
 def captured_qps(N: int, count: int = 5) -> list[DenseQP]:
-    """Nominal condensed QPs of scenario 1 at ``count`` states of its closed loop."""
+    """Nominal condensed QPs of scenario 1 at ``count`` states of its first 40 steps."""
     model = load_model("ph_lstm_n5.npz")
     scenario = bench_scenarios(model)[0]
     config = replace(scenario.config, N=N, solver="daqp")
@@ -45,9 +77,10 @@ def captured_qps(N: int, count: int = 5) -> list[DenseQP]:
     plant = scenario.make_plant(model)
     y = plant.output()
     qps = []
-    for k in range(40):
+    every = 40 // count
+    for k in range(every * (count - 1) + 1):
         u = controller.step(y, scenario.setpoints[k])
-        if k % (40 // count) == 0:
+        if k % every == 0:
             qps.append(mpc.last_problem("nominal"))  # a copy of the QP DAQP solved
         y = plant.step(u)
     return qps
@@ -69,7 +102,7 @@ def _raw_daqp(qp: DenseQP):  # type: ignore[no-untyped-def]
     return lambda: daqp.solve(*data, primal_tol=1e-8, dual_tol=1e-8)
 
 
-def daqp_entry_points(qps: list[DenseQP]) -> tuple[float, float, float]:
+def daqp_entry_points(qps: list[DenseQP], repeats: int = 300) -> tuple[float, float, float]:
     """Medians (us) of ``daqp.solve``, ``DaqpNative.solve`` and DAQP's own clock."""
     from ltv_lstm_mpc.solvers import daqp_native
 
@@ -79,8 +112,8 @@ def daqp_entry_points(qps: list[DenseQP]) -> tuple[float, float, float]:
     python_call, numba_call, clock = [], [], []
     for qp in qps:
         data = _daqp_data(qp)
-        python_call.append(median_us(_raw_daqp(qp), 300))
-        numba_call.append(median_us(lambda: native.solve(*data), 300))  # noqa: B023
+        python_call.append(median_us(_raw_daqp(qp), repeats))
+        numba_call.append(median_us(lambda: native.solve(*data), repeats))  # noqa: B023
         clock.append(1e6 * daqp_native.solver_seconds(native.result))
     return tuple(float(np.median(v)) for v in (python_call, numba_call, clock))  # type: ignore[return-value]
 
@@ -95,27 +128,33 @@ def median_us(function, repeats: int) -> float:  # type: ignore[no-untyped-def]
 
 
 def main() -> None:
-    names = [s for s in available_solvers() if solver_info(s).native_dense]
+    parser = build_parser()
+    args = parser.parse_args()
+    if not 1 <= args.states <= 40 or (args.repeats is not None and args.repeats < 1):
+        parser.error("--states must be within 1..40 and --repeats at least 1")
+    repeats = args.repeats or 200
+    names = args.solvers or [s for s in available_solvers() if solver_info(s).native_dense]
     header = f"{'solve_point':>11} {'solve':>8} {'reported':>9} {'overhead':>9}"
     print(f"{'backend':>20} {'N':>3} | {header}")
-    for N in (5, 20):
-        qps = captured_qps(N)
+    for N in args.N:
+        qps = captured_qps(N, args.states)
         for name in names:
             session = DenseSession(name)
             point, full, reported = [], [], []
             for qp in qps:
                 session.solve_point(qp)  # set up the workspace
-                point.append(median_us(lambda qp=qp, s=session: s.solve_point(qp), 200))
-                full.append(median_us(lambda qp=qp, s=session: s.solve(qp), 200))
+                point.append(median_us(lambda qp=qp, s=session: s.solve_point(qp), repeats))
+                full.append(median_us(lambda qp=qp, s=session: s.solve(qp), repeats))
                 reported.append(1e6 * session.solve(qp).solve_time)
             if name == "daqp":  # DAQP reports no solve time here: time its raw C call instead
-                reported = [median_us(_raw_daqp(qp), 200) for qp in qps]
+                reported = [median_us(_raw_daqp(qp), repeats) for qp in qps]
             p, f, r = (float(np.median(v)) for v in (point, full, reported))
             overhead = f"{p - r:9.1f}" if r > 0 else f"{'-':>9}"
             print(f"{name:>20} {N:>3} | {p:11.1f} {f:8.1f} {r:9.1f} {overhead}", flush=True)
     print(f"\n{'DAQP entry point':>20} {'N':>3} | {'daqp.solve':>10} {'numba+C':>8} {'C clock':>8}")
-    for N in (5, 20):
-        python_call, numba_call, clock = daqp_entry_points(captured_qps(N))
+    for N in args.N:
+        qps = captured_qps(N, args.states)
+        python_call, numba_call, clock = daqp_entry_points(qps, args.repeats or 300)
         print(f"{'':>20} {N:>3} | {python_call:10.1f} {numba_call:8.1f} {clock:8.1f}", flush=True)
 
 

@@ -1,6 +1,7 @@
 """Campaign throughput: the same tasks serially and on a 2-worker LocalCluster, in one run.
 
     python experiments/campaign_throughput.py [--tasks 8] [--steps 4000] [--workers 2] [--repeat 3]
+    python experiments/campaign_throughput.py --tasks 2 --steps 30 --workers 1 --repeat 1
 
 Each task is one pH closed loop (DAQP, N = 5, measurement noise, its own seed) of about a
 second. Both runners are warmed up first (imports, compiled kernels), so the figures compare
@@ -31,7 +32,28 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ltv_lstm_mpc.campaign import CampaignSpec, parse_spec, run_campaign, run_task
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before the library and Dask are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "Campaign throughput".',
+    )
+    parser.add_argument("--tasks", type=int, default=8, help="closed loops (8)")
+    parser.add_argument("--steps", type=int, default=4000, help="samples per closed loop (4000)")
+    parser.add_argument("--workers", type=int, default=2, help="Dask workers (2)")
+    parser.add_argument("--solver", default="daqp")
+    parser.add_argument(
+        "--repeat", type=int, default=3, help="serial/Dask pairs, alternated (default 3)"
+    )
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
+from ltv_lstm_mpc.campaign import CampaignSpec, parse_spec, run_campaign, run_task  # noqa: E402
 
 #: Row columns that hold times or the worker (they differ between the two runs).
 UNTIMED = {
@@ -117,16 +139,7 @@ def _measure(spec: CampaignSpec, root: Path, address: str, workers: int) -> dict
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--tasks", type=int, default=8)
-    parser.add_argument("--steps", type=int, default=4000, help="samples per closed loop")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--solver", default="daqp")
-    parser.add_argument(
-        "--repeat", type=int, default=3, help="serial/Dask pairs, alternated (default 3)"
-    )
-    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
-    args = parser.parse_args()
+    args = build_parser().parse_args()
 
     from distributed import Client, LocalCluster
 

@@ -13,14 +13,15 @@ on-disk cache starts empty there), then runs one child process per row:
 Each row prints wall times of ``import ltv_lstm_mpc``, of the first use of the names, of
 the controller's construction (``OffsetFreeController(model, MPCConfig(solver=...))``), of
 its first step on the pH plant and of the next 20 steps (and their mean step against the
-median step of the 200 steps after them: near 1 where no kernel loads during the first
-steps), and the kernels it ran.
+median step of the 200 steps after them, ``--steps``: near 1 where no kernel loads during
+the first steps), and the kernels it ran. The script exits 1 where a child failed.
 
 ``--source DIR`` measures the warm-cache row alone on a copy made before (a folder holding
 ``ltv_lstm_mpc`` with ``solvers`` inside it, its numba cache warm: e.g. ``git archive`` of
-an older commit, warmed once), ``--repeats`` times.
+an older commit, warmed once; or an editable checkout's root), ``--repeats`` times.
 
     python experiments/cold_start.py [--solver daqp] [--blocking] [--source DIR] [--repeats K]
+    python experiments/cold_start.py --source . --steps 20      # this checkout, its cache warm
 """
 
 from __future__ import annotations
@@ -55,14 +56,14 @@ for _ in range(20):
     u = controller.step(plant.step(u), np.array([7.2]))
 t5 = time.perf_counter()
 steps = []
-for _ in range(200):
+for _ in range({steps}):
     start = time.perf_counter()
     u = controller.step(plant.step(u), np.array([7.2]))
     steps.append(time.perf_counter() - start)
 median = float(np.median(steps))
 print(f"import {{t1 - t0:.3f}} s, names {{t2 - t1:.2f}} s, construction {{t3 - t2:.2f}} s, "
       f"first step {{t4 - t3:.2f}} s, next 20 steps {{t5 - t4:.3f}} s "
-      f"({{(t5 - t4) / 20 / median:.1f}}x the median step of the 200 after them, "
+      f"({{(t5 - t4) / 20 / median:.1f}}x the median step of the {steps} after them, "
       f"{{median * 1e3:.3f}} ms) ({{controller.kernels}})")
 if {wait!r}:
     from ltv_lstm_mpc.loop.kernels import choose_kernels
@@ -72,8 +73,13 @@ if {wait!r}:
 """
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def build_parser() -> argparse.ArgumentParser:
+    """The command line."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "Cold start", and docs/user-guide/compiled.md, '
+        '"Cold and warm start".',
+    )
     parser.add_argument("--solver", default="daqp")
     parser.add_argument(
         "--blocking", action="store_true", help="also: empty cache, kernels='compiled'"
@@ -86,7 +92,21 @@ def main() -> None:
     parser.add_argument(
         "--repeats", type=int, default=1, help="warm-cache rows (default: %(default)s)"
     )
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=200,
+        help="timed steps after the first 21, for the median step (default: %(default)s)",
+    )
+    return parser
+
+
+def main() -> int:
+    parser = build_parser()
     args = parser.parse_args()
+    if args.steps < 1:
+        parser.error("--steps must be at least 1")
+    failed = 0
     runs = [("empty cache", "auto", True, True)] if args.source is None else []
     runs += [("warm cache", "auto", False, False)] * args.repeats
     if args.blocking:
@@ -112,7 +132,7 @@ def main() -> None:
                 [
                     sys.executable,
                     "-c",
-                    CHILD.format(solver=args.solver, kernels=kernels, wait=wait),
+                    CHILD.format(solver=args.solver, kernels=kernels, wait=wait, steps=args.steps),
                 ],
                 capture_output=True,
                 text=True,
@@ -125,7 +145,9 @@ def main() -> None:
                 print(f"{'':>11}  stderr: {notice[0][:160]}...")
             if result.returncode:
                 print(result.stderr[-2000:])
+                failed += 1
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

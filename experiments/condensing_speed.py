@@ -10,6 +10,7 @@ with full stage weights, and prints the medians and their ratio: the crossovers 
 ``BACKWARD_CONDENSING_RATIO_DIAGONAL`` and ``BACKWARD_CONDENSING_RATIO``.
 
     python experiments/condensing_speed.py [--repeats 300]
+    python experiments/condensing_speed.py --repeats 3 --n 5 --N 5
 """
 
 from __future__ import annotations
@@ -19,6 +20,38 @@ import os
 import sys
 import time
 from pathlib import Path
+
+#: (n, m, horizons) of the random models, diagonal and full stage weights each.
+CASES = ((5, 1, (5, 20, 30, 40, 50)), (10, 1, (20, 50, 80)), (20, 2, (20, 50)))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "Vectorized activations and the causal Hessian" '
+        '(the condensing crossovers), and docs/user-guide/compiled.md, "How to measure".',
+    )
+    parser.add_argument("--repeats", type=int, default=300, help="timed calls per case (300)")
+    parser.add_argument(
+        "--n",
+        type=int,
+        nargs="+",
+        default=[n for n, _, _ in CASES],
+        help="state sizes, of the cases (n, m) = (5, 1), (10, 1), (20, 2) (default: all)",
+    )
+    parser.add_argument(
+        "--N",
+        type=int,
+        nargs="+",
+        default=None,
+        help="horizons for every n (default: each n's own)",
+    )
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
@@ -64,9 +97,7 @@ def times(n: int, m: int, N: int, repeats: int, diagonal: bool) -> tuple[float, 
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--repeats", type=int, default=300)
-    args = parser.parse_args()
+    args = build_parser().parse_args()
     print(
         f"backward when N m > ratio * 2n: ratio {BACKWARD_CONDENSING_RATIO_DIAGONAL} with "
         f"diagonal stage weights (else rank updates), {BACKWARD_CONDENSING_RATIO} with full "
@@ -76,10 +107,11 @@ def main() -> None:
         f"{'weights':>8} {'n':>3} {'m':>2} {'N':>3} {'Nm/2n':>6} {'forward us':>11} "
         f"{'backward us':>12} {'ratio':>6}"
     )
-    cases = ((5, 1, (5, 20, 30, 40, 50)), (10, 1, (20, 50, 80)), (20, 2, (20, 50)))
     for diagonal in (True, False):
-        for n, m, horizons in cases:
-            for N in horizons:
+        for n, m, horizons in CASES:
+            if n not in args.n:
+                continue
+            for N in horizons if args.N is None else args.N:
                 kind = "diagonal" if diagonal else "full"
                 try:
                     forward, backward = times(n, m, N, args.repeats, diagonal)

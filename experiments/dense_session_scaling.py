@@ -17,6 +17,7 @@ Usage::
 
     python experiments/dense_session_scaling.py                     # every backend
     python experiments/dense_session_scaling.py --solvers cvxpy:OSQP --n 20 80 150 200
+    python experiments/dense_session_scaling.py --solvers daqp --n 10
 
 A solver is not run at a larger n once one call took more than ``--cap`` seconds, and
 its process is stopped after ``--timeout`` seconds (cvxpy:HIGHS' QP solver took more than
@@ -65,9 +66,12 @@ for n in sizes:
 """
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the table; returns the exit status."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def build_parser() -> argparse.ArgumentParser:
+    """The command line."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "The solver layer" (dense sessions through cvxpy).',
+    )
     parser.add_argument("--solvers", nargs="*", help="registry names (default: all installed)")
     parser.add_argument("--n", nargs="*", type=int, default=[20, 50, 100, 150, 200])
     parser.add_argument("--cap", type=float, default=20.0, help="seconds per call (20)")
@@ -75,7 +79,12 @@ def main(argv: list[str] | None = None) -> int:
         "--timeout", type=float, default=120.0, help="seconds per solver process (120)"
     )
     parser.add_argument("--json", help="also write the rows to this file")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the table; returns the exit status."""
+    args = build_parser().parse_args(argv)
     if args.solvers:
         solvers = args.solvers
     else:

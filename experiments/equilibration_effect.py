@@ -17,6 +17,7 @@ OPTIMAL_INACCURATE / other, and the largest relative point error among the OPTIM
 Usage::
 
     python experiments/equilibration_effect.py [--solvers daqp quadprog osqp] [--count 20]
+    python experiments/equilibration_effect.py --solvers daqp --count 2
 """
 
 from __future__ import annotations
@@ -25,9 +26,26 @@ import argparse
 import warnings
 from collections.abc import Callable, Iterator
 
-import numpy as np
-from ltv_lstm_mpc.solvers import DenseQP, DenseSession, SolverStatus
-from ltv_lstm_mpc.solvers.testing import random_dense_qp, random_mpc_problem
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "The solver layer" (equilibration).',
+    )
+    parser.add_argument(
+        "--solvers", nargs="*", default=["daqp", "quadprog", "osqp", "piqp", "proxqp", "clarabel"]
+    )
+    parser.add_argument("--count", type=int, default=20, help="QPs per family (20)")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
+import numpy as np  # noqa: E402
+from ltv_lstm_mpc.solvers import DenseQP, DenseSession, SolverStatus  # noqa: E402
+from ltv_lstm_mpc.solvers.testing import random_dense_qp, random_mpc_problem  # noqa: E402
 
 FloatArray = np.ndarray
 Case = tuple[DenseQP, FloatArray]
@@ -80,12 +98,7 @@ def _mpc(count: int) -> Iterator[Case]:
 
 def main(argv: list[str] | None = None) -> int:
     """Print the table; returns the exit status."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--solvers", nargs="*", default=["daqp", "quadprog", "osqp", "piqp", "proxqp", "clarabel"]
-    )
-    parser.add_argument("--count", type=int, default=20, help="QPs per family (20)")
-    args = parser.parse_args(argv)
+    args = build_parser().parse_args(argv)
     families: dict[str, Callable[[], Iterator[Case]]] = {
         "scaled 1e2": lambda: _rescaled(2.0, args.count),
         "scaled 1e4": lambda: _rescaled(4.0, args.count),

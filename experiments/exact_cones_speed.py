@@ -17,6 +17,7 @@ rows are the cost of exact cones relative to it) and to ``cvxpy:CLARABEL``, and 
 difference of the applied input to the latter (mL/s).
 
     python experiments/exact_cones_speed.py --steps 200 --N 5 20 50
+    python experiments/exact_cones_speed.py --steps 15 --N 5
 """
 
 from __future__ import annotations
@@ -26,6 +27,26 @@ import os
 import time
 from dataclasses import replace
 from typing import Any
+
+SKIP = 10  # first steps left out of the figures: cold caches, first reference solve
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "The compiled step" (exact cones) and "Exact '
+        'cones: epigraph elimination".',
+    )
+    parser.add_argument(
+        "--steps", type=int, default=200, help=f"closed-loop steps (200; more than {SKIP})"
+    )
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")  # before numpy: small products, one thread
@@ -65,7 +86,7 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
             inputs[j].append(float(u[0]))
             d = scenario.disturbances[k]
             outputs[j] = plant.step(u, None if np.isnan(d) else d)
-    skip = 10  # first steps: cold caches, first reference solve
+    skip = SKIP
     result: dict[str, dict[str, Any]] = {}
     for j, (solver, ctrl, _) in enumerate(runs):
         mpc = [r.mpc for r in ctrl.records[skip:]]
@@ -82,10 +103,10 @@ def run(N: int, steps: int) -> dict[str, dict[str, Any]]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=200)
-    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
+    parser = build_parser()
     args = parser.parse_args()
+    if args.steps <= SKIP:
+        parser.error(f"--steps must be more than {SKIP} (the first {SKIP} are left out)")
     us = 1e6
     print(
         f"{'solver':>15} {'N':>3} {'transcription':>13} {'terminal':>9} | {'step':>6} {'p95':>6} "

@@ -9,6 +9,7 @@ above 1 ms and the collections the collector ran, and at the end the objects a f
 collection finds unreachable (cycles the loop would leak with the collector off).
 
     python experiments/gc_jitter.py --steps 6000 --block 500 --N 5 20
+    python experiments/gc_jitter.py --steps 40 --block 20 --N 5
 """
 
 from __future__ import annotations
@@ -18,6 +19,23 @@ import gc
 import os
 import time
 from dataclasses import replace
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        epilog='Figures: docs/benchmarks.md, "The compiled step" (garbage collector) and "The '
+        'pipeline against earlier versions".',
+    )
+    parser.add_argument("--steps", type=int, default=6000, help="timed steps (both modes)")
+    parser.add_argument("--block", type=int, default=500, help="steps per block")
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20], help="horizons")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
@@ -74,11 +92,10 @@ def run(N: int, steps: int, block: int) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=6000, help="timed steps (both modes)")
-    parser.add_argument("--block", type=int, default=500, help="steps per block")
-    parser.add_argument("--N", type=int, nargs="+", default=[5, 20])
+    parser = build_parser()
     args = parser.parse_args()
+    if args.block < 1 or args.steps < 2 * args.block or args.steps % args.block:
+        parser.error("--steps must be a multiple of --block, at least twice it (both modes)")
     for N in args.N:
         run(N, args.steps, args.block)
 

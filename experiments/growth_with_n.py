@@ -1,16 +1,17 @@
 """Controller step time against the network size n (N = 20, DAQP, condensed path).
 
-Random delta-ISS LSTMs with n = 5 / 10 / 20 / 40 neurons, SISO and (2,2), each in closed
-loop with its own LSTM plant (a slow set-point sine inside the admissible interval).
-Prints the median and p95 of the full step and the ratio to n = 5; the loops of the four
-sizes run interleaved step by step (order alternating), so that the ratios are measured
-side by side. With ``--load`` a busy process runs on the
-other core during the measurement (the tail latency must not depend on it: the loop runs
+Random delta-ISS LSTMs with n = 5 / 10 / 20 / 40 neurons (``--sizes``), SISO and (2,2)
+(``--m``), each in closed loop with its own LSTM plant (a slow set-point sine inside the
+admissible interval). Prints the median and p95 of the full step and the ratio to n = 5
+(the first size); the loops of the four sizes run interleaved step by step (order
+alternating), so that the ratios are measured side by side. With ``--load`` a busy process
+runs on the other core during the measurement (the tail latency must not depend on it: the loop runs
 on one BLAS thread, see ``simulate``). Compare the compiled and the numpy kernel with
 ``LTV_LSTM_MPC_KERNEL=numpy``.
 
     python experiments/growth_with_n.py
     python experiments/growth_with_n.py --load
+    python experiments/growth_with_n.py --steps 15 --sizes 5 10 --m 1
 """
 
 from __future__ import annotations
@@ -20,12 +21,38 @@ import multiprocessing
 import time
 from typing import Any
 
-import numpy as np
+SKIP = 10  # first steps left out of the figures
 
-from ltv_lstm_mpc import LSTMModel, MPCConfig, Normalization, OffsetFreeController
-from ltv_lstm_mpc.certificates.stability import delta_iss_certificate
-from ltv_lstm_mpc.loop.simulation import single_threaded_blas
-from ltv_lstm_mpc.plants import LSTMPlant
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "The compiled step" (growth with n), and '
+        'docs/user-guide/compiled.md, "How to measure".',
+    )
+    parser.add_argument(
+        "--steps", type=int, default=300, help=f"closed-loop steps (300; more than {SKIP})"
+    )
+    parser.add_argument("--load", action="store_true", help="busy process on the other core")
+    parser.add_argument(
+        "--sizes", type=int, nargs="+", default=[5, 10, 20, 40], help="neurons n (5 10 20 40)"
+    )
+    parser.add_argument(
+        "--m", type=int, nargs="+", default=[1, 2], help="inputs = outputs m = p (1 2)"
+    )
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
+import numpy as np  # noqa: E402
+
+from ltv_lstm_mpc import LSTMModel, MPCConfig, Normalization, OffsetFreeController  # noqa: E402
+from ltv_lstm_mpc.certificates.stability import delta_iss_certificate  # noqa: E402
+from ltv_lstm_mpc.loop.simulation import single_threaded_blas  # noqa: E402
+from ltv_lstm_mpc.plants import LSTMPlant  # noqa: E402
 
 
 def random_model(n: int, m: int, seed: int = 0) -> LSTMModel:
@@ -89,24 +116,27 @@ def measure(sizes: tuple[int, ...], m: int, steps: int) -> list[tuple[float, flo
                 u = controller.step(outputs[j], setpoint(k))
                 times[j].append(time.perf_counter() - start)
                 outputs[j] = plant.step(u, None)
-    return [(1e6 * float(np.median(t[10:])), 1e6 * float(np.percentile(t[10:], 95))) for t in times]
+    return [
+        (1e6 * float(np.median(t[SKIP:])), 1e6 * float(np.percentile(t[SKIP:], 95))) for t in times
+    ]
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--load", action="store_true", help="busy process on the other core")
+    parser = build_parser()
     args = parser.parse_args()
+    if args.steps <= SKIP:
+        parser.error(f"--steps must be more than {SKIP} (the first {SKIP} are left out)")
     worker = None
     if args.load:
         worker = multiprocessing.Process(target=_busy, args=(time.time() + 3600,), daemon=True)
         worker.start()
     try:
         print(
-            f"{'n':>3} {'m=p':>4} | {'median us':>9} {'p95 us':>7} {'p95/median':>10} {'/ n=5':>6}"
+            f"{'n':>3} {'m=p':>4} | {'median us':>9} {'p95 us':>7} {'p95/median':>10} "
+            f"{f'/ n={args.sizes[0]}':>6}"
         )
-        sizes = (5, 10, 20, 40)
-        for m in (1, 2):
+        sizes = tuple(args.sizes)
+        for m in args.m:
             results = measure(sizes, m, args.steps)
             for n, (median, p95) in zip(sizes, results, strict=True):
                 ratio = median / results[0][0]

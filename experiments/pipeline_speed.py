@@ -17,6 +17,10 @@ new / old of the medians means something:
     python experiments/pipeline_speed.py --steps 300
     python experiments/pipeline_speed.py --baseline <revision> --steps 300 --rounds 3
     python experiments/pipeline_speed.py --numpy-kernel --steps 300 --rounds 3
+    python experiments/pipeline_speed.py --numpy-kernel --steps 15 --solvers daqp --N 5
+
+The cases are daqp at N = 5, 20, 50 and cvxpy:CLARABEL at N = 5 (at most 120 steps for the
+latter); ``--solvers`` or ``--N`` run every solver named at every horizon named instead.
 """
 
 from __future__ import annotations
@@ -36,14 +40,42 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+CASES = [("daqp", 5), ("daqp", 20), ("daqp", 50), ("cvxpy:CLARABEL", 5)]
+BASELINE = "ltv_lstm_mpc_baseline"
+ROOT = Path(__file__).resolve().parents[1]
+SKIP = 10  # first steps left out of the figures: cold caches, first reference solve
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "The pipeline against earlier versions" (and the '
+        'revision comparisons of "The compiled step"), and docs/user-guide/compiled.md, "How '
+        'to measure".',
+    )
+    parser.add_argument("--baseline", default=None, help="git revision to compare with")
+    parser.add_argument(
+        "--numpy-kernel",
+        action="store_true",
+        help="compare with this version on the numpy kernel (LSTMKernel(compiled=False))",
+    )
+    parser.add_argument("--rounds", type=int, default=1, help="repetitions of every case")
+    parser.add_argument(
+        "--steps", type=int, default=300, help=f"closed-loop steps (300; more than {SKIP})"
+    )
+    parser.add_argument("--solvers", nargs="+", default=None, help="backends (see above)")
+    parser.add_argument("--N", type=int, nargs="+", default=None, help="horizons (see above)")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")  # before numpy: small products, one thread
 
 import numpy as np  # noqa: E402
-
-CASES = [("daqp", 5), ("daqp", 20), ("daqp", 50), ("cvxpy:CLARABEL", 5)]
-BASELINE = "ltv_lstm_mpc_baseline"
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def export_baseline(revision: str, folder: Path) -> ModuleType:
@@ -121,7 +153,7 @@ def compare(
             inputs[j].append(float(u[0]))
             d = scenario.disturbances[k]
             outputs[j] = plant.step(u, None if np.isnan(d) else d)
-    skip = 10  # first steps: cold caches, first reference solve
+    skip = SKIP
     result = []
     for j, (ctrl, _, _) in enumerate(runs):
         mpc = [r.mpc for r in ctrl.records[skip:]]
@@ -137,16 +169,17 @@ def compare(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--baseline", default=None, help="git revision to compare with")
-    parser.add_argument(
-        "--numpy-kernel",
-        action="store_true",
-        help="compare with this version on the numpy kernel (LSTMKernel(compiled=False))",
-    )
-    parser.add_argument("--rounds", type=int, default=1, help="repetitions of every case")
-    parser.add_argument("--steps", type=int, default=300)
+    parser = build_parser()
     args = parser.parse_args()
+    if args.steps <= SKIP:
+        parser.error(f"--steps must be more than {SKIP} (the first {SKIP} are left out)")
+    cases = CASES
+    if args.solvers is not None or args.N is not None:
+        cases = [
+            (solver, N)
+            for solver in args.solvers or sorted({s for s, _ in CASES})
+            for N in args.N or sorted({n for _, n in CASES})
+        ]
     import ltv_lstm_mpc
 
     libs: list[tuple[ModuleType, bool]] = [(ltv_lstm_mpc, False)]
@@ -159,7 +192,7 @@ def main() -> None:
             f"{'backend':>16} {'N':>3} | {'step med':>8} {'p95':>7} {'prep':>6} {'feed':>6}"
             + (" | old med  new/old  max|du_phi|" if len(libs) > 1 else "")
         )
-        for solver, N in CASES:
+        for solver, N in cases:
             steps = args.steps if solver == "daqp" else min(args.steps, 120)
             parts: list[list[dict[str, Any]]] = [[] for _ in libs]
             for _ in range(args.rounds):

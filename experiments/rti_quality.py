@@ -6,7 +6,8 @@ set-points, and compare the first inputs. Then run the whole closed loop once wi
 once with converged SQP and compare the closed-loop costs
 sum_k ||x_k - x_bar_k||_Q^2 + ||u_k - u_bar_k||_R^2 (normalized units).
 
-Run: ``python experiments/rti_quality.py [--steps 900] [--out rti_quality.json]``.
+Run: ``python experiments/rti_quality.py [--steps 900] [--out rti_quality.json]``
+(``--steps 15``: a few seconds).
 """
 
 from __future__ import annotations
@@ -16,11 +17,32 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 
-from ltv_lstm_mpc import load_model
-from ltv_lstm_mpc.mpc.rti import RobustMPC
-from ltv_lstm_mpc.paper.scenarios import ScenarioResult, paper_scenarios, run_scenario
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        epilog="Figures: docs/benchmarks.md, \"The paper's benchmark: model, certificates, "
+        'closed loops" (RTI against converged SQP), docs/user-guide/mpc.md and the README.',
+    )
+    parser.add_argument("--steps", type=int, default=900, help="samples of scenario 1 (900)")
+    parser.add_argument("--sqp-iterations", type=int, default=30)
+    parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
+import numpy as np  # noqa: E402
+
+from ltv_lstm_mpc import load_model  # noqa: E402
+from ltv_lstm_mpc.mpc.rti import RobustMPC  # noqa: E402
+from ltv_lstm_mpc.paper.scenarios import (  # noqa: E402
+    ScenarioResult,
+    paper_scenarios,
+    run_scenario,
+)
 
 
 def closed_loop_cost(result: ScenarioResult) -> float:
@@ -36,11 +58,10 @@ def closed_loop_cost(result: ScenarioResult) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=900, help="samples of scenario 1 (900)")
-    parser.add_argument("--sqp-iterations", type=int, default=30)
-    parser.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
+    parser = build_parser()
     args = parser.parse_args()
+    if args.steps < 2:
+        parser.error("--steps must be at least 2")
     model = load_model("ph_lstm_n5.npz")
     scenario = paper_scenarios(model)[0]
     scenario = replace(

@@ -13,6 +13,7 @@ the medians (microseconds) of both, CLARABEL's iterations, and the largest diffe
 first input between the two formulations.
 
     python experiments/sparse_cones_crossover.py --steps 120 --N 5 20 50
+    python experiments/sparse_cones_crossover.py --steps 15 --N 5
 
 Measured 2026-12-03 on this 2-core VM (110 steps per horizon, medians, nothing else
 running; CLARABEL's defaults with iterative refinement off, as the dense backend runs it):
@@ -33,7 +34,8 @@ defaults 5.5 ms). Either way the exact cones stay far above the QP path: the one
 daqp *step* takes 46 / 104 / 310 us at N = 5 / 20 / 50 (``experiments/step_speed.py``),
 so a CLARABEL solve alone is 12-13x that step at every horizon. On this machine the sparse
 CLARABEL route cannot bring exact cones within 2x of the QP path; an active-set route can
-(``experiments/cone_sqp_prototype.py``: SQP on DAQP, 31 / 109 / 586 us per subproblem).
+(``daqp:socp``, ``solvers/daqp_socp.py``: SQP on DAQP, 1.2-1.8x the QP step, see
+docs/benchmarks.md, "One compiled call per step").
 """
 
 from __future__ import annotations
@@ -43,6 +45,26 @@ import os
 import time
 from dataclasses import replace
 from typing import Any
+
+SKIP = 10  # first steps left out of the figures
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "One compiled call per step" (native sparse '
+        "CLARABEL on the stage-wise problem).",
+    )
+    parser.add_argument(
+        "--steps", type=int, default=120, help=f"closed-loop steps (120; more than {SKIP})"
+    )
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
@@ -137,7 +159,7 @@ def run(N: int, steps: int) -> dict[str, float]:
         t2 = time.perf_counter()
         condensed = dense.solve(qp)
         t3 = time.perf_counter()
-        if k < 10:
+        if k < SKIP:
             continue
         sparse_times.append(t1 - t0)
         dense_times.append(t3 - t2)
@@ -157,10 +179,10 @@ def run(N: int, steps: int) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=120)
-    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
+    parser = build_parser()
     args = parser.parse_args()
+    if args.steps <= SKIP:
+        parser.error(f"--steps must be more than {SKIP} (the first {SKIP} are left out)")
     print(
         f"{'N':>3} {'variables':>9} {'rows':>5} {'sparse us':>10} {'condensed us':>13} "
         f"{'sparse/condensed':>17} {'iterations':>10} {'max |du0| (normalized)':>23}"

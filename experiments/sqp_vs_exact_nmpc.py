@@ -6,7 +6,8 @@ equilibria whose linearization candidate is the input bound (u = +1 or -1 repeat
 where plain RTI along it is infeasible: the feasibility phase has to work there. For
 each state the statuses are compared and, where both are feasible, the first inputs.
 
-Run: ``python experiments/sqp_vs_exact_nmpc.py [--states 120] [--seed 5]``.
+Run: ``python experiments/sqp_vs_exact_nmpc.py [--states 120] [--seed 5]`` (``--states 2``:
+seconds). Needs CasADi (extra ``nmpc``).
 """
 
 from __future__ import annotations
@@ -15,19 +16,32 @@ import argparse
 import time
 import warnings
 
-import numpy as np
 
-from ltv_lstm_mpc import MPCConfig, RobustMPC, load_model
-from ltv_lstm_mpc.loop.reference import ReferenceCalculator
-from ltv_lstm_mpc.mpc.exact_nmpc import ExactNMPC
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy, CasADi and the library load)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        epilog="Figures: docs/benchmarks.md, \"The paper's benchmark: model, certificates, "
+        'closed loops" (converged SQP against the exact NMPC), and docs/user-guide/mpc.md.',
+    )
     parser.add_argument("--states", type=int, default=120, help="states per set (120)")
     parser.add_argument("--seed", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=300, help="SQP iterations (300)")
-    args = parser.parse_args()
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
+import numpy as np  # noqa: E402
+
+from ltv_lstm_mpc import MPCConfig, RobustMPC, load_model  # noqa: E402
+from ltv_lstm_mpc.loop.reference import ReferenceCalculator  # noqa: E402
+from ltv_lstm_mpc.mpc.exact_nmpc import ExactNMPC  # noqa: E402
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     warnings.simplefilter("ignore", UserWarning)  # cvxpy's "may be inaccurate" notes
     model = load_model("ph_lstm_n5.npz")
     config = MPCConfig(sqp_iterations=args.iterations, sqp_tolerance=1e-9, tolerance=1e-10)

@@ -11,6 +11,7 @@ and prints
    for *where* the time goes, and part 1 for how much.
 
     python experiments/step_profile.py --solver daqp --N 5 --steps 300
+    python experiments/step_profile.py --solver daqp --N 5 --steps 15 --top 5
 """
 
 from __future__ import annotations
@@ -21,6 +22,28 @@ import os
 import pstats
 import time
 from dataclasses import replace
+
+SKIP = 10  # first steps left out of part 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "The compiled step" (where the step goes), and '
+        'docs/user-guide/compiled.md, "How to measure".',
+    )
+    parser.add_argument("--solver", default="daqp")
+    parser.add_argument("--N", type=int, default=5, help="horizon (5)")
+    parser.add_argument(
+        "--steps", type=int, default=300, help=f"closed-loop steps (300; more than {SKIP})"
+    )
+    parser.add_argument("--top", type=int, default=25, help="functions listed (25)")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")  # before numpy: small products, one thread
@@ -60,15 +83,13 @@ def loop(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--solver", default="daqp")
-    parser.add_argument("--N", type=int, default=5)
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--top", type=int, default=25)
+    parser = build_parser()
     args = parser.parse_args()
+    if args.steps <= SKIP:
+        parser.error(f"--steps must be more than {SKIP} (the first {SKIP} are left out)")
     loop(args.solver, args.N, 20)  # JIT caches, imports
     ctrl, times = loop(args.solver, args.N, args.steps)
-    skip = 10
+    skip = SKIP
     records = ctrl.records[skip:]
     us = 1e6
 

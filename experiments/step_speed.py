@@ -34,6 +34,7 @@ what a single loop pays; the ratios then compare different times of the machine.
 
     python experiments/step_speed.py --steps 300 --N 5 20 50
     python experiments/step_speed.py --steps 300 --N 5 20 50 --alone
+    python experiments/step_speed.py --steps 15 --N 5
 """
 
 from __future__ import annotations
@@ -44,6 +45,32 @@ import os
 import time
 from dataclasses import replace
 from typing import Any
+
+SKIP = 10  # first steps left out of the figures: cold caches, first reference solve
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "One compiled call per step" (and the sections '
+        'after it), and docs/user-guide/compiled.md, "How to measure".',
+    )
+    parser.add_argument(
+        "--steps", type=int, default=300, help=f"closed-loop steps (300; more than {SKIP})"
+    )
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    parser.add_argument(
+        "--alone",
+        action="store_true",
+        help="run each controller's loop on its own rather than step by step interleaved "
+        "(warm caches, as a single controller runs; ratios then compare different times)",
+    )
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")  # before numpy: small products, one thread
@@ -114,7 +141,7 @@ def run(N: int, steps: int, alone: bool = False) -> dict[str, dict[str, Any]]:
                 between[j].append(time.perf_counter() - t0)
     finally:
         gc.enable()
-    skip = 10  # first steps: cold caches, first reference solve
+    skip = SKIP
     out: dict[str, dict[str, Any]] = {}
     for j, (label, ctrl, _) in enumerate(runs):
         records = ctrl.records[skip:]
@@ -169,16 +196,10 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50])
-    parser.add_argument(
-        "--alone",
-        action="store_true",
-        help="run each controller's loop on its own rather than step by step interleaved "
-        "(warm caches, as a single controller runs; ratios then compare different times)",
-    )
+    parser = build_parser()
     args = parser.parse_args()
+    if args.steps <= SKIP:
+        parser.error(f"--steps must be more than {SKIP} (the first {SKIP} are left out)")
     for N in args.N:
         report(N, run(N, args.steps, args.alone))
 

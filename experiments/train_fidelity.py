@@ -4,7 +4,9 @@ Trains a delta-ISS LSTM with :func:`ltv_lstm_mpc.training.train.train` on identi
 data (a saved ``.npz`` or generated with the given design), then appends one row to
 ``experiments/training_log.md``: the settings that differ from the defaults, the FIT per
 split, :math:`\\rho(A_\\delta)`, :math:`\\rho_s` (Q_s = 1000 I), the d_max estimate on the
-validation split, the admissible set-point interval for it and the wall time.
+validation split, the admissible set-point interval for it and the wall time, and (so that
+runs on other data compare) the test FIT and d_max estimate on the paper's own test and
+validation splits.
 
 Run one at a time on a shared machine, with one thread (the config's ``threads``)::
 
@@ -12,6 +14,13 @@ Run one at a time on a shared machine, with one thread (the config's ``threads``
         --config '{"lr": 3e-3, "delta_iss_margin": 0.1}'
 
 ``--from-report DIR`` only appends the row of a finished run (its report, model and data).
+``--log`` writes the rows elsewhere; a run of some 20 s (tiny data, a few dozen epochs)::
+
+    python experiments/train_fidelity.py --tag smoke --log /tmp/log.md --out-root /tmp/runs \\
+        --data-options '{"seed": 1, "sequences": 4, "steps": 200, "split_sizes": [2, 1, 1]}' \\
+        --config '{"epochs": 5, "lr": 0.02, "checkpoint_every": 0, "equilibrium_steps": 100}'
+
+Needs torch (extra ``train``).
 """
 
 from __future__ import annotations
@@ -19,20 +28,53 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
-from ltv_lstm_mpc.lstm.model import LSTMModel
-from ltv_lstm_mpc.training.datasets import (
+LOG = Path(__file__).with_name("training_log.md")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before the library and torch are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="Rows: experiments/training_log.md, whose runs docs/user-guide/training.md and "
+        'docs/benchmarks.md ("The paper\'s benchmark: model, certificates, closed loops") cite.',
+    )
+    parser.add_argument("--tag", required=True, help="the run's name (first column, folder)")
+    parser.add_argument("--data", default=None, help="identification data .npz")
+    parser.add_argument("--data-options", default="{}", help="generate_dataset kwargs (JSON)")
+    parser.add_argument("--config", default="{}", help="TrainingConfig overrides (JSON)")
+    parser.add_argument(
+        "--out-root",
+        default=str(Path(tempfile.gettempdir()) / "train_fidelity_runs"),
+        help="the run goes to OUT_ROOT/TAG (default: %(default)s)",
+    )
+    parser.add_argument("--from-report", default=None, help="only log this finished run")
+    parser.add_argument(
+        "--log", type=Path, default=LOG, help="append the row here (default: %(default)s)"
+    )
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
+from ltv_lstm_mpc.lstm.model import LSTMModel  # noqa: E402
+from ltv_lstm_mpc.training.datasets import (  # noqa: E402
     IdentificationDataset,
     generate_dataset,
     generate_split,
 )
-from ltv_lstm_mpc.training.mismatch import estimate_d_max
-from ltv_lstm_mpc.training.train import TrainingConfig, evaluate_model, guarantee_numbers
+from ltv_lstm_mpc.training.mismatch import estimate_d_max  # noqa: E402
+from ltv_lstm_mpc.training.train import (  # noqa: E402
+    TrainingConfig,
+    evaluate_model,
+    guarantee_numbers,
+)
 
-LOG = Path(__file__).with_name("training_log.md")
 HEADER = (
     "| run | settings (differences from the defaults) | data | train / val / test FIT (%) "
     "| rho(A_delta) | rho_s | d_max estimate (val) | set-point interval, estimated d_max (pH) "
@@ -93,34 +135,28 @@ def row(tag: str, run_dir: Path, dataset: IdentificationDataset) -> str:
     )
 
 
-def append_row(text: str) -> None:
-    if not LOG.exists():
-        LOG.write_text(
+def append_row(text: str, log: Path = LOG) -> None:
+    """Append ``text`` to the Markdown table in ``log`` (created with its header if absent)."""
+    if not log.exists():
+        log.write_text(
             "# Training experiments (model fidelity)\n\nEach row: one run of "
             "`experiments/train_fidelity.py` on one core (torch threads = 1, nice 10) of a "
             "2-core VM shared with another job; FIT as the training report defines it "
             "(physical pH, open-loop simulation from the equilibrium of the first input).\n\n"
             + HEADER
         )
-    with LOG.open("a") as handle:
+    with log.open("a") as handle:
         handle.write(text)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--tag", required=True)
-    parser.add_argument("--data", default=None, help="identification data .npz")
-    parser.add_argument("--data-options", default="{}", help="generate_dataset kwargs (JSON)")
-    parser.add_argument("--config", default="{}", help="TrainingConfig overrides (JSON)")
-    parser.add_argument("--out-root", default="/tmp/issue24_runs")
-    parser.add_argument("--from-report", default=None, help="only log this finished run")
-    args = parser.parse_args(argv)
+    args = build_parser().parse_args(argv)
     if args.data is not None:
         dataset = IdentificationDataset.load(args.data)
     else:
         dataset = generate_dataset(**json.loads(args.data_options))
     if args.from_report is not None:
-        append_row(row(args.tag, Path(args.from_report), dataset))
+        append_row(row(args.tag, Path(args.from_report), dataset), args.log)
         return 0
     from ltv_lstm_mpc.training.train import train
 
@@ -131,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.tag}: {time.perf_counter() - start:.0f} s", file=sys.stderr)
     text = row(args.tag, out, dataset)
     print(text, end="")
-    append_row(text)
+    append_row(text, args.log)
     del result
     return 0
 

@@ -1,11 +1,11 @@
 """Reproduce the paper's five simulations: plots, CSV/JSON numbers and a summary table.
 
-Used by ``ltv-lstm-mpc reproduce`` / ``ltv-lstm-mpc simulate`` and
-``experiments/paper_scenarios.py``. Each scenario writes ``<name>.png`` (output vs
-set-point with the output constraint, input with its bounds U, disturbance, and the
-estimate d_hat, named with units from the plant registry; grey bands where the FHOCP was
-infeasible), ``<name>.csv`` (one row per sample) and ``<name>.json`` (its summary);
-``summary.json`` collects all summaries and the certificate numbers next to the paper's.
+Used by ``ltv-lstm-mpc reproduce`` / ``ltv-lstm-mpc simulate``. Each scenario writes
+``<name>.png`` (output vs set-point with the output constraint, input with its bounds U,
+disturbance, and the estimate d_hat, named with units from the plant registry; grey bands
+where the FHOCP was infeasible), ``<name>.csv`` (one row per sample) and ``<name>.json``
+(its summary); ``summary.json`` collects all summaries and the certificate numbers next to
+the paper's.
 """
 
 from __future__ import annotations
