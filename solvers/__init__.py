@@ -94,7 +94,7 @@ unboundedness that a backend returns (native OSQP, CLARABEL) are checked and kep
 checked: its caller checks the point. An exception out of a backend becomes a
 :class:`~ltv_lstm_mpc.SolverError` naming the solver, phase and cause.
 
-``Session(solver, tolerance=..., reformulation=None, **settings)`` keeps one
+``Session(solver, tolerance=..., reformulation=None, **settings)`` (``session.py``) keeps one
 workspace per structure: ``setup(problem)``, then ``update(problem)`` (same
 ``structure_key``; backends that cannot update in place are set up afresh,
 recorded in ``Session.last_update`` and ``Solution.info``) and
@@ -153,7 +153,6 @@ from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, fro
 from .reformulation import ConeReformulation, PolyhedralInnerApproximation
 from .registry import (
     DEFAULT_SOLVER,
-    Session,
     SolverInfo,
     available_solvers,
     cone_solvers,
@@ -161,10 +160,10 @@ from .registry import (
     get_backend,
     get_dense_backend,
     register_backend,
-    solve,
     solver_info,
     unregister_backend,
 )
+from .session import Session, solve
 from .tolerances import TOLERANCE_OPTIONS, feasibility_tolerance, optimality_tolerance
 
 __all__ = [
