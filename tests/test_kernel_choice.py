@@ -127,7 +127,7 @@ CALLEES = {
     "terminal_norm_of_squares",
     "solver_seconds",
     # inside the one-call step (loop/compiled_step.py): its clock and interval test, and the
-    # exact-cone feedback it also holds (mpc/native_feedback.py, solvers/daqp_socp.py)
+    # exact-cone feedback it also holds (mpc/native_feedback.py, solvers/socp_sqp.py)
     "_now",
     "_inside_interval",
     "_normalize_measurement",
@@ -138,7 +138,7 @@ CALLEES = {
     "_cone_values",
     "cone_violation",
     "max_abs",
-    # inside socp_solve (solvers/daqp_socp.py), which warm-up also calls from Python
+    # inside socp_solve (solvers/socp_sqp.py), which warm-up also calls from Python
     "_add_violated_rows",
     "_cone_value",
     "_line_search",

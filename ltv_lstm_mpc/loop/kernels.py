@@ -93,7 +93,7 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
     if names & {"nominal_feedback", "cone_feedback"}:
         from ltv_lstm_mpc.loop import compiled_step  # the one-call step builds on them
         from ltv_lstm_mpc.mpc import native_feedback as one_call_feedback
-        from ltv_lstm_mpc.solvers import daqp_socp
+        from ltv_lstm_mpc.solvers import socp_sqp
 
         kernels += [
             compiled_step.controller_step, compiled_step.controller_step_from_rows,
@@ -105,7 +105,7 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
         placeholder = (
             one_call_feedback._new_daqp_workspace
             if "cone_feedback" in names
-            else daqp_socp._new_socp_workspace
+            else socp_sqp.new_socp_workspace_kernel
         )
         if placeholder not in kernels:
             kernels.append(placeholder)

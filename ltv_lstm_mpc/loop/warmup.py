@@ -56,9 +56,9 @@ def warm_up(model: LSTMModel, config: MPCConfig, *, steps: int = 3) -> float:
     for _ in range(2):  # prepared steps: after a general step, then after a one-call one
         controller.prepare_next()
         controller.step(y, y)
-    from ltv_lstm_mpc.solvers import daqp_socp
+    from ltv_lstm_mpc.solvers import daqp_socp, socp_sqp
 
-    if daqp_socp.socp_solve in controller_kernels(config):  # its Python entry: the
+    if socp_sqp.socp_solve in controller_kernels(config):  # its Python entry: the
         daqp_socp.warm_up()  # general path's, where the one-call feedback falls back
     if missing:
         forget_failure(missing)

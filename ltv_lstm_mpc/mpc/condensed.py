@@ -356,11 +356,11 @@ class CondensedTranscription(TranscriptionBase):
             self._expand = self._expand_numpy
 
     def _new_socp_workspace(self, config: MPCConfig) -> Any:
-        """The :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace` of the nominal
+        """The :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` of the nominal
         exact-cone QP (variables ``[du, t_c, t_h]``, the output rows, the cones of
         :meth:`_cone_problem`), or None where DAQP is not bound natively."""
         from ltv_lstm_mpc.solvers import daqp_native
-        from ltv_lstm_mpc.solvers.daqp_socp import new_socp_workspace, socp_arrays
+        from ltv_lstm_mpc.solvers.socp_sqp import new_socp_workspace, socp_arrays
         from ltv_lstm_mpc.solvers.tolerances import solver_options
 
         buffers = daqp_native.native(

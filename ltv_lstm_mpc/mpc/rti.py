@@ -161,10 +161,12 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
         return kernels
     from ltv_lstm_mpc.mpc import native_feedback as native
 
-    if config.solver == "daqp:socp":  # exact cones by SQP on DAQP (solvers/daqp_socp.py)
-        from ltv_lstm_mpc.solvers import daqp_socp
+    if config.solver == "daqp:socp":  # exact cones by SQP on DAQP (solvers/socp_sqp.py)
+        from ltv_lstm_mpc.solvers import socp_sqp
 
-        kernels += [daqp_native.quadprog, daqp_socp.socp_solve, daqp_socp._new_socp_workspace]
+        kernels += [
+            daqp_native.quadprog, socp_sqp.socp_solve, socp_sqp.new_socp_workspace_kernel
+        ]  # fmt: skip
         if config.sqp_iterations == 1 and native_feedback:
             kernels.append(native.cone_feedback)
         return kernels
