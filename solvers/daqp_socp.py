@@ -8,7 +8,8 @@ result to the layer's statuses: ``OPTIMAL`` for a converged solve; ``INFEASIBLE`
 checked Farkas vector of the cone problem itself, ``UNBOUNDED`` only with a checked
 direction of unbounded descent (never from one subproblem's exit flag); otherwise
 ``FAILED`` or ``MAX_ITER`` (after :data:`~ltv_lstm_mpc.solvers.socp_sqp.MAX_ITERATIONS`)
-with the reason, naming the cones at whose apex the iterate is.
+with the reason, naming the cones at whose apex the iterate is. :func:`compiled_form` is
+what the backend advertises to compiled callers through the registry.
 """
 
 from __future__ import annotations
@@ -21,14 +22,22 @@ import numpy as np
 
 from ._base import FloatArray, RawResult, WarmStart, check_settings, warm_start_vectors
 from .acceptance import ProblemView
-from .daqp_native import native
+from .compiled_forms import CompiledForm
+from .daqp_ import native_buffers
+from .daqp_native import native, quadprog, solver_seconds
 from .dense import DenseBackend, DenseQP
 from .problem import SolverStatus
 from .socp_certificates import cone_multipliers, failure_status, max_iter_status
-from .socp_sqp import MAX_ITERATIONS, new_socp_workspace, socp_arrays, socp_solve
+from .socp_sqp import (
+    MAX_ITERATIONS,
+    new_socp_workspace,
+    new_socp_workspace_kernel,
+    socp_arrays,
+    socp_solve,
+)
 from .tolerances import known_settings, solver_options
 
-__all__ = ["DaqpSocpDense", "local_solution", "make_dense", "warm_up"]
+__all__ = ["DaqpSocpDense", "compiled_form", "local_solution", "make_dense", "warm_up"]
 
 #: (status, native status, iterations, wall time, certificate) of one solve.
 Outcome = tuple[SolverStatus, str, int, float, Mapping[str, FloatArray] | None]
@@ -182,3 +191,22 @@ def warm_up() -> None:
 def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
     """Registry dense factory for ``"daqp:socp"``."""
     return DaqpSocpDense(name, tolerance, settings)
+
+
+def compiled_form(name: str) -> CompiledForm:
+    """What ``"daqp:socp"`` gives compiled callers (registered only where DAQP is bound):
+    the SQP, its workspace, DAQP's buffers; no numpy twin (it compiles at first use)."""
+    return CompiledForm(
+        name=name,
+        kernels=(quadprog, socp_solve, new_socp_workspace_kernel),
+        bound=True,
+        compiled_only=True,
+        quadprog=quadprog,
+        solver_seconds=solver_seconds,
+        socp_solve=socp_solve,
+        max_iterations=MAX_ITERATIONS,
+        native_buffers=native_buffers,
+        new_socp_workspace=new_socp_workspace,
+        socp_arrays=socp_arrays,
+        warm_up=warm_up,
+    )

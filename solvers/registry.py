@@ -1,4 +1,4 @@
-"""Registry of installed backends: names, capabilities and factories.
+"""Registry of installed backends: names, capabilities, factories and compiled forms.
 
 Sessions over it (:class:`~ltv_lstm_mpc.solvers.Session`, :func:`~ltv_lstm_mpc.solvers.solve`)
 live in :mod:`~ltv_lstm_mpc.solvers.session`, which imports this module (not the other way:
@@ -20,13 +20,16 @@ from ltv_lstm_mpc.exceptions import InvalidValueError, SolverNotFound
 
 from ._adapters import convex_from_dense, dense_from_convex
 from ._base import BackendFactory
+from .compiled_forms import CompiledForm, dense_check_form
 from .dense import DenseBackendFactory
 from .tolerances import FIRST_ORDER, note_registered
 
 __all__ = [
     "DEFAULT_SOLVER",
+    "CompiledForm",
     "SolverInfo",
     "available_solvers",
+    "compiled_form",
     "cone_solvers",
     "default_solver",
     "get_backend",
@@ -79,11 +82,17 @@ class SolverInfo:
     first_order: bool
 
 
+#: What builds a backend's :class:`~ltv_lstm_mpc.solvers.compiled_forms.CompiledForm` from
+#: the registry name.
+CompiledFormFactory = Callable[[str], CompiledForm]
+
+
 @dataclass(frozen=True)
 class _Entry:
     info: SolverInfo
     factory: BackendFactory | None
     dense_factory: DenseBackendFactory | None
+    compiled: CompiledFormFactory | None = None
 
 
 def _installed(module: str) -> bool:
@@ -113,6 +122,20 @@ def _native_entries() -> list[tuple[str, str, Callable[[], tuple[Any, Any]]]]:
     ]
 
 
+#: Native backends that advertise a compiled form: name -> module whose ``compiled_form``
+#: builds it (the other cone solvers get :func:`~.compiled_forms.dense_check_form`).
+_COMPILED_FORMS = {"daqp": "daqp_", "daqp:socp": "daqp_socp", "clarabel": "clarabel_"}
+
+
+def _compiled_factory(name: str, cones: bool) -> CompiledFormFactory | None:
+    """The compiled form factory of the installed backend ``name`` (one that solves cones
+    exactly when ``cones``), or None: it has none."""
+    if name in _COMPILED_FORMS:
+        factory: CompiledFormFactory = _module(_COMPILED_FORMS[name]).compiled_form
+        return factory
+    return dense_check_form if cones else None
+
+
 def _daqp_socp() -> tuple[Any, Any]:
     """The exact-cone SQP on DAQP: only where DAQP's C entry point is bound natively."""
     from . import daqp_native
@@ -133,10 +156,10 @@ def _registry() -> dict[str, _Entry]:
 
         for s in cvxpy_.supported_solvers(cp.installed_solvers()):
             name = f"cvxpy:{s}"
-            info = SolverInfo(
-                name, "cvxpy", s in cvxpy_.CONE_SOLVERS, True, s.lower() in FIRST_ORDER
-            )
-            reg[name] = _Entry(info, cvxpy_.factory(s), cvxpy_.dense_factory(s))
+            cones = s in cvxpy_.CONE_SOLVERS
+            info = SolverInfo(name, "cvxpy", cones, True, s.lower() in FIRST_ORDER)
+            compiled = _compiled_factory(name, cones)
+            reg[name] = _Entry(info, cvxpy_.factory(s), cvxpy_.dense_factory(s), compiled)
     except ImportError:
         pass
     try:
@@ -196,6 +219,7 @@ def _native_entry(name: str) -> _Entry | None:
             SolverInfo(name, family, cones, dense is not None, family in FIRST_ORDER),
             factory,
             dense,
+            _compiled_factory(name, cones),
         )
     return None
 
@@ -313,6 +337,25 @@ def solver_info(name: str) -> SolverInfo:
     return _entry(name).info
 
 
+def compiled_form(name: str) -> CompiledForm | None:
+    """What the solver ``name`` gives compiled (numba) callers, or None: it has nothing
+    compiled (:mod:`~ltv_lstm_mpc.solvers.compiled_forms` lists the forms).
+
+    The MPC layer reads its solver's form where it builds its compiled kernels (the
+    functions to compile ahead, the one-call feedback's solve and workspace), never per
+    step. A backend added with :func:`register_backend` has the dense layer's form where it
+    solves cones (:func:`~ltv_lstm_mpc.solvers.compiled_forms.dense_check_form`), else none;
+    replacing a built-in name replaces its form too.
+
+    Raises
+    ------
+    SolverNotFound
+        As :func:`solver_info`.
+    """
+    entry = _entry(name)
+    return None if entry.compiled is None else entry.compiled(name)
+
+
 def get_backend(name: str) -> BackendFactory:
     """ConvexProblem factory of the backend ``name`` (a dense-only one through an adapter).
 
@@ -420,7 +463,8 @@ def register_backend(
                 f"register_backend({name!r}): {label} must be callable, got {type(f).__name__}"
             )
     info = SolverInfo(name, "user", bool(supports_cones), dense_factory is not None, first_order)
-    return _add(name, _Entry(info, factory, dense_factory), replace)
+    compiled = dense_check_form if supports_cones else None
+    return _add(name, _Entry(info, factory, dense_factory, compiled), replace)
 
 
 def unregister_backend(name: str) -> None:

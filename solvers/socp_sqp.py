@@ -89,7 +89,9 @@ unboundedness) is read by :mod:`~ltv_lstm_mpc.solvers.socp_certificates`; the ba
 This module is the algorithm: the compiled kernels (:func:`socp_solve` and its callees),
 the workspace (:data:`SocpWorkspace`, :func:`socp_arrays`, :func:`new_socp_workspace`) and
 the constants above. It needs DAQP's C entry point bound natively
-(:mod:`ltv_lstm_mpc.solvers.daqp_native`): the loop is compiled around it.
+(:mod:`ltv_lstm_mpc.solvers.daqp_native`): the loop is compiled around it. Compiled
+callers reach it through the registry's compiled form of ``daqp:socp``
+(:func:`~ltv_lstm_mpc.solvers.compiled_form`).
 """
 
 from __future__ import annotations

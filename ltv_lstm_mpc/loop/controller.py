@@ -114,6 +114,10 @@ def _choose_kernels(
     if model.kernel.compiled:
         say_once(compile_notice("the controller kernels", "20-40 s"))
     elif start_background_compile(model, config, missing):
+        from ltv_lstm_mpc.mpc.rti import NLP_SOLVERS
+        from ltv_lstm_mpc.solvers import compiled_form
+
+        form = None if config.solver in NLP_SOLVERS else compiled_form(config.solver)
         say_once(
             "ltv_lstm_mpc: the compiled controller kernels are not in numba's cache yet: "
             "this controller runs the numpy reference kernels (the same numbers to about "
@@ -122,9 +126,9 @@ def _choose_kernels(
             "OffsetFreeController(..., kernels='compiled') waits for the compilation "
             "instead; `ltv-lstm-mpc warmup` compiles ahead of time"
             + (
-                ". The daqp:socp solver's SQP has no numpy twin: it compiles in this process "
+                f". The {config.solver} solver has no numpy twin: it compiles in this process "
                 "at the first step (about 10 s on 2 cores, once)"
-                if config.solver == "daqp:socp"
+                if form is not None and form.compiled_only
                 else ""
             )
         )

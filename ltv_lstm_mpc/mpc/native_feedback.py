@@ -27,6 +27,9 @@ from typing import Any
 from ltv_lstm_mpc.mpc.compiled_condensing import expand_point, insert_state
 from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
 from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
+
+# compiled code binds its callees when it compiles: the public entry points that the
+# solver layer's compiled forms of daqp and daqp:socp hold (solvers.compiled_form)
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
 from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
