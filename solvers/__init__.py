@@ -49,6 +49,10 @@ name                          what it is
 ``daqp``                      ``daqp_.py``: native DAQP ``Model`` (dense active set),
                               warm start through the working set; dense: the one-shot
                               ``daqp.solve`` (fastest on small condensed problems).
+``daqp:socp``                 ``daqp_socp.py``: exact second-order cones by SQP on DAQP,
+                              dense only; the compiled SQP is ``socp_sqp.py``, its
+                              multipliers and certificates ``socp_certificates.py``
+                              (only where DAQP's C entry point is bound natively).
 ``quadprog``                  ``quadprog_.py``: Goldfarb-Idnani dual active set, dense
                               only (ConvexProblems through the dense adapter), machine
                               precision, no settings, no warm start.
@@ -94,7 +98,7 @@ unboundedness that a backend returns (native OSQP, CLARABEL) are checked and kep
 checked: its caller checks the point. An exception out of a backend becomes a
 :class:`~ltv_lstm_mpc.SolverError` naming the solver, phase and cause.
 
-``Session(solver, tolerance=..., reformulation=None, **settings)`` keeps one
+``Session(solver, tolerance=..., reformulation=None, **settings)`` (``session.py``) keeps one
 workspace per structure: ``setup(problem)``, then ``update(problem)`` (same
 ``structure_key``; backends that cannot update in place are set up afresh,
 recorded in ``Session.last_update`` and ``Solution.info``) and
@@ -138,6 +142,15 @@ backend needs it, and ``Solution.reformulation`` records its name.
 (``|F_i z + g_i| <= (e'z + f)/sqrt(k)``); the controller supplies the paper notes 4
 terminal-set and terminal-cost ones.
 
+Compiled callers
+----------------
+:func:`compiled_form` ``(solver)`` is what a backend gives compiled (numba) callers, a
+:class:`CompiledForm` (``compiled_forms.py``): the compiled functions to load or compile
+ahead, DAQP's C entry point and buffers (``daqp``), the SQP and its workspace
+(``daqp:socp``, compiled only: no numpy twin), or None (the QP solvers but ``daqp``). The
+MPC reads its solver's form where it builds its compiled kernels; it uses the layer's
+public names only.
+
 A missing or unknown solver raises :class:`~ltv_lstm_mpc.SolverNotFound`
 (an ``ImportError``) that lists the installed ones and
 ``pip install "ltv_lstm_mpc[solvers]"``.
@@ -147,30 +160,32 @@ from __future__ import annotations
 
 from ._base import Backend, RawResult
 from .acceptance import Residuals
+from .compiled_forms import CompiledForm
 from .dense import DenseBackend, DenseCone, DenseQP
 from .dense_session import DenseSession
 from .problem import ConvexProblem, SecondOrderCone, Solution, SolverStatus, frozen_csc
 from .reformulation import ConeReformulation, PolyhedralInnerApproximation
 from .registry import (
     DEFAULT_SOLVER,
-    Session,
     SolverInfo,
     available_solvers,
+    compiled_form,
     cone_solvers,
     default_solver,
     get_backend,
     get_dense_backend,
     register_backend,
-    solve,
     solver_info,
     unregister_backend,
 )
+from .session import Session, solve
 from .tolerances import TOLERANCE_OPTIONS, feasibility_tolerance, optimality_tolerance
 
 __all__ = [
     "DEFAULT_SOLVER",
     "TOLERANCE_OPTIONS",
     "Backend",
+    "CompiledForm",
     "ConeReformulation",
     "ConvexProblem",
     "DenseBackend",
@@ -186,6 +201,7 @@ __all__ = [
     "SolverInfo",
     "SolverStatus",
     "available_solvers",
+    "compiled_form",
     "cone_solvers",
     "default_solver",
     "feasibility_tolerance",

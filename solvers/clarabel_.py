@@ -54,9 +54,10 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
-from ._compiled import CompiledOrPython
+from ._compiled import CompiledOrPython, bounds_rows_violation, cone_violation
 from ._compiled import clarabel_cone_rows as _clarabel_cone_rows
 from ._compiled import clarabel_fill as _clarabel_fill
+from .compiled_forms import CompiledForm
 from .dense import DenseBackend, DenseQP
 from .problem import SolverStatus
 from .tolerances import known_settings, solver_options
@@ -305,3 +306,12 @@ class ClarabelDense(DenseBackend):
 def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
     """Registry dense factory for ``"clarabel"``."""
     return ClarabelDense(name, tolerance, settings)
+
+
+def compiled_form(name: str) -> CompiledForm:
+    """What ``"clarabel"`` gives compiled callers: no compiled solve, but its data fill loops
+    and the dense layer's point checks, which run compiled where they are ready."""
+    return CompiledForm(
+        name=name,
+        kernels=(_clarabel_fill, _clarabel_cone_rows, bounds_rows_violation, cone_violation),
+    )

@@ -23,7 +23,7 @@ Dense backend (:class:`DaqpDense`, for :class:`~ltv_lstm_mpc.solvers.DenseSessio
     call (:meth:`DaqpDense.solve_point`) goes to the same C function, ``daqp_quadprog``,
     through :mod:`~ltv_lstm_mpc.solvers.daqp_native` where DAQP is bound natively (same
     results; no Python call of the ``daqp`` package); :attr:`DaqpDense.native` is also what
-    compiled callers use.
+    compiled callers use, with the functions of :func:`compiled_form`.
 
 Warm start
     ``warm_start=None`` resets the working set (a cold start). A warm start sets
@@ -49,6 +49,7 @@ from ._base import (
     map_status,
     warm_start_vectors,
 )
+from .compiled_forms import CompiledForm
 from .dense import DenseBackend, DenseQP
 from .problem import ConvexProblem, Solution, SolverStatus
 from .tolerances import known_settings, solver_options
@@ -356,3 +357,28 @@ def dense_status(flag: int) -> tuple[SolverStatus, tuple[str, ...]]:
 def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
     """Registry dense factory."""
     return DaqpDense(name, tolerance, settings)
+
+
+def native_buffers(tolerance: float, settings: Mapping[str, Any]) -> Any:
+    """DAQP's C struct buffers (:class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative`) with
+    the options this backend sets for ``tolerance`` and ``settings``, or None where DAQP is
+    not bound natively (the reason in ``daqp_native.unavailable_reason``)."""
+    from . import daqp_native
+
+    return daqp_native.native(solver_options("daqp", tolerance, settings))
+
+
+def compiled_form(name: str) -> CompiledForm:
+    """What ``"daqp"`` gives compiled callers: DAQP's C entry point and its buffers where
+    DAQP is bound natively (else ``bound=False`` and no kernels)."""
+    from . import daqp_native
+
+    bound = daqp_native.bound()
+    return CompiledForm(
+        name=name,
+        kernels=(daqp_native.quadprog,) if bound else (),
+        bound=bound,
+        quadprog=daqp_native.quadprog,
+        solver_seconds=daqp_native.solver_seconds,
+        native_buffers=native_buffers,
+    )

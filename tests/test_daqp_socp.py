@@ -15,7 +15,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from ltv_lstm_mpc.solvers import DenseSession, SolverStatus
-from ltv_lstm_mpc.solvers.daqp_socp import FULL_STEPS
+from ltv_lstm_mpc.solvers.socp_sqp import FULL_STEPS
 from optional_extras import requires_solver
 
 from ltv_lstm_mpc import OffsetFreeController
@@ -127,7 +127,7 @@ def test_one_call_cone_feedback_equals_the_general_path(index: int) -> None:
 def _workspace(H, f, A, lo, up, lb, ub, cones):
     """A SocpWorkspace of the problem; ``cones``: (F, g, e, offset) each."""
     from ltv_lstm_mpc.solvers import daqp_native
-    from ltv_lstm_mpc.solvers.daqp_socp import new_socp_workspace, socp_arrays
+    from ltv_lstm_mpc.solvers.socp_sqp import new_socp_workspace, socp_arrays
     from ltv_lstm_mpc.solvers.tolerances import solver_options
 
     buffers = daqp_native.native(solver_options("daqp", 1e-8, {}))
@@ -148,7 +148,7 @@ def _workspace(H, f, A, lo, up, lb, ub, cones):
 
 def _both(problem):
     """socp_solve with and without row screening: (result, z, lam) of each."""
-    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
     out = []
     for screen in (False, True):
@@ -234,7 +234,7 @@ def test_screened_rows_give_the_same_solution(
 def test_cone_products_formed_as_needed_give_the_same_numbers(monkeypatch) -> None:
     """A workspace too large to store the cones' F_j' F_j forms them at each SQP iteration:
     the same iterates, bit for bit, as one that stores them."""
-    from ltv_lstm_mpc.solvers import daqp_socp
+    from ltv_lstm_mpc.solvers import socp_sqp
 
     rng = np.random.default_rng(7)
     n = 6
@@ -249,7 +249,7 @@ def test_cone_products_formed_as_needed_give_the_same_numbers(monkeypatch) -> No
         np.full(2, 1.0), np.full(n, -3.0), np.full(n, 3.0), cones,
     )  # fmt: skip
     stored = _both(problem)[1]
-    monkeypatch.setattr(daqp_socp, "STORED_PRODUCTS", 0)
+    monkeypatch.setattr(socp_sqp, "STORED_PRODUCTS", 0)
     arrays, _ = _workspace(*problem)
     assert arrays["cone_products"].shape[0] == 0
     formed = _both(problem)[1]
@@ -287,7 +287,7 @@ def test_screened_rows_on_the_mpcs_subproblems(index: int) -> None:
     """The exact-cone subproblems of 60 closed-loop steps at N = 20 (bench scenarios 1 and
     3, this one with infeasible steps), solved with and without row screening: the same
     exit flags and SQP iterations, the same points and multipliers to 1e-12."""
-    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
     flags = []
     for k, arrays, ws in _mpc_subproblems(index, 60):
@@ -308,7 +308,7 @@ def test_screened_rows_on_the_mpcs_subproblems(index: int) -> None:
 def _solve(problem, eliminate: bool, times: int = 1):
     """socp_solve ``times`` on one workspace (later solves predict the first subproblem's
     active epigraph cones from the solve before): (result, z, lam, arrays) of the last."""
-    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
     arrays, ws = _workspace(*problem)
     for _ in range(times):
@@ -391,7 +391,7 @@ def test_a_wrongly_predicted_cone_falls_back_to_the_whole_subproblem() -> None:
     leaves the cone predicted active for the next first subproblem; solved again with
     c = 3, the subproblem without t gives the cone a negative multiplier, so the whole
     subproblem is solved: x = 2, t = 3, multiplier 0, as without the elimination."""
-    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
     def problem(c: float):
         cone = (np.array([[1.0, 0.0]]), np.zeros(1), np.array([0.0, 1.0]), 0.0)
@@ -447,7 +447,7 @@ def test_epigraph_elimination_on_the_mpcs_subproblems(index: int) -> None:
     about 2e-6; the SQP stops about 6e-9 from the solution); the two epigraph cones
     (||c_N - c_bar|| <= t_c, ||h_N - h_bar|| <= t_h, on the last two variables) were
     eliminated in the last subproblem of most steps."""
-    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
     eliminated_steps = converged = 0
     for k, arrays, ws in _mpc_subproblems(index, 60):
@@ -473,7 +473,7 @@ def test_a_problem_on_which_full_steps_cycle_converges_with_the_line_search() ->
     more than 1 between consecutive iterates at the end), and the line search on the l1
     merit function that takes over then converges, to CLARABEL's solution (0.78784996,
     0.61185416), cone multiplier 2.8812936, computed with its tolerances at 1e-10)."""
-    from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
     H = np.array([[1.00853672, -0.04223842], [-0.04223842, 1.20912485]])
     cones = [

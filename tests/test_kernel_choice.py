@@ -128,7 +128,7 @@ CALLEES = {
     "solver_seconds",
     # inside the one-call step (loop/compiled_step.py): its clock, the shared formulas'
     # compiled twins (certificates/compiled_tightening.py, loop/compiled_signals.py), and the
-    # exact-cone feedback it also holds (mpc/native_feedback.py, solvers/daqp_socp.py)
+    # exact-cone feedback it also holds (mpc/native_feedback.py, solvers/socp_sqp.py)
     "_now",
     "inside_setpoint_interval",
     "output_bounds_into",
@@ -145,7 +145,7 @@ CALLEES = {
     "_cone_values",
     "cone_violation",
     "max_abs",
-    # inside socp_solve (solvers/daqp_socp.py), which warm-up also calls from Python
+    # inside socp_solve (solvers/socp_sqp.py), which warm-up also calls from Python
     "_add_violated_rows",
     "_cone_value",
     "_line_search",

@@ -31,7 +31,7 @@ WORKSPACES = [
     ("ltv_lstm_mpc.mpc.native_feedback", "DAQP_FIELDS", "_new_daqp_workspace"),
     ("ltv_lstm_mpc.loop.compiled_step", "STEP_FIELDS", "_new_step_workspace"),
     ("ltv_lstm_mpc.loop.compiled_step", "RECORD_FIELDS", "_new_record_arrays"),
-    ("ltv_lstm_mpc.solvers.daqp_socp", "SOCP_FIELDS", "_new_socp_workspace"),
+    ("ltv_lstm_mpc.solvers.socp_sqp", "SOCP_FIELDS", "_new_socp_workspace"),
 ]
 
 #: The most positional parameters a function of the library may take ("about a dozen").

@@ -151,7 +151,7 @@ StepWorkspace = workspace_type(
     checks); ``observer``: the observer's; ``cand`` (N, m): the MPC's candidate buffer;
     ``cones``: the exact terminal cones by SQP on DAQP (``daqp:socp``: the feedback is
     :func:`~ltv_lstm_mpc.mpc.native_feedback.cone_feedback` on ``socp``, a
-    :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace`, with the acceptance
+    :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace`, with the acceptance
     ``tolerance``) rather than the QP on ``daqp`` (the other one of the two is a
     placeholder); ``jinv_backup``: the chord's inverse Jacobian as it was before the last
     :func:`prepare_step` (restored when a preparation is discarded).
@@ -235,11 +235,11 @@ def placeholder_daqp() -> Any:
 
 
 def placeholder_socp() -> Any:
-    """A :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace` that is never solved with
+    """A :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` that is never solved with
     (the ``socp`` of a QP controller's :data:`StepWorkspace`)."""
     from types import SimpleNamespace
 
-    from ltv_lstm_mpc.solvers.daqp_socp import new_socp_workspace, socp_arrays
+    from ltv_lstm_mpc.solvers.socp_sqp import new_socp_workspace, socp_arrays
 
     empty = np.zeros(8, dtype=np.uint8)
     buffers = SimpleNamespace(problem=empty, result=empty.copy(), settings=empty.copy())

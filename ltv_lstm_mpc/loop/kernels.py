@@ -94,7 +94,7 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
     if names & {"nominal_feedback", "cone_feedback"}:
         from ltv_lstm_mpc.loop import compiled_step  # the one-call step builds on them
         from ltv_lstm_mpc.mpc import native_feedback as one_call_feedback
-        from ltv_lstm_mpc.solvers import daqp_socp
+        from ltv_lstm_mpc.solvers import socp_sqp
 
         kernels += [
             compiled_step.controller_step, compiled_step.controller_step_from_rows,
@@ -106,7 +106,7 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
         placeholder = (
             one_call_feedback.CONSTRUCTORS[0]
             if "cone_feedback" in names
-            else daqp_socp._new_socp_workspace
+            else socp_sqp.new_socp_workspace_kernel
         )
         if placeholder not in kernels:
             kernels.append(placeholder)
@@ -480,6 +480,10 @@ def use_kernels(
     if model.kernel.compiled:
         say_once(compile_notice("the controller kernels", "20-40 s"))
     elif start_background_compile(model, config, missing):
+        from ltv_lstm_mpc.mpc.rti import NLP_SOLVERS
+        from ltv_lstm_mpc.solvers import compiled_form
+
+        form = None if config.solver in NLP_SOLVERS else compiled_form(config.solver)
         say_once(
             "ltv_lstm_mpc: the compiled controller kernels are not in numba's cache yet: "
             "this controller runs the numpy reference kernels (the same numbers to about "
@@ -488,9 +492,9 @@ def use_kernels(
             "OffsetFreeController(..., kernels='compiled') waits for the compilation "
             "instead; `ltv-lstm-mpc warmup` compiles ahead of time"
             + (
-                ". The daqp:socp solver's SQP has no numpy twin: it compiles in this process "
+                f". The {config.solver} solver has no numpy twin: it compiles in this process "
                 "at the first step (about 10 s on 2 cores, once)"
-                if config.solver == "daqp:socp"
+                if form is not None and form.compiled_only
                 else ""
             )
         )

@@ -56,10 +56,13 @@ def warm_up(model: LSTMModel, config: MPCConfig, *, steps: int = 3) -> float:
     for _ in range(2):  # prepared steps: after a general step, then after a one-call one
         controller.prepare_next()
         controller.step(y, y)
-    from ltv_lstm_mpc.solvers import daqp_socp
+    from ltv_lstm_mpc.mpc.rti import NLP_SOLVERS
+    from ltv_lstm_mpc.solvers import compiled_form
 
-    if daqp_socp.socp_solve in controller_kernels(config):  # its Python entry: the
-        daqp_socp.warm_up()  # general path's, where the one-call feedback falls back
+    form = None if config.solver in NLP_SOLVERS else compiled_form(config.solver)
+    listed = controller_kernels(config)
+    if form is not None and form.warm_up is not None and any(k in listed for k in form.kernels):
+        form.warm_up()  # its Python entry: the general path's, where the one-call one falls back
     if missing:
         forget_failure(missing)
     return time.perf_counter() - start

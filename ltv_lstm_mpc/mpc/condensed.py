@@ -63,9 +63,11 @@ from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.terminal import TerminalBoxReformulation, TerminalSet
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import (
+    CompiledForm,
     DenseCone,
     DenseQP,
     DenseSession,
+    compiled_form,
     feasibility_tolerance,
     solver_info,
 )
@@ -237,13 +239,9 @@ class CondensedTranscription(TranscriptionBase):
         # Exact cones by SQP on DAQP as one compiled call (mpc/native_feedback.cone_feedback):
         # its workspace holds the nominal exact-cone QP, the constant parts written once.
         self._socp_workspace: Any = None
-        if (
-            self.compiled
-            and self.exact_cones
-            and config.solver == "daqp:socp"
-            and "nominal" in self._sessions
-        ):
-            self._socp_workspace = self._new_socp_workspace(config)
+        form = compiled_form(config.solver) if self.compiled and self.exact_cones else None
+        if form is not None and form.socp_solve is not None and "nominal" in self._sessions:
+            self._socp_workspace = self._new_socp_workspace(config, form)
         #: The compiled condensing's buffers for the bound trajectory (:meth:`workspace`).
         self._workspace: Any = None
         empty = np.zeros(0)
@@ -356,22 +354,19 @@ class CondensedTranscription(TranscriptionBase):
             self._insert = self._insert_numpy
             self._expand = self._expand_numpy
 
-    def _new_socp_workspace(self, config: MPCConfig) -> Any:
-        """The :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace` of the nominal
+    def _new_socp_workspace(self, config: MPCConfig, form: CompiledForm) -> Any:
+        """The :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` of the nominal
         exact-cone QP (variables ``[du, t_c, t_h]``, the output rows, the cones of
-        :meth:`_cone_problem`), or None where DAQP is not bound natively."""
-        from ltv_lstm_mpc.solvers import daqp_native
-        from ltv_lstm_mpc.solvers.daqp_socp import new_socp_workspace, socp_arrays
-        from ltv_lstm_mpc.solvers.tolerances import solver_options
-
-        buffers = daqp_native.native(
-            solver_options("daqp", config.tolerance, dict(config.solver_settings))
-        )
+        :meth:`_cone_problem`) from the solver's compiled ``form``, or None where its
+        compiled solve is not bound natively."""
+        assert form.native_buffers is not None and form.socp_arrays is not None
+        assert form.new_socp_workspace is not None
+        buffers = form.native_buffers(config.tolerance, dict(config.solver_settings))
         if buffers is None:
             return None
         n, nu, ns = self.n, self.N * self.m, self._n_out
         nz = nu + 2
-        arrays = socp_arrays(nz, ns, [n, n, 2], buffers)
+        arrays = form.socp_arrays(nz, ns, [n, n, 2], buffers)
         arrays["H"][nu:, nu:] = self.terminal.P_f  # half the cost: 1/2 t'P_f t
         arrays["lb"][nu:] = -np.inf  # t >= 0 follows from its cones
         arrays["ub"][nu:] = np.inf
@@ -379,7 +374,7 @@ class CondensedTranscription(TranscriptionBase):
         arrays["e"][1, nu + 1] = 1.0  # ||h_N - h_bar|| <= t_h
         arrays["F"][2 * n :, nu:] = self.terminal.square_root  # ||S t|| <= alpha_k
         self._socp_arrays = arrays
-        return new_socp_workspace(**arrays)
+        return form.new_socp_workspace(**arrays)
 
     @property
     def socp_workspace(self) -> Any:

@@ -27,8 +27,11 @@ from typing import Any
 from ltv_lstm_mpc.mpc.compiled_condensing import expand_point, insert_state
 from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
 from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
+
+# compiled code binds its callees when it compiles: the public entry points that the
+# solver layer's compiled forms of daqp and daqp:socp hold (solvers.compiled_form)
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
-from ltv_lstm_mpc.solvers.daqp_socp import MAX_ITERATIONS, socp_solve
+from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
 __all__ = [
     "CONSTRUCTORS",
@@ -192,9 +195,9 @@ def cone_feedback(
     ``[du, t_c, t_h]``: the output rows, the bounds of ``du``, the cones
     :math:`\\|c_N - \\bar c\\| \\le t_c`, :math:`\\|h_N - \\bar h\\| \\le t_h`,
     :math:`\\|P_f^{1/2} t\\| \\le \\alpha_k`) written into ``socp`` (a
-    :data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace` whose constant parts the
+    :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` whose constant parts the
     transcription wrote once) and solved by
-    :func:`~ltv_lstm_mpc.solvers.daqp_socp.socp_solve` from a cold start, as the general
+    :func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_solve` from a cold start, as the general
     path's ``daqp:socp`` session does. Returns ``(code, DAQP iterations, sqp step, DAQP's
     time)``; code 0: not accepted here (the general path runs). ``tolerance``: the
     acceptance tolerance of the point (the transcription's).

@@ -134,8 +134,11 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
 
     The LSTM loops (``lstm/compiled.py``) and the plan checks (``mpc/compiled_plan.py``)
     for every transcription; the condensing and the one-call preparation for the
-    condensed one; DAQP's workspace where DAQP is bound natively (a QP-only condensed
-    problem), and the one-call feedback where it runs (one SQP iteration).
+    condensed one; the kernels of the solver's compiled form
+    (:func:`~ltv_lstm_mpc.solvers.compiled_form`: DAQP's entry point, the SQP of
+    ``daqp:socp``, the dense layer's loops of a cone solver); where its compiled solve is
+    bound, the one-call feedback's workspace and the feedback where it runs (one SQP
+    iteration).
     """
     from ltv_lstm_mpc.lstm import compiled as lstm_compiled
     from ltv_lstm_mpc.mpc import compiled_condensing, compiled_plan, compiled_prepare
@@ -151,26 +154,21 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
         compiled_condensing.expand_point, compiled_condensing._new_condensing_workspace,
         compiled_prepare.prepare_condensed, compiled_prepare._new_prepare_workspace,
     ]  # fmt: skip
-    from ltv_lstm_mpc.solvers import _compiled, daqp_native, solver_info
+    from ltv_lstm_mpc.solvers import compiled_form
 
-    if solver_info(config.solver).supports_cones and config.solver != "daqp:socp":
-        # the native CLARABEL backend's loops (daqp:socp has its own, below)
-        kernels += [
-            _compiled.clarabel_fill, _compiled.clarabel_cone_rows,
-            _compiled.bounds_rows_violation, _compiled.cone_violation,
-        ]  # fmt: skip
-    if config.solver not in ("daqp", "daqp:socp") or not daqp_native.bound():
+    form = compiled_form(config.solver)  # what the solver gives compiled callers, if any
+    if form is None:
+        return kernels
+    kernels += form.kernels  # its solve, workspace and loops
+    if not form.bound or form.quadprog is None:  # no compiled solve here
         return kernels
     from ltv_lstm_mpc.mpc import native_feedback as native
 
-    if config.solver == "daqp:socp":  # exact cones by SQP on DAQP (solvers/daqp_socp.py)
-        from ltv_lstm_mpc.solvers import daqp_socp
-
-        kernels += [daqp_native.quadprog, daqp_socp.socp_solve, daqp_socp._new_socp_workspace]
+    if form.socp_solve is not None:  # exact cones by SQP on DAQP (solvers/socp_sqp.py)
         if config.sqp_iterations == 1 and native_feedback:
             kernels.append(native.cone_feedback)
         return kernels
-    kernels += [daqp_native.quadprog, native._new_daqp_workspace]
+    kernels.append(native._new_daqp_workspace)
     if config.sqp_iterations == 1 and native_feedback:
         kernels.append(native.nominal_feedback)
     return kernels

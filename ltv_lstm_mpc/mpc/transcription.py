@@ -98,7 +98,7 @@ class TranscriptionBase(abc.ABC):
     #: one (the condensed QP with DAQP bound natively), else None.
     daqp_workspace: Any = None
     #: The buffers of the core's one-call exact-cone feedback
-    #: (:data:`~ltv_lstm_mpc.solvers.daqp_socp.SocpWorkspace`) where the transcription has
+    #: (:data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace`) where the transcription has
     #: one (the condensed exact-cone QP on ``daqp:socp``), else None.
     socp_workspace: Any = None
 
