@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
+import pickle
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,24 @@ def sources_fingerprint(roots: Sequence[Path]) -> str:
     return digest.hexdigest()
 
 
+def _tolerant_index(load_index: Any) -> Any:
+    """numba's cache-index loader, reading an index it cannot unpickle as empty (a cache
+    miss: the kernel compiles again and writes a new index).
+
+    numba unpickles an index before it compares its stamp, and the index's keys hold the
+    argument types of the cached kernels; an index written by an earlier version of this
+    package names a type that has moved or gone since (a workspace type of a module that
+    was split), which raises ``AttributeError`` or ``ImportError`` instead of a miss."""
+
+    def load() -> Any:
+        try:
+            return load_index()
+        except (AttributeError, ImportError, pickle.UnpicklingError, EOFError, TypeError):
+            return {}
+
+    return load
+
+
 def make_njit(roots: Sequence[Path], fingerprint: str | None = None) -> Any:
     """numba's ``njit`` whose on-disk caches are valid only while no Python file under
     ``roots`` has changed (the fingerprint of :func:`sources_fingerprint`, taken now
@@ -98,6 +117,7 @@ def make_njit(roots: Sequence[Path], fingerprint: str | None = None) -> Any:
         cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
         if cache_file is not None and hasattr(cache_file, "_source_stamp"):
             cache_file._source_stamp = (cache_file._source_stamp, fingerprint)
+            cache_file._load_index = _tolerant_index(cache_file._load_index)
         return dispatcher
 
     def njit(*args: Any, **kwargs: Any) -> Any:

@@ -60,6 +60,42 @@ def test_cached_kernels_carry_the_fingerprint_in_their_stamp(tmp_path: Path) -> 
     assert not hasattr(bare._cache, "_cache_file") and bare(2) == 3
 
 
+def test_an_index_naming_a_type_that_has_moved_is_a_cache_miss(tmp_path: Path) -> None:
+    """An index written by an earlier layout (its keys name a workspace type that has moved
+    since) is read as empty and the kernel compiles, instead of failing to unpickle."""
+    pytest.importorskip("numba")
+    import pickle
+    import types
+
+    (tmp_path / "a.py").write_text("x = 1\n")
+    njit = make_njit([tmp_path])
+
+    def add_two(x):  # type: ignore[no-untyped-def]
+        return x + 2
+
+    cached = njit(cache=True)(add_two)
+    cache_file = cached._cache._cache_file
+    gone = types.ModuleType("ltv_test_moved_types")
+
+    class MovedType:
+        pass
+
+    MovedType.__module__, MovedType.__qualname__ = gone.__name__, "MovedType"
+    gone.MovedType = MovedType  # type: ignore[attr-defined]
+    sys.modules[gone.__name__] = gone
+    try:
+        index = pickle.dumps((cache_file._source_stamp, {(MovedType(),): "x.nbc"}))
+    finally:
+        del sys.modules[gone.__name__]
+    index_path = Path(cache_file._index_path)
+    index_path.parent.mkdir(parents=True, exist_ok=True)
+    with open(index_path, "wb") as f:
+        pickle.dump(cache_file._version, f, protocol=-1)
+        f.write(index)
+    assert cache_file._load_index() == {}
+    assert cached(1) == 3
+
+
 PACKAGE_FILES = {
     "__init__.py": "",
     "_jit.py": (

@@ -78,12 +78,12 @@ _ENVIRONMENT = "LTV_LSTM_MPC_KERNEL"
 
 def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list[Any]:
     """The numba-compiled functions an ``OffsetFreeController`` with ``config`` calls on a
-    compiled kernel: the MPC's (:func:`~ltv_lstm_mpc.mpc.rti.compiled_kernels`), the
+    compiled kernel: the MPC's (:func:`~ltv_lstm_mpc.mpc.kernels.compiled_kernels`), the
     observer update and the reference calculator's chord Newton, with the constructors of
     their workspaces; and the one-call step (:mod:`ltv_lstm_mpc.loop.compiled_step`) where
     the one-call feedback runs."""
     from ltv_lstm_mpc.loop import compiled_observer, compiled_reference
-    from ltv_lstm_mpc.mpc.rti import compiled_kernels
+    from ltv_lstm_mpc.mpc.kernels import compiled_kernels
 
     kernels = [
         *compiled_kernels(config, native_feedback=native_feedback),

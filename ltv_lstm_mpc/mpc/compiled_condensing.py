@@ -19,6 +19,7 @@ from ltv_lstm_mpc.numba_support import REDUCTIONS, build_workspace, njit, worksp
 
 __all__ = [
     "CONDENSING_FIELDS",
+    "CONSTRUCTORS",
     "CondensingWorkspace",
     "condense",
     "expand_point",
@@ -569,3 +570,8 @@ def expand_point(workspace: Any, z: Any, rows: int, x_linear: Any, u: Any) -> fl
         for j in range(m):
             u[i, j] = S[i, n2 + j] + z[i * m + j]
     return violation
+
+
+#: This module's compiled constructor: what compiles with it
+#: (:func:`~ltv_lstm_mpc.mpc.kernels.compiled_kernels`).
+CONSTRUCTORS = (_new_condensing_workspace,)

@@ -17,7 +17,7 @@ from ltv_lstm_mpc.lstm.compiled import lstm_cell
 from ltv_lstm_mpc.mpc.terminal import terminal_norm_of_squares
 from ltv_lstm_mpc.numba_support import REDUCTIONS, build_workspace, njit, workspace_type
 
-__all__ = ["PLAN_FIELDS", "PlanWorkspace", "new_plan_workspace", "plan_metrics"]
+__all__ = ["CONSTRUCTORS", "PLAN_FIELDS", "PlanWorkspace", "new_plan_workspace", "plan_metrics"]
 
 #: Fields of :data:`PlanWorkspace`, in the order of its compiled constructor.
 PLAN_FIELDS = ("WU", "S", "T", "TC", "W_y", "b_y", "Q", "R", "P_terms", "out", "Q_diagonal")
@@ -132,3 +132,8 @@ def plan_metrics(
     out[1] = terminal
     out[2] = violation
     out[3] = gap
+
+
+#: This module's compiled constructor: what compiles with it
+#: (:func:`~ltv_lstm_mpc.mpc.kernels.compiled_kernels`).
+CONSTRUCTORS = (_new_plan_workspace,)

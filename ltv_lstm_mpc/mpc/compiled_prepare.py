@@ -25,6 +25,7 @@ __all__ = [
     "CANDIDATE_GIVEN",
     "CANDIDATE_SHIFT",
     "CANDIDATE_U_BAR",
+    "CONSTRUCTORS",
     "PREPARE_FIELDS",
     "PrepareWorkspace",
     "new_prepare_workspace",
@@ -134,3 +135,8 @@ def prepare_condensed(
     jacobians(WU_raw, S, T, TC, J)
     scale = condense(condensing, x_bar, u_bar, lower, upper, alpha, backward)
     return scale, reuse
+
+
+#: This module's compiled constructor: what compiles with it
+#: (:func:`~ltv_lstm_mpc.mpc.kernels.compiled_kernels`).
+CONSTRUCTORS = (_new_prepare_workspace,)

@@ -52,6 +52,7 @@ from ltv_lstm_mpc.mpc.fhocp import (
     precheck_status,
     shifted_candidate,
 )
+from ltv_lstm_mpc.mpc.kernels import compiled_kernels
 from ltv_lstm_mpc.mpc.sqp import SQPOutcome, Subproblem, globalized_sqp
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import ConvexProblem, DenseQP, SolverStatus
@@ -123,55 +124,6 @@ def resolve_transcription(config: MPCConfig) -> str:
             "nonlinear transcription (IPOPT solves the NLP to convergence); use 1"
         )
     return chosen
-
-
-def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list[Any]:
-    """The numba-compiled functions a :class:`RobustMPC` with ``config`` calls when its
-    model's kernel is compiled (workspace constructors included): what compiles on an
-    empty cache. Decided from ``config`` before anything is built, by the rules the
-    constructor follows (a test builds each configuration and compares the functions that
-    did compile with this list).
-
-    The LSTM loops (``lstm/compiled.py``) and the plan checks (``mpc/compiled_plan.py``)
-    for every transcription; the condensing and the one-call preparation for the
-    condensed one; the kernels of the solver's compiled form
-    (:func:`~ltv_lstm_mpc.solvers.compiled_form`: DAQP's entry point, the SQP of
-    ``daqp:socp``, the dense layer's loops of a cone solver); where its compiled solve is
-    bound, the one-call feedback's workspace and the feedback where it runs (one SQP
-    iteration).
-    """
-    from ltv_lstm_mpc.lstm import compiled as lstm_compiled
-    from ltv_lstm_mpc.mpc import compiled_condensing, compiled_plan, compiled_prepare
-
-    kernels: list[Any] = [
-        lstm_compiled.rollout, lstm_compiled.pairs, lstm_compiled.jacobians,
-        compiled_plan.plan_metrics, compiled_plan._new_plan_workspace,
-    ]  # fmt: skip
-    if resolve_transcription(config) != "condensed":
-        return kernels
-    kernels += [
-        compiled_condensing.condense, compiled_condensing.insert_state,
-        compiled_condensing.expand_point, compiled_condensing._new_condensing_workspace,
-        compiled_prepare.prepare_condensed, compiled_prepare._new_prepare_workspace,
-    ]  # fmt: skip
-    from ltv_lstm_mpc.solvers import compiled_form
-
-    form = compiled_form(config.solver)  # what the solver gives compiled callers, if any
-    if form is None:
-        return kernels
-    kernels += form.kernels  # its solve, workspace and loops
-    if not form.bound or form.quadprog is None:  # no compiled solve here
-        return kernels
-    from ltv_lstm_mpc.mpc import native_feedback as native
-
-    if form.socp_solve is not None:  # exact cones by SQP on DAQP (solvers/socp_sqp.py)
-        if config.sqp_iterations == 1 and native_feedback:
-            kernels.append(native.cone_feedback)
-        return kernels
-    kernels.append(native._new_daqp_workspace)
-    if config.sqp_iterations == 1 and native_feedback:
-        kernels.append(native.nominal_feedback)
-    return kernels
 
 
 @dataclass(frozen=True, slots=True)

@@ -123,13 +123,13 @@ def test_user_backends_get_the_dense_checks_for_cones_else_none() -> None:
 
 @pytest.mark.parametrize("solver", ["daqp", "daqp:socp"])
 def test_the_mpc_layer_compiles_and_calls_the_forms_functions(solver: str) -> None:
-    """``rti.compiled_kernels`` lists the form's kernels, and the one-call feedback
+    """``mpc.kernels.compiled_kernels`` lists the form's kernels, and the one-call feedback
     (``mpc/native_feedback.py``, whose compiled code binds its callees at compilation)
     calls the very functions of the forms."""
     if solver not in available_solvers():
         pytest.skip(f"{solver} is not available")
     from ltv_lstm_mpc.mpc import native_feedback
-    from ltv_lstm_mpc.mpc.rti import compiled_kernels
+    from ltv_lstm_mpc.mpc.kernels import compiled_kernels
 
     form = compiled_form(solver)
     assert form is not None
@@ -154,7 +154,7 @@ def test_a_cone_solver_without_own_code_lists_the_dense_checks() -> None:
         pytest.skip("cvxpy:CLARABEL is not installed")
     from ltv_lstm_mpc.solvers import _compiled
 
-    from ltv_lstm_mpc.mpc.rti import compiled_kernels
+    from ltv_lstm_mpc.mpc.kernels import compiled_kernels
 
     listed = compiled_kernels(MPCConfig(solver="cvxpy:CLARABEL", transcription="condensed"))
     assert _compiled.bounds_rows_violation in listed and _compiled.cone_violation in listed
