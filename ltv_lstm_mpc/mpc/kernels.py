@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from ltv_lstm_mpc.mpc.config import MPCConfig
+from ltv_lstm_mpc.mpc.transcription import resolve_transcription
 
 __all__ = ["compiled_kernels"]
 
@@ -33,7 +34,6 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
     """
     from ltv_lstm_mpc.lstm import compiled as lstm_compiled
     from ltv_lstm_mpc.mpc import compiled_condensing, compiled_plan, compiled_prepare
-    from ltv_lstm_mpc.mpc.rti import resolve_transcription
 
     kernels: list[Any] = [
         lstm_compiled.rollout, lstm_compiled.pairs, lstm_compiled.jacobians,

@@ -54,7 +54,12 @@ from ltv_lstm_mpc.mpc.fhocp import (
 )
 from ltv_lstm_mpc.mpc.kernels import compiled_kernels
 from ltv_lstm_mpc.mpc.sqp import SQPOutcome, Subproblem, globalized_sqp
-from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
+from ltv_lstm_mpc.mpc.transcription import (
+    NLP_SOLVERS,
+    StepResult,
+    TranscriptionBase,
+    resolve_transcription,
+)
 from ltv_lstm_mpc.solvers import ConvexProblem, DenseQP, SolverStatus
 from ltv_lstm_mpc.validation import expect_bool, expect_instance, expect_real, real_vector
 
@@ -73,57 +78,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-#: Solver names of the nonlinear transcription (CasADi + IPOPT).
-NLP_SOLVERS = ("ipopt", "nmpc:ipopt")
-
-
-def resolve_transcription(config: MPCConfig) -> str:
-    """The transcription ``config`` asks for, checked against its solver and fields.
-
-    ``"auto"``: ``"nonlinear"`` for IPOPT, ``"sparse"`` for cvxpy's solvers (cones
-    included), ``"condensed"`` for every other solver: QP-only ones (terminal box
-    reformulation) and the native cone solver ``clarabel`` (exact cones).
-
-    Raises
-    ------
-    SolverNotFound
-        ``config.solver`` is not installed.
-    InvalidValueError
-        A field the chosen transcription cannot honour (the message names it).
-    """
-    from ltv_lstm_mpc.solvers import solver_info
-
-    config = expect_instance(
-        "config", config, MPCConfig, "build one with MPCConfig(...)", expected="an MPCConfig"
-    )
-    chosen = config.transcription
-    if config.solver in NLP_SOLVERS:
-        if chosen not in ("auto", "nonlinear"):
-            raise InvalidValueError(
-                f"MPCConfig.transcription={chosen!r} does not fit solver={config.solver!r}: "
-                "IPOPT solves the nonlinear transcription; use transcription='nonlinear' "
-                "(or 'auto'), or a QP/cone solver"
-            )
-        chosen = "nonlinear"
-    elif chosen == "nonlinear":
-        raise InvalidValueError(
-            f"MPCConfig.transcription='nonlinear' needs solver='ipopt', got "
-            f"solver={config.solver!r}"
-        )
-    else:
-        info = solver_info(config.solver)  # SolverNotFound names the installed ones
-        if chosen == "auto":
-            sparse = config.solver.startswith("cvxpy:") or (
-                info.supports_cones and not info.native_dense
-            )
-            chosen = "sparse" if sparse else "condensed"
-    if chosen == "nonlinear" and config.sqp_iterations != 1:
-        raise InvalidValueError(
-            f"MPCConfig.sqp_iterations={config.sqp_iterations} has no meaning for the "
-            "nonlinear transcription (IPOPT solves the NLP to convergence); use 1"
-        )
-    return chosen
 
 
 @dataclass(frozen=True, slots=True)

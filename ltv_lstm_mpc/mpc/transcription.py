@@ -35,9 +35,11 @@ from numpy.typing import NDArray
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.kernel import Trajectory
+from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.solvers import SolverStatus
+from ltv_lstm_mpc.validation import expect_instance
 
-__all__ = ["KINDS", "StepResult", "TranscriptionBase"]
+__all__ = ["KINDS", "NLP_SOLVERS", "StepResult", "TranscriptionBase", "resolve_transcription"]
 
 FloatArray = NDArray[np.float64]
 
@@ -167,3 +169,55 @@ class TranscriptionBase(abc.ABC):
 
     def reset(self) -> None:  # noqa: B027 - optional hook
         """Forget warm starts (a new closed loop begins)."""
+
+
+#: Solver names of the nonlinear transcription (CasADi + IPOPT).
+NLP_SOLVERS = ("ipopt", "nmpc:ipopt")
+
+
+def resolve_transcription(config: MPCConfig) -> str:
+    """The transcription ``config`` asks for, checked against its solver and fields.
+
+    ``"auto"``: ``"nonlinear"`` for IPOPT, ``"sparse"`` for cvxpy's solvers (cones
+    included), ``"condensed"`` for every other solver: QP-only ones (terminal box
+    reformulation) and the native cone solver ``clarabel`` (exact cones).
+
+    Raises
+    ------
+    SolverNotFound
+        ``config.solver`` is not installed.
+    InvalidValueError
+        A field the chosen transcription cannot honour (the message names it).
+    """
+    from ltv_lstm_mpc.solvers import solver_info
+
+    config = expect_instance(
+        "config", config, MPCConfig, "build one with MPCConfig(...)", expected="an MPCConfig"
+    )
+    chosen = config.transcription
+    if config.solver in NLP_SOLVERS:
+        if chosen not in ("auto", "nonlinear"):
+            raise InvalidValueError(
+                f"MPCConfig.transcription={chosen!r} does not fit solver={config.solver!r}: "
+                "IPOPT solves the nonlinear transcription; use transcription='nonlinear' "
+                "(or 'auto'), or a QP/cone solver"
+            )
+        chosen = "nonlinear"
+    elif chosen == "nonlinear":
+        raise InvalidValueError(
+            f"MPCConfig.transcription='nonlinear' needs solver='ipopt', got "
+            f"solver={config.solver!r}"
+        )
+    else:
+        info = solver_info(config.solver)  # SolverNotFound names the installed ones
+        if chosen == "auto":
+            sparse = config.solver.startswith("cvxpy:") or (
+                info.supports_cones and not info.native_dense
+            )
+            chosen = "sparse" if sparse else "condensed"
+    if chosen == "nonlinear" and config.sqp_iterations != 1:
+        raise InvalidValueError(
+            f"MPCConfig.sqp_iterations={config.sqp_iterations} has no meaning for the "
+            "nonlinear transcription (IPOPT solves the NLP to convergence); use 1"
+        )
+    return chosen
