@@ -216,7 +216,7 @@ def main() -> None:
                     for a, b in zip(parts[0], parts[1], strict=True)
                 )
                 ratio = np.median(new) / np.median(old)
-                line += f" | {us * np.median(old):7.0f}  {ratio:7.2f}  {du:.1e}"
+                line += f" | {us * np.median(old):7.0f}  {ratio:7.3f}  {du:.1e}"
             print(line, flush=True)
 
 
