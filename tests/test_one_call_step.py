@@ -73,7 +73,7 @@ def _worst(records_a: Any, records_b: Any) -> tuple[float, str]:
 def codes(monkeypatch: pytest.MonkeyPatch) -> Counter[int]:
     """Counts of the one-call step's return codes (both entries: with the state as
     arguments, and read from the rows; through ``_compiled`` and through the entry point
-    the common step calls directly, ``_step_from_deferred_rows``)."""
+    the common step calls directly, in ``OneCallEngine.step``)."""
     counts: Counter[int] = Counter()
     original = OneCallEngine._compiled
     names = ("controller_step", "controller_step_from_rows")
@@ -226,9 +226,9 @@ def test_records_are_a_read_only_sequence_built_on_reading() -> None:
     for _ in range(5):
         controller.step(plant_y, np.array([7.2]))
     first_run = controller.records
-    assert len(first_run) == 5 and first_run._items[1:] == [None] * 4
+    assert len(first_run) == 5 and first_run.slots[1:] == [None] * 4
     last = first_run[-1]
-    assert first_run[4] is last and first_run._items[4] is last  # kept once built
+    assert first_run[4] is last and first_run.slots[4] is last  # kept once built
     assert [r.index for r in first_run[1:3]] == [1, 2]
     assert list(first_run) == [first_run[k] for k in range(5)]
     assert first_run == list(first_run) and first_run != []
@@ -244,11 +244,19 @@ def test_records_are_a_read_only_sequence_built_on_reading() -> None:
     assert first_run[2].monitor_log is not controller.records[2].monitor_log
 
 
+class NoCommonStep(dict[str, Any]):
+    """Entry points without the common step's: every step takes the longer path."""
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return None if key == "controller_step_from_rows" else super().get(key, default)
+
+
 def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch) -> None:
     """After a one-call step, the next one with float, numpy float64 or float64-vector
-    signals runs through ``_step_from_deferred_rows`` (not ``_step_one_call``) and gives
-    the same inputs as a controller made to take the longer path; other signal types
-    (0-d arrays, lists) and a setting assigned between steps take the longer path."""
+    signals runs through the common step of ``OneCallEngine.step`` (not
+    ``_step_one_call``) and gives the same inputs as a controller made to take the longer
+    path; other signal types (0-d arrays, lists) and a setting assigned between steps take
+    the longer path."""
     from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
 
     model = load_model("ph_lstm_n5.npz")
@@ -269,7 +277,7 @@ def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch
         for _ in range(2)
     )
     short.label, longer.label = "short", "longer"  # type: ignore[attr-defined]
-    longer.engine._step_from_deferred_rows = lambda *arguments: None  # type: ignore[attr-defined]
+    longer.engine.entries = NoCommonStep(longer.engine.entries)  # type: ignore[attr-defined]
     plants = [scenario.make_plant(model) for _ in range(2)]
     y = [plant.output() for plant in plants]
     kinds = ["float"] * 10 + ["vector"] * 10 + ["float64"] * 10

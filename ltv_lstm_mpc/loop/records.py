@@ -39,7 +39,9 @@ class ControllerRecords(Sequence[Any]):
         build: Callable[[ControllerRecords, int], Any],
         shape: tuple[int, int, int, int] | None = None,
     ) -> None:
-        self._items: list[Any] = []
+        #: The list behind the sequence: a record, or None for a step an engine wrote into
+        #: the rows (its record is built when first read). What an engine appends to.
+        self.slots: list[Any] = []
         self._build = build
         self._shape = shape
         #: The rows as numpy arrays (None until :meth:`reserve`), and the same arrays as the
@@ -53,11 +55,11 @@ class ControllerRecords(Sequence[Any]):
     # ------------------------------------------------------------------ writing
     def append(self, record: Any) -> None:
         """Append a finished record (the reference engine)."""
-        self._items.append(record)
+        self.slots.append(record)
 
     def append_recorded(self) -> None:
         """Append the step written into row ``len(self)`` (built when first read)."""
-        self._items.append(None)
+        self.slots.append(None)
 
     def reserve(self, steps: int) -> None:
         """Rows for at least ``steps`` steps (``simulate`` reserves its run's length, so
@@ -75,7 +77,7 @@ class ControllerRecords(Sequence[Any]):
 
     # ------------------------------------------------------------------ reading
     def __len__(self) -> int:
-        return len(self._items)
+        return len(self.slots)
 
     @overload
     def __getitem__(self, index: int) -> Any: ...
@@ -85,16 +87,16 @@ class ControllerRecords(Sequence[Any]):
 
     def __getitem__(self, index: int | slice) -> Any:
         if isinstance(index, slice):
-            return [self[k] for k in range(*index.indices(len(self._items)))]
-        item = self._items[index]
+            return [self[k] for k in range(*index.indices(len(self.slots)))]
+        item = self.slots[index]
         if item is None:
-            k = index if index >= 0 else index + len(self._items)
+            k = index if index >= 0 else index + len(self.slots)
             assert self.rows is not None
-            item = self._items[k] = self._build(self, k)
+            item = self.slots[k] = self._build(self, k)
         return item
 
     def __iter__(self) -> Iterator[Any]:
-        for k in range(len(self._items)):
+        for k in range(len(self.slots)):
             yield self[k]
 
     def __eq__(self, other: object) -> bool:

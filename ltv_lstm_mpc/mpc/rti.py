@@ -230,7 +230,8 @@ class RobustMPC(DeferredState):
         self._kernel = kernel
         self._traj = kernel.trajectory(N)
         self._plan = kernel.trajectory(N)
-        self._plan_valid = False
+        #: Whether the last feedback left a plan the next candidate shifts.
+        self.plan_valid = False
         self._cand = np.empty((N, model.m))
         # Typed workspaces of the compiled calls (None on the numpy kernel): the plan checks,
         # the preparation's trajectories, the transcription's condensing buffers.
@@ -319,11 +320,6 @@ class RobustMPC(DeferredState):
         after :meth:`reset`."""
         return self._previous_u
 
-    @property
-    def plan_valid(self) -> bool:
-        """Whether the last feedback left a plan the next candidate shifts."""
-        return self._plan_valid
-
     def settle_plan(
         self, previous_u: FloatArray, times: tuple[float, float, float], iterations: int
     ) -> None:
@@ -349,7 +345,7 @@ class RobustMPC(DeferredState):
     def reset(self) -> None:
         """Forget the previous plan (the next candidate is u_bar repeated)."""
         self._previous_u = None
-        self._plan_valid = False
+        self.plan_valid = False
         self._prepared = False
         self._problem.reset()
 
@@ -475,13 +471,13 @@ class RobustMPC(DeferredState):
         else:
             candidate = CANDIDATE_SHIFT
         if x_pred is None:
-            if not self._plan_valid:
+            if not self.plan_valid:
                 raise InvalidValueError("the first prepare() needs x_pred (no previous plan)")
             x0 = plan.S[1, :n2]
         else:
             x0 = np.ascontiguousarray(x_pred, dtype=np.float64)
         # the re-simulation of the previous plan may replace the rollout (x0 at its x_1)
-        reuse_allowed = warm is None and self._plan_valid
+        reuse_allowed = warm is None and self.plan_valid
         previous_u = cand if self._previous_u is None else self._previous_u
         if self._prepare_workspace is None or not self._problem.linearize_and_build(
             self._prepare_workspace, cand, previous_u, candidate, x0, reuse_allowed,
@@ -688,7 +684,7 @@ class RobustMPC(DeferredState):
         P = self._plan.S
         P[0, :n2] = x_hat_a
         P[:N, n2 : n2 + m] = u_plan
-        self._plan_valid = True
+        self.plan_valid = True
         u_out = np.array(u_plan)
         self._previous_u = u_out
         x_plan, cost, residuals = self._check_plan(u_out, x_linear, alpha)
@@ -746,7 +742,7 @@ class RobustMPC(DeferredState):
             )  # fmt: skip
         if not code:
             return None
-        self._plan_valid = True
+        self.plan_valid = True
         self._previous_u = u
         self.solver_time = solver_time
         self.qp_iterations = iterations
@@ -819,7 +815,7 @@ class RobustMPC(DeferredState):
             P[0, :n2] = x_hat
             P[:N, n2 : n2 + m] = u
             x, cost, residuals = self._check_plan(u, None, alpha)
-            self._plan_valid = False  # not the applied plan
+            self.plan_valid = False  # not the applied plan
             terminal_norm = residuals["terminal_residual"] + alpha
             return merit_terms(x, cost, terminal_norm, residuals["output_violation"])
 

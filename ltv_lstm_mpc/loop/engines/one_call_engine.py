@@ -348,6 +348,7 @@ class OneCallEngine(DeferredState):
             return
         self.deferred = None
         rows, k = deferred.rows, deferred.k
+        self.general.remember_recorded(k)  # the last admissible reference: row k's
         controller, mpc = self.controller, self.mpc
         x_hat, d_hat = rows.x_hat[k + 1], rows.d_hat[k + 1]
         last_z, last_target, previous_u, y0 = rows.z[k], rows.target[k], rows.u_plan[k], rows.y0[k]
@@ -389,31 +390,21 @@ class OneCallEngine(DeferredState):
 
     # ------------------------------------------------------------------ the step
     def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
-        """One sample: one compiled call where it accepts, else the reference engine."""
-        u = self._step_from_deferred_rows(y_phi, y0_phi)  # the common step
-        if u is not None:
-            return u
-        handover = None
-        if self.controller.initialized:
-            answer = self._step_one_call(y_phi, y0_phi)
-            if not isinstance(answer, Handover):
-                return answer
-            handover = answer
-        return self.general.step(y_phi, y0_phi, handover)
+        """One sample: one compiled call where it accepts, else the reference engine.
 
-    def _step_from_deferred_rows(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray | None:
-        """The common step, with as little Python as possible: the last step was a one-call
-        step whose state is still deferred in its record row, nothing is prepared, the
-        signals are floats or numpy float64 scalars (p = 1) or C-contiguous float64
-        vectors, and the entry point is resolved. The same call and bookkeeping as
-        :meth:`_step_one_call` and :meth:`_finish` in that case; None where any of it
-        does not hold (nothing changed: :meth:`step` goes on as without it)."""
+        The common step first, with as little Python as possible: the last step was a
+        one-call step whose state is still deferred in its record row, nothing is
+        prepared, the signals are floats or numpy float64 scalars (p = 1) or C-contiguous
+        float64 vectors, and the entry point is resolved. The same call and bookkeeping as
+        :meth:`_step_one_call` and :meth:`_finish` in that case; otherwise
+        :meth:`_step_any` (nothing has changed)."""
         deferred = self.deferred
         if deferred is None:
-            return None
+            return self._step_any(y_phi, y0_phi)
         controller = self.controller
         records = controller.records
-        k = len(records)
+        slots = records.slots  # (len and append of the list itself: 0.15 us a step less)
+        k = len(slots)
         e_hat = controller.e_hat
         entry = self.entries.get("controller_step_from_rows")
         if (
@@ -425,11 +416,11 @@ class OneCallEngine(DeferredState):
             or k + 2 > records.capacity
             or not self.mpc.plan_valid
         ):
-            return None
+            return self._step_any(y_phi, y0_phi)
         y_arr = _ready_vector(y_phi, self.y_buffer)
         y0_arr = _ready_vector(y0_phi, self.y0_buffer)
         if y_arr is None or y0_arr is None:
-            return None
+            return self._step_any(y_phi, y0_phi)
         rate_limit = controller.setpoint_rate_limit
         code, warnings, inverse_valid, factorizations, e_hat_next = entry(
             self.workspace, records.compiled, k, y_arr, y0_arr, deferred.inverse_valid, e_hat,
@@ -447,14 +438,23 @@ class OneCallEngine(DeferredState):
         if factorizations:
             controller.reference.counts["factorizations"] += factorizations
         rows = deferred.rows
-        self.deferred = DeferredRows(rows, k, inverse_valid)
-        controller.requested_phi = y0_arr
-        self.general.remember_recorded(k)
+        deferred.k, deferred.inverse_valid = k, inverse_valid  # (in place: a step's less)
+        controller.requested_phi = y0_arr  # (the reference engine learns k at settle())
         if warnings:
             self._warn(rows, k, warnings)
         controller.e_hat = e_hat_next
-        records.append_recorded()
+        slots.append(None)  # records.append_recorded()
         return rows.u_phi[k]
+
+    def _step_any(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray:
+        """:meth:`step` where the common step does not apply."""
+        handover = None
+        if self.controller.initialized:
+            answer = self._step_one_call(y_phi, y0_phi)
+            if not isinstance(answer, Handover):
+                return answer
+            handover = answer
+        return self.general.step(y_phi, y0_phi, handover)
 
     def _step_one_call(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray | Handover:
         """:meth:`step` as one compiled call; returns the physical input, or what ran for
