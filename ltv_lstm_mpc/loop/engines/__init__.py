@@ -1,9 +1,9 @@
 """The engines that run the controller's step (:mod:`ltv_lstm_mpc.loop.engines.base`).
 
-:data:`ENGINES` lists them fastest first; :func:`choose_engine` builds the first that does
-not refuse a controller's configuration. Adding an engine: a class with ``name``,
+``ENGINES`` lists them fastest first; ``choose_engine`` builds the first that does not
+refuse a controller's configuration. Adding an engine: a class with ``name``,
 ``refusal`` and the :class:`~ltv_lstm_mpc.loop.engines.base.StepEngine` methods, in its
-own module here, and its place in :data:`ENGINES`.
+own module here, and its place in ``ENGINES``.
 """
 
 from __future__ import annotations

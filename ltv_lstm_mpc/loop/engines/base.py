@@ -3,7 +3,7 @@
 :class:`~ltv_lstm_mpc.OffsetFreeController` describes the loop of the paper's Fig. 1 (its
 components, configuration, certification, records and warnings); a :class:`StepEngine`
 runs one step of it. The controller builds the first engine of
-:data:`~ltv_lstm_mpc.loop.engines.ENGINES` that does not refuse its configuration, once, at
+``ENGINES`` (:mod:`ltv_lstm_mpc.loop.engines`) that does not refuse its configuration, once, at
 construction, and says which (``controller.engine.name``) and why the others refused
 (``controller.engine_refusals``).
 
