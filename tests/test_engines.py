@@ -90,6 +90,11 @@ def test_signal_twins_give_the_reference_numbers(target, previous, limit, u, lar
     assert compiled_signals.project_into(projected, 1.0) == moved
     np.testing.assert_array_equal(projected, gated)
     assert compiled_signals.measurement_code(largest, 3.0) == signals.measurement_code(largest, 3.0)
+    for used in (False, True):
+        for limited in (False, True):
+            for target in (False, True):
+                code = signals.setpoint_code(used, limited, target)
+                assert compiled_signals.setpoint_code(used, limited, target) == code
 
 
 # ---------------------------------------------------------------- engine choice

@@ -137,6 +137,7 @@ CALLEES = {
     "limit_rate_into",
     "project_into",
     "measurement_code",
+    "setpoint_code",
     "_normalize_measurement",
     "_feedback_and_update",
     "nominal_feedback",

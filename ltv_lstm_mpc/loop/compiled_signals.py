@@ -5,7 +5,8 @@ r"""Compiled twins of :mod:`ltv_lstm_mpc.loop.signals` (the same numbers, in pla
 - :func:`project_into`: the exit gate's projection onto :math:`\mathcal U`
   (:func:`~ltv_lstm_mpc.loop.signals.project_onto_box`);
 - :func:`measurement_code`: the measurement status
-  (:func:`~ltv_lstm_mpc.loop.signals.measurement_code`).
+  (:func:`~ltv_lstm_mpc.loop.signals.measurement_code`);
+- :func:`setpoint_code`: the set-point status (:func:`~ltv_lstm_mpc.loop.signals.setpoint_code`).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 
 from ltv_lstm_mpc.numba_support import njit
 
-__all__ = ["limit_rate_into", "measurement_code", "project_into"]
+__all__ = ["limit_rate_into", "measurement_code", "project_into", "setpoint_code"]
 
 
 @njit(cache=True)
@@ -45,3 +46,14 @@ def measurement_code(largest: float, implausible: float) -> int:
     if largest <= 1.0:
         return 0
     return 1 if largest <= implausible else 2
+
+
+@njit(cache=True)
+def setpoint_code(used_inside: bool, limited: bool, target_inside: bool) -> int:
+    """1 outside the admissible interval, 2 inside while the limiter moves towards a
+    target outside it, else 0."""
+    if not used_inside:
+        return 1
+    if limited and not target_inside:
+        return 2
+    return 0

@@ -69,7 +69,12 @@ from ltv_lstm_mpc.loop.compiled_reference import (
     CHORD_JINV_VALID,
     chord_newton,
 )
-from ltv_lstm_mpc.loop.compiled_signals import limit_rate_into, measurement_code, project_into
+from ltv_lstm_mpc.loop.compiled_signals import (
+    limit_rate_into,
+    measurement_code,
+    project_into,
+    setpoint_code,
+)
 from ltv_lstm_mpc.mpc.compiled_prepare import (
     CANDIDATE_GIVEN,
     CANDIDATE_SHIFT,
@@ -452,14 +457,15 @@ def prepare_step(
     a_N, b_N = step.a[N], step.b[N]
     e_tilde = max(e_hat, step.e_inf)
     two_d = 2.0 * step.tightening_d_max
-    status = 0
-    if not inside_setpoint_interval(y0, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde):
-        status = 1
-    elif limited and not inside_setpoint_interval(
-        step.requested, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
-    ):
-        status = 2
-    integer[SETPOINT_STATUS] = status
+    used_inside = inside_setpoint_interval(
+        y0, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
+    )
+    target_inside = True  # (tested only where it decides)
+    if used_inside and limited:
+        target_inside = inside_setpoint_interval(
+            step.requested, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
+        )
+    integer[SETPOINT_STATUS] = setpoint_code(used_inside, limited, target_inside)
     t2 = _now(clock)
     # ---- tightened bounds and alpha_k (TighteningCertificate.output_bounds, .alpha)
     lower, upper = step.lower, step.upper

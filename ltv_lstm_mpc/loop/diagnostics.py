@@ -20,8 +20,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.loop.signals import measurement_code
-from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT, MEASUREMENT_STATUSES
+from ltv_lstm_mpc.loop.signals import measurement_code, setpoint_code
+from ltv_lstm_mpc.loop.statuses import (
+    IMPLAUSIBLE_MEASUREMENT_LIMIT,
+    MEASUREMENT_STATUSES,
+    SETPOINT_STATUSES,
+)
 
 if TYPE_CHECKING:
     from ltv_lstm_mpc.loop.controller import OffsetFreeController
@@ -55,11 +59,10 @@ def setpoint_status(
     if stale or not u_admissible:
         return "unreachable_stale" if stale else "unreachable"
     lows, highs = interval
-    if not _inside(lows, y0.tolist(), highs):
-        return "outside_admissible"
-    if y0_target is not y0 and not _inside(lows, y0_target.tolist(), highs):
-        return "target_outside_admissible"
-    return "ok"
+    used_inside = _inside(lows, y0.tolist(), highs)
+    limited = y0_target is not y0
+    target_inside = not (used_inside and limited) or _inside(lows, y0_target.tolist(), highs)
+    return SETPOINT_STATUSES[setpoint_code(used_inside, limited, target_inside)]
 
 
 def check_first_measurement(

@@ -8,7 +8,9 @@ One implementation of each, called by every step engine (:mod:`ltv_lstm_mpc.loop
 - :func:`project_onto_box`: the exit gate's projection onto
   :math:`\mathcal U = \{\|u\|_\infty \le u_{max}\}`;
 - :func:`measurement_code`: the measurement status
-  (:data:`~ltv_lstm_mpc.loop.statuses.MEASUREMENT_STATUSES`).
+  (:data:`~ltv_lstm_mpc.loop.statuses.MEASUREMENT_STATUSES`);
+- :func:`setpoint_code`: the set-point status of a step with an admissible equilibrium
+  (:data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES`).
 
 The compiled twins compute the same numbers in the same order of operations
 (``tests/test_signals.py`` compares them).
@@ -23,7 +25,13 @@ from numpy.typing import NDArray
 
 from ltv_lstm_mpc.lstm.model import LSTMModel
 
-__all__ = ["SignalScaling", "limit_rate", "measurement_code", "project_onto_box"]
+__all__ = [
+    "SignalScaling",
+    "limit_rate",
+    "measurement_code",
+    "project_onto_box",
+    "setpoint_code",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -106,3 +114,17 @@ def measurement_code(largest: float, implausible: float) -> int:
     if largest <= 1.0:
         return 0
     return 1 if largest <= implausible else 2
+
+
+def setpoint_code(used_inside: bool, limited: bool, target_inside: bool) -> int:
+    """The index in :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES` of a step whose
+    equilibrium is admissible, from the tests against the admissible interval of
+    Assumption 5: 1 (``"outside_admissible"``) where the set-point used lies outside it; 2
+    (``"target_outside_admissible"``) where it lies inside but the rate limiter is moving
+    it towards a requested one outside (``limited``: a limiter moved it this step;
+    ``target_inside``: the requested one's test, read only in that case); else 0."""
+    if not used_inside:
+        return 1
+    if limited and not target_inside:
+        return 2
+    return 0
