@@ -81,6 +81,11 @@ class ControllerStep:
         :mod:`ltv_lstm_mpc.loop.monitor`), computed when first read (off the timed step).
     monitor_log, index : AssumptionLog, int
         Where ``assumptions`` comes from: the run's log and this step's index in it.
+    engine : str
+        The step engine that ran this step (:mod:`ltv_lstm_mpc.loop.engines`):
+        ``"one-call"`` (one compiled call) or ``"reference"`` (stage by stage: every step
+        of a controller whose configuration the one-call engine refuses, its first step,
+        and the steps the one-call engine hands over).
     """
 
     y: FloatArray
@@ -104,6 +109,7 @@ class ControllerStep:
     measurement_status: str = "ok"
     monitor_log: AssumptionLog | None = None
     index: int = -1
+    engine: str = "reference"
 
     @property
     def assumptions(self) -> AssumptionCheck | None:
@@ -192,4 +198,5 @@ def recorded_step(records: ControllerRecords, k: int, mpc: Any) -> ControllerSte
         measurement_status=MEASUREMENT_STATUSES[integer[c.MEASUREMENT_STATUS]],
         monitor_log=records.log,
         index=k,
+        engine="one-call",
     )

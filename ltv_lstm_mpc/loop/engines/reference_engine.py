@@ -162,7 +162,7 @@ class ReferenceEngine:
                 time_mpc=t3 - t2, stale_reference=stale, setpoint_status=status_y0,
                 d_hat_saturated=saturated, input_clipped=input_clipped,
                 measurement_status=status_y, monitor_log=controller.assumption_log,
-                index=len(records),
+                index=len(records), engine=self.name,
             )
         )  # fmt: skip
         return u_phi
