@@ -34,12 +34,12 @@ TOLERANCE = 1e-12
 
 
 def _differences(a: Any, b: Any, prefix: str = "") -> dict[str, float]:
-    """Largest difference per field of two records (times excluded); strings and flags
-    must be equal (a difference of inf)."""
+    """Largest difference per field of two records (times and the engine that ran the step
+    excluded); strings and flags must be equal (a difference of inf)."""
     out: dict[str, float] = {}
     for field in dataclasses.fields(a):
         name = field.name
-        if name.startswith("time") or name.endswith("_time") or name == "monitor_log":
+        if name.startswith("time") or name.endswith("_time") or name in ("monitor_log", "engine"):
             continue
         left, right = getattr(a, name), getattr(b, name)
         if dataclasses.is_dataclass(left):
