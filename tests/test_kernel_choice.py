@@ -76,7 +76,8 @@ def test_auto_runs_numpy_while_compiling_then_compiled(monkeypatch, capsys, auto
     model = load_model("ph_lstm_n5.npz")
     controller = OffsetFreeController(model, CONFIG)
     assert controller.kernels == "numpy"
-    assert not model.kernel.compiled and model.kernel.automatic
+    assert not controller.model.kernel.compiled and controller.model.kernel.automatic
+    assert model.kernel.compiled and controller.model is not model  # the caller's: untouched
     assert started == [["condense"]]
     err = capsys.readouterr().err
     assert err.count("runs the numpy reference kernels") == 1
@@ -97,6 +98,20 @@ def test_auto_runs_numpy_while_compiling_then_compiled(monkeypatch, capsys, auto
     chosen.kernel = LSTMKernel(chosen, compiled=False)
     assert OffsetFreeController(chosen, CONFIG).kernels == "numpy"  # the caller's choice
     assert OffsetFreeController(chosen, CONFIG, kernels="compiled").kernels == "compiled"
+
+
+def test_the_callers_model_is_never_modified() -> None:
+    """A controller that needs another kernel than the model's works on its own copy; the
+    caller's model (and its kernel) stays as it was, and keeps computing the same."""
+    model = load_model("ph_lstm_n5.npz")
+    kernel = model.kernel
+    x = model.equilibrium(np.array([0.1]))
+    numpy = OffsetFreeController(model, CONFIG, kernels="numpy")
+    assert numpy.kernels == "numpy" and not numpy.model.kernel.compiled
+    assert model.kernel is kernel and numpy.model is not model
+    compiled = OffsetFreeController(model, CONFIG, kernels="compiled")
+    assert compiled.kernels == "compiled" and model.kernel is kernel
+    np.testing.assert_array_equal(model.equilibrium(np.array([0.1])), x)
 
 
 def test_a_given_mpc_keeps_the_models_kernel(monkeypatch, auto) -> None:

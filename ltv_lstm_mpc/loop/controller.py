@@ -85,7 +85,9 @@ class OffsetFreeController(DeferredState):
         the next controllers and runs (no silent 20-40 s wait on a fresh install);
         ``"compiled"`` compiles now if needed (benchmarks); ``"numpy"`` the reference.
         Ignored with ``mpc`` (the model's kernel is used as it is). The choice made is
-        :attr:`kernels` (``"compiled"`` or ``"numpy"``).
+        :attr:`kernels` (``"compiled"`` or ``"numpy"``). The caller's model is never
+        modified: where the choice is not the model's kernel, the controller runs a copy
+        of the model with its own kernel (:attr:`model`).
     monitor : AssumptionMonitor, optional
         Checks Theorem 3's hypotheses on every record (:mod:`ltv_lstm_mpc.loop.monitor`);
         default: one on this controller's certification. Give one built on a certification
@@ -160,13 +162,14 @@ class OffsetFreeController(DeferredState):
                 f"{implausible_measurements!r}"
             )
         self.implausible_measurements = implausible_measurements
-        self.model = model
         self.config = config = config or MPCConfig()
         self.one_call_step = one_call_step
         #: Whether the caller gave the MPC (``mpc``): its kernels are used as they are.
         self.custom_mpc = mpc is not None
-        if mpc is None:
-            use_kernels(model, config, kernels, one_call_step=one_call_step)
+        if mpc is None:  # (the caller's model, or a copy with the kernel chosen)
+            model = use_kernels(model, config, kernels, one_call_step=one_call_step)
+        #: The model this controller runs: the caller's, or a copy of it with its own kernel.
+        self.model = model
         #: ``"compiled"`` or ``"numpy"``: the kernels this controller runs (see ``kernels``).
         self.kernels = "compiled" if model.kernel.compiled else "numpy"
         self.mpc: MPCSolver = mpc if mpc is not None else RobustMPC(model, config)

@@ -33,6 +33,7 @@ configuration's kernels ahead of time, e.g. in a container image or a CI step.
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import json
 import os
@@ -460,23 +461,26 @@ def start_background_compile(model: LSTMModel, config: MPCConfig, missing: list[
 
 def use_kernels(
     model: LSTMModel, config: MPCConfig, kernels: str, *, one_call_step: bool = True
-) -> None:
-    """Give ``model`` the kernel ``kernels`` asks for (a controller's ``kernels``):
-    compiled or the numpy reference; say once what happens (compiling now, or the numpy
-    reference while a background process compiles). Compiled: load now every kernel the
-    cache holds (not at the first steps: :func:`~ltv_lstm_mpc.loop.kernels.load_kernels`)."""
+) -> LSTMModel:
+    """The model a controller runs, with the kernel ``kernels`` asks for (a controller's
+    ``kernels``): compiled or the numpy reference. ``model`` itself where its kernel is
+    that one, else a copy of it with that kernel: the caller's model is never modified.
+    Says once what happens (compiling now, or the numpy reference while a background
+    process compiles). Compiled: loads now every kernel the cache holds (not at the first
+    steps: :func:`~ltv_lstm_mpc.loop.kernels.load_kernels`)."""
     from ltv_lstm_mpc.lstm.kernel import LSTMKernel
     from ltv_lstm_mpc.numba_support import compile_notice, compile_on_demand, say_once
 
     compiled, missing = choose_kernels(config, kernels)
     if model.kernel.compiled != compiled and (kernels != "auto" or model.kernel.automatic):
+        model = copy.copy(model)  # shares the weights; its own kernel
         model.kernel = LSTMKernel(model, compiled=compiled)
         model.kernel.automatic = kernels == "auto"
     if model.kernel.compiled:
         compile_on_demand()  # the solver layer's helpers compile too
         load_kernels(config, one_call_step=one_call_step)
     if not missing:
-        return
+        return model
     if model.kernel.compiled:
         say_once(compile_notice("the controller kernels", "20-40 s"))
     elif start_background_compile(model, config, missing):
@@ -498,3 +502,4 @@ def use_kernels(
                 else ""
             )
         )
+    return model
