@@ -1,7 +1,7 @@
 """Background compiles that never fail silently (ltv_lstm_mpc/loop/kernels.py, warmup.py).
 
-Issue 42: a model file without ``Ts`` made the background compile crash (in its log only);
-every later run started another one, ran the numpy kernels and left another
+Guards against this: a model file without ``Ts`` made the background compile crash (in its
+log only); every later run started another one, ran the numpy kernels and left another
 ``ltv_lstm_mpc-compile-*`` folder in the temp folder. Now a failure is recorded (one
 folder kept, marked with the fingerprint of the sources), reported once per process on the
 next runs with the log's last line and the log file, and not retried until the sources

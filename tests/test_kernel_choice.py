@@ -296,7 +296,7 @@ print(json.dumps({
 
 
 def test_a_warm_cache_is_loaded_at_construction() -> None:
-    """Issue 42: with a warm cache, numba loaded each kernel at its first call, so the
+    """Guards against: with a warm cache, numba loaded each kernel at its first call, so the
     first steps took some 5 ms each; now the construction loads every kernel of the
     configuration (checked in a fresh process: each has its compiled version)."""
     import os

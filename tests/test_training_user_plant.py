@@ -230,8 +230,8 @@ def test_cli_train_reports_the_interval_and_has_the_switch(
 def test_default_preset_gives_the_tank_a_certified_model_with_an_interval(
     tmp_path: Path,
 ) -> None:
-    """Issue 42: ``train --epochs 80`` with the default preset on a gravity-drained tank
-    ended with no model. Measured on 8 sequences x 600 samples: 277 epochs (80 planned,
+    """Guards against ``train --epochs 80`` with the default preset on a gravity-drained
+    tank ending with no model. Measured on 8 sequences x 600 samples: 277 epochs (80 planned,
     then escalated extra ones), rho_s = 0.9987, interval [22.6, 32.4] cm, test FIT 86.3 %;
     140 s (410 s while other jobs loaded the 2-core VM)."""
     pytest.importorskip("torch")

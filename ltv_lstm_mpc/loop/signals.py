@@ -68,16 +68,15 @@ class SignalScaling:
         norm = model.normalization
         assert norm is not None  # the controller checks it first
         u_max = float(u_max)
-
-        def physical(u: FloatArray) -> FloatArray:
-            return np.asarray((u + 1.0) * norm.u_scale + norm.u_phi_min, dtype=np.float64)
-
-        low, high = physical(np.full(model.m, -u_max)), physical(np.full(model.m, u_max))
+        low = norm.denormalize_u(np.full(model.m, -u_max))
+        high = norm.denormalize_u(np.full(model.m, u_max))
         if u_max <= 1.0:
             np.maximum(low, norm.u_phi_min, out=low)
             np.minimum(high, norm.u_phi_max, out=high)
         return cls(norm.y_phi_min, norm.y_scale, norm.u_phi_min, norm.u_scale, u_max, low, high)
 
+    # The Normalization's formulas (lstm/model.py) on scales computed once: the reference
+    # engine's per-step conversions.
     def normalize_y(self, y_phi: FloatArray) -> FloatArray:
         """Normalized outputs from physical ones."""
         return np.asarray((y_phi - self.y_min) / self.y_scale - 1.0, dtype=np.float64)

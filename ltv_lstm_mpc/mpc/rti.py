@@ -337,9 +337,7 @@ class RobustMPC(DeferredState):
         """A compiled step prepared and solved outside this object: its transcription's
         scaling and solved subproblems are not this step's (:meth:`prepare` sets them again
         before any feedback here)."""
-        forget = getattr(self._problem, "forget_preparation", None)
-        if forget is not None:
-            forget()
+        self._problem.forget_preparation()
 
     # ---------------------------------------------------------------------------- state
     def reset(self) -> None:

@@ -170,6 +170,10 @@ class TranscriptionBase(abc.ABC):
     def reset(self) -> None:  # noqa: B027 - optional hook
         """Forget warm starts (a new closed loop begins)."""
 
+    def forget_preparation(self) -> None:  # noqa: B027 - optional hook
+        """The last preparation was solved outside this object (a compiled step engine):
+        drop what it left for :meth:`solve` (the next preparation sets it again)."""
+
 
 #: Solver names of the nonlinear transcription (CasADi + IPOPT).
 NLP_SOLVERS = ("ipopt", "nmpc:ipopt")
