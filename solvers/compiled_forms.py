@@ -72,6 +72,15 @@ class CompiledForm:
     warm_up : callable or None
         Compiles (or loads from numba's cache) what the backend's Python entry calls, by a
         small solve.
+    flag_outcome : callable or None
+        ``flag_outcome(flag) -> (SolverStatus, info)``: what the backend's session reports
+        for an exit flag of ``quadprog`` (the status and the info string of its
+        ``solve_point``), so that a compiled caller that records only the flag reports the
+        same status and reason.
+    violation : numba dispatcher or None
+        The dense layer's compiled ``bounds_rows_violation(x, lb, ub, A, lo, up)``: the
+        largest violation of a point of a QP without cones, as
+        :meth:`~ltv_lstm_mpc.solvers.DenseQP.max_violation` computes it.
     """
 
     name: str
@@ -86,6 +95,8 @@ class CompiledForm:
     new_socp_workspace: Callable[..., Any] | None = None
     socp_arrays: Callable[..., dict[str, Any]] | None = None
     warm_up: Callable[[], None] | None = None
+    flag_outcome: Callable[[int], tuple[Any, str]] | None = None
+    violation: Any = None
 
 
 def dense_check_form(name: str) -> CompiledForm:

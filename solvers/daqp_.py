@@ -340,9 +340,9 @@ class DaqpDense(DenseBackend):
                 self._H, self._f, self._A, self._bu, self._bl, self._cold, **self.options
             )
             flag, iterations = int(exitflag), int(info["iterations"])
-        status, notes = dense_status(flag)
+        status, info = point_outcome(flag)
         z = x if status.has_solution else None
-        return status, z, iterations, "; ".join((f"exitflag {flag}", *notes))
+        return status, z, iterations, info
 
 
 def dense_status(flag: int) -> tuple[SolverStatus, tuple[str, ...]]:
@@ -352,6 +352,14 @@ def dense_status(flag: int) -> tuple[SolverStatus, tuple[str, ...]]:
         return status, ()
     status, note = map_status(STATUS_MAP, flag)
     return status, (str(note),)
+
+
+def point_outcome(flag: int) -> tuple[SolverStatus, str]:
+    """The status and info string :meth:`DaqpDense.solve_point` reports for DAQP's exit
+    ``flag`` (also the compiled callers' report of a flag they recorded:
+    :attr:`~ltv_lstm_mpc.solvers.CompiledForm.flag_outcome`)."""
+    status, notes = dense_status(flag)
+    return status, "; ".join((f"exitflag {flag}", *notes))
 
 
 def make_dense(name: str, tolerance: float, settings: Mapping[str, Any]) -> DenseBackend:
@@ -372,13 +380,16 @@ def compiled_form(name: str) -> CompiledForm:
     """What ``"daqp"`` gives compiled callers: DAQP's C entry point and its buffers where
     DAQP is bound natively (else ``bound=False`` and no kernels)."""
     from . import daqp_native
+    from ._compiled import bounds_rows_violation
 
     bound = daqp_native.bound()
     return CompiledForm(
         name=name,
-        kernels=(daqp_native.quadprog,) if bound else (),
+        kernels=(daqp_native.quadprog, bounds_rows_violation) if bound else (),
         bound=bound,
         quadprog=daqp_native.quadprog,
         solver_seconds=daqp_native.solver_seconds,
         native_buffers=native_buffers,
+        flag_outcome=point_outcome,
+        violation=bounds_rows_violation,
     )

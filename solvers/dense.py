@@ -53,7 +53,13 @@ from ._base import FloatArray, RawResult, WarmStart
 from ._compiled import CompiledOrPython, bounds_rows_violation, cone_violation
 from .problem import ConvexProblem, SecondOrderCone, SolverStatus, _check_bounds
 
-__all__ = ["DenseBackend", "DenseBackendFactory", "DenseCone", "DenseQP"]
+__all__ = [
+    "DenseBackend",
+    "DenseBackendFactory",
+    "DenseCone",
+    "DenseQP",
+    "bounds_rows_violation",
+]
 
 _FORMAT = "dense_qp"
 _FORMAT_VERSION = 1

@@ -147,6 +147,10 @@ SMOKE = {
         ("daqp one-call", "cones daqp:socp", "socp prepared", "exact cones: clarabel / daqp"),
         needs=("daqp", "clarabel"),
     ),
+    "worst_case.py": Smoke(
+        ("--N", "5", "--steps", "40", "--solvers", "daqp"),
+        ("p99/", "daqp N=5 scenario 3", "daqp N=5 bench 1"),
+    ),
     "train_fidelity.py": Smoke(
         (
             "--tag",

@@ -135,8 +135,9 @@ def test_one_call_step_equals_the_general_path_siso(
     index: int, N: int, solver: str, codes: Counter[int]
 ) -> None:
     """Bench scenarios on the shipped pH model, 300 steps: every record field the same
-    (scenario 3 has infeasible steps: there the one-call feedback declines and the general
-    feedback runs its policy); daqp:socp: the exact terminal cones in the one call."""
+    (scenario 3 has infeasible steps: on daqp the one call runs the policy, on daqp:socp
+    the one-call feedback declines and the general feedback runs it); daqp:socp: the exact
+    terminal cones in the one call."""
     from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
 
     model = load_model("ph_lstm_n5.npz")
@@ -154,7 +155,10 @@ def test_one_call_step_equals_the_general_path_siso(
     np.testing.assert_array_equal(fast.observer.x_hat, general.observer.x_hat)
     assert taken.get(compiled_step.STEP_DONE, 0) >= 200
     infeasible = sum(not r.mpc.feasible for r in fast.records)
-    if index == 2:
+    if index == 2 and solver == "daqp":  # the policy runs in the one call
+        assert infeasible > 0
+        assert taken.get(compiled_step.STEP_DONE, 0) == steps - 1
+    elif index == 2:  # daqp:socp: the exact-cone policy is handed over
         assert infeasible > 0
         declined = taken.get(compiled_step.STEP_FEEDBACK, 0) + taken.get(
             compiled_step.STEP_REFERENCE, 0
@@ -163,6 +167,34 @@ def test_one_call_step_equals_the_general_path_siso(
     else:
         assert infeasible == 0
         assert taken.get(compiled_step.STEP_DONE, 0) == steps - 1  # all but the first step
+
+
+@pytest.mark.parametrize("policy", ["paper", "soft", "shift"])
+@pytest.mark.parametrize("N", [5, 20])
+def test_infeasibility_policies_run_in_the_one_call(
+    policy: str, N: int, codes: Counter[int]
+) -> None:
+    """Bench scenario 3 (set-point steps, infeasible instants) on daqp: the nominal QP's
+    infeasible steps take the policy inside the compiled call (none handed over to the
+    reference engine's feedback), with every record field as the reference engine's."""
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[2]
+    config = replace(scenario.config, solver="daqp", N=N, infeasibility_policy=policy)
+    steps = min(len(scenario.setpoints), 300)
+    fast = _loop(model, config, scenario, True, steps)
+    taken = dict(codes)
+    general = _loop(model, config, scenario, False, steps)
+    worst, where = _worst(fast.records, general.records)
+    assert worst <= TOLERANCE, where
+    fallbacks = [r for r in fast.records if not r.mpc.feasible]
+    assert taken.get(compiled_step.STEP_FEEDBACK, 0) == 0
+    handed_over = sum(r.engine == "reference" for r in fallbacks)  # the first step, and
+    assert handed_over <= taken.get(compiled_step.STEP_REFERENCE, 0) + 1  # a damped Newton
+    assert len(fallbacks) - handed_over >= (5 if N == 5 else 1)
+    assert {r.mpc.policy for r in fallbacks} <= {policy, f"{policy}+shift", "shift"}
+    assert all(r.mpc.reason for r in fallbacks)
 
 
 @pytest.mark.parametrize("solver", SOLVERS)

@@ -16,10 +16,11 @@ compiled twins (:mod:`ltv_lstm_mpc.loop.compiled_signals`,
    (eq. def_alpha) of :class:`~ltv_lstm_mpc.certificates.tightening.TighteningCertificate`
    (through their twins in ``certificates/compiled_tightening.py``);
 5. the preparation (:func:`~ltv_lstm_mpc.mpc.compiled_prepare.prepare_condensed`) on the
-   proof candidate (Theorem 3, Part 2b) and the nominal feedback
-   (:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`, or
+   proof candidate (Theorem 3, Part 2b) and the feedback
+   (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`: the nominal QP, and the
+   infeasibility policy where it is infeasible; or
    :func:`~ltv_lstm_mpc.mpc.native_feedback.cone_feedback` with the exact terminal cones
-   on ``daqp:socp``);
+   on ``daqp:socp``, the nominal problem only);
 6. the exit gate onto :math:`\mathcal U`, the observer update eq. (lstm_observer)
    (:func:`~ltv_lstm_mpc.loop.compiled_observer.observer_update`), the recursion
    :math:`\hat e_{o,k+1} = \rho_o \hat e_{o,k} + \bar w` (eq. eo_evolution) and the
@@ -43,8 +44,9 @@ Jacobian aside, which the reference engine takes over with the chord's outcome) 
 reference engine goes on with the step: :data:`STEP_GENERAL` (a measurement or set-point that
 is not finite or lies beyond the plausible range: the reference engine raises or flags it),
 :data:`STEP_REFERENCE` (the warm chord did not give an admissible equilibrium: the damped
-Newton with restarts runs) and :data:`STEP_FEEDBACK` (the one-call feedback did not accept
-its point: the general feedback runs, with its reasons and fallbacks). The same compiled
+Newton with restarts runs) and :data:`STEP_FEEDBACK` (the one-call feedback did not
+decide: a point within a margin of an acceptance test, or on ``daqp:socp`` an infeasible
+exact-cone problem; the general feedback runs, with its reasons and fallbacks). The same compiled
 functions run as in the reference engine, so both give the same numbers (to a few ulps, tested
 to 1e-12 over closed loops in ``tests/test_one_call_step.py``).
 """
@@ -80,7 +82,14 @@ from ltv_lstm_mpc.mpc.compiled_prepare import (
     CANDIDATE_SHIFT,
     prepare_condensed,
 )
-from ltv_lstm_mpc.mpc.native_feedback import cone_feedback, nominal_feedback
+from ltv_lstm_mpc.mpc.native_feedback import (
+    PLAN_ITERATIONS,
+    POLICY_CODE,
+    POLICY_NOMINAL,
+    STATUS_CODE,
+    cone_feedback,
+    policy_feedback,
+)
 from ltv_lstm_mpc.numba_support import AVAILABLE, build_workspace, njit, workspace_type
 
 __all__ = [
@@ -116,11 +125,14 @@ REAL_COLUMNS = 17
 #: Columns of ``RecordArrays.integer``.
 (
     STATUS, SOLVER_ITERATIONS, REFERENCE_ITERATIONS, SETPOINT_STATUS, MEASUREMENT_STATUS,
-    FACTORIZATIONS, JINV_VALID, CHORD_OK, U_BAR_PROJECTED,
-) = range(9)  # fmt: skip
-INTEGER_COLUMNS = 9
+    FACTORIZATIONS, JINV_VALID, CHORD_OK, U_BAR_PROJECTED, POLICY, SQP_ITERATIONS,
+) = range(11)  # fmt: skip
+INTEGER_COLUMNS = 11
 # ``SETPOINT_STATUS`` and ``MEASUREMENT_STATUS`` hold indices into
-# :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES` and ``MEASUREMENT_STATUSES``.
+# :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES` and ``MEASUREMENT_STATUSES``;
+# ``STATUS`` the feedback's status code and ``POLICY`` its policy code
+# (:data:`~ltv_lstm_mpc.mpc.native_feedback.POLICIES`; read by
+# :func:`~ltv_lstm_mpc.mpc.native_feedback.feedback_outcome`).
 
 #: Fields of :data:`StepWorkspace`, in the order of its compiled constructor.
 STEP_FIELDS = (
@@ -129,7 +141,7 @@ STEP_FIELDS = (
     "u_max", "implausible", "d_max", "tightening_d_max", "rho_o", "w_bar", "e_inf",
     "backward", "tol", "max_iter", "jump", "reuse_tol", "chord", "trajectories",
     "condensing", "daqp", "plan", "observer", "cand", "cones", "socp", "tolerance",
-    "jinv_backup",
+    "jinv_backup", "fallback",
 )  # fmt: skip
 
 StepWorkspace = workspace_type(
@@ -159,7 +171,9 @@ StepWorkspace = workspace_type(
     :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace`, with the acceptance
     ``tolerance``) rather than the QP on ``daqp`` (the other one of the two is a
     placeholder); ``jinv_backup``: the chord's inverse Jacobian as it was before the last
-    :func:`prepare_step` (restored when a preparation is discarded).
+    :func:`prepare_step` (restored when a preparation is discarded); ``fallback``: the
+    infeasibility policy's buffers of the QP feedback
+    (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`; a placeholder with cones).
     """,
     __name__,
 )
@@ -239,6 +253,18 @@ def placeholder_daqp() -> Any:
     )  # fmt: skip
 
 
+def placeholder_fallback() -> Any:
+    """A :data:`~ltv_lstm_mpc.mpc.native_feedback.FallbackWorkspace` that is never used
+    (the ``fallback`` of a cone controller's :data:`StepWorkspace`)."""
+    from ltv_lstm_mpc.mpc.native_feedback import new_fallback_workspace
+
+    return new_fallback_workspace(
+        policy=0, ns=0, H=np.zeros((0, 0)), f=np.zeros(0), A=np.zeros((0, 0)),
+        high=np.zeros(0), low=np.zeros(0), sense=np.zeros(0, dtype=np.intc), z=np.zeros(0),
+        lam=np.zeros(0), regularization=0.0, codes=np.zeros(3, dtype=np.int64),
+    )  # fmt: skip
+
+
 def placeholder_socp() -> Any:
     """A :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` that is never solved with
     (the ``socp`` of a QP controller's :data:`StepWorkspace`)."""
@@ -291,13 +317,14 @@ def _new_step_workspace(
     socp: Any,
     tolerance: Any,
     jinv_backup: Any,
+    fallback: Any,
 ) -> Any:
     """The compiled constructor (no constructor compile at run time; cached)."""
     return StepWorkspace(
         y_min, y_scale, u_min, u_scale, u_phi_low, u_phi_high, a, b, bound_min, bound_max,
         kappa, lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max,
         rho_o, w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories,
-        condensing, daqp, plan, observer, cand, cones, socp, tolerance, jinv_backup,
+        condensing, daqp, plan, observer, cand, cones, socp, tolerance, jinv_backup, fallback,
     )  # fmt: skip
 
 
@@ -516,22 +543,28 @@ def _feedback_and_update(
     real = records.real[k]
     x_bar, u_bar = records.x_bar[k], records.u_bar[k]
     lower, upper, alpha, scale = step.lower, step.upper, real[ALPHA], real[SCALE]
-    # ---- feedback: insert x_hat, solve, accept, re-simulate
+    # ---- feedback: insert x_hat, solve, accept (or the infeasibility policy), re-simulate
     u_plan = records.u_plan[k]
     if step.cones:
         code, iterations, sqp_step, seconds = cone_feedback(
             step.condensing, step.socp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
             step.tolerance, records.x_linear[k], u_plan, records.x_plan[k],
         )  # fmt: skip
+        status, policy, plan_iterations = code, POLICY_NOMINAL, 1
     else:
-        code, iterations, sqp_step, seconds = nominal_feedback(
-            step.condensing, daqp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
-            records.x_linear[k], u_plan, records.x_plan[k],
+        code, iterations, sqp_step, seconds = policy_feedback(
+            step.condensing, daqp, step.fallback, plan, x_hat, x_bar, u_bar, lower, upper,
+            alpha, scale, records.x_linear[k], u_plan, records.x_plan[k],
         )  # fmt: skip
+        outcome = step.fallback.codes
+        status, policy = outcome[STATUS_CODE], outcome[POLICY_CODE]
+        plan_iterations = outcome[PLAN_ITERATIONS]
     if code == 0:
         return STEP_FEEDBACK, 0, 0.0
     t3 = _now(clock)
-    integer[STATUS] = code
+    integer[STATUS] = status
+    integer[POLICY] = policy
+    integer[SQP_ITERATIONS] = plan_iterations
     integer[SOLVER_ITERATIONS] = iterations
     real[SQP_STEP] = sqp_step
     real[SOLVER_TIME] = seconds

@@ -103,14 +103,13 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
             compiled_step.feedback_step, compiled_step.feedback_step_from_rows,
             *compiled_step.CONSTRUCTORS,
         ]  # fmt: skip
-        # the workspace of the feedback it does not run is a placeholder of that type
-        placeholder = (
-            one_call_feedback.CONSTRUCTORS[0]
+        # the workspaces of the feedback it does not run are placeholders of their types
+        placeholders = (
+            one_call_feedback.CONSTRUCTORS  # DAQP's and the policy's
             if "cone_feedback" in names
-            else socp_sqp.new_socp_workspace_kernel
+            else (socp_sqp.new_socp_workspace_kernel,)
         )
-        if placeholder not in kernels:
-            kernels.append(placeholder)
+        kernels += [kernel for kernel in placeholders if kernel not in kernels]
     return kernels
 
 

@@ -21,6 +21,7 @@ from ltv_lstm_mpc.loop.records import ControllerRecords
 from ltv_lstm_mpc.loop.reference import ReferenceSolution
 from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution
+from ltv_lstm_mpc.mpc.native_feedback import POLICIES, feedback_outcome
 
 __all__ = ["ControllerStep", "recorded_reference", "recorded_step"]
 
@@ -151,16 +152,21 @@ def recorded_step(records: ControllerRecords, k: int, mpc: Any) -> ControllerSte
     real = rows.real[k].tolist()
     integer = rows.integer[k].tolist()
     prepare_time, feedback_time = real[c.PREPARE_TIME], real[c.FEEDBACK_TIME]
+    parts = mpc.one_call_parts()
+    status, reason = feedback_outcome(integer[c.STATUS], parts.flag_outcome)
+    policy = POLICIES[integer[c.POLICY]]
+    if policy.endswith("shift") and integer[c.U_BAR_PROJECTED]:  # (RobustMPC.feedback)
+        reason += "; the candidate applied appends u_bar projected onto U"
     solution = MPCSolution(
         u=rows.u_plan[k],
         x=rows.x_plan[k],
         x_linear=rows.x_linear[k],
-        status="optimal" if integer[c.STATUS] == 1 else "optimal_inaccurate",
-        feasible=True,
-        policy="nominal",
+        status=status,
+        feasible=policy == "nominal",
+        policy=policy,
         solve_time=prepare_time + feedback_time,
         solver_time=real[c.SOLVER_TIME],
-        iterations=1,
+        iterations=integer[c.SQP_ITERATIONS],
         sqp_step=real[c.SQP_STEP],
         alpha=real[c.ALPHA],
         cost=real[c.COST],
@@ -174,7 +180,7 @@ def recorded_step(records: ControllerRecords, k: int, mpc: Any) -> ControllerSte
         transcription=mpc.transcription,
         prepare_time=prepare_time,
         feedback_time=feedback_time,
-        reason="",
+        reason=reason,
     )
     return ControllerStep(
         y=rows.y[k],

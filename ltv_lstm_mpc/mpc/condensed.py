@@ -217,6 +217,7 @@ class CondensedTranscription(TranscriptionBase):
         # The nominal feedback as one compiled call in the core where DAQP's C entry point is
         # bound (mpc/native_feedback.py); otherwise, and for the other problems, the session.
         self._daqp_workspace: Any = None  # DAQP's buffers of the one-call feedback
+        self._fallback_workspace: Any = None  # and of its infeasibility policy
         # (`native` binds DAQP's compiled entry point at its first access: compiled kernels
         # only, so that the numpy reference never waits for a compilation)
         native = (
@@ -236,6 +237,9 @@ class CondensedTranscription(TranscriptionBase):
                 settings=native.settings,
                 tolerance=self.tolerance,
             )
+            self._fallback_workspace = self._new_fallback_workspace(config)
+            daqp_form = compiled_form(config.solver)
+            self.flag_outcome = None if daqp_form is None else daqp_form.flag_outcome
         # Exact cones by SQP on DAQP as one compiled call (mpc/native_feedback.cone_feedback):
         # its workspace holds the nominal exact-cone QP, the constant parts written once.
         self._socp_workspace: Any = None
@@ -354,6 +358,40 @@ class CondensedTranscription(TranscriptionBase):
             self._insert = self._insert_numpy
             self._expand = self._expand_numpy
 
+    def _new_fallback_workspace(self, config: MPCConfig) -> Any:
+        """The :data:`~ltv_lstm_mpc.mpc.native_feedback.FallbackWorkspace` of the one-call
+        feedback's infeasibility policy on DAQP: for ``"soft"``, the QP of :meth:`_data`
+        with its constant blocks written (identity and unit columns of the slacks, their
+        penalty, the infinite bounds); the values of H, f, A and the bounds are written at
+        each use."""
+        from ltv_lstm_mpc.mpc.native_feedback import POLICIES, new_fallback_workspace
+
+        nu, ns, n2 = self.N * self.m, self._n_out, 2 * self.n
+        policy = POLICIES.index(config.infeasibility_policy)
+        soft = config.infeasibility_policy == "soft"
+        nz, rows = nu, 0
+        if soft:
+            nz, rows = nu + ns + 1, 2 * ns + 2 * n2
+        H, f, A = np.zeros((nz, nz)), np.zeros(nz), np.zeros((rows, nz))
+        low, high = np.zeros(nz + rows), np.zeros(nz + rows)
+        if soft:
+            f[nu:] = 0.5 * config.soft_penalty  # the QP objective is half the cost
+            eye, unit = np.eye(ns), self._unit_half
+            A[:ns, nu : nu + ns] = eye
+            A[ns : 2 * ns, nu : nu + ns] = -eye
+            A[2 * ns : 2 * ns + n2, nz - 1] = unit
+            A[2 * ns + n2 :, nz - 1] = -unit
+            low[nu:nz], high[nu:nz] = 0.0, np.inf  # s, s_T >= 0
+            high[nz : nz + ns] = np.inf  # A_out du + s >= lo
+            low[nz + ns : nz + 2 * ns] = -np.inf  # A_out du - s <= up
+            high[nz + 2 * ns : nz + 2 * ns + n2] = np.inf
+            low[nz + 2 * ns + n2 :] = -np.inf
+        return new_fallback_workspace(
+            policy=policy, ns=ns, H=H, f=f, A=A, high=high, low=low,
+            sense=np.zeros(nz + rows, dtype=np.intc), z=np.zeros(nz), lam=np.zeros(nz + rows),
+            regularization=float(self.slack_regularization), codes=np.zeros(3, dtype=np.int64),
+        )  # fmt: skip
+
     def _new_socp_workspace(self, config: MPCConfig, form: CompiledForm) -> Any:
         """The :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` of the nominal
         exact-cone QP (variables ``[du, t_c, t_h]``, the output rows, the cones of
@@ -381,6 +419,13 @@ class CondensedTranscription(TranscriptionBase):
         """The buffers of the core's one-call exact-cone feedback on ``daqp:socp`` (None
         for other solvers, without DAQP bound natively, or with the numpy condensing)."""
         return self._socp_workspace if self.compiled else None
+
+    @property
+    def fallback_workspace(self) -> Any:
+        """The buffers of the infeasibility policy of the core's one-call feedback on DAQP
+        (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`); None where
+        :attr:`daqp_workspace` is None."""
+        return self._fallback_workspace if self.compiled else None
 
     @property
     def daqp_workspace(self) -> Any:

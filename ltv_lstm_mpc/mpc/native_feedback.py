@@ -18,11 +18,22 @@ It only *accepts*: whenever a test is not passed with a margin (pre-check within
 entry, inputs outside U or rows beyond tolerance) it returns 0 and the general Python path
 runs instead, from the start, with its reasons and fallbacks. Equality of both paths is
 tested in ``tests/test_daqp_native.py``.
+
+:func:`policy_feedback` (the one-call step engine's feedback on DAQP) goes further: where
+the pre-check fails by more than the margin or DAQP finds no solution of the nominal QP,
+it runs the configured infeasibility policy as ``RobustMPC.feedback`` does (``"paper"``,
+``"soft"``, ``"shift"``, then ``"<policy>+shift"``), on the same QPs with the same DAQP
+call, and records the status and policy by code (:data:`POLICIES`,
+:func:`feedback_outcome`); it hands over only a point within a margin of a test or an
+outcome the general path words itself (tested to 1e-12 over closed loops in
+``tests/test_one_call_step.py``).
 """
 
 from __future__ import annotations
 
 from typing import Any
+
+import numpy as np
 
 from ltv_lstm_mpc.mpc.compiled_condensing import expand_point, insert_state
 from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
@@ -31,16 +42,24 @@ from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 # compiled code binds its callees when it compiles: the public entry points that the
 # solver layer's compiled forms of daqp and daqp:socp hold (solvers.compiled_form)
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
+from ltv_lstm_mpc.solvers.dense import bounds_rows_violation
 from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
 
 __all__ = [
     "CONSTRUCTORS",
     "DAQP_FIELDS",
+    "FALLBACK_FIELDS",
+    "FEEDBACK_POLICY",
+    "POLICIES",
     "PRECHECK_MARGIN",
     "DaqpWorkspace",
+    "FallbackWorkspace",
     "cone_feedback",
+    "feedback_outcome",
     "new_daqp_workspace",
+    "new_fallback_workspace",
     "nominal_feedback",
+    "policy_feedback",
 ]
 
 #: The pre-check accepts ``y`` only within ``[lower - 1e-12, upper + 1e-12]`` shrunk by this
@@ -48,6 +67,76 @@ __all__ = [
 PRECHECK_MARGIN = 1e-13
 _PRECHECK_TOL = 1e-12  # fhocp.precheck_status
 _HUGE = 1e100  # entries beyond it go to the general path (its finiteness test sums them)
+
+#: ``MPCSolution.policy`` of each policy code (``fallback.codes[POLICY_CODE]``): a policy
+#: whose QP gives no accepted point is ``SHIFT_AFTER`` further ("<policy>+shift").
+POLICIES = ("nominal", "paper", "soft", "shift", "paper+shift", "soft+shift")
+POLICY_NOMINAL, POLICY_PAPER, POLICY_SOFT, POLICY_SHIFT = 0, 1, 2, 3
+SHIFT_AFTER = 3
+#: :func:`policy_feedback`'s code of a plan from the infeasibility policy.
+FEEDBACK_POLICY = 3
+#: Entries of ``fallback.codes``: the status code (1, 2: the nominal QP, optimal or
+#: inaccurate; DAQP's exit flag -1..-6 where it found no solution;
+#: ``STATUS_INFEASIBLE_INITIAL``, ``STATUS_ALPHA_NONPOSITIVE``: the pre-check), the policy
+#: code, and the SQP iterations of the plan (1 with a linearized plan, else 0).
+STATUS_CODE, POLICY_CODE, PLAN_ITERATIONS = 0, 1, 2
+STATUS_INFEASIBLE_INITIAL, STATUS_ALPHA_NONPOSITIVE = -100, -101
+PRECHECK_PASSED, PRECHECK_UNDECIDED = 1, 0
+_MIN_FAILURE_FLAG = -6  # DAQP's exit flags -1 .. -6 (solvers/daqp_.py STATUS_MAP)
+#: Verdicts of :func:`_accept`.
+ACCEPTED, REJECTED, UNDECIDED = 1, 0, -1
+
+
+def feedback_outcome(code: int, flag_outcome: Any) -> tuple[str, str]:
+    """The status and reason ``RobustMPC.feedback`` reports for a status code of
+    ``fallback.codes`` (``flag_outcome``: the solver's
+    :attr:`~ltv_lstm_mpc.solvers.CompiledForm.flag_outcome`)."""
+    if code == 1:
+        return "optimal", ""
+    if code == 2:
+        return "optimal_inaccurate", ""
+    if code == STATUS_INFEASIBLE_INITIAL:
+        return "infeasible_initial", "infeasible_initial"
+    if code == STATUS_ALPHA_NONPOSITIVE:
+        return "alpha_nonpositive", "alpha_nonpositive"
+    status, info = flag_outcome(code)
+    return status.name.lower(), info
+
+
+#: Fields of :data:`FallbackWorkspace`, in the order of its compiled constructor.
+FALLBACK_FIELDS = (
+    "policy", "ns", "H", "f", "A", "high", "low", "sense", "z", "lam", "regularization",
+    "codes",
+)  # fmt: skip
+
+FallbackWorkspace = workspace_type(
+    "FallbackWorkspace",
+    FALLBACK_FIELDS,
+    """The infeasibility policy of :func:`policy_feedback` and its QP's buffers.
+
+    ``policy``: :data:`POLICY_PAPER`, :data:`POLICY_SOFT` or :data:`POLICY_SHIFT`;
+    ``ns``: the output rows (N - 1) p; ``H``, ``f``, ``A``, ``high`` (``[ub; up]``),
+    ``low`` (``[lb; lo]``): the soft QP (variables ``[du; s; s_T]``, its constant blocks
+    written once; empty for the other policies); ``sense`` (int32, cold: zeros), ``z``,
+    ``lam``: DAQP's working set, point and multipliers (the paper QP uses their first
+    N m entries); ``regularization``: the slacks' quadratic weight relative to max diag H;
+    ``codes`` (int64, 3): the outcome (:data:`STATUS_CODE`, :data:`POLICY_CODE`,
+    :data:`PLAN_ITERATIONS`).
+    """,
+    __name__,
+)
+FallbackWorkspaceType = getattr(FallbackWorkspace, "numba_type", None)
+
+
+def new_fallback_workspace(**fields: Any) -> Any:
+    """A :data:`FallbackWorkspace` from its fields by name (:data:`FALLBACK_FIELDS`)."""
+    return build_workspace(_new_fallback_workspace, FALLBACK_FIELDS, fields)
+
+
+@njit(cache=True)
+def _new_fallback_workspace(policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes):  # type: ignore[no-untyped-def]
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return FallbackWorkspace(policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes)
 
 
 #: Fields of :data:`DaqpWorkspace`, in the order of its compiled constructor.
@@ -80,6 +169,101 @@ def _new_daqp_workspace(sense, z, lam, problem, result, settings, tolerance):  #
 
 
 @njit(cache=True)
+def _precheck(W_y: Any, b_y: Any, x_hat: Any, lower: Any, upper: Any, alpha: float) -> int:
+    """:func:`~ltv_lstm_mpc.mpc.fhocp.precheck_status`, decided only away from its
+    tolerance: :data:`PRECHECK_PASSED` (the i = 0 output row holds within
+    :data:`PRECHECK_MARGIN` inside its tolerance and :math:`\\alpha_k > 0`),
+    :data:`STATUS_INFEASIBLE_INITIAL` (a row fails by more than the margin beyond it),
+    :data:`STATUS_ALPHA_NONPOSITIVE`, or :data:`PRECHECK_UNDECIDED` (a row within the
+    margin of its tolerance, or not finite: the general path decides; its sum runs in
+    another order, so ulps may differ there)."""
+    n = x_hat.shape[0] // 2
+    inner = _PRECHECK_TOL - PRECHECK_MARGIN
+    outer = _PRECHECK_TOL + PRECHECK_MARGIN
+    undecided = False
+    for j in range(W_y.shape[0]):
+        y = b_y[j]
+        for q in range(n):
+            y += W_y[j, q] * x_hat[n + q]
+        if y < lower[0, j] - outer or y > upper[0, j] + outer:
+            return STATUS_INFEASIBLE_INITIAL
+        if not lower[0, j] - inner <= y <= upper[0, j] + inner:
+            undecided = True
+    if undecided:
+        return PRECHECK_UNDECIDED
+    if not alpha > 0.0:
+        return STATUS_ALPHA_NONPOSITIVE
+    return PRECHECK_PASSED
+
+
+@njit(cache=True)
+def _accept(
+    z: Any,
+    x_linear: Any,
+    u: Any,
+    S: Any,
+    violation: float,
+    tolerance: float,
+    scale: float,
+    u_max: float,
+) -> tuple[int, float]:
+    """``RobustMPC._checked_solve``'s tests of an expanded point (finite; inputs in U
+    within the tolerance; the scaled violation within it), then the inputs clipped onto U.
+    Returns ``(verdict, sqp step)``: :data:`ACCEPTED` (the step: the largest change from
+    the candidate, the inputs of ``S``), :data:`REJECTED` (by the tolerance tests, as the
+    general path rejects it) or :data:`UNDECIDED` (an entry of ``z`` or ``x_linear`` beyond
+    1e100 or not finite: the general path's finiteness test sums them)."""
+    for a in range(z.shape[0]):
+        if not abs(z[a]) < _HUGE:
+            return UNDECIDED, 0.0
+    N1, n2 = x_linear.shape
+    for i in range(N1):
+        for q in range(n2):
+            if not abs(x_linear[i, q]) < _HUGE:
+                return UNDECIDED, 0.0
+    N, m = u.shape
+    largest = 0.0
+    for i in range(N):
+        for a in range(m):
+            largest = max(largest, abs(u[i, a]))
+    outside = largest - u_max
+    if outside > tolerance * (1.0 + u_max) or not max(violation, 0.0) / scale <= tolerance:
+        return REJECTED, 0.0
+    step = 0.0
+    for i in range(N):
+        for a in range(m):
+            if outside > 0.0:
+                u[i, a] = min(max(u[i, a], -u_max), u_max)
+            step = max(step, abs(u[i, a] - S[i, n2 + a]))
+    return ACCEPTED, step
+
+
+@njit(cache=True)
+def _simulate_plan(
+    plan: Any,
+    x_hat: Any,
+    x_bar: Any,
+    u_bar: Any,
+    lower: Any,
+    upper: Any,
+    x_linear: Any,
+    u: Any,
+    x_plan: Any,
+) -> None:
+    """The plan ``u`` from :math:`\\hat x_k` on the true LSTM, its cost and residuals
+    (``RobustMPC.feedback``; ``x_linear`` with no rows: no linearized plan)."""
+    P = plan.S
+    n2 = x_hat.shape[0]
+    N, m = u.shape
+    for q in range(n2):
+        P[0, q] = x_hat[q]
+    for i in range(N):
+        for a in range(m):
+            P[i, n2 + a] = u[i, a]
+    plan_metrics(plan, x_bar, u_bar, lower, upper, x_linear, x_plan)
+
+
+@njit(cache=True)
 def nominal_feedback(
     condensing: Any,
     daqp: Any,
@@ -107,68 +291,187 @@ def nominal_feedback(
     :data:`~ltv_lstm_mpc.mpc.compiled_plan.PlanWorkspace`; ``lower``/``upper``: the
     tightened output bounds (N, p).
     """
-    W_y, b_y, H, A = condensing.W_y, condensing.b_y, condensing.H, condensing.A
-    f, low, high, S, u_max = (
-        condensing.f,
-        condensing.low,
-        condensing.high,
-        condensing.S,
-        condensing.u_max,
-    )
-    sense, z, lam, tolerance = daqp.sense, daqp.z, daqp.lam, daqp.tolerance
-    problem, result, settings = daqp.problem, daqp.result, daqp.settings
-    P = plan.S
-    n2 = x_linear.shape[1]
-    n = n2 // 2
-    p = W_y.shape[0]
-    N, m = u.shape
-    # ---- pre-check (fhocp.precheck_status), with a margin
-    margin = _PRECHECK_TOL - PRECHECK_MARGIN
-    for j in range(p):
-        y = b_y[j]
-        for q in range(n):
-            y += W_y[j, q] * x_hat[n + q]
-        if not lower[0, j] - margin <= y <= upper[0, j] + margin:
-            return 0, 0, 0.0, 0.0
-    if not alpha > 0.0:
+    if _precheck(condensing.W_y, condensing.b_y, x_hat, lower, upper, alpha) != PRECHECK_PASSED:
         return 0, 0, 0.0, 0.0
-    # ---- insert, solve, expand (CondensedTranscription.solve)
-    nu = f.shape[0]
     insert_state(condensing, x_hat)
-    flag, iterations = quadprog(H, f, A, high, low, sense, z, lam, problem, result, settings)
-    seconds = solver_seconds(result)
+    flag, iterations, seconds = _solve_nominal(condensing, daqp)
     if flag != 1 and flag != 2:
         return 0, iterations, 0.0, seconds
-    violation = expand_point(condensing, z, high.shape[0], x_linear, u)
-    # ---- acceptance (RobustMPC._checked_solve)
-    for a in range(nu):
-        if not abs(z[a]) < _HUGE:
-            return 0, iterations, 0.0, seconds
-    for i in range(N + 1):
-        for q in range(n2):
-            if not abs(x_linear[i, q]) < _HUGE:
-                return 0, iterations, 0.0, seconds
-    largest = 0.0
-    for i in range(N):
-        for a in range(m):
-            largest = max(largest, abs(u[i, a]))
-    outside = largest - u_max
-    if outside > tolerance * (1.0 + u_max) or not max(violation, 0.0) / scale <= tolerance:
+    high = condensing.high
+    violation = expand_point(condensing, daqp.z, high.shape[0], x_linear, u)
+    verdict, step = _accept(
+        daqp.z, x_linear, u, condensing.S, violation, daqp.tolerance, scale, condensing.u_max
+    )
+    if verdict != ACCEPTED:
         return 0, iterations, 0.0, seconds
-    step = 0.0
-    for i in range(N):
-        for a in range(m):
-            if outside > 0.0:
-                u[i, a] = min(max(u[i, a], -u_max), u_max)
-            step = max(step, abs(u[i, a] - S[i, n2 + a]))
-    # ---- the plan on the true LSTM (RobustMPC.feedback)
-    for q in range(n2):
-        P[0, q] = x_hat[q]
-    for i in range(N):
-        for a in range(m):
-            P[i, n2 + a] = u[i, a]
-    plan_metrics(plan, x_bar, u_bar, lower, upper, x_linear, x_plan)
+    _simulate_plan(plan, x_hat, x_bar, u_bar, lower, upper, x_linear, u, x_plan)
     return flag, iterations, step, seconds
+
+
+@njit(cache=True)
+def _solve_nominal(condensing: Any, daqp: Any) -> tuple[int, int, float]:
+    """DAQP on the nominal condensed QP (state inserted), cold: (flag, iterations, s)."""
+    flag, iterations = quadprog(
+        condensing.H, condensing.f, condensing.A, condensing.high, condensing.low, daqp.sense,
+        daqp.z, daqp.lam, daqp.problem, daqp.result, daqp.settings,
+    )  # fmt: skip
+    return flag, iterations, solver_seconds(daqp.result)
+
+
+@njit(cache=True)
+def _write_soft_qp(condensing: Any, fallback: Any) -> None:
+    """The ``"soft"`` QP of ``CondensedTranscription._data`` into ``fallback`` (the
+    constant blocks were written once): H with the slacks' regularization, f with their
+    penalty, the rows ``[A_out, I, 0]``, ``[A_out, -I, 0]``, ``[A_T, 0, unit]``,
+    ``[A_T, 0, -unit]`` and their bounds, the bounds of ``[du; s; s_T]``."""
+    H, A, f = condensing.H, condensing.A, condensing.f
+    low, high = condensing.low, condensing.high
+    nu = H.shape[0]
+    ns = fallback.ns
+    n2 = A.shape[0] - ns
+    nz = nu + ns + 1
+    Hs, As, fs = fallback.H, fallback.A, fallback.f
+    largest = H[0, 0]
+    for a in range(1, nu):
+        largest = max(largest, H[a, a])
+    reg = fallback.regularization * largest
+    for a in range(nu):
+        for b in range(nu):
+            Hs[a, b] = H[a, b]
+        fs[a] = f[a]
+    for s in range(nu, nz):
+        Hs[s, s] = reg
+    lows, highs = fallback.low, fallback.high  # [lb_s; lo_s], [ub_s; up_s]
+    for a in range(nu):
+        lows[a] = low[a]
+        highs[a] = high[a]
+    for r in range(ns):
+        for b in range(nu):
+            As[r, b] = A[r, b]
+            As[ns + r, b] = A[r, b]
+        lows[nz + r] = low[nu + r]
+        highs[nz + ns + r] = high[nu + r]
+    for r in range(n2):
+        for b in range(nu):
+            As[2 * ns + r, b] = A[ns + r, b]
+            As[2 * ns + n2 + r, b] = A[ns + r, b]
+        lows[nz + 2 * ns + r] = low[nu + ns + r]
+        highs[nz + 2 * ns + n2 + r] = high[nu + ns + r]
+
+
+@njit(cache=True)
+def policy_feedback(
+    condensing: Any,
+    daqp: Any,
+    fallback: Any,
+    plan: Any,
+    x_hat: Any,
+    x_bar: Any,
+    u_bar: Any,
+    lower: Any,
+    upper: Any,
+    alpha: float,
+    scale: float,
+    x_linear: Any,
+    u: Any,
+    x_plan: Any,
+) -> tuple[int, int, float, float]:
+    """``RobustMPC.feedback`` with one SQP iteration, every path of it: the nominal QP as
+    :func:`nominal_feedback`, and where the pre-check fails or DAQP finds no solution, the
+    infeasibility policy of ``fallback`` (a :data:`FallbackWorkspace`): ``"paper"`` (the
+    QP without output and terminal rows, paper Fig. 5), ``"soft"`` (the exact-penalty
+    slacks of ``CondensedTranscription._data``) or ``"shift"`` (the candidate), and
+    ``"<policy>+shift"`` where the policy's QP gives no accepted point.
+
+    Returns ``(code, iterations, sqp step, solver seconds)``: code 1 or 2 (the nominal QP,
+    optimal or inaccurate), :data:`FEEDBACK_POLICY` (a policy's plan: its status code,
+    policy code and SQP iterations in ``fallback.codes``, :data:`STATUS_CODE`,
+    :data:`POLICY_CODE`, :data:`PLAN_ITERATIONS`), or 0: a point within a margin of a
+    test, or a failure the general path reports in words of its own (a non-finite or
+    rejected nominal point, an unknown exit flag): the general path runs. Arguments as
+    for :func:`nominal_feedback`.
+    """
+    codes = fallback.codes
+    status = _precheck(condensing.W_y, condensing.b_y, x_hat, lower, upper, alpha)
+    if status == PRECHECK_UNDECIDED:
+        return 0, 0, 0.0, 0.0
+    insert_state(condensing, x_hat)
+    iterations, seconds = 0, 0.0
+    if status == PRECHECK_PASSED:
+        flag, iterations, seconds = _solve_nominal(condensing, daqp)
+        if flag == 1 or flag == 2:
+            high = condensing.high
+            violation = expand_point(condensing, daqp.z, high.shape[0], x_linear, u)
+            verdict, step = _accept(
+                daqp.z, x_linear, u, condensing.S, violation, daqp.tolerance, scale,
+                condensing.u_max,
+            )  # fmt: skip
+            if verdict != ACCEPTED:  # the general path words its rejection
+                return 0, iterations, 0.0, seconds
+            _simulate_plan(plan, x_hat, x_bar, u_bar, lower, upper, x_linear, u, x_plan)
+            codes[STATUS_CODE], codes[POLICY_CODE], codes[PLAN_ITERATIONS] = flag, POLICY_NOMINAL, 1
+            return flag, iterations, step, seconds
+        if not _MIN_FAILURE_FLAG <= flag <= -1:  # an unknown flag: the session's words
+            return 0, iterations, 0.0, seconds
+        status = flag
+    policy = fallback.policy
+    linear = False
+    step = 0.0
+    nu = condensing.H.shape[0]
+    if policy == POLICY_PAPER or policy == POLICY_SOFT:
+        z = fallback.z
+        if policy == POLICY_PAPER:  # no output and terminal rows (paper, Fig. 5)
+            flag, more = quadprog(
+                condensing.H, condensing.f, condensing.A[:0], condensing.high[:nu],
+                condensing.low[:nu], fallback.sense[:nu], z[:nu], fallback.lam[:nu],
+                daqp.problem, daqp.result, daqp.settings,
+            )  # fmt: skip
+        else:
+            _write_soft_qp(condensing, fallback)
+            flag, more = quadprog(
+                fallback.H, fallback.f, fallback.A, fallback.high, fallback.low,
+                fallback.sense, z, fallback.lam, daqp.problem, daqp.result, daqp.settings,
+            )  # fmt: skip
+        iterations += more
+        seconds += solver_seconds(daqp.result)
+        finite = True
+        size = nu if policy == POLICY_PAPER else z.shape[0]
+        for a in range(size):
+            if not np.isfinite(z[a]):
+                finite = False
+        if (flag == 1 or flag == 2) and finite:
+            violation = expand_point(condensing, z, nu, x_linear, u)
+            if policy == POLICY_SOFT:  # the soft QP's own rows and bounds
+                nz = z.shape[0]
+                violation = bounds_rows_violation(
+                    z, fallback.low[:nz], fallback.high[:nz], fallback.A, fallback.low[nz:],
+                    fallback.high[nz:],
+                )  # fmt: skip
+            verdict, step = _accept(
+                z[:size], x_linear, u, condensing.S, violation, daqp.tolerance, scale,
+                condensing.u_max,
+            )  # fmt: skip
+            if verdict == UNDECIDED:
+                return 0, iterations, 0.0, seconds
+            linear = verdict == ACCEPTED
+        if not linear:
+            policy += SHIFT_AFTER
+    S = condensing.S
+    N, m = u.shape
+    n2 = x_hat.shape[0]
+    if not linear:  # the candidate (Theorem 3, Part 2b), no linearized plan
+        for i in range(N):
+            for a in range(m):
+                u[i, a] = S[i, n2 + a]
+        step = 0.0
+    _simulate_plan(
+        plan, x_hat, x_bar, u_bar, lower, upper, x_linear if linear else x_linear[:0], u, x_plan
+    )
+    if not linear:
+        x_linear[:] = np.nan
+    codes[STATUS_CODE], codes[POLICY_CODE] = status, policy
+    codes[PLAN_ITERATIONS] = 1 if linear else 0
+    return FEEDBACK_POLICY, iterations, step, seconds
 
 
 @njit(cache=True)
@@ -205,21 +508,10 @@ def cone_feedback(
     W_y, b_y, A = condensing.W_y, condensing.b_y, condensing.A
     H, f, lo, up = condensing.H, condensing.f, condensing.lo, condensing.up
     S, u_max = condensing.S, condensing.u_max
-    P = plan.S
     n2 = x_linear.shape[1]
-    n = n2 // 2
-    p = W_y.shape[0]
     N, m = u.shape
     nu = N * m
-    # ---- pre-check (fhocp.precheck_status), with a margin
-    margin = _PRECHECK_TOL - PRECHECK_MARGIN
-    for j in range(p):
-        y = b_y[j]
-        for q in range(n):
-            y += W_y[j, q] * x_hat[n + q]
-        if not lower[0, j] - margin <= y <= upper[0, j] + margin:
-            return 0, 0, 0.0, 0.0
-    if not alpha > 0.0:
+    if _precheck(W_y, b_y, x_hat, lower, upper, alpha) != PRECHECK_PASSED:
         return 0, 0, 0.0, 0.0
     # ---- insert, then the exact-cone QP (CondensedTranscription._cone_data)
     insert_state(condensing, x_hat)
@@ -247,37 +539,13 @@ def cone_feedback(
     rows = nu + ns
     violation_rows = expand_point(condensing, z, rows, x_linear, u)
     violation = max(violation_rows, violation)
-    # ---- acceptance (RobustMPC._checked_solve)
-    for a in range(z.shape[0]):
-        if not abs(z[a]) < _HUGE:
-            return 0, iterations, 0.0, seconds
-    for i in range(N + 1):
-        for q in range(n2):
-            if not abs(x_linear[i, q]) < _HUGE:
-                return 0, iterations, 0.0, seconds
-    largest = 0.0
-    for i in range(N):
-        for a in range(m):
-            largest = max(largest, abs(u[i, a]))
-    outside = largest - u_max
-    if outside > tolerance * (1.0 + u_max) or not max(violation, 0.0) / scale <= tolerance:
+    verdict, step = _accept(z, x_linear, u, S, violation, tolerance, scale, u_max)
+    if verdict != ACCEPTED:
         return 0, iterations, 0.0, seconds
-    step = 0.0
-    for i in range(N):
-        for a in range(m):
-            if outside > 0.0:
-                u[i, a] = min(max(u[i, a], -u_max), u_max)
-            step = max(step, abs(u[i, a] - S[i, n2 + a]))
-    # ---- the plan on the true LSTM (RobustMPC.feedback)
-    for q in range(n2):
-        P[0, q] = x_hat[q]
-    for i in range(N):
-        for a in range(m):
-            P[i, n2 + a] = u[i, a]
-    plan_metrics(plan, x_bar, u_bar, lower, upper, x_linear, x_plan)
+    _simulate_plan(plan, x_hat, x_bar, u_bar, lower, upper, x_linear, u, x_plan)
     return flag, iterations, step, seconds
 
 
 #: This module's compiled constructors (the compiled workspace constructor): what compiles with it
 #: (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
-CONSTRUCTORS = (_new_daqp_workspace,)
+CONSTRUCTORS = (_new_daqp_workspace, _new_fallback_workspace)

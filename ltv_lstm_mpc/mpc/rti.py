@@ -95,6 +95,12 @@ class OneCallParts:
         The one-call feedback's solver workspace: DAQP's QP
         (:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`) or the exact cones by SQP
         on DAQP (:func:`~ltv_lstm_mpc.mpc.native_feedback.cone_feedback`); one is None.
+    fallback : workspace or None
+        With ``daqp``: the infeasibility policy's buffers
+        (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`).
+    flag_outcome : callable or None
+        With ``daqp``: the status and reason of a DAQP exit flag
+        (:func:`~ltv_lstm_mpc.mpc.native_feedback.feedback_outcome`).
     tolerance : float
         The acceptance tolerance of the cone feedback.
     backward : bool
@@ -109,6 +115,8 @@ class OneCallParts:
     socp: Any
     tolerance: float
     backward: bool
+    fallback: Any = None
+    flag_outcome: Any = None
 
 
 class RobustMPC(DeferredState):
@@ -302,6 +310,7 @@ class RobustMPC(DeferredState):
                 plan=self._plan_workspace, candidate=self._cand, daqp=daqp, socp=socp,
                 tolerance=float(problem.tolerance),
                 backward=bool(getattr(problem, "backward_condensing", False)),
+                fallback=problem.fallback_workspace, flag_outcome=problem.flag_outcome,
             )  # fmt: skip
         self.prepare_time = self.feedback_time = self.solver_time = 0.0
         self.qp_iterations = 0

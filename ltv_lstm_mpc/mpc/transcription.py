@@ -103,6 +103,13 @@ class TranscriptionBase(abc.ABC):
     #: (:data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace`) where the transcription has
     #: one (the condensed exact-cone QP on ``daqp:socp``), else None.
     socp_workspace: Any = None
+    #: The buffers of the infeasibility policy of the one-call feedback on DAQP
+    #: (:data:`~ltv_lstm_mpc.mpc.native_feedback.FallbackWorkspace`), with
+    #: ``daqp_workspace``; else None.
+    fallback_workspace: Any = None
+    #: What the solver reports for a DAQP exit flag the one-call feedback recorded
+    #: (:attr:`~ltv_lstm_mpc.solvers.CompiledForm.flag_outcome`), with ``daqp_workspace``.
+    flag_outcome: Any = None
 
     @abc.abstractmethod
     def build(

@@ -54,7 +54,12 @@ def test_the_daqp_form_holds_daqps_entry_point() -> None:
     assert form.bound == daqp_native.bound()
     assert form.quadprog is daqp_native.quadprog
     assert form.solver_seconds is daqp_native.solver_seconds
-    assert form.kernels == ((daqp_native.quadprog,) if form.bound else ())
+    from ltv_lstm_mpc.solvers.dense import bounds_rows_violation
+
+    assert form.kernels == ((daqp_native.quadprog, bounds_rows_violation) if form.bound else ())
+    assert form.violation is bounds_rows_violation
+    status, info = form.flag_outcome(-1)
+    assert (status.name, info) == ("INFEASIBLE", "exitflag -1")
     assert form.socp_solve is None and form.warm_up is None and form.native_buffers is not None
     if form.bound:
         buffers = form.native_buffers(1e-8, {})

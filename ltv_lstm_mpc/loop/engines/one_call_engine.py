@@ -242,6 +242,9 @@ class OneCallEngine(DeferredState):
             cand=parts.candidate, cones=parts.socp is not None,
             socp=parts.socp if parts.socp is not None else one_call.placeholder_socp(),
             tolerance=parts.tolerance, jinv_backup=self.jinv_backup,
+            fallback=(
+                parts.fallback if parts.fallback is not None else one_call.placeholder_fallback()
+            ),
         )  # fmt: skip
 
     def _settings_now(self) -> tuple[float, int, float, float]:

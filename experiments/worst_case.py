@@ -1,0 +1,141 @@
+"""The worst case of the controller step: its tail over closed loops with infeasible steps.
+
+A real-time controller's sampling period is set by its slowest step, not its median. This
+runs, per solver and horizon, closed loops that leave the nominal path (the paper's
+scenario 3: set-point steps without a rate limiter, whose infeasible instants take the
+infeasibility policy; bench's scenario 1 beside it, where every step is nominal), timing
+each whole ``OffsetFreeController.step`` (the first 10 steps of each loop left out), and
+prints per run:
+
+- the median, p95, p99 and largest step (us) and p99 / median, max / median;
+- the steps that took the infeasibility policy (a fallback: the nominal subproblem was
+  infeasible) and their own median, against the nominal steps' median;
+- the steps that left the one-call compiled engine for the reference engine (handed over:
+  ``ControllerStep.engine == "reference"``) and why (the policy's exact-cone solve on
+  ``daqp:socp``, the reference calculator's damped Newton), with their median.
+
+The first 10 steps aside, the targets of the worst-case work are p99 / median <= 1.5 and
+max / median <= 3 on a run where at least 5 % of the steps fall back, and a fallback step
+within 2x the nominal median. The machine's own jitter is in every tail: read it against
+a step that does fixed work (``experiments/gc_jitter.py``) or a C solver timed in the same
+run (``experiments/acados_speed.py``).
+
+    python experiments/worst_case.py [--solvers daqp daqp:socp] [--N 5 20 50] [--steps 2400]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import time
+from dataclasses import replace
+from typing import Any
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/benchmarks.md, "The worst case". Smallest run: --N 5 --steps 40 '
+        "--solvers daqp.",
+    )
+    parser.add_argument("--solvers", nargs="+", default=["daqp", "daqp:socp"])
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=2400,
+        help="closed-loop steps of scenario 3 (at most its 2400; bench's scenario 1: 300)",
+    )
+    parser.add_argument("--repeats", type=int, default=1, help="closed loops per run, pooled")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()  # --help and bad options answer here, before the imports
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+import numpy as np  # noqa: E402
+
+from ltv_lstm_mpc import OffsetFreeController  # noqa: E402
+from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
+from ltv_lstm_mpc.paper.scenarios import paper_scenarios  # noqa: E402
+from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
+
+SKIP = 10
+
+
+def closed_loop(scenario: Any, model: Any, solver: str, N: int, steps: int) -> tuple[Any, Any]:
+    """One closed loop: (step times in s, records), the first ``SKIP`` steps left out."""
+    config = replace(scenario.config, solver=solver, N=N)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit
+    )
+    plant = scenario.make_plant(model)
+    controller.records.reserve(steps + 1)
+    y = plant.output()
+    times = np.empty(steps)
+    gc.collect()
+    gc.disable()
+    try:
+        for k in range(steps):
+            start = time.perf_counter()
+            u = controller.step(y, scenario.setpoints[k])
+            times[k] = time.perf_counter() - start
+            d = scenario.disturbances[k]
+            y = plant.step(u, None if np.isnan(d) else d)
+    finally:
+        gc.enable()
+    return times[SKIP:], controller.records[SKIP:]
+
+
+def report(label: str, times: Any, records: Any) -> None:
+    """One row of the table (module docstring)."""
+    us = times * 1e6
+    median = float(np.median(us))
+    fallback = np.array([not r.mpc.feasible for r in records])
+    reference = np.array([r.engine == "reference" for r in records])
+    p95, p99, largest = np.percentile(us, 95), np.percentile(us, 99), float(us.max())
+
+    def median_of(mask: Any) -> str:
+        return f"{np.median(us[mask]):7.1f}" if mask.any() else "      -"
+
+    nominal = float(np.median(us[~fallback])) if (~fallback).any() else float("nan")
+    ratio = np.median(us[fallback]) / nominal if fallback.any() else float("nan")
+    print(
+        f"{label:<28} {median:7.1f} {p95:7.1f} {p99:7.1f} {largest:8.1f} | "
+        f"{p99 / median:5.2f} {largest / median:6.2f} | {fallback.sum():4d} "
+        f"({100 * fallback.mean():4.1f} %) {median_of(fallback)} {ratio:5.2f} | "
+        f"{reference.sum():4d} {median_of(reference)}"
+    )
+
+
+def main() -> None:
+    args = build_parser().parse_args()
+    model = load_model("ph_lstm_n5.npz")
+    runs = [
+        ("scenario 3", paper_scenarios(model)[2], args.steps),
+        ("bench 1", bench_scenarios(model)[0], min(args.steps, 300)),
+    ]
+    print(
+        f"{'run (us; first ' + str(SKIP) + ' steps aside)':<28} {'median':>7} {'p95':>7} "
+        f"{'p99':>7} {'max':>8} | {'p99/':>5} {'max/':>6} | fallback steps, median, "
+        "/ nominal | handed over, median"
+    )
+    for solver in args.solvers:
+        for N in args.N:
+            for name, scenario, steps in runs:
+                steps = min(steps, scenario.steps)
+                pooled = [
+                    closed_loop(scenario, model, solver, N, steps) for _ in range(args.repeats)
+                ]
+                times = np.concatenate([t for t, _ in pooled])
+                records = [r for _, rs in pooled for r in rs]
+                report(f"{solver} N={N} {name}", times, records)
+
+
+if __name__ == "__main__":
+    main()
