@@ -334,9 +334,10 @@ def test_common_step_takes_the_short_python_path(monkeypatch: pytest.MonkeyPatch
             y[i] = plants[i].step(u[-1], None if np.isnan(d) else d)
         np.testing.assert_array_equal(u[0], u[1])
     assert longer_calls["longer"] == len(kinds) - 1  # the first step is a general one
-    # the longer path: step 1 (the state as arguments) and 2 (which resolves the entry
-    # point), then per block the 0-d array, the list and the step after the setting
-    assert longer_calls["short"] == 2 + 3 * 5, longer_calls
+    # the longer path: step 1 (the state as arguments; the entry point of step 2 on was
+    # resolved at construction), then per block the 0-d array, the list and the step
+    # after the setting
+    assert longer_calls["short"] == 1 + 3 * 5, longer_calls
     worst, where = _worst(short.records, longer.records)
     assert worst <= TOLERANCE, where
 
