@@ -224,6 +224,54 @@ def test_one_call_step_equals_the_general_path_mimo(solver: str, codes: Counter[
     np.testing.assert_array_equal(fast_result.u_phi, general_result.u_phi)
 
 
+def test_damped_newton_runs_in_the_one_call(codes: Counter[int]) -> None:
+    """The paper's scenario 3 (short): at a set-point step the warm chord does not reach an
+    admissible equilibrium and the damped Newton with restarts runs inside the compiled
+    call (no step handed over), with the reference engine's records and counts."""
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model, short=True)[2]
+    config = replace(scenario.config, solver="daqp", N=5)
+    fast = _loop(model, config, scenario, True, scenario.steps)
+    taken = dict(codes)
+    general = _loop(model, config, scenario, False, scenario.steps)
+    assert fast.reference.counts["fallbacks"] >= 1
+    assert fast.reference.counts == general.reference.counts
+    assert taken.get(compiled_step.STEP_REFERENCE, 0) == 0
+    assert taken.get(compiled_step.STEP_DONE, 0) == scenario.steps - 1
+    worst, where = _worst(fast.records, general.records)
+    assert worst <= TOLERANCE, where
+
+
+def test_mimo_restarts_and_policies_run_in_the_one_call(codes: Counter[int]) -> None:
+    """The quadruple tank (2, 2) with set-point jumps between the corners of its schedule
+    (no limiter): the damped Newton from the grid's restarts and the infeasibility policy
+    run inside the compiled call, with the reference engine's records and counts."""
+    from ltv_lstm_mpc.benchmarks.quadtank import QUADTANK_MODEL, quadtank_scenarios
+
+    model = load_model(QUADTANK_MODEL)
+    scenario = quadtank_scenarios(short=True)[0]
+    config = replace(scenario.config, solver="daqp")
+    setpoints = np.array(scenario.setpoints)
+    jumps = [setpoints[0]] * 30 + [setpoints.max(axis=0)] * 60 + [setpoints.min(axis=0)] * 60
+    controllers = []
+    for one_call in (True, False):
+        controller = OffsetFreeController(model, config, kernels="compiled", one_call_step=one_call)
+        plant = scenario.make_plant(model)
+        y = plant.output()
+        for setpoint in jumps:
+            y = plant.step(controller.step(y, setpoint))
+        controllers.append(controller)
+    fast, general = controllers
+    assert fast.reference.counts["fallbacks"] >= 1
+    assert fast.reference.counts == general.reference.counts
+    assert any(not r.mpc.feasible for r in fast.records)
+    assert codes.get(compiled_step.STEP_DONE, 0) == len(jumps) - 1
+    worst, where = _worst(fast.records, general.records)
+    assert worst <= TOLERANCE, where
+
+
 def test_unreachable_setpoint_takes_the_reference_fallback(codes: Counter[int]) -> None:
     """A set-point step to 9.45 pH (no equilibrium with u_bar in U): the warm chord does not
     give an admissible equilibrium, the general path goes on from its outcome (damped

@@ -1,8 +1,13 @@
-r"""Compiled (numba) chord-Newton of the reference calculator, eq. (reference_calculation).
+r"""Compiled (numba) Newton methods of the reference calculator, eq. (reference_calculation).
 
-The warm path of :class:`~ltv_lstm_mpc.ReferenceCalculator` in one call; its
-numpy reference is ``ReferenceCalculator._chord`` (same algorithm, tested to 1e-12 in
-``tests/test_kernel.py``). Used when the model's kernel is compiled.
+The warm path of :class:`~ltv_lstm_mpc.ReferenceCalculator` in one call
+(:func:`chord_newton`); its numpy reference is ``ReferenceCalculator._chord`` (same
+algorithm, tested to 1e-12 in ``tests/test_kernel.py``). Used when the model's kernel is
+compiled. And the calculator's fallback where the warm path does not reach an admissible
+equilibrium, the damped Newton with restarts (:func:`newton_restarts`), whose readable
+reference is ``ReferenceCalculator._newton`` with the restart loop of
+``ReferenceCalculator.solve_arrays``: the one-call step engine runs it (tested against the
+reference engine to 1e-12 over closed loops in ``tests/test_one_call_step.py``).
 """
 
 from __future__ import annotations
@@ -22,9 +27,13 @@ __all__ = [
     "CHORD_JINV_VALID",
     "CHORD_REFRESH_CONTRACTION",
     "CONSTRUCTORS",
+    "RESTART_FIELDS",
     "ChordWorkspace",
+    "RestartWorkspace",
     "chord_newton",
     "new_chord_workspace",
+    "new_restart_workspace",
+    "newton_restarts",
 ]
 
 #: The chord Newton refreshes its kept inverse Jacobian (eq. jacobian: the LSTM's Jacobians
@@ -225,6 +234,201 @@ def chord_newton(
     return norm
 
 
-#: This module's compiled constructors (the compiled workspace constructor): what compiles with it
-#: (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
-CONSTRUCTORS = (_new_chord_workspace,)
+#: Backtracking halvings per damped Newton iteration (``ReferenceCalculator._newton``).
+BACKTRACKING_STEPS = 30
+#: Admissibility of :math:`\bar u`: inside U up to this relative margin (as
+#: ``ReferenceCalculator.solve_arrays``).
+U_MARGIN = 1e-12
+
+#: Fields of :data:`RestartWorkspace`, in the order of its compiled constructor.
+RESTART_FIELDS = (
+    "grid_x", "grid_u", "grid_y", "restarts", "u_max", "jacobian", "z", "trial", "best",
+    "distance",
+)  # fmt: skip
+
+RestartWorkspace = workspace_type(
+    "RestartWorkspace",
+    RESTART_FIELDS,
+    """The damped Newton with restarts of :func:`newton_restarts`.
+
+    ``grid_x``, ``grid_u``, ``grid_y`` (G rows): the calculator's equilibrium grid (states,
+    inputs, outputs); ``restarts``: the grid starts of a MIMO model (1 for SISO);
+    ``u_max``: the bound of U; ``jacobian`` (2n + m, 2n + m), ``z``, ``trial``, ``best``
+    (2n + m), ``distance`` (G): scratch.
+    """,
+    __name__,
+)
+RestartWorkspaceType = getattr(RestartWorkspace, "numba_type", None)
+
+
+def new_restart_workspace(**fields: Any) -> Any:
+    """A :data:`RestartWorkspace` from its fields by name (:data:`RESTART_FIELDS`)."""
+    return build_workspace(_new_restart_workspace, RESTART_FIELDS, fields)
+
+
+@njit(cache=True)
+def _new_restart_workspace(
+    grid_x: Any,
+    grid_u: Any,
+    grid_y: Any,
+    restarts: Any,
+    u_max: Any,
+    jacobian: Any,
+    z: Any,
+    trial: Any,
+    best: Any,
+    distance: Any,
+) -> Any:
+    """The compiled constructor (no constructor compile at run time; cached)."""
+    return RestartWorkspace(
+        grid_x, grid_u, grid_y, restarts, u_max, jacobian, z, trial, best, distance
+    )
+
+
+@njit(cache=True)
+def _newton_from(
+    chord: Any, restart: Any, z_start: Any, target: Any, tol: float, max_iter: int
+) -> tuple[float, int, bool]:
+    """``ReferenceCalculator._newton`` from ``z_start``: the damped Newton on eq.
+    (reference_calculation), each step backtracked on the residual's inf-norm. The point
+    goes into ``restart.z``; returns (residual, iterations, converged)."""
+    WU, WU_raw, W_y, b_y = chord.WU, chord.WU_raw, chord.W_y, chord.b_y
+    S, T, TC, J, F = chord.S, chord.T, chord.TC, chord.J, chord.F
+    jac, z, trial = restart.jacobian, restart.z, restart.trial
+    n = WU.shape[0] // 4
+    n2 = 2 * n
+    size = z.shape[0]
+    for a in range(size):
+        z[a] = z_start[a]
+    norm = _equilibrium_residual(WU, W_y, b_y, S, T, TC, z, target, F)
+    jacobians(WU_raw, S[:2], T[:1], TC[:1], J[:1])  # A, B at z
+    for iteration in range(1, max_iter + 1):
+        if norm < tol:
+            return norm, iteration - 1, True
+        for r in range(size):
+            for c in range(size):
+                jac[r, c] = J[0, r, c] if r < n2 else 0.0
+            if r < n2:
+                jac[r, r] -= 1.0
+        for j in range(size - n2):
+            for q in range(n):
+                jac[n2 + j, n + q] = W_y[j, q]
+        try:
+            step = np.linalg.solve(jac, F)
+        except Exception:  # singular (numpy's LinAlgError)
+            return norm, iteration, False
+        t = 1.0
+        accepted = False
+        norm_trial = norm
+        for _ in range(BACKTRACKING_STEPS):
+            for a in range(size):
+                trial[a] = z[a] - t * step[a]
+            norm_trial = _equilibrium_residual(WU, W_y, b_y, S, T, TC, trial, target, F)
+            if norm_trial < norm or norm_trial < tol:
+                accepted = True
+                break
+            t *= 0.5
+        if not accepted:
+            return norm, iteration, False
+        for a in range(size):
+            z[a] = trial[a]
+        norm = norm_trial
+        jacobians(WU_raw, S[:2], T[:1], TC[:1], J[:1])  # at the accepted point
+    return norm, max_iter, norm < tol
+
+
+@njit(cache=True)
+def newton_restarts(
+    chord: Any,
+    restart: Any,
+    previous: Any,
+    folded: Any,
+    target: Any,
+    tol: float,
+    max_iter: int,
+    z_out: Any,
+) -> tuple[float, int, bool, bool]:
+    r"""The restart loop of ``ReferenceCalculator.solve_arrays`` after the warm path: the
+    damped Newton (:func:`_newton_from`) from ``folded`` (a MIMO warm-path solution that
+    jumped: another branch of a fold? empty: none), the last solution ``previous``, and the
+    grid equilibria closest in output to ``target`` (one for SISO, ``restart.restarts`` for
+    MIMO models); the best start by the calculator's rank (admissible, then closest to
+    ``previous``, then converged, then the smallest residual), stopping at an admissible
+    solution from ``previous`` where nothing folded. The best point goes into ``z_out``;
+    returns (residual, Newton iterations of all starts, converged, :math:`\bar u \in
+    \mathcal U`)."""
+    grid_x, grid_u, grid_y = restart.grid_x, restart.grid_u, restart.grid_y
+    z, best, distance = restart.z, restart.best, restart.distance
+    size = previous.shape[0]
+    n2 = grid_x.shape[1]
+    m = size - n2
+    limit = restart.u_max * (1.0 + U_MARGIN)
+    for g in range(grid_y.shape[0]):
+        largest = 0.0
+        for j in range(grid_y.shape[1]):
+            largest = max(largest, abs(grid_y[g, j] - target[j]))
+        distance[g] = largest
+    order = np.argsort(distance, kind="mergesort")  # stable, as the reference's
+    n_grid = 1 if m == 1 else min(restart.restarts, grid_y.shape[0])
+    first = 1 if folded.shape[0] else 0
+    starts = first + 1 + n_grid
+    total = 0
+    have_best = False
+    best_admissible, best_closeness, best_converged, best_norm = False, -np.inf, False, -np.inf
+    norm_out, converged_out = np.inf, False
+    start = np.empty(size)
+    for number in range(starts):
+        if number < first:
+            for a in range(size):
+                start[a] = folded[a]
+        elif number == first:
+            for a in range(size):
+                start[a] = previous[a]
+        else:
+            g = order[number - first - 1]
+            for q in range(n2):
+                start[q] = grid_x[g, q]
+            for a in range(m):
+                start[n2 + a] = grid_u[g, a]
+        norm, iterations, converged = _newton_from(chord, restart, start, target, tol, max_iter)
+        total += iterations
+        largest_u = 0.0
+        for a in range(m):
+            largest_u = max(largest_u, abs(z[n2 + a]))
+        admissible = converged and largest_u <= limit
+        closeness = -np.inf
+        if admissible:
+            closeness = 0.0
+            for a in range(size):
+                closeness = max(closeness, abs(z[a] - previous[a]))
+            closeness = -closeness
+        better = not have_best
+        if have_best:  # the rank tuple (admissible, closeness, converged, -norm), compared
+            if admissible != best_admissible:
+                better = admissible
+            elif closeness != best_closeness:
+                better = closeness > best_closeness
+            elif converged != best_converged:
+                better = converged
+            else:
+                better = -norm > best_norm
+        if better:
+            have_best = True
+            best_admissible, best_closeness = admissible, closeness
+            best_converged, best_norm = converged, -norm
+            norm_out, converged_out = norm, converged
+            for a in range(size):
+                best[a] = z[a]
+        if admissible and first == 0 and number == 0:
+            break  # from the previous solution itself: take it
+    largest_u = 0.0
+    for a in range(size):
+        z_out[a] = best[a]
+    for a in range(m):
+        largest_u = max(largest_u, abs(best[n2 + a]))
+    return norm_out, total, converged_out, largest_u <= limit
+
+
+#: This module's compiled constructors (the compiled workspace constructors): what compiles
+#: with it (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
+CONSTRUCTORS = (_new_chord_workspace, _new_restart_workspace)

@@ -8,9 +8,11 @@ compiled twins (:mod:`ltv_lstm_mpc.loop.compiled_signals`,
 
 1. the normalization of the measurement and the set-point (paper notes 1) and the
    set-point rate limiter (Theorem 3's :math:`\Delta y^0_{max}`);
-2. the reference calculator's warm path, eq. (reference_calculation), by the chord Newton
-   of :func:`~ltv_lstm_mpc.loop.compiled_reference.chord_newton`, with the acceptance
-   test of ``ReferenceCalculator.solve_arrays``;
+2. the reference calculator, eq. (reference_calculation): its warm path by the chord
+   Newton of :func:`~ltv_lstm_mpc.loop.compiled_reference.chord_newton`, with the
+   acceptance test of ``ReferenceCalculator.solve_arrays``, and where that fails its
+   damped Newton with restarts
+   (:func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts`);
 3. the set-point status of Assumption 5 and the saturation flags of :math:`\hat d_k`;
 4. the tightened output bounds (eq. optimization_constraint_yub/ylb) and :math:`\alpha_k`
    (eq. def_alpha) of :class:`~ltv_lstm_mpc.certificates.tightening.TighteningCertificate`
@@ -43,8 +45,10 @@ test passed; otherwise nothing the controller keeps has changed (the chord's kep
 Jacobian aside, which the reference engine takes over with the chord's outcome) and the
 reference engine goes on with the step: :data:`STEP_GENERAL` (a measurement or set-point that
 is not finite or lies beyond the plausible range: the reference engine raises or flags it),
-:data:`STEP_REFERENCE` (the warm chord did not give an admissible equilibrium: the damped
-Newton with restarts runs) and :data:`STEP_FEEDBACK` (the one-call feedback did not
+:data:`STEP_REFERENCE` (neither the warm chord nor the damped Newton with restarts,
+which runs here where the chord fails, gives an admissible equilibrium: the reference
+engine keeps the last admissible reference, the stale-reference rule of Theorem 3, Part
+2a) and :data:`STEP_FEEDBACK` (the one-call feedback did not
 decide: a point within a margin of an acceptance test, or on ``daqp:socp`` an infeasible
 exact-cone problem; the general feedback runs, with its reasons and fallbacks). The same compiled
 functions run as in the reference engine, so both give the same numbers (to a few ulps, tested
@@ -69,7 +73,9 @@ from ltv_lstm_mpc.loop.compiled_reference import (
     CHORD_FACTORIZATIONS,
     CHORD_ITERATIONS,
     CHORD_JINV_VALID,
+    U_MARGIN,
     chord_newton,
+    newton_restarts,
 )
 from ltv_lstm_mpc.loop.compiled_signals import (
     limit_rate_into,
@@ -126,8 +132,9 @@ REAL_COLUMNS = 17
 (
     STATUS, SOLVER_ITERATIONS, REFERENCE_ITERATIONS, SETPOINT_STATUS, MEASUREMENT_STATUS,
     FACTORIZATIONS, JINV_VALID, CHORD_OK, U_BAR_PROJECTED, POLICY, SQP_ITERATIONS,
-) = range(11)  # fmt: skip
-INTEGER_COLUMNS = 11
+    REFERENCE_FALLBACK,
+) = range(12)  # fmt: skip
+INTEGER_COLUMNS = 12
 # ``SETPOINT_STATUS`` and ``MEASUREMENT_STATUS`` hold indices into
 # :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES` and ``MEASUREMENT_STATUSES``;
 # ``STATUS`` the feedback's status code and ``POLICY`` its policy code
@@ -141,7 +148,7 @@ STEP_FIELDS = (
     "u_max", "implausible", "d_max", "tightening_d_max", "rho_o", "w_bar", "e_inf",
     "backward", "tol", "max_iter", "jump", "reuse_tol", "chord", "trajectories",
     "condensing", "daqp", "plan", "observer", "cand", "cones", "socp", "tolerance",
-    "jinv_backup", "fallback",
+    "jinv_backup", "fallback", "restart",
 )  # fmt: skip
 
 StepWorkspace = workspace_type(
@@ -173,7 +180,10 @@ StepWorkspace = workspace_type(
     placeholder); ``jinv_backup``: the chord's inverse Jacobian as it was before the last
     :func:`prepare_step` (restored when a preparation is discarded); ``fallback``: the
     infeasibility policy's buffers of the QP feedback
-    (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`; a placeholder with cones).
+    (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`; a placeholder with cones);
+    ``restart``: the reference calculator's
+    :data:`~ltv_lstm_mpc.loop.compiled_reference.RestartWorkspace` (its damped Newton with
+    restarts, where the warm chord does not give an admissible equilibrium).
     """,
     __name__,
 )
@@ -318,6 +328,7 @@ def _new_step_workspace(
     tolerance: Any,
     jinv_backup: Any,
     fallback: Any,
+    restart: Any,
 ) -> Any:
     """The compiled constructor (no constructor compile at run time; cached)."""
     return StepWorkspace(
@@ -325,6 +336,7 @@ def _new_step_workspace(
         kappa, lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max,
         rho_o, w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories,
         condensing, daqp, plan, observer, cand, cones, socp, tolerance, jinv_backup, fallback,
+        restart,
     )  # fmt: skip
 
 
@@ -463,14 +475,29 @@ def prepare_step(
     largest_u = 0.0
     for a in range(m):
         largest_u = max(largest_u, abs(z[n2 + a]))
-    if not (state[CHORD_CONVERGED] == 1 and largest_u <= u_max * (1 + 1e-12)):
-        return STEP_REFERENCE, int(state[CHORD_JINV_VALID]), int(state[CHORD_FACTORIZATIONS])
-    if m > 1:
+    admissible = state[CHORD_CONVERGED] == 1 and largest_u <= u_max * (1 + U_MARGIN)
+    folded = z[:0]
+    if admissible and m > 1:  # a MIMO equilibrium map can fold: another branch?
         largest_jump = 0.0
         for q in range(n2 + m):
             largest_jump = max(largest_jump, abs(z[q] - last_z[q]))
         if largest_jump > step.jump:
+            folded, admissible = z.copy(), False
+    integer[REFERENCE_FALLBACK] = 0
+    if not admissible:  # the damped Newton with restarts (ReferenceCalculator.solve_arrays)
+        restart = step.restart
+        residual, iterations, converged, inside = newton_restarts(
+            chord, restart, last_z, folded, target, step.tol, step.max_iter, restart.best
+        )
+        if not (converged and inside):  # no admissible equilibrium: the stale reference
             return STEP_REFERENCE, int(state[CHORD_JINV_VALID]), int(state[CHORD_FACTORIZATIONS])
+        for q in range(n2 + m):
+            z[q] = restart.best[q]
+        state[CHORD_JINV_VALID] = 0  # the chord refactorizes at the next step
+        integer[REFERENCE_FALLBACK] = 1
+        integer[REFERENCE_ITERATIONS] = iterations
+        integer[JINV_VALID] = 0
+        real[REFERENCE_RESIDUAL] = residual
     x_bar = records.x_bar[k]
     u_bar = records.u_bar[k]
     for q in range(n2):
@@ -609,6 +636,8 @@ def _feedback_and_update(
         warnings |= 2
     if moved > 0.0:
         warnings |= 4
+    if integer[REFERENCE_FALLBACK]:
+        warnings |= 8
     return STEP_DONE, warnings, e_hat_next
 
 
@@ -653,7 +682,9 @@ def controller_step(
 
     Returns ``(code, warnings, kept inverse Jacobian valid, factorizations, e_hat next)``:
     ``code`` one of the ``STEP_*`` codes; ``warnings`` bit 0: d_hat saturated, bit 1: a
-    set-point status other than ok, bit 2: the input was moved onto U.
+    set-point status other than ok, bit 2: the input was moved onto U, bit 3: the
+    reference calculator's damped Newton ran (the warm chord did not reach an admissible
+    equilibrium; the calculator counts these).
 
     ``step``: :data:`StepWorkspace` (with the other workspaces); ``records``:
     :data:`RecordArrays` with at least ``k + 2`` estimate rows; ``y_phi``, ``y0_phi``:

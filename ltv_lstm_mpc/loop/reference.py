@@ -31,8 +31,10 @@ from ltv_lstm_mpc.loop.compiled_reference import (
     CHORD_ITERATIONS,
     CHORD_JINV_VALID,
     CHORD_REFRESH_CONTRACTION,
+    U_MARGIN,
     chord_newton,
     new_chord_workspace,
+    new_restart_workspace,
 )
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import (
@@ -65,10 +67,15 @@ class ChordState:
         :func:`~ltv_lstm_mpc.loop.compiled_reference.chord_newton`.
     jinv : ndarray (2n + m, 2n + m)
         The inverse Jacobian it keeps between steps (written in place).
+    restart : RestartWorkspace
+        :data:`~ltv_lstm_mpc.loop.compiled_reference.RestartWorkspace` of the damped Newton
+        with restarts where the warm path fails
+        (:func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts`).
     """
 
     workspace: Any
     jinv: FloatArray
+    restart: Any = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -213,6 +220,17 @@ class ReferenceCalculator(DeferredState):
         self._diag = np.arange(n2)
         self._Jinv = None
         self._last_target = None
+        per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points
+        axes = [np.linspace(-self.u_max, self.u_max, per_channel)] * m
+        grid_u = np.array(list(itertools.product(*axes)), dtype=np.float64)
+        grid_x = np.empty((grid_u.shape[0], n2))
+        x_start = None
+        for k, u in enumerate(grid_u):
+            grid_x[k] = model.equilibrium(u, x0=x_start)
+            x_start = grid_x[k]
+        self._grid_u = grid_u
+        self._grid_x = grid_x
+        self._grid_y = model.output(grid_x)
         self._compiled = model.kernel.compiled  # the warm path in one numba call
         #: The chord-Newton warm path, chosen once: compiled twin or numpy reference.
         self._chord = self._chord_numpy
@@ -239,20 +257,22 @@ class ReferenceCalculator(DeferredState):
                 F=self._chord_F,
                 jacobian=self._chord_jacobian,
             )
-            self._chord_parts = ChordState(self._chord_workspace, self._Jinv_buffer)
+            self._chord_parts = ChordState(
+                self._chord_workspace, self._Jinv_buffer, self._restart_workspace()
+            )
         #: Chord-Jacobian factorizations / fallbacks from the warm path to damped Newton.
         self.counts = {"factorizations": 0, "fallbacks": 0}
-        per_channel = max(2, round(grid_points ** (1.0 / m))) if m > 1 else grid_points
-        axes = [np.linspace(-self.u_max, self.u_max, per_channel)] * m
-        grid_u = np.array(list(itertools.product(*axes)), dtype=np.float64)
-        grid_x = np.empty((grid_u.shape[0], n2))
-        x_start = None
-        for k, u in enumerate(grid_u):
-            grid_x[k] = model.equilibrium(u, x0=x_start)
-            x_start = grid_x[k]
-        self._grid_u = grid_u
-        self._grid_x = grid_x
-        self._grid_y = model.output(grid_x)
+
+    def _restart_workspace(self) -> Any:
+        """The compiled twin's buffers of the damped Newton with restarts (its grid, its
+        scratch): :func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts`."""
+        size = self._jacobian.shape[0]
+        return new_restart_workspace(
+            grid_x=np.ascontiguousarray(self._grid_x), grid_u=np.ascontiguousarray(self._grid_u),
+            grid_y=np.ascontiguousarray(self._grid_y), restarts=int(self.restarts),
+            u_max=float(self.u_max), jacobian=np.zeros((size, size)), z=np.zeros(size),
+            trial=np.zeros(size), best=np.zeros(size), distance=np.zeros(self._grid_y.shape[0]),
+        )  # fmt: skip
 
     @property
     def reachable_output_range(self) -> tuple[FloatArray, FloatArray]:
@@ -476,7 +496,7 @@ class ReferenceCalculator(DeferredState):
         if warm is None and self._last_z is not None:
             z, norm, iterations, ok = chord if chord is not None else self._chord(target)
             u_bar = z[n2:]
-            admissible = ok and max(map(abs, u_bar.tolist())) <= self.u_max * (1 + 1e-12)
+            admissible = ok and max(map(abs, u_bar.tolist())) <= self.u_max * (1 + U_MARGIN)
             if admissible and model.m > 1 and float(np.abs(z - self._last_z).max()) > self.jump:
                 # A MIMO equilibrium map can fold: a large jump may be another branch. Keep
                 # it as a candidate and let the restarts find the closest admissible one.
@@ -515,7 +535,7 @@ class ReferenceCalculator(DeferredState):
         for number, z0 in enumerate(starts):
             z, norm, iterations, converged, A, B = self._newton(z0.copy(), target)
             total_iterations += iterations
-            admissible = converged and bool(np.max(np.abs(z[n2:])) <= self.u_max * (1 + 1e-12))
+            admissible = converged and bool(np.max(np.abs(z[n2:])) <= self.u_max * (1 + U_MARGIN))
             # Prefer an admissible solution, then the one closest to the previous solution
             # (continuity of the target), then a converged one, then the smallest residual.
             closeness = -float(np.max(np.abs(z - previous))) if previous is not None else 0.0
@@ -531,7 +551,7 @@ class ReferenceCalculator(DeferredState):
         J[:n2, :n2] = A - self._eye
         J[:n2, n2:] = B
         condition = float(np.linalg.cond(J))
-        u_admissible = bool(np.max(np.abs(u_bar)) <= self.u_max * (1 + 1e-12))
+        u_admissible = bool(np.max(np.abs(u_bar)) <= self.u_max * (1 + U_MARGIN))
         solution = ReferenceSolution(
             x_bar=x_bar,
             u_bar=u_bar,

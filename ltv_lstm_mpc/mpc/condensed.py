@@ -217,7 +217,9 @@ class CondensedTranscription(TranscriptionBase):
         # The nominal feedback as one compiled call in the core where DAQP's C entry point is
         # bound (mpc/native_feedback.py); otherwise, and for the other problems, the session.
         self._daqp_workspace: Any = None  # DAQP's buffers of the one-call feedback
-        self._fallback_workspace: Any = None  # and of its infeasibility policy
+        #: The buffers of the infeasibility policy of the one-call feedback on DAQP
+        #: (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`), with DAQP's.
+        self.fallback_workspace: Any = None
         # (`native` binds DAQP's compiled entry point at its first access: compiled kernels
         # only, so that the numpy reference never waits for a compilation)
         native = (
@@ -237,7 +239,7 @@ class CondensedTranscription(TranscriptionBase):
                 settings=native.settings,
                 tolerance=self.tolerance,
             )
-            self._fallback_workspace = self._new_fallback_workspace(config)
+            self.fallback_workspace = self._new_fallback_workspace(config)
             daqp_form = compiled_form(config.solver)
             self.flag_outcome = None if daqp_form is None else daqp_form.flag_outcome
         # Exact cones by SQP on DAQP as one compiled call (mpc/native_feedback.cone_feedback):
@@ -419,13 +421,6 @@ class CondensedTranscription(TranscriptionBase):
         """The buffers of the core's one-call exact-cone feedback on ``daqp:socp`` (None
         for other solvers, without DAQP bound natively, or with the numpy condensing)."""
         return self._socp_workspace if self.compiled else None
-
-    @property
-    def fallback_workspace(self) -> Any:
-        """The buffers of the infeasibility policy of the core's one-call feedback on DAQP
-        (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`); None where
-        :attr:`daqp_workspace` is None."""
-        return self._fallback_workspace if self.compiled else None
 
     @property
     def daqp_workspace(self) -> Any:

@@ -245,6 +245,7 @@ class OneCallEngine(DeferredState):
             fallback=(
                 parts.fallback if parts.fallback is not None else one_call.placeholder_fallback()
             ),
+            restart=chord.restart,
         )  # fmt: skip
 
     def _settings_now(self) -> tuple[float, int, float, float]:
@@ -551,7 +552,12 @@ class OneCallEngine(DeferredState):
         return rows.u_phi[k]
 
     def _warn(self, rows: SimpleNamespace, k: int, warnings: int) -> None:
-        """The run warnings of compiled step k (:mod:`ltv_lstm_mpc.loop.diagnostics`)."""
+        """The run warnings of compiled step k (:mod:`ltv_lstm_mpc.loop.diagnostics`), and
+        the reference calculator's count of its damped Newton (bit 3)."""
+        if warnings & 8:
+            self.controller.reference.counts["fallbacks"] += 1
+            if not warnings & 7:
+                return
         status = SETPOINT_STATUSES[int(rows.integer[k, one_call.SETPOINT_STATUS])]
         y0 = y0_target = rows.y0[k]
         if status == "target_outside_admissible":
