@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
+import warnings
 from collections import Counter
 from dataclasses import replace
 from typing import Any
@@ -452,6 +453,35 @@ def test_inputs_of_other_layouts_and_bad_inputs() -> None:
         np.testing.assert_array_equal(controller.observer.x_hat, x_hat)
     np.testing.assert_array_equal(inputs[0], inputs[1])
     np.testing.assert_array_equal(inputs[0], inputs[2])
+
+
+def test_implausible_measurements_flagged_in_the_one_call(codes: Counter[int]) -> None:
+    """Implausible measurements (a sensor fault: 30 pH for five steps) with the default
+    implausible_measurements='flag': flagged, warned once and used inside the compiled
+    call, with the reference engine's records and warning counts."""
+    model = load_model("ph_lstm_n5.npz")
+    config = MPCConfig(solver="daqp", N=5)
+    runs = []
+    for one_call in (True, False):
+        controller = OffsetFreeController(model, config, kernels="compiled", one_call_step=one_call)
+        from ltv_lstm_mpc.plants import PHNeutralizationPlant
+
+        plant = PHNeutralizationPlant()
+        y = plant.output()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            for k in range(40):
+                measured = np.array([30.0]) if 20 <= k < 25 else y
+                y = plant.step(controller.step(measured, 7.2))
+        assert sum("range width" in str(w.message) for w in caught) == 1
+        runs.append(controller)
+    fast, general = runs
+    assert sum(r.measurement_status == "implausible" for r in fast.records) == 5
+    assert fast.warning_counts == general.warning_counts
+    assert codes.get(compiled_step.STEP_GENERAL, 0) == 0
+    assert codes.get(compiled_step.STEP_DONE, 0) == 39
+    worst, where = _worst(fast.records, general.records)
+    assert worst <= TOLERANCE, where
 
 
 def test_one_call_applies_only_where_it_can() -> None:

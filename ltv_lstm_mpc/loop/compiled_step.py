@@ -44,7 +44,8 @@ Like the one-call feedback, it only *accepts*. It returns :data:`STEP_DONE` when
 test passed; otherwise nothing the controller keeps has changed (the chord's kept inverse
 Jacobian aside, which the reference engine takes over with the chord's outcome) and the
 reference engine goes on with the step: :data:`STEP_GENERAL` (a measurement or set-point that
-is not finite or lies beyond the plausible range: the reference engine raises or flags it),
+is not finite, or a measurement beyond the plausible range where the controller refuses
+one: the reference engine raises),
 :data:`STEP_REFERENCE` (neither the warm chord nor the damped Newton with restarts,
 which runs here where the chord fails, gives an admissible equilibrium: the reference
 engine keeps the last admissible reference, the stale-reference rule of Theorem 3, Part
@@ -148,7 +149,7 @@ STEP_FIELDS = (
     "u_max", "implausible", "d_max", "tightening_d_max", "rho_o", "w_bar", "e_inf",
     "backward", "tol", "max_iter", "jump", "reuse_tol", "chord", "trajectories",
     "condensing", "daqp", "plan", "observer", "cand", "cones", "socp", "tolerance",
-    "jinv_backup", "fallback", "restart",
+    "jinv_backup", "fallback", "restart", "flag_implausible",
 )  # fmt: skip
 
 StepWorkspace = workspace_type(
@@ -183,7 +184,10 @@ StepWorkspace = workspace_type(
     (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`; a placeholder with cones);
     ``restart``: the reference calculator's
     :data:`~ltv_lstm_mpc.loop.compiled_reference.RestartWorkspace` (its damped Newton with
-    restarts, where the warm chord does not give an admissible equilibrium).
+    restarts, where the warm chord does not give an admissible equilibrium);
+    ``flag_implausible``: an implausible measurement is flagged and used (the controller's
+    ``implausible_measurements="flag"``), else it goes to the reference engine (which
+    raises).
     """,
     __name__,
 )
@@ -329,6 +333,7 @@ def _new_step_workspace(
     jinv_backup: Any,
     fallback: Any,
     restart: Any,
+    flag_implausible: Any,
 ) -> Any:
     """The compiled constructor (no constructor compile at run time; cached)."""
     return StepWorkspace(
@@ -336,7 +341,7 @@ def _new_step_workspace(
         kappa, lower, upper, requested, clock, u_max, implausible, d_max, tightening_d_max,
         rho_o, w_bar, e_inf, backward, tol, max_iter, jump, reuse_tol, chord, trajectories,
         condensing, daqp, plan, observer, cand, cones, socp, tolerance, jinv_backup, fallback,
-        restart,
+        restart, flag_implausible,
     )  # fmt: skip
 
 
@@ -386,8 +391,8 @@ def _now(clock: Any) -> float:
 @njit(cache=True)
 def _normalize_measurement(step: Any, records: Any, k: int, y_phi: Any) -> bool:
     """The measurement normalized into row ``k`` with its status (paper notes 1); False
-    where it is not finite or lies beyond the plausible range (the reference engine raises or
-    flags it)."""
+    where it is not finite (the reference engine raises), or lies beyond the plausible range
+    and the controller refuses such (the reference engine raises)."""
     y = records.y[k]
     largest = 0.0
     for j in range(y_phi.shape[0]):
@@ -396,7 +401,7 @@ def _normalize_measurement(step: Any, records: Any, k: int, y_phi: Any) -> bool:
             return False
         largest = max(largest, abs(y[j]))
     code = measurement_code(largest, step.implausible)
-    if code == 2:
+    if code == 2 and not step.flag_implausible:
         return False
     records.integer[k, MEASUREMENT_STATUS] = code
     return True
@@ -638,6 +643,8 @@ def _feedback_and_update(
         warnings |= 4
     if integer[REFERENCE_FALLBACK]:
         warnings |= 8
+    if integer[MEASUREMENT_STATUS] == 2:
+        warnings |= 16
     return STEP_DONE, warnings, e_hat_next
 
 
@@ -684,7 +691,8 @@ def controller_step(
     ``code`` one of the ``STEP_*`` codes; ``warnings`` bit 0: d_hat saturated, bit 1: a
     set-point status other than ok, bit 2: the input was moved onto U, bit 3: the
     reference calculator's damped Newton ran (the warm chord did not reach an admissible
-    equilibrium; the calculator counts these).
+    equilibrium; the calculator counts these), bit 4: an implausible measurement was
+    flagged and used.
 
     ``step``: :data:`StepWorkspace` (with the other workspaces); ``records``:
     :data:`RecordArrays` with at least ``k + 2`` estimate rows; ``y_phi``, ``y0_phi``:

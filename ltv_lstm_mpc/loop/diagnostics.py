@@ -32,6 +32,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "check_first_measurement",
+    "flag_implausible",
     "measurement_status",
     "setpoint_status",
     "warn_clipped",
@@ -98,6 +99,14 @@ def measurement_status(controller: OffsetFreeController, y: FloatArray, y_phi: A
     code = measurement_code(max(abs(v) for v in y.tolist()), IMPLAUSIBLE_MEASUREMENT_LIMIT)
     if code < 2:
         return MEASUREMENT_STATUSES[code]
+    flag_implausible(controller, y, y_phi)
+    return MEASUREMENT_STATUSES[code]
+
+
+def flag_implausible(controller: OffsetFreeController, y: FloatArray, y_phi: ArrayLike) -> None:
+    """An implausible measurement (:func:`measurement_status`): raises where the controller
+    refuses them (``implausible_measurements="raise"``), else counts it and warns once per
+    run."""
     norm = controller.model.normalization
     assert norm is not None  # checked at construction
     message = (
@@ -114,7 +123,6 @@ def measurement_status(controller: OffsetFreeController, y: FloatArray, y_phi: A
         )
     if controller.warnings.first("measurement_implausible"):
         controller.warnings.warn(message + " It is used as it is and flagged per step.")
-    return MEASUREMENT_STATUSES[code]
 
 
 def warn_diagnosis(

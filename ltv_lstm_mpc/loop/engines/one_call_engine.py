@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ltv_lstm_mpc.deferred_state import Deferred, DeferredState, defer, settle
 from ltv_lstm_mpc.loop import compiled_step as one_call
-from ltv_lstm_mpc.loop.diagnostics import warn_clipped, warn_diagnosis
+from ltv_lstm_mpc.loop.diagnostics import flag_implausible, warn_clipped, warn_diagnosis
 from ltv_lstm_mpc.loop.engines.reference_engine import Handover, ReferenceEngine
 from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT, SETPOINT_STATUSES
 from ltv_lstm_mpc.mpc.rti import RobustMPC
@@ -246,13 +246,19 @@ class OneCallEngine(DeferredState):
                 parts.fallback if parts.fallback is not None else one_call.placeholder_fallback()
             ),
             restart=chord.restart,
+            flag_implausible=controller.implausible_measurements == "flag",
         )  # fmt: skip
 
-    def _settings_now(self) -> tuple[float, int, float, float]:
+    def _settings_now(self) -> tuple[float, int, float, float, str]:
         """The settings the workspace holds: the reference calculator's tolerance,
-        iterations and jump bound, the MPC's reuse tolerance."""
-        reference, mpc = self.controller.reference, self.mpc
-        return (reference.tol, reference.max_iter, reference.jump, mpc.reuse_tol)
+        iterations and jump bound, the MPC's reuse tolerance, the controller's
+        ``implausible_measurements``."""
+        controller = self.controller
+        reference, mpc = controller.reference, self.mpc
+        return (
+            reference.tol, reference.max_iter, reference.jump, mpc.reuse_tol,
+            controller.implausible_measurements,
+        )  # fmt: skip
 
     def _check_settings(self) -> None:
         """A new workspace where the user changed one of the settings it holds."""
@@ -453,7 +459,7 @@ class OneCallEngine(DeferredState):
             return self.general.step(y_phi, y0_phi)
         if code != one_call.STEP_DONE:
             answer = self._finish(
-                k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr
+                k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr, y_phi
             )
             assert isinstance(answer, Handover)
             return self.general.step(y_phi, y0_phi, answer)
@@ -464,7 +470,7 @@ class OneCallEngine(DeferredState):
         deferred.k, deferred.inverse_valid = k, inverse_valid  # (in place: a step's less)
         controller.requested_phi = y0_arr  # (the reference engine learns k at settle())
         if warnings:
-            self._warn(rows, k, warnings)
+            self._warn(rows, k, warnings, y_phi)
         controller.e_hat = e_hat_next
         slots.append(None)  # records.append_recorded()
         return rows.u_phi[k]
@@ -509,7 +515,9 @@ class OneCallEngine(DeferredState):
             )  # fmt: skip
         if code == one_call.STEP_GENERAL:
             return Handover(None, False)
-        return self._finish(k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr)
+        return self._finish(
+            k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr, y_phi
+        )
 
     def _finish(
         self,
@@ -520,10 +528,12 @@ class OneCallEngine(DeferredState):
         factorizations: int,
         e_hat_next: float,
         y0_arr: FloatArray,
+        y_phi: ArrayLike,
     ) -> FloatArray | Handover:
         """After a compiled step or feedback: the input, with the state the step left
         deferred in its record row k (:meth:`_defer_state`); or, when the compiled call
-        did not accept, the chord's outcome for the reference engine."""
+        did not accept, the chord's outcome for the reference engine (``y_phi``: the
+        measurement as given, for a warning's message)."""
         controller = self.controller
         records = controller.records
         rows = records.rows
@@ -546,18 +556,21 @@ class OneCallEngine(DeferredState):
         controller.requested_phi = y0_arr
         self.general.remember_recorded(k)
         if warnings:
-            self._warn(rows, k, warnings)
+            self._warn(rows, k, warnings, y_phi)
         controller.e_hat = e_hat_next
         records.append_recorded()
         return rows.u_phi[k]
 
-    def _warn(self, rows: SimpleNamespace, k: int, warnings: int) -> None:
-        """The run warnings of compiled step k (:mod:`ltv_lstm_mpc.loop.diagnostics`), and
-        the reference calculator's count of its damped Newton (bit 3)."""
+    def _warn(self, rows: SimpleNamespace, k: int, warnings: int, y_phi: ArrayLike) -> None:
+        """The run warnings of compiled step k (:mod:`ltv_lstm_mpc.loop.diagnostics`; its
+        measurement ``y_phi``), and the reference calculator's count of its damped Newton
+        (bit 3)."""
+        if warnings & 16:
+            flag_implausible(self.controller, rows.y[k], y_phi)
         if warnings & 8:
             self.controller.reference.counts["fallbacks"] += 1
-            if not warnings & 7:
-                return
+        if not warnings & 7:
+            return
         status = SETPOINT_STATUSES[int(rows.integer[k, one_call.SETPOINT_STATUS])]
         y0 = y0_target = rows.y0[k]
         if status == "target_outside_admissible":
@@ -658,7 +671,7 @@ class OneCallEngine(DeferredState):
             return None
         return self._finish(
             k, code, warnings, prepared.inverse_valid, prepared.factorizations, e_hat_next,
-            y0_arr,
+            y0_arr, y_phi,
         )  # fmt: skip
 
 
