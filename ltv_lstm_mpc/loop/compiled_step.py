@@ -12,7 +12,9 @@ compiled twins (:mod:`ltv_lstm_mpc.loop.compiled_signals`,
    Newton of :func:`~ltv_lstm_mpc.loop.compiled_reference.chord_newton`, with the
    acceptance test of ``ReferenceCalculator.solve_arrays``, and where that fails its
    damped Newton with restarts
-   (:func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts`);
+   (:func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts`), and where that finds no
+   admissible equilibrium either, the last admissible one kept (the stale reference of
+   Theorem 3, Part 2a, with the set-point it encodes for :math:`\alpha_k`);
 3. the set-point status of Assumption 5 and the saturation flags of :math:`\hat d_k`;
 4. the tightened output bounds (eq. optimization_constraint_yub/ylb) and :math:`\alpha_k`
    (eq. def_alpha) of :class:`~ltv_lstm_mpc.certificates.tightening.TighteningCertificate`
@@ -46,12 +48,10 @@ Jacobian aside, which the reference engine takes over with the chord's outcome) 
 reference engine goes on with the step: :data:`STEP_GENERAL` (a measurement or set-point that
 is not finite, or a measurement beyond the plausible range where the controller refuses
 one: the reference engine raises),
-:data:`STEP_REFERENCE` (neither the warm chord nor the damped Newton with restarts,
-which runs here where the chord fails, gives an admissible equilibrium: the reference
-engine keeps the last admissible reference, the stale-reference rule of Theorem 3, Part
-2a) and :data:`STEP_FEEDBACK` (the one-call feedback did not
-decide: a point within a margin of an acceptance test, or on ``daqp:socp`` an infeasible
-exact-cone problem; the general feedback runs, with its reasons and fallbacks). The same compiled
+:data:`STEP_REFERENCE` (the reference calculator has no last solution to keep) and
+:data:`STEP_FEEDBACK` (the one-call feedback did not decide: a point within a margin of an
+acceptance test, or on ``daqp:socp`` an infeasible exact-cone problem; the general
+feedback runs, with its reasons and fallbacks). The same compiled
 functions run as in the reference engine, so both give the same numbers (to a few ulps, tested
 to 1e-12 over closed loops in ``tests/test_one_call_step.py``).
 """
@@ -84,6 +84,7 @@ from ltv_lstm_mpc.loop.compiled_signals import (
     project_into,
     setpoint_code,
 )
+from ltv_lstm_mpc.loop.statuses import UNREACHABLE_STALE
 from ltv_lstm_mpc.mpc.compiled_prepare import (
     CANDIDATE_GIVEN,
     CANDIDATE_SHIFT,
@@ -133,9 +134,9 @@ REAL_COLUMNS = 17
 (
     STATUS, SOLVER_ITERATIONS, REFERENCE_ITERATIONS, SETPOINT_STATUS, MEASUREMENT_STATUS,
     FACTORIZATIONS, JINV_VALID, CHORD_OK, U_BAR_PROJECTED, POLICY, SQP_ITERATIONS,
-    REFERENCE_FALLBACK,
-) = range(12)  # fmt: skip
-INTEGER_COLUMNS = 12
+    REFERENCE_FALLBACK, STALE_REFERENCE,
+) = range(13)  # fmt: skip
+INTEGER_COLUMNS = 13
 # ``SETPOINT_STATUS`` and ``MEASUREMENT_STATUS`` hold indices into
 # :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES` and ``MEASUREMENT_STATUSES``;
 # ``STATUS`` the feedback's status code and ``POLICY`` its policy code
@@ -489,17 +490,27 @@ def prepare_step(
         if largest_jump > step.jump:
             folded, admissible = z.copy(), False
     integer[REFERENCE_FALLBACK] = 0
+    integer[STALE_REFERENCE] = 0
+    stale = False
     if not admissible:  # the damped Newton with restarts (ReferenceCalculator.solve_arrays)
         restart = step.restart
         residual, iterations, converged, inside = newton_restarts(
             chord, restart, last_z, folded, target, step.tol, step.max_iter, restart.best
         )
-        if not (converged and inside):  # no admissible equilibrium: the stale reference
+        stale = not (converged and inside)
+        if stale and last_target.shape[0] == 0:  # (no last solution: the reference engine)
             return STEP_REFERENCE, int(state[CHORD_JINV_VALID]), int(state[CHORD_FACTORIZATIONS])
+        # the new equilibrium, or with none admissible the last admissible one kept, with
+        # its target (the stale reference of Theorem 3, Part 2a: ReferenceEngine._reference)
+        source = last_z if stale else restart.best
         for q in range(n2 + m):
-            z[q] = restart.best[q]
+            z[q] = source[q]
+        if stale:
+            for j in range(p):
+                target[j] = last_target[j]
         state[CHORD_JINV_VALID] = 0  # the chord refactorizes at the next step
         integer[REFERENCE_FALLBACK] = 1
+        integer[STALE_REFERENCE] = 1 if stale else 0
         integer[REFERENCE_ITERATIONS] = iterations
         integer[JINV_VALID] = 0
         real[REFERENCE_RESIDUAL] = residual
@@ -516,22 +527,36 @@ def prepare_step(
     a_N, b_N = step.a[N], step.b[N]
     e_tilde = max(e_hat, step.e_inf)
     two_d = 2.0 * step.tightening_d_max
-    used_inside = inside_setpoint_interval(
-        y0, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
-    )
-    target_inside = True  # (tested only where it decides)
-    if used_inside and limited:
-        target_inside = inside_setpoint_interval(
-            step.requested, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
+    y0_mpc = y0  # the set-point of alpha_k
+    if stale:  # the set-point the kept equilibrium encodes: g(x_bar) + d_hat
+        integer[SETPOINT_STATUS] = UNREACHABLE_STALE
+        y0_mpc = np.empty(p)
+        W_y, b_y = chord.W_y, chord.b_y
+        n = n2 // 2
+        for j in range(p):
+            acc = 0.0
+            for q in range(n):
+                acc += W_y[j, q] * x_bar[n + q]
+            y0_mpc[j] = acc + b_y[j] + d_hat[j]
+    else:
+        used_inside = inside_setpoint_interval(
+            y0, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
         )
-    integer[SETPOINT_STATUS] = setpoint_code(used_inside, limited, target_inside)
+        target_inside = True  # (tested only where it decides)
+        if used_inside and limited:
+            target_inside = inside_setpoint_interval(
+                step.requested, step.bound_min, step.bound_max, two_d, a_N, b_N, e_tilde
+            )
+        integer[SETPOINT_STATUS] = setpoint_code(used_inside, limited, target_inside)
     t2 = _now(clock)
     # ---- tightened bounds and alpha_k (TighteningCertificate.output_bounds, .alpha)
     lower, upper = step.lower, step.upper
     output_bounds_into(
         step.a, step.b, step.tightening_d_max, step.bound_min, step.bound_max, e_hat, lower, upper
     )
-    alpha = terminal_alpha(y0, step.bound_min, step.bound_max, step.kappa, two_d, a_N, b_N, e_tilde)
+    alpha = terminal_alpha(
+        y0_mpc, step.bound_min, step.bound_max, step.kappa, two_d, a_N, b_N, e_tilde
+    )
     real[ALPHA] = alpha
     # ---- prepare: the candidate (Theorem 3, Part 2b), rollout, Jacobians, condensing
     projected = False

@@ -10,6 +10,7 @@ __all__ = [
     "MEASUREMENT_STATUSES",
     "SETPOINT_STATUSES",
     "SETPOINT_STATUSES_ADMISSIBLE",
+    "UNREACHABLE_STALE",
 ]
 
 #: ``ControllerStep.setpoint_status`` values.
@@ -20,6 +21,9 @@ SETPOINT_STATUSES = (
     "unreachable_stale",
     "unreachable",
 )
+
+#: The index of ``"unreachable_stale"`` (the compiled step records statuses by index).
+UNREACHABLE_STALE = SETPOINT_STATUSES.index("unreachable_stale")
 
 #: The set-point statuses under which Assumptions 4 and 5 hold at the step (the set-point
 #: used is admissible; with ``"target_outside_admissible"`` only the requested one is not).

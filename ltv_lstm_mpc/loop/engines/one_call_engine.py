@@ -573,10 +573,13 @@ class OneCallEngine(DeferredState):
             return
         status = SETPOINT_STATUSES[int(rows.integer[k, one_call.SETPOINT_STATUS])]
         y0 = y0_target = rows.y0[k]
-        if status == "target_outside_admissible":
-            y0_target = self.requested.copy()
         controller = self.controller
-        warn_diagnosis(controller, status, rows.saturated[k].astype(bool), y0, y0_target, False)
+        if status == "target_outside_admissible" or (
+            status == "unreachable_stale" and controller.setpoint_rate_limit is not None
+        ):
+            y0_target = self.requested.copy()
+        stale = bool(rows.integer[k, one_call.STALE_REFERENCE])
+        warn_diagnosis(controller, status, rows.saturated[k].astype(bool), y0, y0_target, stale)
         if warnings & 4 and controller.warnings.first("input_clipped"):
             warn_clipped(controller, rows.u_plan[k, 0], float(rows.real[k, one_call.INPUT_CLIPPED]))
 
