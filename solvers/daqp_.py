@@ -357,7 +357,7 @@ def dense_status(flag: int) -> tuple[SolverStatus, tuple[str, ...]]:
 def point_outcome(flag: int) -> tuple[SolverStatus, str]:
     """The status and info string :meth:`DaqpDense.solve_point` reports for DAQP's exit
     ``flag`` (also the compiled callers' report of a flag they recorded:
-    :attr:`~ltv_lstm_mpc.solvers.CompiledForm.flag_outcome`)."""
+    ``flag_outcome`` of :class:`~ltv_lstm_mpc.solvers.CompiledForm`)."""
     status, notes = dense_status(flag)
     return status, "; ".join((f"exitflag {flag}", *notes))
 

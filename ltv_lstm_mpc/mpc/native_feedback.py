@@ -90,7 +90,7 @@ ACCEPTED, REJECTED, UNDECIDED = 1, 0, -1
 def feedback_outcome(code: int, flag_outcome: Any) -> tuple[str, str]:
     """The status and reason ``RobustMPC.feedback`` reports for a status code of
     ``fallback.codes`` (``flag_outcome``: the solver's
-    :attr:`~ltv_lstm_mpc.solvers.CompiledForm.flag_outcome`)."""
+    ``flag_outcome`` of :class:`~ltv_lstm_mpc.solvers.CompiledForm`)."""
     if code == 1:
         return "optimal", ""
     if code == 2:

@@ -108,7 +108,7 @@ class TranscriptionBase(abc.ABC):
     #: ``daqp_workspace``; else None.
     fallback_workspace: Any = None
     #: What the solver reports for a DAQP exit flag the one-call feedback recorded
-    #: (:attr:`~ltv_lstm_mpc.solvers.CompiledForm.flag_outcome`), with ``daqp_workspace``.
+    #: (``flag_outcome`` of :class:`~ltv_lstm_mpc.solvers.CompiledForm`), with ``daqp_workspace``.
     flag_outcome: Any = None
 
     @abc.abstractmethod
