@@ -80,7 +80,13 @@ class CompiledForm:
     violation : numba dispatcher or None
         The dense layer's compiled ``bounds_rows_violation(x, lb, ub, A, lo, up)``: the
         largest violation of a point of a QP without cones, as
-        :meth:`~ltv_lstm_mpc.solvers.DenseQP.max_violation` computes it.
+        :meth:`~ltv_lstm_mpc.solvers.DenseQP.max_violation` computes it; ``cone_violation``
+        its cones' ``cone_violation(F, g, e, f, x)``.
+    failure_outcome : callable or None
+        ``failure_outcome(snapshot, flag, sqp, tolerance, settings) -> (SolverStatus,
+        info)``: what the backend's session reports for a failed cone solve, from a copy of
+        its workspace's arrays (``daqp:socp``: the certificate checks run when asked, off a
+        compiled caller's step).
     """
 
     name: str
@@ -97,6 +103,8 @@ class CompiledForm:
     warm_up: Callable[[], None] | None = None
     flag_outcome: Callable[[int], tuple[Any, str]] | None = None
     violation: Any = None
+    cone_violation: Any = None
+    failure_outcome: Callable[..., tuple[Any, str]] | None = None
 
 
 def dense_check_form(name: str) -> CompiledForm:

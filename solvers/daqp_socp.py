@@ -21,11 +21,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ._base import FloatArray, RawResult, WarmStart, check_settings, warm_start_vectors
+from ._compiled import bounds_rows_violation, cone_violation
 from .acceptance import ProblemView
 from .compiled_forms import CompiledForm
 from .daqp_ import native_buffers
 from .daqp_native import native, quadprog, solver_seconds
-from .dense import DenseBackend, DenseQP
+from .dense import DenseBackend, DenseCone, DenseQP
 from .problem import SolverStatus
 from .socp_certificates import cone_multipliers, failure_status, max_iter_status
 from .socp_sqp import (
@@ -37,7 +38,28 @@ from .socp_sqp import (
 )
 from .tolerances import known_settings, solver_options
 
-__all__ = ["DaqpSocpDense", "compiled_form", "local_solution", "make_dense", "warm_up"]
+__all__ = [
+    "FAILURE_FIELDS",
+    "DaqpSocpDense",
+    "compiled_form",
+    "failure_outcome",
+    "local_solution",
+    "make_dense",
+    "warm_up",
+]
+
+#: The arrays of a :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` that
+#: :func:`failure_outcome` reads (the problem and the last iterate of a failed solve, and
+#: the epigraph prediction its certificate's rerun starts from).
+FAILURE_FIELDS = (
+    "H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets", "z", "mu",
+    "lam", "regularized", "direction", "first_active",
+)  # fmt: skip
+# The problem's data and DAQP's buffers in the workspace's arrays (clear_state keeps them).
+_PROBLEM_FIELDS = frozenset(
+    ("H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets",
+     "problem", "result", "settings")
+)  # fmt: skip
 
 #: (status, native status, iterations, wall time, certificate) of one solve.
 Outcome = tuple[SolverStatus, str, int, float, Mapping[str, FloatArray] | None]
@@ -73,6 +95,20 @@ class DaqpSocpDense(DenseBackend):
         self._ws = new_socp_workspace(**self._arrays)
         self._n, self._m, self._cones = n, m, cones
         self.update(qp)
+
+    def compiled_workspace(self) -> tuple[Any, dict[str, Any]] | None:
+        """The SQP's workspace and its arrays (None before a setup)."""
+        return None if self._ws is None else (self._ws, self._arrays)
+
+    def clear_state(self) -> bool:
+        """Zero every array but the problem's data and DAQP's buffers: the state a fresh
+        :meth:`setup` starts from (the epigraph prediction of the last solve included)."""
+        if self._ws is None:
+            return False
+        for name, array in self._arrays.items():
+            if name not in _PROBLEM_FIELDS:
+                array[...] = 0
+        return True
 
     def update(self, qp: DenseQP) -> None:
         """Copy the values of ``qp`` into the workspace."""
@@ -147,6 +183,45 @@ class DaqpSocpDense(DenseBackend):
         return status, z, iterations, native_status
 
 
+def failure_outcome(
+    snapshot: Mapping[str, Any], flag: int, sqp: int, tolerance: float, settings: Mapping[str, Any]
+) -> tuple[SolverStatus, str]:
+    """The status and info string :class:`DaqpSocpDense` reports for a cold solve that
+    ended with DAQP's exit flag ``flag`` < 0 at SQP iteration ``sqp``, from a copy of its
+    workspace's arrays taken right after it (``snapshot``: :data:`FAILURE_FIELDS`): the
+    same certificate checks
+    (:func:`~ltv_lstm_mpc.solvers.socp_certificates.failure_status`) on the same problem
+    and iterate, so the same verdict and words. A compiled caller that solved the problem
+    itself (the one-call step engine) calls it when the step's record is read, not in the
+    step."""
+    buffers = native(solver_options("daqp", tolerance, settings))
+    if buffers is None:  # pragma: no cover - the snapshot came from a bound DAQP
+        return SolverStatus.FAILED, f"exitflag {flag} at SQP iteration {sqp}"
+    sizes = np.diff(np.asarray(snapshot["cone_rows"])).tolist()
+    n, m = np.shape(snapshot["A"])[1], np.shape(snapshot["A"])[0]
+    arrays = socp_arrays(n, m, [int(size) for size in sizes], buffers)
+    for name in FAILURE_FIELDS:
+        arrays[name][...] = snapshot[name]
+    ws = new_socp_workspace(**arrays)
+    rows = arrays["cone_rows"]
+    cones = tuple(
+        DenseCone(
+            arrays["F"][rows[j] : rows[j + 1]], arrays["g"][rows[j] : rows[j + 1]],
+            arrays["e"][j], float(arrays["offsets"][j]),
+        )
+        for j in range(len(sizes))
+    )  # fmt: skip
+    qp = DenseQP(
+        H=arrays["H"], f=arrays["f"], A=arrays["A"], lo=arrays["lo"], up=arrays["up"],
+        lb=arrays["lb"], ub=arrays["ub"], cones=cones,
+    )  # fmt: skip
+    start = (False, np.zeros(n), np.zeros(len(sizes)))
+    status, why, _certificate = failure_status(
+        arrays, ws, start, int(flag), int(sqp), ProblemView.of_dense(qp)
+    )
+    return status, why
+
+
 def local_solution(
     qp: DenseQP, z: FloatArray, cone_duals: FloatArray | None
 ) -> tuple[FloatArray | None, str]:
@@ -209,4 +284,7 @@ def compiled_form(name: str) -> CompiledForm:
         new_socp_workspace=new_socp_workspace,
         socp_arrays=socp_arrays,
         warm_up=warm_up,
+        failure_outcome=failure_outcome,
+        violation=bounds_rows_violation,
+        cone_violation=cone_violation,
     )

@@ -59,6 +59,7 @@ __all__ = [
     "DenseCone",
     "DenseQP",
     "bounds_rows_violation",
+    "cone_violation",
 ]
 
 _FORMAT = "dense_qp"
@@ -427,6 +428,18 @@ class DenseBackend(abc.ABC):
     local_cone_solutions: ClassVar[bool] = False
     #: Entry point for compiled callers (see :attr:`DenseSession.native`); none by default.
     native: Any = None
+
+    def compiled_workspace(self) -> tuple[Any, dict[str, Any]] | None:
+        """The compiled workspace of the current setup and its arrays by name, for a
+        compiled caller that solves on it (see :meth:`DenseSession.compiled_workspace`);
+        None by default (and before a setup)."""
+        return None
+
+    def clear_state(self) -> bool:
+        """Drop what the workspace keeps from earlier solves, in place (its problem data
+        kept): as a fresh setup would, without replacing the workspace. False where the
+        backend cannot (the default): :meth:`DenseSession.reset` then drops the workspace."""
+        return False
 
     def __init__(self, name: str, solver: str, options: Mapping[str, Any]) -> None:
         """Store the registry name, the native solver name and the merged options."""

@@ -125,6 +125,24 @@ class DenseSession:
         self._qp = None
         self.last_update = None
 
+    def clear_state(self) -> None:
+        """Drop any state kept from earlier solves but keep the workspace (the same numbers
+        as :meth:`reset`: the next solve starts as on a fresh setup), where the backend
+        can do so in place; else :meth:`reset`. For a compiled caller that holds the
+        workspace (:meth:`compiled_workspace`)."""
+        if self._key is None or not self._backend.clear_state():
+            self.reset()
+
+    def compiled_workspace(self, qp: DenseQP) -> tuple[Any, dict[str, Any]] | None:
+        """Set up for ``qp`` (if the workspace is not set up for its structure) and return
+        the backend's compiled workspace and its arrays by name, on which a compiled caller
+        solves as this session does (the same history, so the same iterates); None for a
+        backend without one (only ``daqp:socp`` has one). Keep the workspace with
+        :meth:`clear_state`, not :meth:`reset`, which replaces it at the next solve."""
+        if qp.structure_key() != self._key:
+            self.setup(qp)
+        return self._backend.compiled_workspace()
+
     def setup(self, qp: DenseQP) -> None:
         """Check ``qp`` and build a workspace for it (any structure)."""
         if not isinstance(qp, DenseQP):

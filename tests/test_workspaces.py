@@ -29,6 +29,8 @@ WORKSPACES = [
     ("ltv_lstm_mpc.mpc.compiled_plan", "PLAN_FIELDS", "_new_plan_workspace"),
     ("ltv_lstm_mpc.mpc.compiled_prepare", "PREPARE_FIELDS", "_new_prepare_workspace"),
     ("ltv_lstm_mpc.mpc.native_feedback", "DAQP_FIELDS", "_new_daqp_workspace"),
+    ("ltv_lstm_mpc.mpc.native_feedback", "FALLBACK_FIELDS", "_new_fallback_workspace"),
+    ("ltv_lstm_mpc.loop.compiled_reference", "RESTART_FIELDS", "_new_restart_workspace"),
     ("ltv_lstm_mpc.loop.compiled_step", "STEP_FIELDS", "_new_step_workspace"),
     ("ltv_lstm_mpc.loop.compiled_step", "RECORD_FIELDS", "_new_record_arrays"),
     ("ltv_lstm_mpc.solvers.socp_sqp", "SOCP_FIELDS", "_new_socp_workspace"),

@@ -91,11 +91,14 @@ from ltv_lstm_mpc.mpc.compiled_prepare import (
     prepare_condensed,
 )
 from ltv_lstm_mpc.mpc.native_feedback import (
+    FAILURE_FLAG,
+    FAILURE_SQP,
     PLAN_ITERATIONS,
     POLICY_CODE,
-    POLICY_NOMINAL,
     STATUS_CODE,
-    cone_feedback,
+    STATUS_CONE_FAILURE,
+    cone_policy_feedback,
+    placeholder_socp,
     policy_feedback,
 )
 from ltv_lstm_mpc.numba_support import AVAILABLE, build_workspace, njit, workspace_type
@@ -134,9 +137,9 @@ REAL_COLUMNS = 17
 (
     STATUS, SOLVER_ITERATIONS, REFERENCE_ITERATIONS, SETPOINT_STATUS, MEASUREMENT_STATUS,
     FACTORIZATIONS, JINV_VALID, CHORD_OK, U_BAR_PROJECTED, POLICY, SQP_ITERATIONS,
-    REFERENCE_FALLBACK, STALE_REFERENCE,
-) = range(13)  # fmt: skip
-INTEGER_COLUMNS = 13
+    REFERENCE_FALLBACK, STALE_REFERENCE, FAILURE_FLAG_COLUMN, FAILURE_SQP_COLUMN,
+) = range(15)  # fmt: skip
+INTEGER_COLUMNS = 15
 # ``SETPOINT_STATUS`` and ``MEASUREMENT_STATUS`` hold indices into
 # :data:`~ltv_lstm_mpc.loop.statuses.SETPOINT_STATUSES` and ``MEASUREMENT_STATUSES``;
 # ``STATUS`` the feedback's status code and ``POLICY`` its policy code
@@ -273,23 +276,13 @@ def placeholder_fallback() -> Any:
     (the ``fallback`` of a cone controller's :data:`StepWorkspace`)."""
     from ltv_lstm_mpc.mpc.native_feedback import new_fallback_workspace
 
+    socp = placeholder_socp()
     return new_fallback_workspace(
         policy=0, ns=0, H=np.zeros((0, 0)), f=np.zeros(0), A=np.zeros((0, 0)),
         high=np.zeros(0), low=np.zeros(0), sense=np.zeros(0, dtype=np.intc), z=np.zeros(0),
-        lam=np.zeros(0), regularization=0.0, codes=np.zeros(3, dtype=np.int64),
+        lam=np.zeros(0), regularization=0.0, codes=np.zeros(5, dtype=np.int64), socp=socp,
+        failure_socp=socp, policy_socp=socp,
     )  # fmt: skip
-
-
-def placeholder_socp() -> Any:
-    """A :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` that is never solved with
-    (the ``socp`` of a QP controller's :data:`StepWorkspace`)."""
-    from types import SimpleNamespace
-
-    from ltv_lstm_mpc.solvers.socp_sqp import new_socp_workspace, socp_arrays
-
-    empty = np.zeros(8, dtype=np.uint8)
-    buffers = SimpleNamespace(problem=empty, result=empty.copy(), settings=empty.copy())
-    return new_socp_workspace(**socp_arrays(1, 0, [], buffers))
 
 
 @njit(cache=True)
@@ -603,21 +596,22 @@ def _feedback_and_update(
     # ---- feedback: insert x_hat, solve, accept (or the infeasibility policy), re-simulate
     u_plan = records.u_plan[k]
     if step.cones:
-        code, iterations, sqp_step, seconds = cone_feedback(
-            step.condensing, step.socp, plan, x_hat, x_bar, u_bar, lower, upper, alpha, scale,
-            step.tolerance, records.x_linear[k], u_plan, records.x_plan[k],
+        code, iterations, sqp_step, seconds = cone_policy_feedback(
+            step.condensing, step.fallback, plan, x_hat, x_bar, u_bar, lower, upper, alpha,
+            scale, step.tolerance, records.x_linear[k], u_plan, records.x_plan[k],
         )  # fmt: skip
-        status, policy, plan_iterations = code, POLICY_NOMINAL, 1
     else:
         code, iterations, sqp_step, seconds = policy_feedback(
             step.condensing, daqp, step.fallback, plan, x_hat, x_bar, u_bar, lower, upper,
             alpha, scale, records.x_linear[k], u_plan, records.x_plan[k],
         )  # fmt: skip
-        outcome = step.fallback.codes
-        status, policy = outcome[STATUS_CODE], outcome[POLICY_CODE]
-        plan_iterations = outcome[PLAN_ITERATIONS]
     if code == 0:
         return STEP_FEEDBACK, 0, 0.0
+    outcome = step.fallback.codes
+    status, policy = outcome[STATUS_CODE], outcome[POLICY_CODE]
+    plan_iterations = outcome[PLAN_ITERATIONS]
+    integer[FAILURE_FLAG_COLUMN] = outcome[FAILURE_FLAG]
+    integer[FAILURE_SQP_COLUMN] = outcome[FAILURE_SQP]
     t3 = _now(clock)
     integer[STATUS] = status
     integer[POLICY] = policy
@@ -670,6 +664,8 @@ def _feedback_and_update(
         warnings |= 8
     if integer[MEASUREMENT_STATUS] == 2:
         warnings |= 16
+    if status == STATUS_CONE_FAILURE:
+        warnings |= 32
     return STEP_DONE, warnings, e_hat_next
 
 
@@ -717,7 +713,8 @@ def controller_step(
     set-point status other than ok, bit 2: the input was moved onto U, bit 3: the
     reference calculator's damped Newton ran (the warm chord did not reach an admissible
     equilibrium; the calculator counts these), bit 4: an implausible measurement was
-    flagged and used.
+    flagged and used, bit 5: the nominal exact-cone solve failed (its status is read from a
+    copy of the cone workspace's arrays, which the caller takes now).
 
     ``step``: :data:`StepWorkspace` (with the other workspaces); ``records``:
     :data:`RecordArrays` with at least ``k + 2`` estimate rows; ``y_phi``, ``y0_phi``:

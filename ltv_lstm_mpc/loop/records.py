@@ -51,6 +51,10 @@ class ControllerRecords(Sequence[Any]):
         self.capacity = 0
         #: The run's assumption log (the records' ``monitor_log``), set by the controller.
         self.log: Any = None
+        #: What an engine keeps beside a step's row to build its record from (by step; the
+        #: one-call engine: a failed exact-cone solve's arrays, whose status and reason are
+        #: read when the record is built).
+        self.extras: dict[int, Any] = {}
 
     # ------------------------------------------------------------------ writing
     def append(self, record: Any) -> None:

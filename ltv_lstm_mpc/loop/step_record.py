@@ -21,7 +21,7 @@ from ltv_lstm_mpc.loop.records import ControllerRecords
 from ltv_lstm_mpc.loop.reference import ReferenceSolution
 from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution
-from ltv_lstm_mpc.mpc.native_feedback import POLICIES, feedback_outcome
+from ltv_lstm_mpc.mpc.native_feedback import POLICIES, STATUS_CONE_FAILURE, feedback_outcome
 
 __all__ = ["ControllerStep", "recorded_reference", "recorded_step"]
 
@@ -153,7 +153,13 @@ def recorded_step(records: ControllerRecords, k: int, mpc: Any) -> ControllerSte
     integer = rows.integer[k].tolist()
     prepare_time, feedback_time = real[c.PREPARE_TIME], real[c.FEEDBACK_TIME]
     parts = mpc.one_call_parts()
-    status, reason = feedback_outcome(integer[c.STATUS], parts.flag_outcome)
+    if integer[c.STATUS] == STATUS_CONE_FAILURE:  # the certificate checks, on the copy
+        outcome, reason = parts.failure_outcome(
+            records.extras[k], integer[c.FAILURE_FLAG_COLUMN], integer[c.FAILURE_SQP_COLUMN]
+        )
+        status = outcome.name.lower()
+    else:
+        status, reason = feedback_outcome(integer[c.STATUS], parts.flag_outcome)
     policy = POLICIES[integer[c.POLICY]]
     if policy.endswith("shift") and integer[c.U_BAR_PROJECTED]:  # (RobustMPC.feedback)
         reason += "; the candidate applied appends u_bar projected onto U"

@@ -45,6 +45,7 @@ DAQP and quadprog solved every one.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from typing import Any
@@ -248,6 +249,32 @@ class CondensedTranscription(TranscriptionBase):
         form = compiled_form(config.solver) if self.compiled and self.exact_cones else None
         if form is not None and form.socp_solve is not None and "nominal" in self._sessions:
             self._socp_workspace = self._new_socp_workspace(config, form)
+        #: The one-call feedback on ``daqp:socp`` solves where the general path's sessions
+        #: do, on their workspaces (the SQP's epigraph prediction carries from one solve to
+        #: the next in a workspace, so the same history gives the same iterates): a failed
+        #: nominal problem again on the ``"nominal"`` session's, the infeasibility
+        #: policy's (``"paper"``, ``"soft"``; None otherwise) on its session's.
+        self.failure_socp_workspace: Any = None
+        self.policy_socp_workspace: Any = None
+        #: The ``"nominal"`` session's arrays (what a failed solve's status is read from:
+        #: ``failure_outcome`` of :class:`~ltv_lstm_mpc.solvers.CompiledForm`).
+        self.socp_arrays: dict[str, Any] | None = None
+        if self._socp_workspace is not None:
+            assert form is not None and form.failure_outcome is not None
+            nominal = self._sessions["nominal"].compiled_workspace(self._cone_qp["nominal"])
+            assert nominal is not None  # (daqp:socp has one)
+            self.failure_socp_workspace, self.socp_arrays = nominal
+            self.failure_outcome = functools.partial(
+                form.failure_outcome,
+                tolerance=config.tolerance,
+                settings=dict(config.solver_settings),
+            )
+            policy = config.infeasibility_policy
+            if policy != "shift":
+                compiled = self._sessions[policy].compiled_workspace(self._cone_qp[policy])
+                assert compiled is not None
+                self.policy_socp_workspace = compiled[0]
+            self.fallback_workspace = self._new_fallback_workspace(config, cones=True)
         #: The compiled condensing's buffers for the bound trajectory (:meth:`workspace`).
         self._workspace: Any = None
         empty = np.zeros(0)
@@ -360,17 +387,23 @@ class CondensedTranscription(TranscriptionBase):
             self._insert = self._insert_numpy
             self._expand = self._expand_numpy
 
-    def _new_fallback_workspace(self, config: MPCConfig) -> Any:
+    def _new_fallback_workspace(self, config: MPCConfig, *, cones: bool = False) -> Any:
         """The :data:`~ltv_lstm_mpc.mpc.native_feedback.FallbackWorkspace` of the one-call
-        feedback's infeasibility policy on DAQP: for ``"soft"``, the QP of :meth:`_data`
+        feedback's infeasibility policy on DAQP (``cones``: on ``daqp:socp``, where the
+        policy's problem is its own exact-cone workspace and this holds the policy and the
+        outcome only): for ``"soft"``, the QP of :meth:`_data`
         with its constant blocks written (identity and unit columns of the slacks, their
         penalty, the infinite bounds); the values of H, f, A and the bounds are written at
         each use."""
-        from ltv_lstm_mpc.mpc.native_feedback import POLICIES, new_fallback_workspace
+        from ltv_lstm_mpc.mpc.native_feedback import (
+            POLICIES,
+            new_fallback_workspace,
+            placeholder_socp,
+        )
 
         nu, ns, n2 = self.N * self.m, self._n_out, 2 * self.n
         policy = POLICIES.index(config.infeasibility_policy)
-        soft = config.infeasibility_policy == "soft"
+        soft = config.infeasibility_policy == "soft" and not cones  # (cones: its own QP)
         nz, rows = nu, 0
         if soft:
             nz, rows = nu + ns + 1, 2 * ns + 2 * n2
@@ -388,10 +421,15 @@ class CondensedTranscription(TranscriptionBase):
             low[nz + ns : nz + 2 * ns] = -np.inf  # A_out du - s <= up
             high[nz + 2 * ns : nz + 2 * ns + n2] = np.inf
             low[nz + 2 * ns + n2 :] = -np.inf
+        socp = placeholder_socp()  # (the cone workspaces: the sessions' with cones)
+        if cones:
+            socp = self._socp_workspace
         return new_fallback_workspace(
+            socp=socp, failure_socp=self.failure_socp_workspace or socp,
+            policy_socp=self.policy_socp_workspace or socp,
             policy=policy, ns=ns, H=H, f=f, A=A, high=high, low=low,
             sense=np.zeros(nz + rows, dtype=np.intc), z=np.zeros(nz), lam=np.zeros(nz + rows),
-            regularization=float(self.slack_regularization), codes=np.zeros(3, dtype=np.int64),
+            regularization=float(self.slack_regularization), codes=np.zeros(5, dtype=np.int64),
         )  # fmt: skip
 
     def _new_socp_workspace(self, config: MPCConfig, form: CompiledForm) -> Any:
@@ -501,9 +539,10 @@ class CondensedTranscription(TranscriptionBase):
         self._last.clear()
 
     def reset(self) -> None:
-        """Drop the solver workspaces' warm starts."""
+        """Drop the solver workspaces' warm starts (in place where a session can: the
+        one-call feedback on ``daqp:socp`` holds its workspaces)."""
         for session in self._sessions.values():
-            session.reset()
+            session.clear_state()
 
     # ---------------------------------------------------------------------- prepare
     def build(

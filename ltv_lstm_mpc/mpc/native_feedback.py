@@ -42,8 +42,8 @@ from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 # compiled code binds its callees when it compiles: the public entry points that the
 # solver layer's compiled forms of daqp and daqp:socp hold (solvers.compiled_form)
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
-from ltv_lstm_mpc.solvers.dense import bounds_rows_violation
-from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
+from ltv_lstm_mpc.solvers.dense import bounds_rows_violation, cone_violation
+from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, new_socp_workspace_kernel, socp_solve
 
 __all__ = [
     "CONSTRUCTORS",
@@ -55,10 +55,12 @@ __all__ = [
     "DaqpWorkspace",
     "FallbackWorkspace",
     "cone_feedback",
+    "cone_policy_feedback",
     "feedback_outcome",
     "new_daqp_workspace",
     "new_fallback_workspace",
     "nominal_feedback",
+    "placeholder_socp",
     "policy_feedback",
 ]
 
@@ -79,8 +81,10 @@ FEEDBACK_POLICY = 3
 #: inaccurate; DAQP's exit flag -1..-6 where it found no solution;
 #: ``STATUS_INFEASIBLE_INITIAL``, ``STATUS_ALPHA_NONPOSITIVE``: the pre-check), the policy
 #: code, and the SQP iterations of the plan (1 with a linearized plan, else 0).
-STATUS_CODE, POLICY_CODE, PLAN_ITERATIONS = 0, 1, 2
+STATUS_CODE, POLICY_CODE, PLAN_ITERATIONS, FAILURE_FLAG, FAILURE_SQP = 0, 1, 2, 3, 4
 STATUS_INFEASIBLE_INITIAL, STATUS_ALPHA_NONPOSITIVE = -100, -101
+#: The status code of a failed exact-cone solve (:func:`cone_policy_feedback`).
+STATUS_CONE_FAILURE = -200
 PRECHECK_PASSED, PRECHECK_UNDECIDED = 1, 0
 _MIN_FAILURE_FLAG = -6  # DAQP's exit flags -1 .. -6 (solvers/daqp_.py STATUS_MAP)
 #: Verdicts of :func:`_accept`.
@@ -106,7 +110,7 @@ def feedback_outcome(code: int, flag_outcome: Any) -> tuple[str, str]:
 #: Fields of :data:`FallbackWorkspace`, in the order of its compiled constructor.
 FALLBACK_FIELDS = (
     "policy", "ns", "H", "f", "A", "high", "low", "sense", "z", "lam", "regularization",
-    "codes",
+    "codes", "socp", "failure_socp", "policy_socp",
 )  # fmt: skip
 
 FallbackWorkspace = workspace_type(
@@ -120,8 +124,13 @@ FallbackWorkspace = workspace_type(
     written once; empty for the other policies); ``sense`` (int32, cold: zeros), ``z``,
     ``lam``: DAQP's working set, point and multipliers (the paper QP uses their first
     N m entries); ``regularization``: the slacks' quadratic weight relative to max diag H;
-    ``codes`` (int64, 3): the outcome (:data:`STATUS_CODE`, :data:`POLICY_CODE`,
-    :data:`PLAN_ITERATIONS`).
+    ``codes`` (int64, 5): the outcome (:data:`STATUS_CODE`, :data:`POLICY_CODE`,
+    :data:`PLAN_ITERATIONS`; a failed exact-cone solve's :data:`FAILURE_FLAG` and
+    :data:`FAILURE_SQP`). With the exact cones of ``daqp:socp``
+    (:func:`cone_policy_feedback`): ``socp``, the nominal problem's
+    :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace`, ``failure_socp`` and
+    ``policy_socp``, the general path's session workspaces of the nominal problem and of
+    the policy's (placeholders otherwise: :func:`placeholder_socp`).
     """,
     __name__,
 )
@@ -133,10 +142,28 @@ def new_fallback_workspace(**fields: Any) -> Any:
     return build_workspace(_new_fallback_workspace, FALLBACK_FIELDS, fields)
 
 
+def placeholder_socp() -> Any:
+    """A :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` that is never solved with
+    (where a workspace's field of that type is unused: a QP controller's)."""
+    from types import SimpleNamespace
+
+    from ltv_lstm_mpc.solvers.socp_sqp import new_socp_workspace, socp_arrays
+
+    empty = np.zeros(8, dtype=np.uint8)
+    buffers = SimpleNamespace(problem=empty, result=empty.copy(), settings=empty.copy())
+    return new_socp_workspace(**socp_arrays(1, 0, [], buffers))
+
+
 @njit(cache=True)
-def _new_fallback_workspace(policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes):  # type: ignore[no-untyped-def]
+def _new_fallback_workspace(  # type: ignore[no-untyped-def]
+    policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes, socp, failure_socp,
+    policy_socp,
+):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
-    return FallbackWorkspace(policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes)
+    return FallbackWorkspace(
+        policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes, socp,
+        failure_socp, policy_socp,
+    )  # fmt: skip
 
 
 #: Fields of :data:`DaqpWorkspace`, in the order of its compiled constructor.
@@ -475,6 +502,86 @@ def policy_feedback(
 
 
 @njit(cache=True)
+def _write_cone_nominal(condensing: Any, socp: Any, alpha: float) -> None:
+    """The nominal exact-cone QP of ``CondensedTranscription._cone_data`` into ``socp``
+    (the condensed values; the constant parts were written once): H, f and the bounds of
+    ``du``, the output rows, the cones' rows on ``du`` (:math:`c_N - \\bar c`, then
+    :math:`h_N - \\bar h`) and :math:`\\alpha_k`."""
+    A, H, f, lo, up = condensing.A, condensing.H, condensing.f, condensing.lo, condensing.up
+    nu = H.shape[0]
+    ns = socp.A.shape[0]
+    n2 = A.shape[0] - ns
+    for a in range(nu):
+        for b in range(nu):
+            socp.H[a, b] = H[a, b]
+        socp.f[a] = f[a]
+        socp.lb[a] = condensing.lb[a]
+        socp.ub[a] = condensing.ub[a]
+    for row in range(ns):
+        for b in range(nu):
+            socp.A[row, b] = A[row, b]
+        socp.lo[row] = lo[row]
+        socp.up[row] = up[row]
+    for r in range(n2):  # cone rows: c_N - c_bar, then h_N - h_bar
+        for b in range(nu):
+            socp.F[r, b] = A[ns + r, b]
+        socp.g[r] = -0.5 * (lo[ns + r] + up[ns + r])
+    socp.offsets[2] = alpha
+
+
+@njit(cache=True)
+def _write_cone_policy(condensing: Any, policy: Any, soft: bool, alpha: float, reg: float) -> None:
+    """The infeasibility policy's exact-cone QP of ``CondensedTranscription._cone_data``
+    into ``policy`` (its constant parts written once): ``"paper"`` (no output rows, no
+    terminal cone) or ``"soft"`` (the output rows twice with their slacks, the terminal
+    cone's level :math:`\\alpha_k + s_T`, the slacks' regularization ``reg`` relative to
+    max diag H)."""
+    A, H, f, lo, up = condensing.A, condensing.H, condensing.f, condensing.lo, condensing.up
+    nu = H.shape[0]
+    nz = policy.H.shape[0]
+    ns = condensing.A.shape[0] - policy.F.shape[0] + (2 if soft else 0)
+    n2 = A.shape[0] - ns
+    for a in range(nu):
+        for b in range(nu):
+            policy.H[a, b] = H[a, b]
+        policy.f[a] = f[a]
+        policy.lb[a] = condensing.lb[a]
+        policy.ub[a] = condensing.ub[a]
+    if soft:
+        largest = H[0, 0]
+        for a in range(1, nu):
+            largest = max(largest, H[a, a])
+        for q in range(nu + 2, nz):
+            policy.H[q, q] = reg * largest
+        for row in range(ns):
+            for b in range(nu):
+                policy.A[row, b] = A[row, b]
+                policy.A[ns + row, b] = A[row, b]
+            policy.lo[row] = lo[row]
+            policy.up[ns + row] = up[row]
+        policy.offsets[2] = alpha
+    for r in range(n2):  # cone rows: c_N - c_bar, then h_N - h_bar
+        for b in range(nu):
+            policy.F[r, b] = A[ns + r, b]
+        policy.g[r] = -0.5 * (lo[ns + r] + up[ns + r])
+
+
+@njit(cache=True)
+def _cone_qp_violation(socp: Any, z: Any) -> float:
+    """``DenseQP.max_violation`` of the exact-cone QP in ``socp`` at ``z``: its bounds,
+    rows and cones."""
+    violation = bounds_rows_violation(z, socp.lb, socp.ub, socp.A, socp.lo, socp.up)
+    rows = socp.cone_rows
+    for j in range(socp.offsets.shape[0]):
+        start, stop = rows[j], rows[j + 1]
+        violation = max(
+            violation,
+            cone_violation(socp.F[start:stop], socp.g[start:stop], socp.e[j], socp.offsets[j], z),
+        )
+    return violation
+
+
+@njit(cache=True)
 def cone_feedback(
     condensing: Any,
     socp: Any,
@@ -505,39 +612,20 @@ def cone_feedback(
     time)``; code 0: not accepted here (the general path runs). ``tolerance``: the
     acceptance tolerance of the point (the transcription's).
     """
-    W_y, b_y, A = condensing.W_y, condensing.b_y, condensing.A
-    H, f, lo, up = condensing.H, condensing.f, condensing.lo, condensing.up
+    W_y, b_y = condensing.W_y, condensing.b_y
     S, u_max = condensing.S, condensing.u_max
-    n2 = x_linear.shape[1]
     N, m = u.shape
     nu = N * m
     if _precheck(W_y, b_y, x_hat, lower, upper, alpha) != PRECHECK_PASSED:
         return 0, 0, 0.0, 0.0
     # ---- insert, then the exact-cone QP (CondensedTranscription._cone_data)
     insert_state(condensing, x_hat)
-    ns = socp.A.shape[0]
-    for a in range(nu):
-        for b in range(nu):
-            socp.H[a, b] = H[a, b]
-        socp.f[a] = f[a]
-        socp.lb[a] = condensing.lb[a]
-        socp.ub[a] = condensing.ub[a]
-    for row in range(ns):
-        for b in range(nu):
-            socp.A[row, b] = A[row, b]
-        socp.lo[row] = lo[row]
-        socp.up[row] = up[row]
-    for r in range(n2):  # cone rows: c_N - c_bar, then h_N - h_bar
-        for b in range(nu):
-            socp.F[r, b] = A[ns + r, b]
-        socp.g[r] = -0.5 * (lo[ns + r] + up[ns + r])
-    socp.offsets[2] = alpha
+    _write_cone_nominal(condensing, socp, alpha)
     flag, sqp, iterations, violation, seconds = socp_solve(socp, False, MAX_ITERATIONS)
     if (flag != 1 and flag != 2) or sqp > MAX_ITERATIONS:
         return 0, iterations, 0.0, seconds
     z = socp.z
-    rows = nu + ns
-    violation_rows = expand_point(condensing, z, rows, x_linear, u)
+    violation_rows = expand_point(condensing, z, nu + socp.A.shape[0], x_linear, u)
     violation = max(violation_rows, violation)
     verdict, step = _accept(z, x_linear, u, S, violation, tolerance, scale, u_max)
     if verdict != ACCEPTED:
@@ -546,6 +634,113 @@ def cone_feedback(
     return flag, iterations, step, seconds
 
 
-#: This module's compiled constructors (the compiled workspace constructor): what compiles with it
-#: (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
-CONSTRUCTORS = (_new_daqp_workspace, _new_fallback_workspace)
+@njit(cache=True)
+def cone_policy_feedback(
+    condensing: Any,
+    fallback: Any,
+    plan: Any,
+    x_hat: Any,
+    x_bar: Any,
+    u_bar: Any,
+    lower: Any,
+    upper: Any,
+    alpha: float,
+    scale: float,
+    tolerance: float,
+    x_linear: Any,
+    u: Any,
+    x_plan: Any,
+) -> tuple[int, int, float, float]:
+    """:func:`cone_feedback`, and where the pre-check fails or the SQP ends with a negative
+    DAQP exit flag, what ``RobustMPC.feedback`` does next on ``daqp:socp``: the nominal
+    problem solved again on ``fallback.failure_socp`` (the ``"nominal"`` session's
+    workspace, as the general path does), then the infeasibility policy of ``fallback`` on
+    its exact-cone problem (``fallback.policy_socp``, its session's: ``"paper"`` or
+    ``"soft"``; the candidate for ``"shift"`` and ``"<policy>+shift"``). The nominal
+    problem is first solved on ``fallback.socp``, as by :func:`cone_feedback`.
+
+    Returns as :func:`policy_feedback`. A failed nominal solve is recorded with the status
+    code :data:`STATUS_CONE_FAILURE` and its exit flag and SQP iterations in
+    ``fallback.codes`` (:data:`FAILURE_FLAG`, :data:`FAILURE_SQP`): its status and reason
+    come from the certificate checks, which the caller runs on a copy of
+    ``fallback.failure_socp``'s arrays when the step's record is read. Code 0 (the general path
+    runs): a point within a margin of a test, a solve that ran out of SQP iterations (its
+    status names the cones it stalled at), or a second nominal solve that converged.
+    """
+    codes = fallback.codes
+    socp, failure_socp, policy_socp = fallback.socp, fallback.failure_socp, fallback.policy_socp
+    status = _precheck(condensing.W_y, condensing.b_y, x_hat, lower, upper, alpha)
+    if status == PRECHECK_UNDECIDED:
+        return 0, 0, 0.0, 0.0
+    insert_state(condensing, x_hat)
+    S, u_max = condensing.S, condensing.u_max
+    N, m = u.shape
+    nu = N * m
+    iterations, seconds = 0, 0.0
+    if status == PRECHECK_PASSED:
+        _write_cone_nominal(condensing, socp, alpha)
+        flag, sqp, iterations, violation, seconds = socp_solve(socp, False, MAX_ITERATIONS)
+        if flag == 1 or flag == 2:
+            if sqp > MAX_ITERATIONS:
+                return 0, iterations, 0.0, seconds
+            z = socp.z
+            violation_rows = expand_point(condensing, z, nu + socp.A.shape[0], x_linear, u)
+            violation = max(violation_rows, violation)
+            verdict, step = _accept(z, x_linear, u, S, violation, tolerance, scale, u_max)
+            if verdict != ACCEPTED:
+                return 0, iterations, 0.0, seconds
+            _simulate_plan(plan, x_hat, x_bar, u_bar, lower, upper, x_linear, u, x_plan)
+            codes[STATUS_CODE], codes[POLICY_CODE], codes[PLAN_ITERATIONS] = flag, POLICY_NOMINAL, 1
+            return flag, iterations, step, seconds
+        # the session's second solve (the general path counts its iterations, not the first's)
+        _write_cone_nominal(condensing, failure_socp, alpha)
+        flag, sqp, iterations, _violation, seconds = socp_solve(failure_socp, False, MAX_ITERATIONS)
+        if flag == 1 or flag == 2:  # (its history differs: the general path decides)
+            return 0, iterations, 0.0, seconds
+        status = STATUS_CONE_FAILURE
+        codes[FAILURE_FLAG], codes[FAILURE_SQP] = flag, sqp
+    policy = fallback.policy
+    linear = False
+    step = 0.0
+    if policy == POLICY_PAPER or policy == POLICY_SOFT:
+        soft = policy == POLICY_SOFT
+        _write_cone_policy(condensing, policy_socp, soft, alpha, fallback.regularization)
+        flag, sqp, more, _violation, more_seconds = socp_solve(policy_socp, False, MAX_ITERATIONS)
+        iterations += more
+        seconds += more_seconds
+        if flag == 1 or flag == 2:
+            if sqp > MAX_ITERATIONS:
+                return 0, iterations, 0.0, seconds
+            z = policy_socp.z
+            finite = True
+            for a in range(z.shape[0]):
+                if not np.isfinite(z[a]):
+                    finite = False
+            if finite:
+                expand_point(condensing, z, nu, x_linear, u)
+                violation = _cone_qp_violation(policy_socp, z)  # the QP's rows, bounds, cones
+                verdict, step = _accept(z, x_linear, u, S, violation, tolerance, scale, u_max)
+                if verdict == UNDECIDED:
+                    return 0, iterations, 0.0, seconds
+                linear = verdict == ACCEPTED
+        if not linear:
+            policy += SHIFT_AFTER
+    n2 = x_hat.shape[0]
+    if not linear:  # the candidate (Theorem 3, Part 2b), no linearized plan
+        for i in range(N):
+            for a in range(m):
+                u[i, a] = S[i, n2 + a]
+        step = 0.0
+    _simulate_plan(
+        plan, x_hat, x_bar, u_bar, lower, upper, x_linear if linear else x_linear[:0], u, x_plan
+    )
+    if not linear:
+        x_linear[:] = np.nan
+    codes[STATUS_CODE], codes[POLICY_CODE] = status, policy
+    codes[PLAN_ITERATIONS] = 1 if linear else 0
+    return FEEDBACK_POLICY, iterations, step, seconds
+
+
+#: This module's compiled constructors (its workspaces', and the SQP workspace's of its
+#: placeholders): what compiles with it (:func:`~ltv_lstm_mpc.loop.kernels.controller_kernels`).
+CONSTRUCTORS = (_new_daqp_workspace, _new_fallback_workspace, new_socp_workspace_kernel)

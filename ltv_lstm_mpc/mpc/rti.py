@@ -96,11 +96,18 @@ class OneCallParts:
         (:func:`~ltv_lstm_mpc.mpc.native_feedback.nominal_feedback`) or the exact cones by SQP
         on DAQP (:func:`~ltv_lstm_mpc.mpc.native_feedback.cone_feedback`); one is None.
     fallback : workspace or None
-        With ``daqp``: the infeasibility policy's buffers
-        (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`).
+        The infeasibility policy's buffers
+        (:func:`~ltv_lstm_mpc.mpc.native_feedback.policy_feedback`, and with ``socp`` the
+        session workspaces of :func:`~ltv_lstm_mpc.mpc.native_feedback.cone_policy_feedback`).
     flag_outcome : callable or None
         With ``daqp``: the status and reason of a DAQP exit flag
         (:func:`~ltv_lstm_mpc.mpc.native_feedback.feedback_outcome`).
+    socp_arrays, failure_outcome : dict, callable or None
+        With ``socp``: the arrays of the workspace a failed nominal problem is solved on
+        again (the ``"nominal"`` session's, held in ``fallback``:
+        :func:`~ltv_lstm_mpc.mpc.native_feedback.cone_policy_feedback`), and the status
+        and reason of that failed solve from a copy of them
+        (``TranscriptionBase.failure_outcome``).
     tolerance : float
         The acceptance tolerance of the cone feedback.
     backward : bool
@@ -117,6 +124,8 @@ class OneCallParts:
     backward: bool
     fallback: Any = None
     flag_outcome: Any = None
+    socp_arrays: Any = None
+    failure_outcome: Any = None
 
 
 class RobustMPC(DeferredState):
@@ -311,6 +320,7 @@ class RobustMPC(DeferredState):
                 tolerance=float(problem.tolerance),
                 backward=bool(getattr(problem, "backward_condensing", False)),
                 fallback=problem.fallback_workspace, flag_outcome=problem.flag_outcome,
+                socp_arrays=problem.socp_arrays, failure_outcome=problem.failure_outcome,
             )  # fmt: skip
         self.prepare_time = self.feedback_time = self.solver_time = 0.0
         self.qp_iterations = 0

@@ -110,6 +110,16 @@ class TranscriptionBase(abc.ABC):
     #: What the solver reports for a DAQP exit flag the one-call feedback recorded
     #: (``flag_outcome`` of :class:`~ltv_lstm_mpc.solvers.CompiledForm`), with ``daqp_workspace``.
     flag_outcome: Any = None
+    #: With ``socp_workspace``: ``failure_outcome(snapshot, flag, sqp) -> (SolverStatus,
+    #: info)``, what the session reports for a failed exact-cone solve, from a copy of the
+    #: arrays of ``socp_arrays`` taken right after it.
+    failure_outcome: Any = None
+    #: With ``socp_workspace``: its arrays by name.
+    socp_arrays: Any = None
+    #: With ``socp_workspace``: the exact-cone workspaces of a failed nominal solve's
+    #: second solve and of the infeasibility policy (None for ``"shift"``).
+    failure_socp_workspace: Any = None
+    policy_socp_workspace: Any = None
 
     @abc.abstractmethod
     def build(
