@@ -11,8 +11,8 @@ prints per run:
 - the steps that took the infeasibility policy (a fallback: the nominal subproblem was
   infeasible) and their own median, against the nominal steps' median;
 - the steps that left the one-call compiled engine for the reference engine (handed over:
-  ``ControllerStep.engine == "reference"``) and why (the policy's exact-cone solve on
-  ``daqp:socp``, the reference calculator's damped Newton), with their median.
+  ``ControllerStep.engine == "reference"``; before the worst-case work every fallback
+  step and the reference calculator's damped Newton did), with their median.
 
 The first 10 steps aside, the targets of the worst-case work are p99 / median <= 1.5 and
 max / median <= 3 on a run where at least 5 % of the steps fall back, and a fallback step
