@@ -57,6 +57,7 @@ def compiled_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list
     from ltv_lstm_mpc.mpc import native_feedback as native
 
     if form.socp_solve is not None:  # exact cones by SQP on DAQP (solvers/socp_sqp.py)
+        kernels.append(native.new_fallback_workspace_kernel)  # the one-call policy's buffers
         if config.sqp_iterations == 1 and native_feedback:
             kernels.append(native.cone_feedback)
         return kernels

@@ -59,6 +59,7 @@ __all__ = [
     "feedback_outcome",
     "new_daqp_workspace",
     "new_fallback_workspace",
+    "new_fallback_workspace_kernel",
     "nominal_feedback",
     "placeholder_socp",
     "policy_feedback",
@@ -164,6 +165,10 @@ def _new_fallback_workspace(  # type: ignore[no-untyped-def]
         policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes, socp,
         failure_socp, policy_socp,
     )  # fmt: skip
+
+
+#: The compiled constructor of :data:`FallbackWorkspace` (for the kernel lists).
+new_fallback_workspace_kernel = _new_fallback_workspace
 
 
 #: Fields of :data:`DaqpWorkspace`, in the order of its compiled constructor.
