@@ -392,6 +392,33 @@ def _write_soft_qp(condensing: Any, fallback: Any) -> None:
 
 
 @njit(cache=True)
+def _policy_plan(
+    condensing: Any, fallback: Any, plan: Any, x_hat: Any, x_bar: Any, u_bar: Any,
+    lower: Any, upper: Any, x_linear: Any, u: Any, x_plan: Any, linear: bool, status: int,
+    policy: int,
+) -> None:  # fmt: skip
+    """The plan of an infeasibility policy (``RobustMPC.feedback``): without a linearized
+    plan (``linear`` False: ``"shift"``, ``"<policy>+shift"``) the candidate of Theorem 3,
+    Part 2b (the inputs of the condensing's trajectory) and NaN linearized states; then
+    its re-simulation and the outcome in ``fallback.codes``."""
+    if not linear:
+        S = condensing.S
+        N, m = u.shape
+        n2 = x_hat.shape[0]
+        for i in range(N):
+            for a in range(m):
+                u[i, a] = S[i, n2 + a]
+    _simulate_plan(
+        plan, x_hat, x_bar, u_bar, lower, upper, x_linear if linear else x_linear[:0], u, x_plan
+    )
+    if not linear:
+        x_linear[:] = np.nan
+    codes = fallback.codes
+    codes[STATUS_CODE], codes[POLICY_CODE] = status, policy
+    codes[PLAN_ITERATIONS] = 1 if linear else 0
+
+
+@njit(cache=True)
 def policy_feedback(
     condensing: Any,
     daqp: Any,
@@ -488,21 +515,12 @@ def policy_feedback(
             linear = verdict == ACCEPTED
         if not linear:
             policy += SHIFT_AFTER
-    S = condensing.S
-    N, m = u.shape
-    n2 = x_hat.shape[0]
-    if not linear:  # the candidate (Theorem 3, Part 2b), no linearized plan
-        for i in range(N):
-            for a in range(m):
-                u[i, a] = S[i, n2 + a]
-        step = 0.0
-    _simulate_plan(
-        plan, x_hat, x_bar, u_bar, lower, upper, x_linear if linear else x_linear[:0], u, x_plan
-    )
     if not linear:
-        x_linear[:] = np.nan
-    codes[STATUS_CODE], codes[POLICY_CODE] = status, policy
-    codes[PLAN_ITERATIONS] = 1 if linear else 0
+        step = 0.0
+    _policy_plan(
+        condensing, fallback, plan, x_hat, x_bar, u_bar, lower, upper, x_linear, u, x_plan,
+        linear, status, policy,
+    )  # fmt: skip
     return FEEDBACK_POLICY, iterations, step, seconds
 
 
@@ -730,19 +748,12 @@ def cone_policy_feedback(
                 linear = verdict == ACCEPTED
         if not linear:
             policy += SHIFT_AFTER
-    n2 = x_hat.shape[0]
-    if not linear:  # the candidate (Theorem 3, Part 2b), no linearized plan
-        for i in range(N):
-            for a in range(m):
-                u[i, a] = S[i, n2 + a]
-        step = 0.0
-    _simulate_plan(
-        plan, x_hat, x_bar, u_bar, lower, upper, x_linear if linear else x_linear[:0], u, x_plan
-    )
     if not linear:
-        x_linear[:] = np.nan
-    codes[STATUS_CODE], codes[POLICY_CODE] = status, policy
-    codes[PLAN_ITERATIONS] = 1 if linear else 0
+        step = 0.0
+    _policy_plan(
+        condensing, fallback, plan, x_hat, x_bar, u_bar, lower, upper, x_linear, u, x_plan,
+        linear, status, policy,
+    )  # fmt: skip
     return FEEDBACK_POLICY, iterations, step, seconds
 
 
