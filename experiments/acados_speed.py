@@ -13,9 +13,12 @@ acados' ``solve()`` on that step's data (timed: one SQP-RTI iteration, lineariza
 condensing and QP), alternately; the largest difference of the two first inputs says
 that the two solved the same QP.
 
-Printed per horizon: medians, p95, p99 and p95/median of our full step, of our MPC alone
+Printed per horizon: medians, p95, p99, max and their ratios to the median (the first 10
+steps aside) of our full step (with the steps that took the infeasibility policy, their
+count and their own median against the others'), of our MPC alone
 (prepare + feedback, from the records), of DAQP's own time in it, and of each acados solve
-(the Python call, acados' own ``time_tot``, and that less its QP solver), the ratios of
+(the Python call, with the steps whose QP it found infeasible and their median; acados'
+own ``time_tot``, and that less its QP solver), the ratios of
 ours to each acados solve, and an estimate of acados with DAQP (acados' time less its QP
 solver, plus DAQP's time on the same QP). The jitter ratio (p95/median, ours / acados',
 over the steps both timed) comes with a 95 % bootstrap interval that draws steps, each
@@ -26,6 +29,13 @@ repeats or more it also prints the jitter of each step's smallest time over the 
 (the loop is deterministic, so step k does the same work in every repeat, and the
 machine's noise seldom hits the same step in all of them): the jitter of the work itself,
 what an isolated core would show.
+
+``--scenario`` picks the closed loop: bench's scenario 1 (the default; no infeasible step
+at N = 20 and 50, a few at N = 5), the paper's scenario 3 (``paper3``), or the same with its
+set-point levels cycled every 40 samples (``paper3-dense``: the worst case's denser run,
+``experiments/worst_case.py``). acados solves every step's nominal QP from k = 1 on, also
+where ours found it infeasible and applied the infeasibility policy: its solve fails there
+(acados has no policy), and is timed all the same.
 
 acados comes from the wheel ``comma-deps-acados`` on the package index (acados' Python
 template, its shared libraries, headers and the template renderer); its vendored CasADi
@@ -53,6 +63,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+#: --scenario's choices (resolved in ``scenario_of``).
+SCENARIOS = ("bench1", "paper3", "paper3-dense")
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line (``--help`` answers before numpy and the library are imported)."""
@@ -67,6 +80,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--repeats", type=int, default=1, help="closed loops per horizon, samples pooled"
     )
     parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    parser.add_argument(
+        "--scenario",
+        choices=sorted(SCENARIOS),
+        default="bench1",
+        help="the closed loop: bench's scenario 1 (bench1, the default), the paper's scenario 3 "
+        "(paper3) or the same with its set-point levels cycled every 40 samples (paper3-dense, "
+        "more infeasible steps; experiments/worst_case.py)",
+    )
     parser.add_argument("--acados", type=Path, default=Path(".acados"), help="the --target folder")
     parser.add_argument("--build", type=Path, default=None, help="keep the generated code here")
     return parser
@@ -84,6 +105,7 @@ from ltv_lstm_mpc import OffsetFreeController  # noqa: E402
 from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
 from ltv_lstm_mpc.mpc.nmpc import casadi_dynamics  # noqa: E402
 from ltv_lstm_mpc.mpc.terminal import TerminalSet  # noqa: E402
+from ltv_lstm_mpc.paper.scenarios import paper_scenarios  # noqa: E402
 from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
 
 #: acados QP solvers tried, in this order (a build without one is reported and skipped).
@@ -208,14 +230,26 @@ def feed(solver: Any, controller: Any, model: Any, dynamics: Any) -> None:
     solver.constraints_set(N, "ubx", record.x_bar + half)
 
 
+def scenario_of(name: str, model: Any) -> Any:
+    """The closed loop named by ``--scenario`` (``SCENARIOS``)."""
+    if name == "bench1":
+        return bench_scenarios(model)[0]
+    from worst_case import denser  # experiments/ is the script's folder, on sys.path
+
+    scenario3 = paper_scenarios(model)[2]
+    return scenario3 if name == "paper3" else denser(scenario3, 40)
+
+
 def run(
-    acados: Any, N: int, steps: int, folder: Path, repeats: int = 1
+    acados: Any, N: int, steps: int, folder: Path, repeats: int = 1, scenario_name: str = "bench1"
 ) -> dict[str, dict[str, Any]]:
     """``repeats`` interleaved closed loops at horizon N (module docstring), each with a new
     controller and plant and the same acados solvers; the samples of all repeats pooled
-    (the first 10 steps of each left out)."""
+    (the first 10 steps of each left out). acados solves the nominal QP of every step from
+    k = 1 on, also where ours found it infeasible and took the infeasibility policy (its
+    solve then fails: timed, and counted as failed)."""
     model = load_model("ph_lstm_n5.npz")
-    scenario = bench_scenarios(model)[0]
+    scenario = scenario_of(scenario_name, model)
     steps = min(steps, len(scenario.setpoints))
     config = replace(scenario.config, N=N, solver="daqp")
 
@@ -238,14 +272,19 @@ def run(
     step_by_k = np.full((repeats, steps), np.nan)  # our step's time, per repeat and step
     solve_by_k = {name: np.full((repeats, steps), np.nan) for name in solvers}
     step_times: list[float] = []
+    fallback: list[bool] = []
     mpc_times: list[float] = []
     daqp_times: list[float] = []
-    pooled: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in solvers}
+    pooled: dict[str, list[tuple[float, float, float, float, float]]] = {
+        name: [] for name in solvers
+    }
     for repeat in range(repeats):
         controller = new_controller()
         plant = scenario.make_plant(model)
         ours: list[float] = []
-        theirs: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in solvers}
+        theirs: dict[str, list[tuple[float, float, float, float, float]]] = {
+            name: [] for name in solvers
+        }
         y = plant.output()
         gc.collect()
         gc.disable()
@@ -254,7 +293,8 @@ def run(
                 start = time.perf_counter()
                 u = controller.step(y, scenario.setpoints[k])
                 ours.append(time.perf_counter() - start)
-                if k >= 1 and controller.records[-1].mpc.status == "optimal":
+                optimal = controller.records[-1].mpc.status == "optimal"
+                if k >= 1:
                     ours_first = float(controller.records[-1].mpc.u[0, 0])
                     for name, solver in solvers.items():
                         feed(solver, controller, model, dynamics)
@@ -266,8 +306,9 @@ def run(
                             float(np.ravel(solver.get_stats(field))[0])
                             for field in ("time_tot", "time_qp_solver_call")
                         )
+                        gap = abs(first - ours_first) if optimal else np.nan
                         if k >= skip:
-                            theirs[name].append((wall, own, abs(first - ours_first), own - qp_call))
+                            theirs[name].append((wall, own, gap, own - qp_call, float(status)))
                             solve_by_k[name][repeat, k] = wall
                 d = scenario.disturbances[k]
                 y = plant.step(u, None if np.isnan(d) else d)
@@ -275,6 +316,7 @@ def run(
             gc.enable()
         records = controller.records[skip:]
         step_times.extend(ours[skip:])
+        fallback.extend(not r.mpc.feasible for r in records)
         step_by_k[repeat] = ours
         mpc_times.extend(r.mpc.prepare_time + r.mpc.feedback_time for r in records)
         daqp_times.extend(r.mpc.solver_time for r in records)
@@ -284,20 +326,21 @@ def run(
         "ours": {
             "step": np.array(step_times), "mpc": np.array(mpc_times),
             "daqp": np.array(daqp_times), "by_step": step_by_k,
+            "fallback": np.array(fallback, dtype=bool),
         }
     }  # fmt: skip
     for name, rows in pooled.items():
         table = np.array(rows)
         out[name] = {
             "solve": table[:, 0], "own": table[:, 1], "gap": table[:, 2], "around": table[:, 3],
-            "by_step": solve_by_k[name],
+            "failed": table[:, 4] != 0, "by_step": solve_by_k[name],
         }  # fmt: skip
     return out
 
 
 def common_steps(ours: Any, theirs: Any) -> tuple[Any, Any]:
     """Our and acados' times (repeats x steps) on the steps that both timed in every repeat
-    (acados solves only the steps our controller solved to optimality, from k = 10 on)."""
+    (every step from k = 10 on)."""
     both = np.all(np.isfinite(ours) & np.isfinite(theirs), axis=0)
     return ours[:, both], theirs[:, both]
 
@@ -347,12 +390,30 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
         us = values * 1e6
         median = float(np.median(us))
         p95, p99 = (float(v) for v in np.percentile(us, [95, 99]))
-        return f"{median:8.1f} {p95:8.1f} {p99:8.1f} {p95 / median:8.2f}"
+        largest = float(us.max())
+        return (
+            f"{median:8.1f} {p95:8.1f} {p99:8.1f} {largest:8.1f} {p95 / median:8.2f} "
+            f"{p99 / median:8.2f} {largest / median:8.2f}"
+        )
 
-    print(f"\nN = {N} (microseconds)")
-    print(f"{'':>34} {'median':>8} {'p95':>8} {'p99':>8} {'p95/med':>8}")
+    def split(values: Any, mask: Any, what: str) -> str:
+        """The median of ``values`` on the steps of ``mask`` against the others'."""
+        if not mask.any():
+            return f"no {what} steps"
+        inside, outside = np.median(values[mask]) * 1e6, np.median(values[~mask]) * 1e6
+        return (
+            f"{int(mask.sum())} {what} steps ({100 * mask.mean():.1f} %): median {inside:.1f} "
+            f"= {inside / outside:.2f}x the others' {outside:.1f}"
+        )
+
+    print(f"\nN = {N} (microseconds, the first 10 steps aside)")
+    print(
+        f"{'':>34} {'median':>8} {'p95':>8} {'p99':>8} {'max':>8} {'p95/med':>8} "
+        f"{'p99/med':>8} {'max/med':>8}"
+    )
     step, mpc = result["ours"]["step"], result["ours"]["mpc"]
     print(f"{'ours: full step (one call)':>34} {stats(step)}")
+    print(f"{'':>34} {split(step, result['ours']['fallback'], 'fallback')}")
     print(f"{'ours: MPC (prepare + feedback)':>34} {stats(mpc)}")
     print(f"{'ours: DAQP in the MPC':>34} {stats(result['ours']['daqp'])}")
     for name, data in result.items():
@@ -360,6 +421,7 @@ def report(N: int, result: dict[str, dict[str, Any]]) -> None:
             continue
         label = name.replace("FULL_CONDENSING_", "acados ").lower()
         print(f"{label + ' solve()':>34} {stats(data['solve'])}")
+        print(f"{'':>34} {split(data['solve'], data['failed'], 'failed')}")
         print(f"{label + ' time_tot':>34} {stats(data['own'])}")
         print(f"{label + ' time_tot less QP solver':>34} {stats(data['around'])}")
         solve = float(np.median(data["solve"]))
@@ -398,7 +460,7 @@ def main() -> None:
         os.chdir(folder)  # acados writes some files next to the caller
         try:
             for N in args.N:
-                report(N, run(acados, N, args.steps, folder, args.repeats))
+                report(N, run(acados, N, args.steps, folder, args.repeats, args.scenario))
         finally:
             os.chdir(cwd)
 

@@ -467,3 +467,29 @@ def test_the_chord_inverse_in_place_matches_numpy_and_finds_a_singular_matrix() 
     singular = rng.normal(size=(11, 11))
     singular[:, 4] = 0.0
     assert not _invert(singular, np.empty((11, 11)))
+
+
+def test_the_damped_newton_solve_in_place_matches_numpy_and_finds_a_singular_matrix() -> None:
+    """The damped Newton's LU solve (loop/compiled_reference.py ``_lu_solve``, in place of
+    ``numpy.linalg.solve``): random, badly scaled and pivoting 11 x 11 systems give numpy's
+    solution to 1e-12 relative, the right-hand side untouched; an exactly singular matrix
+    returns False (where numpy raises LinAlgError: the damped Newton from that start ends)."""
+    from ltv_lstm_mpc.loop.compiled_reference import _lu_solve
+
+    rng = np.random.default_rng(4)
+    pivots = np.empty(11, dtype=np.int64)
+    for scale in (1.0, 1e-3, 1e3):
+        matrix = rng.normal(size=(11, 11)) * scale
+        matrix[0, 0] = 0.0  # the first column needs a row interchange
+        rhs = rng.normal(size=11)
+        kept = rhs.copy()
+        out = np.empty(11)
+        assert _lu_solve(matrix.copy(), rhs, out, pivots)
+        expected = np.linalg.solve(matrix, rhs)
+        assert np.abs(out - expected).max() <= 1e-12 * np.abs(expected).max()
+        assert np.array_equal(rhs, kept)
+    singular = rng.normal(size=(11, 11))
+    singular[:, 4] = 0.0
+    assert not _lu_solve(singular.copy(), np.ones(11), np.empty(11), pivots)
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.solve(singular, np.ones(11))

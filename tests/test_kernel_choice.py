@@ -133,6 +133,7 @@ CALLEES = {
     "_hessian_causal",
     "_hessian_gram",
     "_invert",
+    "_lu_solve",
     "_hessian_backward",
     "_transpose_times",
     "_weight_times",

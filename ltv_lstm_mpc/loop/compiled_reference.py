@@ -243,7 +243,7 @@ U_MARGIN = 1e-12
 #: Fields of :data:`RestartWorkspace`, in the order of its compiled constructor.
 RESTART_FIELDS = (
     "grid_x", "grid_u", "grid_y", "restarts", "u_max", "jacobian", "z", "trial", "best",
-    "distance",
+    "distance", "step", "pivots",
 )  # fmt: skip
 
 RestartWorkspace = workspace_type(
@@ -253,8 +253,8 @@ RestartWorkspace = workspace_type(
 
     ``grid_x``, ``grid_u``, ``grid_y`` (G rows): the calculator's equilibrium grid (states,
     inputs, outputs); ``restarts``: the grid starts of a MIMO model (1 for SISO);
-    ``u_max``: the bound of U; ``jacobian`` (2n + m, 2n + m), ``z``, ``trial``, ``best``
-    (2n + m), ``distance`` (G): scratch.
+    ``u_max``: the bound of U; ``jacobian`` (2n + m, 2n + m), ``z``, ``trial``, ``best``,
+    ``step`` (2n + m), ``pivots`` (int64, 2n + m), ``distance`` (G): scratch.
     """,
     __name__,
 )
@@ -278,11 +278,62 @@ def _new_restart_workspace(
     trial: Any,
     best: Any,
     distance: Any,
+    step: Any,
+    pivots: Any,
 ) -> Any:
     """The compiled constructor (no constructor compile at run time; cached)."""
     return RestartWorkspace(
-        grid_x, grid_u, grid_y, restarts, u_max, jacobian, z, trial, best, distance
+        grid_x, grid_u, grid_y, restarts, u_max, jacobian, z, trial, best, distance, step, pivots
     )
+
+
+@njit(cache=True)
+def _lu_solve(matrix: Any, rhs: Any, out: Any, pivots: Any) -> bool:
+    """``out`` = the solution of ``matrix @ out = rhs`` by LU with partial pivoting (the
+    algorithm of LAPACK's ``dgesv``, behind ``numpy.linalg.solve``: the first entry of
+    largest magnitude as pivot), in place: ``matrix`` is overwritten by its factors and
+    ``pivots`` (int64) by the row interchanges; no allocation and no library call in the
+    step (``numpy.linalg.solve`` in compiled code copies its operands and loads LAPACK
+    at first use). Returns False for an exactly singular matrix (a zero pivot: where
+    ``numpy.linalg.solve`` raises ``LinAlgError``); ``out`` is then undefined."""
+    size = matrix.shape[0]
+    for k in range(size):
+        pivot_row = k
+        largest = abs(matrix[k, k])
+        for r in range(k + 1, size):
+            if abs(matrix[r, k]) > largest:
+                largest = abs(matrix[r, k])
+                pivot_row = r
+        pivots[k] = pivot_row
+        if largest == 0.0:
+            return False
+        if pivot_row != k:
+            for c in range(size):
+                matrix[k, c], matrix[pivot_row, c] = matrix[pivot_row, c], matrix[k, c]
+        scale = 1.0 / matrix[k, k]
+        for r in range(k + 1, size):
+            factor = matrix[r, k] * scale
+            matrix[r, k] = factor
+            if factor != 0.0:
+                for c in range(k + 1, size):
+                    matrix[r, c] -= factor * matrix[k, c]
+    for r in range(size):
+        out[r] = rhs[r]
+    for k in range(size):  # the interchanges, then L y = P rhs (unit diagonal)
+        swap = pivots[k]
+        if swap != k:
+            out[k], out[swap] = out[swap], out[k]
+    for r in range(size):
+        acc = out[r]
+        for c in range(r):
+            acc -= matrix[r, c] * out[c]
+        out[r] = acc
+    for r in range(size - 1, -1, -1):  # U out = y
+        acc = out[r]
+        for c in range(r + 1, size):
+            acc -= matrix[r, c] * out[c]
+        out[r] = acc / matrix[r, r]
+    return True
 
 
 @njit(cache=True)
@@ -295,6 +346,7 @@ def _newton_from(
     WU, WU_raw, W_y, b_y = chord.WU, chord.WU_raw, chord.W_y, chord.b_y
     S, T, TC, J, F = chord.S, chord.T, chord.TC, chord.J, chord.F
     jac, z, trial = restart.jacobian, restart.z, restart.trial
+    step, pivots = restart.step, restart.pivots
     n = WU.shape[0] // 4
     n2 = 2 * n
     size = z.shape[0]
@@ -313,9 +365,7 @@ def _newton_from(
         for j in range(size - n2):
             for q in range(n):
                 jac[n2 + j, n + q] = W_y[j, q]
-        try:
-            step = np.linalg.solve(jac, F)
-        except Exception:  # singular (numpy's LinAlgError)
+        if not _lu_solve(jac, F, step, pivots):  # singular (numpy's LinAlgError)
             return norm, iteration, False
         t = 1.0
         accepted = False

@@ -272,6 +272,7 @@ class ReferenceCalculator(DeferredState):
             grid_y=np.ascontiguousarray(self._grid_y), restarts=int(self.restarts),
             u_max=float(self.u_max), jacobian=np.zeros((size, size)), z=np.zeros(size),
             trial=np.zeros(size), best=np.zeros(size), distance=np.zeros(self._grid_y.shape[0]),
+            step=np.zeros(size), pivots=np.zeros(size, dtype=np.int64),
         )  # fmt: skip
 
     @property
