@@ -13,7 +13,11 @@ prints per run:
   infeasible) and their own median, against the nominal steps' median;
 - the steps that left the one-call compiled engine for the reference engine (handed over:
   ``ControllerStep.engine == "reference"``; before the worst-case work every fallback
-  step and the reference calculator's damped Newton did), with their median.
+  step and the reference calculator's damped Newton did), with their median;
+- the slowest step: its index k, its observer, reference calculator and MPC times (us,
+  from its record) and the MPC's policy (``nominal`` or the infeasibility policy), which
+  say what set the max (a set-point step whose warm chord fails runs the damped Newton
+  in the reference calculator; an infeasible step the policy in the MPC).
 
 The first 10 steps aside, the targets of the worst-case work are p99 / median <= 1.5 and
 max / median <= 3 on a run where at least 5 % of the steps fall back, and a fallback step
@@ -105,8 +109,8 @@ def denser(scenario: Any, period: int) -> Any:
     return replace(scenario, setpoints=cycled)
 
 
-def report(label: str, times: Any, records: Any) -> None:
-    """One row of the table (module docstring)."""
+def report(label: str, times: Any, records: Any, per_loop: int) -> None:
+    """One row of the table (module docstring); ``per_loop``: timed steps per closed loop."""
     us = times * 1e6
     median = float(np.median(us))
     fallback = np.array([not r.mpc.feasible for r in records])
@@ -118,11 +122,15 @@ def report(label: str, times: Any, records: Any) -> None:
 
     nominal = float(np.median(us[~fallback])) if (~fallback).any() else float("nan")
     ratio = np.median(us[fallback]) / nominal if fallback.any() else float("nan")
+    slowest = int(np.argmax(us))
+    r = records[slowest]
     print(
         f"{label:<36} {median:7.1f} {p95:7.1f} {p99:7.1f} {largest:8.1f} | "
         f"{p99 / median:5.2f} {largest / median:6.2f} | {fallback.sum():4d} "
         f"({100 * fallback.mean():4.1f} %) {median_of(fallback)} {ratio:5.2f} | "
-        f"{reference.sum():4d} {median_of(reference)}"
+        f"{reference.sum():4d} {median_of(reference)} | k={SKIP + slowest % per_loop} "
+        f"{r.time_observer * 1e6:.0f}/{r.time_reference * 1e6:.0f}/{r.time_mpc * 1e6:.0f} "
+        f"{r.mpc.policy}"
     )
 
 
@@ -138,7 +146,8 @@ def main() -> None:
     print(
         f"{'run (us; first ' + str(SKIP) + ' steps aside)':<36} {'median':>7} {'p95':>7} "
         f"{'p99':>7} {'max':>8} | {'p99/':>5} {'max/':>6} | fallback steps, median, "
-        "/ nominal | handed over, median"
+        "/ nominal | handed over, median | the slowest step: k, observer/reference/MPC (us), "
+        "policy"
     )
     for solver in args.solvers:
         for N in args.N:
@@ -149,7 +158,7 @@ def main() -> None:
                 ]
                 times = np.concatenate([t for t, _ in pooled])
                 records = [r for _, rs in pooled for r in rs]
-                report(f"{solver} N={N} {name}", times, records)
+                report(f"{solver} N={N} {name}", times, records, steps - SKIP)
 
 
 if __name__ == "__main__":
