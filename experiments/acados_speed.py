@@ -49,8 +49,25 @@ keep CasADi from the ``nmpc`` extra::
     python experiments/acados_speed.py --N 5 20 50 --steps 300 [--repeats 5]
 
 That build has acados' HPIPM and qpOASES but not DAQP (``FULL_CONDENSING_DAQP`` is
-reported unavailable and skipped). The generated code goes to a temporary folder
-(``--build DIR`` to keep it); building takes a few seconds per solver and horizon.
+reported unavailable and skipped). For acados with DAQP, build it from source and pass the
+source tree (``--acados DIR``: its ``lib/`` and ``interfaces/acados_template``; the
+wheel's template renderer copied to ``DIR/bin/t_renderer``, as the newer templates need a
+newer renderer than the wheel's, which the package index does not carry). Measured
+with acados a66778d78 (the last commit whose templates that renderer renders; blasfeo
+e33fe98, hpipm 945645e), DAQP dc13508 (the DAQP of the ``daqp`` module this library
+uses: numba's loader puts that module's DAQP functions in the process' global symbol
+table, where ``libacados.so`` finds its DAQP calls first, so the two DAQPs must have the
+same structs), and acados' DAQP interface ``acados/dense_qp/dense_qp_daqp.[ch]`` taken
+from 21376cb, whose DAQP that is (its statuses ``ACADOS_INFEASIBLE`` and
+``ACADOS_UNKNOWN`` replaced by ``ACADOS_QP_FAILURE``, which a66778d78 has); the Python
+template of that commit also needs ``pip install future-fstrings Deprecated``::
+
+    cmake -DACADOS_WITH_DAQP=ON -DACADOS_WITH_QPOASES=OFF -DBLASFEO_TARGET=X64_AUTOMATIC \
+        -DACADOS_SILENT=ON -DCMAKE_BUILD_TYPE=Release .. && make install -j2
+    python experiments/acados_speed.py --acados DIR --N 5 20 50 --steps 300
+
+The generated code goes to a temporary folder (``--build DIR`` to keep it); building takes
+a few seconds per solver and horizon.
 """
 
 from __future__ import annotations
@@ -121,12 +138,16 @@ NO_BOUND = 1e9
 
 
 def load_acados(folder: Path) -> Any:
-    """``acados.acados_template`` from the wheel installed with ``--target folder``."""
+    """``acados_template`` from ``folder``: the wheel installed with ``--target folder``, or
+    an acados source tree built with its libraries in ``folder/lib`` (module docstring)."""
+    if (folder / "interfaces" / "acados_template").is_dir():
+        return _load_source_build(folder)
     install = folder / "acados" / "install"
     if not install.is_dir():
         raise SystemExit(
             f"no acados under {folder}: python -m pip install --no-deps --target {folder} "
-            "comma-deps-acados==0.2.2.post92"
+            "comma-deps-acados==0.2.2.post92 (or --acados an acados source tree built with "
+            "DAQP: see this script's docstring)"
         )
     os.environ["ACADOS_SOURCE_DIR"] = str(install)
     os.environ["ACADOS_PYTHON_INTERFACE_PATH"] = str(folder / "acados" / "acados_template")
@@ -135,17 +156,44 @@ def load_acados(folder: Path) -> Any:
     os.environ["TERA_PATH"] = str(renderer)
     for library in ("libblasfeo.so", "libhpipm.so", "libqpOASES_e.so.3.1", "libacados.so"):
         ctypes.CDLL(str(install / "lib" / library), mode=ctypes.RTLD_GLOBAL)
-    try:  # ours (the nmpc extra), imported before the vendored one is reachable
+    _check_casadi()
+    sys.path.append(str(folder))
+    from acados import acados_template
+
+    return acados_template
+
+
+def _load_source_build(source: Path) -> Any:
+    """``acados_template`` of an acados source tree built into ``source/lib``. Its
+    libraries are loaded by path with ``RTLD_LOCAL`` (``libacados.so`` finds them by
+    soname, and they do not enter the global symbol table: the daqp module's own DAQP
+    functions stay its own); the generated solvers find them through their rpath."""
+    lib = source / "lib"
+    if not (lib / "libacados.so").is_file():
+        raise SystemExit(f"no {lib / 'libacados.so'}: build acados first (module docstring)")
+    renderer = source / "bin" / "t_renderer"
+    if not renderer.is_file():
+        raise SystemExit(f"no {renderer}: copy the wheel's acados/install/bin/t_renderer there")
+    os.environ["ACADOS_SOURCE_DIR"] = str(source)
+    os.environ["TERA_PATH"] = str(renderer)
+    for library in ("libblasfeo.so", "libhpipm.so", "libdaqp.so", "libqpOASES_e.so"):
+        if (lib / library).is_file():
+            ctypes.CDLL(str(lib / library))  # RTLD_LOCAL
+    _check_casadi()
+    sys.path.insert(0, str(source / "interfaces" / "acados_template"))
+    import acados_template
+
+    return acados_template
+
+
+def _check_casadi() -> None:
+    """CasADi from the ``nmpc`` extra (imported before a vendored one is reachable)."""
+    try:
         import casadi  # noqa: F401
     except ImportError as error:
         raise SystemExit(
             'acados_speed needs CasADi for the model functions: pip install -e ".[nmpc]"'
         ) from error
-
-    sys.path.append(str(folder))
-    from acados import acados_template
-
-    return acados_template
 
 
 def build_solver(acados: Any, model: Any, controller: Any, qp_solver: str, folder: Path) -> Any:
