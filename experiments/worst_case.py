@@ -14,6 +14,8 @@ prints per run:
 - the steps that left the one-call compiled engine for the reference engine (handed over:
   ``ControllerStep.engine == "reference"``; before the worst-case work every fallback
   step and the reference calculator's damped Newton did), with their median;
+- the largest time of the reference calculator in a step (us; at a set-point step whose
+  warm chord fails, the damped Newton with restarts);
 - the slowest step: its index k, its observer, reference calculator and MPC times (us,
   from its record) and the MPC's policy (``nominal`` or the infeasibility policy), which
   say what set the max (a set-point step whose warm chord fails runs the damped Newton
@@ -124,11 +126,13 @@ def report(label: str, times: Any, records: Any, per_loop: int) -> None:
     ratio = np.median(us[fallback]) / nominal if fallback.any() else float("nan")
     slowest = int(np.argmax(us))
     r = records[slowest]
+    reference_us = np.array([rec.time_reference for rec in records]) * 1e6
     print(
         f"{label:<36} {median:7.1f} {p95:7.1f} {p99:7.1f} {largest:8.1f} | "
         f"{p99 / median:5.2f} {largest / median:6.2f} | {fallback.sum():4d} "
         f"({100 * fallback.mean():4.1f} %) {median_of(fallback)} {ratio:5.2f} | "
-        f"{reference.sum():4d} {median_of(reference)} | k={SKIP + slowest % per_loop} "
+        f"{reference.sum():4d} {median_of(reference)} | {reference_us.max():7.1f} | "
+        f"k={SKIP + slowest % per_loop} "
         f"{r.time_observer * 1e6:.0f}/{r.time_reference * 1e6:.0f}/{r.time_mpc * 1e6:.0f} "
         f"{r.mpc.policy}"
     )
@@ -146,8 +150,8 @@ def main() -> None:
     print(
         f"{'run (us; first ' + str(SKIP) + ' steps aside)':<36} {'median':>7} {'p95':>7} "
         f"{'p99':>7} {'max':>8} | {'p99/':>5} {'max/':>6} | fallback steps, median, "
-        "/ nominal | handed over, median | the slowest step: k, observer/reference/MPC (us), "
-        "policy"
+        "/ nominal | handed over, median | largest reference calculator | the slowest step: k, "
+        "observer/reference/MPC (us), policy"
     )
     for solver in args.solvers:
         for N in args.N:
