@@ -61,13 +61,25 @@ class Smoke:
 SMOKE = {
     "acados_speed.py": Smoke(
         (
-            "--N", "5", "--steps", "90", "--scenario", "paper3-dense", "--acados",
-            "{root}/.acados", "--build", "{tmp}/build",
-        ),  # fmt: skip
+            "--N",
+            "5",
+            "--steps",
+            "90",
+            "--scenario",
+            "paper3-dense",
+            "--acados",
+            "{root}/.acados",
+            "--build",
+            "{tmp}/build",
+        ),
         (
-            "N = 5 (microseconds", "ours: full step (one call)", "full step / solve() =",
-            "fallback steps (", "failed steps (", "max/med",
-        ),  # fmt: skip
+            "N = 5 (microseconds",
+            "ours: full step (one call)",
+            "full step / solve() =",
+            "fallback steps (",
+            "failed steps (",
+            "max/med",
+        ),
         needs=("daqp", "casadi"),
         slow=True,
         timeout=600.0,
