@@ -129,6 +129,10 @@ SMOKE = {
         ("/daqp", "daqp:socp", "cvxpy:CLARABEL"),
         needs=("daqp", "clarabel", "cvxpy"),
     ),
+    "export_pil.py": Smoke(
+        ("--steps", "20"),
+        ("pH (n = 5)", "quadruple tank (n = 8)", "host - library"),
+    ),
     "gc_jitter.py": Smoke(
         ("--steps", "40", "--block", "20", "--N", "5"),
         ("collector on", "collector paused", "unreachable objects"),
