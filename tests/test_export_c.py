@@ -1,4 +1,5 @@
-"""The C99 export of the LSTM model and observer (ltv_lstm_mpc/export/c_model.py): it
+"""The C99 export of the LSTM model, observer and reference calculator
+(ltv_lstm_mpc/export/c_model.py): it
 compiles warning-free under the strict flags with every C compiler installed, equals the
 compiled kernels to rounding, allocates nothing, and runs clean under AddressSanitizer and
 UndefinedBehaviorSanitizer. Skipped where no C compiler is installed."""
@@ -111,6 +112,75 @@ def test_the_c_model_equals_the_compiled_kernels(name: str, compiler: str, tmp_p
     assert np.all(np.abs(d_out) <= observer.d_max)
 
 
+def _reference_targets(reference: Any, p: int) -> list[Any]:
+    """Targets y0 - d_hat for the reference calculator: small steps (the warm chord),
+    jumps across the reachable range (the damped Newton with restarts), one beyond it (no
+    admissible equilibrium: the stale reference) and random ones."""
+    low, high = reference.reachable_output_range
+    mid = (low + high) / 2
+    rng = np.random.default_rng(0)
+    targets = [mid + 0.01 * (k + 1) * (high - mid) for k in range(10)]
+    targets += [low + 0.9 * (high - low), high + 0.2 * (high - low) + 0.1, mid]
+    targets += [low + 0.05 * (high - low)]
+    targets += [low + rng.uniform(0.0, 1.0, p) * (high - low) for _ in range(20)]
+    return [np.ascontiguousarray(t, dtype=np.float64) for t in targets]
+
+
+@needs_compiler
+@pytest.mark.parametrize("compiler", COMPILERS)
+@pytest.mark.parametrize("name", MODELS)
+def test_the_c_reference_calculator_equals_the_library(
+    name: str, compiler: str, tmp_path: Path
+) -> None:
+    """eq. (reference_calculation) in C (warm chord, damped Newton with restarts, the
+    stale reference) gives the library's equilibria to 1e-12 over a sequence of targets
+    that takes every path, the same status where none is admissible, and its structs
+    have the sizes the export reports (sizeof, compiled)."""
+    controller = _controller(name)
+    model, reference = controller.model, controller.reference
+    reference.strict = False  # an unreachable target gives its flagged solution
+    exported = export_model_c(model, tmp_path, reference=reference, prefix="ref_c")
+    sizes = tmp_path / "sizes.c"
+    sizes.write_text(
+        '#include "ref_c.h"\n#include <stdio.h>\nint main(void) { printf("%lu %lu\\n", '
+        "(unsigned long)sizeof(ref_c_workspace), (unsigned long)sizeof(ref_c_reference_state));"
+        " return 0; }\n"
+    )
+    binary = tmp_path / "sizes"
+    subprocess.run([compiler, *STRICT, "-I", str(tmp_path), "-o", str(binary), str(sizes)],
+                   check=True)  # fmt: skip
+    measured = subprocess.run([str(binary)], capture_output=True, text=True, check=True).stdout
+    assert measured.split() == [str(exported.workspace_bytes), str(exported.reference_state_bytes)]
+    lib = ctypes.CDLL(str(_build(exported.source, compiler, tmp_path)))
+    lib.ref_c_reference_start.argtypes = [ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P]
+    lib.ref_c_reference.argtypes = [ctypes.c_void_p, ctypes.c_void_p, _DOUBLE_P, _DOUBLE_P,
+                                    ctypes.POINTER(ctypes.c_double)]  # fmt: skip
+    lib.ref_c_reference.restype = ctypes.c_int
+    workspace = ctypes.create_string_buffer(exported.workspace_bytes)
+    state = ctypes.create_string_buffer(exported.reference_state_bytes)
+    p, size = model.p, 2 * model.n + model.m
+    zero = np.zeros(p)
+    low, high = reference.reachable_output_range
+    start = np.ascontiguousarray((low + high) / 2)
+    solution = reference.solve_arrays(start.copy(), zero)
+    last = np.concatenate([solution.x_bar, solution.u_bar])
+    lib.ref_c_reference_start(state, last, start)
+    statuses = set()
+    for target in _reference_targets(reference, p):
+        solution = reference.solve_arrays(target.copy(), zero)
+        admissible = solution.converged and solution.u_admissible
+        expected = np.concatenate([solution.x_bar, solution.u_bar]) if admissible else last
+        last = expected
+        z, residual = np.empty(size), ctypes.c_double()
+        status = lib.ref_c_reference(workspace, state, target, z, ctypes.byref(residual))
+        statuses.add(status)
+        assert (status == 2) == (not admissible), (target, status)
+        _close(z, expected, rtol=1e-12)
+    assert {0, 2} <= statuses  # the warm chord and the stale reference ran
+    if name != "example_delta_iss_n3.npz":
+        assert 1 in statuses  # and the damped Newton with restarts
+
+
 @needs_compiler
 @pytest.mark.parametrize("name", MODELS)
 def test_the_c_observer_with_gate_injection_equals_the_kernel(name: str, tmp_path: Path) -> None:
@@ -145,12 +215,15 @@ def test_the_c_observer_with_gate_injection_equals_the_kernel(name: str, tmp_pat
 @needs_compiler
 def test_the_c_model_allocates_nothing_and_runs_clean_under_sanitizers(tmp_path: Path) -> None:
     """No malloc/free/printf among the library's undefined symbols (``nm``); a driver
-    that runs the rollout, Jacobians and observer (NaN measurement included) under
+    that runs the rollout, Jacobians, reference calculator (an unreachable target
+    included) and observer (a NaN measurement included) under
     ``-fsanitize=address,undefined`` exits 0 with no report, and prints the numbers the
     library computes."""
     controller = _controller("quadtank_lstm_n8.npz")
     model = controller.model
-    exported = export_model_c(model, tmp_path, observer=controller.observer, prefix="qt")
+    exported = export_model_c(
+        model, tmp_path, observer=controller.observer, reference=controller.reference, prefix="qt"
+    )
     compiler = COMPILERS[0]
     library = _build(exported.source, compiler, tmp_path)
     if shutil.which("nm"):
@@ -179,6 +252,18 @@ int main(void) {
     qt_observer_update(&w, x, d, y, u, xo, dout);
     for (q = 0; q < 6 * 2 * QT_N; ++q) printf("%a\\n", xs[q]);
     for (q = 0; q < 4 * QT_N * QT_N; ++q) printf("%a\\n", A[q]);
+    {
+        qt_reference_state s;
+        double z[2 * QT_N + QT_M], target[QT_P], residual;
+        for (q = 0; q < 2 * QT_N; ++q) z[q] = xn[q];
+        for (q = 0; q < QT_M; ++q) z[2 * QT_N + q] = u[q];
+        qt_output(xn, target);
+        qt_reference_start(&s, z, target);
+        for (q = 0; q < QT_P; ++q) target[q] += 0.3;
+        (void)qt_reference(&w, &s, target, z, &residual);
+        for (q = 0; q < QT_P; ++q) target[q] = 50.0; /* unreachable: the stale reference */
+        printf("%d\\n", qt_reference(&w, &s, target, z, &residual));
+    }
     y[0] = NAN;
     qt_observer_update(&w, x, d, y, u, xo, dout);
     printf("%d\\n", isnan(dout[0]) ? 1 : 0);
@@ -197,13 +282,14 @@ int main(void) {
     ran = subprocess.run([str(binary)], capture_output=True, text=True, timeout=60)
     assert ran.returncode == 0, ran.stderr
     assert "runtime error" not in ran.stderr and "AddressSanitizer" not in ran.stderr
-    values = [float.fromhex(v) for v in ran.stdout.split()[:-1]]
+    values = [float.fromhex(v) for v in ran.stdout.split()[:-2]]
     x = np.array([0.1 * (q % 5) - 0.2 for q in range(2 * n)])
     us = np.array([0.05 * q - 0.1 for q in range(5 * m)]).reshape(5, m)
     states = np.array(values[: 6 * 2 * n]).reshape(6, 2 * n)
     _close(states, model.simulate(x, us)[0])
     A, _ = model.jacobians(x, np.full(m, 0.3))
     _close(np.array(values[6 * 2 * n :]).reshape(2 * n, 2 * n), A)
+    assert ran.stdout.split()[-2] == "2"  # the unreachable target: the stale reference
     assert ran.stdout.split()[-1] == "1"  # a NaN measurement gives a NaN estimate: no UB
 
 

@@ -1,12 +1,15 @@
-r"""The LSTM prediction model and its observer as dependency-free C99 (the first part of the
-C export of the controller).
+r"""The LSTM prediction model, its observer and the reference calculator as dependency-free
+C99 (the first parts of the C export of the controller).
 
 :func:`export_model_c` renders the templates of ``export/templates`` with a model's
-weights and, optionally, an :class:`~ltv_lstm_mpc.Observer`'s gains: a header and a
-source file with every constant as ``static const`` data named after the paper's symbols
-(the gates' weights ``WU``, the output map ``W_y``, ``b_y``, the observer's ``L_gates``
-and ``L_d``), and functions on one caller-owned workspace struct: eq. (lstm) one step and
-a rollout, its Jacobians (eq. jacobian), the output map and eq. (lstm_observer). No
+weights and, optionally, an :class:`~ltv_lstm_mpc.Observer`'s gains and a
+:class:`~ltv_lstm_mpc.ReferenceCalculator`'s settings and equilibrium grid: a header and
+a source file with every constant as ``static const`` data named after the paper's
+symbols (the gates' weights ``WU``, the output map ``W_y``, ``b_y``, the observer's
+``L_gates`` and ``L_d``, the grid), and functions on one caller-owned workspace struct:
+eq. (lstm) one step and a rollout, its Jacobians (eq. jacobian), the output map, eq.
+(lstm_observer) and eq. (reference_calculation) (its state in a second caller-owned
+struct). No
 allocation, no global mutable state, no I/O, only libm; C99 that compiles with
 ``-std=c99 -Wall -Wextra -Wpedantic -Werror`` (``tests/test_export_c.py`` builds it,
 compares it with the compiled kernels and runs it under AddressSanitizer and
@@ -15,10 +18,13 @@ UndefinedBehaviorSanitizer).
 The C code performs the compiled kernels' operations in their order
 (:func:`~ltv_lstm_mpc.lstm.compiled.lstm_cell` with its polynomial activations,
 :func:`~ltv_lstm_mpc.lstm.compiled.jacobians`,
-:func:`~ltv_lstm_mpc.loop.compiled_observer.observer_update`): the two agree to rounding
-(the kernels sum with reassociation allowed), whatever the target's libm.
+:func:`~ltv_lstm_mpc.loop.compiled_observer.observer_update`,
+:func:`~ltv_lstm_mpc.loop.compiled_reference.chord_newton` and
+:func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts` with the admissibility and
+stale rules of the one-call step): the two agree to rounding (the kernels sum with
+reassociation allowed), whatever the target's libm.
 
-What is not exported yet: the reference calculator, the tightening and
+What is not exported yet: the tightening and
 :math:`\alpha_k`, the condensed FHOCP with DAQP, the infeasibility policies, the input
 gate and the normalization; the whole controller step follows in later parts of the
 export (``docs/user-guide/export-c.md``).
@@ -52,13 +58,16 @@ class ExportedC:
     prefix : str
         The C identifiers' prefix.
     workspace_bytes : int
-        ``sizeof(<prefix>_workspace)`` on a target with 8-byte doubles.
+        ``sizeof(<prefix>_workspace)`` on a target with 8-byte doubles and 4-byte ints.
+    reference_state_bytes : int
+        ``sizeof(<prefix>_reference_state)`` (0: no reference calculator exported).
     """
 
     header: Path
     source: Path
     prefix: str
     workspace_bytes: int
+    reference_state_bytes: int = 0
 
 
 def _literal(value: float) -> str:
@@ -103,6 +112,7 @@ def export_model_c(
     out_dir: str | Path,
     *,
     observer: Any = None,
+    reference: Any = None,
     prefix: str = "lstm_model",
 ) -> ExportedC:
     r"""Write ``<prefix>.h`` and ``<prefix>.c``: the model of eq. (lstm) and, with
@@ -118,6 +128,12 @@ def export_model_c(
     observer : Observer, optional
         Its gains :math:`L_f, L_i, L_o, L_d` and bound :math:`d_{max}` become
         ``<prefix>_observer_update``; it must observe ``model``.
+    reference : ReferenceCalculator, optional
+        Its settings (``tol``, ``max_iter``, ``jump``, ``restarts``, the bound of U) and
+        equilibrium grid become ``<prefix>_reference``: eq. (reference_calculation) by the
+        warm chord Newton, the damped Newton with restarts where that finds no admissible
+        equilibrium, and the last admissible one kept where none is (an unreachable
+        set-point); it must belong to ``model``.
     prefix : str
         Prefix of the files and of every C identifier (a C identifier).
 
@@ -127,9 +143,20 @@ def export_model_c(
     """
     from ltv_lstm_mpc import __version__
     from ltv_lstm_mpc.loop.observer import Observer
+    from ltv_lstm_mpc.loop.reference import ReferenceCalculator
 
     model = require_model(model)
     prefix = _check_prefix(prefix)
+    if reference is not None and not isinstance(reference, ReferenceCalculator):
+        raise InvalidValueError(
+            f"reference must be an ltv_lstm_mpc.ReferenceCalculator, got "
+            f"{type(reference).__name__}; pass controller.reference"
+        )
+    if reference is not None and not np.array_equal(reference.model.kernel.WU, model.kernel.WU):
+        raise InvalidValueError(
+            "reference belongs to another model than the one exported (other weights); "
+            "pass the model the reference calculator was built with (reference.model)"
+        )
     if observer is not None:
         if not isinstance(observer, Observer):
             raise InvalidValueError(
@@ -193,7 +220,36 @@ def export_model_c(
             else "    cell(w, x_hat, 0, x_out, x_out + N);"
         )
         fields["observer_code"] = _template("observer.c.in").substitute(observer_fields)
-    workspace_bytes = 8 * ((n + m + 1) + 4 * n + n + 4 * n + p)
+    fields["has_reference"] = "0"
+    fields["grid_points"] = "1"
+    fields["reference_code"] = ""
+    doubles, ints = (n + m + 1) + 4 * n + n + 4 * n + p, 0
+    state_bytes = 0
+    if reference is not None:
+        nz = 2 * n + m
+        grid_u = np.asarray(reference._grid_u, dtype=np.float64)
+        grid_x = np.asarray(reference._grid_x, dtype=np.float64)
+        grid_y = np.asarray(reference._grid_y, dtype=np.float64)
+        reference_fields = dict(fields)
+        reference_fields.update(
+            grid_points=str(grid_u.shape[0]),
+            tol=_literal(reference.tol),
+            max_iter=str(int(reference.max_iter)),
+            jump=_literal(reference.jump),
+            u_max=_literal(reference.u_max),
+            restarts=str(int(reference.restarts)),
+            grid_u=_matrix(grid_u),
+            grid_x=_matrix(grid_x),
+            grid_y=_matrix(grid_y),
+        )
+        fields["has_reference"] = "1"
+        fields["grid_points"] = str(grid_u.shape[0])
+        fields["reference_code"] = _template("reference.c.in").substitute(reference_fields)
+        doubles += 6 * nz + (2 * n + p) + nz * nz + grid_u.shape[0]
+        ints += grid_u.shape[0] + nz
+        state_bytes = 8 * (nz + p + nz * nz) + 8  # (the int, padded)
+    workspace_bytes = 8 * doubles + 4 * ints
+    workspace_bytes += (-workspace_bytes) % 8  # the struct's alignment
     fields["workspace_bytes"] = str(workspace_bytes)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -201,4 +257,10 @@ def export_model_c(
     source = out / f"{prefix}.c"
     header.write_text(_template("model.h.in").substitute(fields))
     source.write_text(_template("model.c.in").substitute(fields))
-    return ExportedC(header=header, source=source, prefix=prefix, workspace_bytes=workspace_bytes)
+    return ExportedC(
+        header=header,
+        source=source,
+        prefix=prefix,
+        workspace_bytes=workspace_bytes,
+        reference_state_bytes=state_bytes,
+    )
