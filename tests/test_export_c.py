@@ -182,6 +182,64 @@ def test_the_c_reference_calculator_equals_the_library(
 
 
 @needs_compiler
+@pytest.mark.parametrize("compiler", COMPILERS)
+@pytest.mark.parametrize(("name", "N"), [(name, 5) for name in MODELS] + [(MODELS[0], 20)])
+def test_the_c_tightening_and_signals_equal_the_library(
+    name: str, N: int, compiler: str, tmp_path: Path
+) -> None:
+    """The tightened output bounds, alpha_k, e_tilde, the set-point interval test and the
+    e_hat recursion of the certificate, the rate limiter and the exit gate in C give the
+    library's numbers (TighteningCertificate, loop/signals.py) to 1e-15, set-points
+    inside and outside the interval included."""
+    from ltv_lstm_mpc.loop.signals import limit_rate, project_onto_box
+
+    model = load_model(name)
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp", N=N), kernels="compiled")
+    certificate = controller.mpc.tightening
+    exported = export_model_c(model, tmp_path, tightening=certificate, prefix="ti")
+    lib = ctypes.CDLL(str(_build(exported.source, compiler, tmp_path)))
+    lib.ti_output_bounds.argtypes = [ctypes.c_double, _DOUBLE_P, _DOUBLE_P]
+    for function in ("ti_alpha", "ti_setpoint_inside"):
+        getattr(lib, function).argtypes = [_DOUBLE_P, ctypes.c_double]
+    lib.ti_alpha.restype = ctypes.c_double
+    lib.ti_setpoint_inside.restype = ctypes.c_int
+    for function in ("ti_e_tilde", "ti_next_e_hat"):
+        getattr(lib, function).argtypes = [ctypes.c_double]
+        getattr(lib, function).restype = ctypes.c_double
+    lib.ti_limit_rate.argtypes = [_DOUBLE_P, _DOUBLE_P, ctypes.c_double]
+    lib.ti_gate.argtypes = [_DOUBLE_P, ctypes.c_double]
+    lib.ti_gate.restype = ctypes.c_double
+    p, m = model.p, model.m
+    rng = np.random.default_rng(2)
+    inside, draws = 0, 0
+    for e_hat in (0.0, float(certificate.e_inf) / 2, float(certificate.e_inf) * 3, 0.05):
+        lower, upper = np.empty((N, p)), np.empty((N, p))
+        lib.ti_output_bounds(e_hat, lower, upper)
+        expected_lower, expected_upper = certificate.output_bounds(e_hat)
+        _close(lower, expected_lower, rtol=1e-15)
+        _close(upper, expected_upper, rtol=1e-15)
+        assert lib.ti_e_tilde(e_hat) == certificate.e_tilde(e_hat)
+        assert abs(lib.ti_next_e_hat(e_hat) - certificate.next_e_hat(e_hat)) <= 1e-15
+        low, high = certificate.setpoint_interval(e_hat)
+        for _ in range(20):
+            y0 = np.ascontiguousarray(rng.uniform(-1.0, 1.0, p))
+            assert abs(lib.ti_alpha(y0, e_hat) - certificate.alpha(y0, e_hat)) <= 1e-15
+            expected_inside = bool(np.all((low < y0) & (y0 < high)))
+            assert bool(lib.ti_setpoint_inside(y0, e_hat)) == expected_inside
+            inside, draws = inside + expected_inside, draws + 1
+    assert 0 < inside < draws  # set-points inside and outside the interval were tried
+    for _ in range(20):
+        target, previous = rng.uniform(-1.0, 1.0, p), rng.uniform(-1.0, 1.0, p)
+        limited = np.ascontiguousarray(target.copy())
+        lib.ti_limit_rate(limited, np.ascontiguousarray(previous), 0.1)
+        _close(limited, limit_rate(target, previous, 0.1), rtol=0.0)
+        u = np.ascontiguousarray(rng.uniform(-2.0, 2.0, m))
+        gated, moved = project_onto_box(u.copy(), 1.0)
+        assert lib.ti_gate(u, 1.0) == moved
+        _close(u, gated, rtol=0.0)
+
+
+@needs_compiler
 @pytest.mark.parametrize("name", MODELS)
 def test_the_c_observer_with_gate_injection_equals_the_kernel(name: str, tmp_path: Path) -> None:
     """With gains L_f, L_i, L_o that inject the innovation into the gates (not the
@@ -222,8 +280,9 @@ def test_the_c_model_allocates_nothing_and_runs_clean_under_sanitizers(tmp_path:
     controller = _controller("quadtank_lstm_n8.npz")
     model = controller.model
     exported = export_model_c(
-        model, tmp_path, observer=controller.observer, reference=controller.reference, prefix="qt"
-    )
+        model, tmp_path, observer=controller.observer, reference=controller.reference,
+        tightening=controller.mpc.tightening, prefix="qt",
+    )  # fmt: skip
     compiler = COMPILERS[0]
     library = _build(exported.source, compiler, tmp_path)
     if shutil.which("nm"):
@@ -263,6 +322,14 @@ int main(void) {
         (void)qt_reference(&w, &s, target, z, &residual);
         for (q = 0; q < QT_P; ++q) target[q] = 50.0; /* unreachable: the stale reference */
         printf("%d\\n", qt_reference(&w, &s, target, z, &residual));
+    }
+    {
+        double lower[QT_HORIZON][QT_P], upper[QT_HORIZON][QT_P], y0[QT_P] = {0.0};
+        qt_output_bounds(0.01, lower, upper);
+        (void)qt_alpha(y0, 0.01);
+        (void)qt_setpoint_inside(y0, 0.01);
+        qt_limit_rate(y0, lower[0], 0.1);
+        (void)qt_gate(u, 0.5);
     }
     y[0] = NAN;
     qt_observer_update(&w, x, d, y, u, xo, dout);

@@ -8,8 +8,11 @@ a source file with every constant as ``static const`` data named after the paper
 symbols (the gates' weights ``WU``, the output map ``W_y``, ``b_y``, the observer's
 ``L_gates`` and ``L_d``, the grid), and functions on one caller-owned workspace struct:
 eq. (lstm) one step and a rollout, its Jacobians (eq. jacobian), the output map, eq.
-(lstm_observer) and eq. (reference_calculation) (its state in a second caller-owned
-struct). No
+(lstm_observer), eq. (reference_calculation) (its state in a second caller-owned
+struct), and with a :class:`~ltv_lstm_mpc.certificates.tightening.TighteningCertificate`
+the per-step formulas of the tightening (the output bounds, :math:`\alpha_k`, the
+set-point interval, the :math:`\hat e_o` recursion), the rate limiter and the exit gate.
+No
 allocation, no global mutable state, no I/O, only libm; C99 that compiles with
 ``-std=c99 -Wall -Wextra -Wpedantic -Werror`` (``tests/test_export_c.py`` builds it,
 compares it with the compiled kernels and runs it under AddressSanitizer and
@@ -24,9 +27,8 @@ The C code performs the compiled kernels' operations in their order
 stale rules of the one-call step): the two agree to rounding (the kernels sum with
 reassociation allowed), whatever the target's libm.
 
-What is not exported yet: the tightening and
-:math:`\alpha_k`, the condensed FHOCP with DAQP, the infeasibility policies, the input
-gate and the normalization; the whole controller step follows in later parts of the
+What is not exported yet: the condensed FHOCP with DAQP, the infeasibility policies and
+the normalization; the whole controller step follows in later parts of the
 export (``docs/user-guide/export-c.md``).
 """
 
@@ -113,6 +115,7 @@ def export_model_c(
     *,
     observer: Any = None,
     reference: Any = None,
+    tightening: Any = None,
     prefix: str = "lstm_model",
 ) -> ExportedC:
     r"""Write ``<prefix>.h`` and ``<prefix>.c``: the model of eq. (lstm) and, with
@@ -134,6 +137,11 @@ def export_model_c(
         warm chord Newton, the damped Newton with restarts where that finds no admissible
         equilibrium, and the last admissible one kept where none is (an unreachable
         set-point); it must belong to ``model``.
+    tightening : TighteningCertificate, optional
+        Its :math:`a_i, b_i`, bounds, :math:`\kappa`, :math:`d_{max}`, :math:`\bar w`,
+        :math:`\rho_o`, :math:`\bar e_\infty` become the per-step formulas (the tightened
+        output bounds, :math:`\alpha_k`, the set-point interval, the :math:`\hat e_o`
+        recursion) with the rate limiter and the exit gate (``controller.mpc.tightening``).
     prefix : str
         Prefix of the files and of every C identifier (a C identifier).
 
@@ -142,6 +150,7 @@ def export_model_c(
     ExportedC
     """
     from ltv_lstm_mpc import __version__
+    from ltv_lstm_mpc.certificates.tightening import TighteningCertificate
     from ltv_lstm_mpc.loop.observer import Observer
     from ltv_lstm_mpc.loop.reference import ReferenceCalculator
 
@@ -151,6 +160,16 @@ def export_model_c(
         raise InvalidValueError(
             f"reference must be an ltv_lstm_mpc.ReferenceCalculator, got "
             f"{type(reference).__name__}; pass controller.reference"
+        )
+    if tightening is not None and not isinstance(tightening, TighteningCertificate):
+        raise InvalidValueError(
+            f"tightening must be a TighteningCertificate, got {type(tightening).__name__}; "
+            "pass controller.mpc.tightening"
+        )
+    if tightening is not None and np.shape(tightening.y_min) != (model.p,):
+        raise InvalidValueError(
+            f"tightening has {np.size(tightening.y_min)} outputs, the model {model.p}: pass "
+            "the certificate of this model's controller (controller.mpc.tightening)"
         )
     if reference is not None and not np.array_equal(reference.model.kernel.WU, model.kernel.WU):
         raise InvalidValueError(
@@ -248,6 +267,27 @@ def export_model_c(
         doubles += 6 * nz + (2 * n + p) + nz * nz + grid_u.shape[0]
         ints += grid_u.shape[0] + nz
         state_bytes = 8 * (nz + p + nz * nz) + 8  # (the int, padded)
+    fields["has_tightening"] = "0"
+    fields["horizon"] = "1"
+    fields["tightening_code"] = ""
+    if tightening is not None:
+        N = int(tightening.N)
+        tightening_fields = dict(fields)
+        tightening_fields.update(
+            horizon=str(N),
+            a=_matrix(np.asarray(tightening.a, dtype=np.float64)[: N + 1]),
+            b=_matrix(np.asarray(tightening.b, dtype=np.float64)[: N + 1]),
+            y_min=", ".join(_literal(v) for v in np.ravel(tightening.y_min)),
+            y_max=", ".join(_literal(v) for v in np.ravel(tightening.y_max)),
+            kappa=", ".join(_literal(v) for v in np.ravel(tightening.kappa)),
+            d_max_tightening=_literal(tightening.d_max),
+            w_bar=_literal(tightening.w_bar),
+            rho_o=_literal(tightening.rho_o),
+            e_inf=_literal(tightening.e_inf),
+        )
+        fields["has_tightening"] = "1"
+        fields["horizon"] = str(N)
+        fields["tightening_code"] = _template("tightening.c.in").substitute(tightening_fields)
     workspace_bytes = 8 * doubles + 4 * ints
     workspace_bytes += (-workspace_bytes) % 8  # the struct's alignment
     fields["workspace_bytes"] = str(workspace_bytes)
