@@ -104,6 +104,28 @@ def test_the_cortex_m7_replay_equals_the_host(loop: Any, tmp_path: Path) -> None
     assert 0 < target.stack_bytes < 16384  # measured, inside the painted region
 
 
+@needs_toolchain
+@pytest.mark.parametrize("name", ["ph_lstm_n5.npz", "quadtank_lstm_n8.npz"])
+def test_the_whole_export_cross_compiles_for_the_cortex_m7(name: str, tmp_path: Path) -> None:
+    """Model, observer, reference calculator and tightening compile for the Cortex-M7 with
+    the strict flags (warnings are errors)."""
+    import subprocess
+
+    from ltv_lstm_mpc.export.pil import CORTEX_M7_FLAGS, STRICT_FLAGS
+
+    assert TOOLCHAIN is not None
+    model = load_model(name)
+    controller = OffsetFreeController(model, MPCConfig(solver="daqp", N=5))
+    exported = export_model_c(
+        model, tmp_path, observer=controller.observer, reference=controller.reference,
+        tightening=controller.mpc.tightening, prefix="m7",
+    )  # fmt: skip
+    command = [TOOLCHAIN.gcc, *STRICT_FLAGS, *CORTEX_M7_FLAGS, "-c", "-o",
+               str(tmp_path / "m7.o"), str(exported.source)]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
 def test_the_replay_refuses_an_export_without_observer_and_uneven_data(tmp_path: Path) -> None:
     """Errors name the problem and the fix."""
     model = load_model("ph_lstm_n5.npz")
@@ -115,3 +137,9 @@ def test_the_replay_refuses_an_export_without_observer_and_uneven_data(tmp_path:
     exported = export_model_c(model, tmp_path, observer=controller.observer, prefix="obs")
     with pytest.raises(InvalidValueError, match="one row of each per step"):
         write_observer_replay(exported, x0, d0, np.zeros((3, 1)), np.zeros((2, 1)))
+    with pytest.raises(InvalidValueError, match=r"pass 10 and 1"):
+        write_observer_replay(exported, x0[:5], d0, np.zeros((3, 1)), np.zeros((3, 1)))
+    with pytest.raises(InvalidValueError, match=r"pass y as \(K, 1\)"):
+        write_observer_replay(exported, x0, d0, np.zeros((3, 2)), np.zeros((3, 1)))
+    main = write_observer_replay(exported, x0, d0, np.zeros(3), np.zeros(3))  # SISO: (K,)
+    assert "static const double Y[K][P]" in main.read_text()

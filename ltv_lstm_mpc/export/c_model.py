@@ -60,9 +60,12 @@ class ExportedC:
     prefix : str
         The C identifiers' prefix.
     workspace_bytes : int
-        ``sizeof(<prefix>_workspace)`` on a target with 8-byte doubles and 4-byte ints.
+        ``sizeof(<prefix>_workspace)`` on a target whose doubles are 8 bytes, 8-aligned, and
+        ints 4 bytes (x86-64, Arm; an upper bound where doubles are 4-aligned, as on i386).
     reference_state_bytes : int
         ``sizeof(<prefix>_reference_state)`` (0: no reference calculator exported).
+    n, m, p : int
+        The model's units, inputs and outputs.
     """
 
     header: Path
@@ -70,6 +73,9 @@ class ExportedC:
     prefix: str
     workspace_bytes: int
     reference_state_bytes: int = 0
+    n: int = 0
+    m: int = 0
+    p: int = 0
 
 
 def _literal(value: float) -> str:
@@ -98,13 +104,15 @@ def _check_prefix(prefix: str) -> str:
     if not (
         isinstance(prefix, str)
         and prefix
-        and (prefix[0].isalpha() or prefix[0] == "_")
-        and all(ch.isalnum() or ch == "_" for ch in prefix)
         and prefix.isascii()
+        and prefix[0].isalpha()
+        and all(ch.isalnum() or ch == "_" for ch in prefix)
     ):
         raise InvalidValueError(
-            f"prefix={prefix!r} is not a C identifier: use letters, digits and underscores, "
-            "not starting with a digit (e.g. prefix='lstm')"
+            f"prefix={prefix!r} is not a C identifier that starts with a letter: use letters, "
+            "digits and underscores (e.g. prefix='lstm'; a leading underscore is reserved in "
+            "C). Two exports in one program need prefixes that differ in more than case "
+            "(their header guards are the upper-case prefix)"
         )
     return prefix
 
@@ -171,7 +179,11 @@ def export_model_c(
             f"tightening has {np.size(tightening.y_min)} outputs, the model {model.p}: pass "
             "the certificate of this model's controller (controller.mpc.tightening)"
         )
-    if reference is not None and not np.array_equal(reference.model.kernel.WU, model.kernel.WU):
+    if reference is not None and not (
+        np.array_equal(reference.model.kernel.WU, model.kernel.WU)
+        and np.array_equal(reference.model.W_y, model.W_y)
+        and np.array_equal(reference.model.b_y, model.b_y)
+    ):
         raise InvalidValueError(
             "reference belongs to another model than the one exported (other weights); "
             "pass the model the reference calculator was built with (reference.model)"
@@ -250,7 +262,16 @@ def export_model_c(
         grid_x = np.asarray(reference._grid_x, dtype=np.float64)
         grid_y = np.asarray(reference._grid_y, dtype=np.float64)
         reference_fields = dict(fields)
+        from ltv_lstm_mpc.loop.compiled_reference import (
+            BACKTRACKING_STEPS,
+            CHORD_REFRESH_CONTRACTION,
+            U_MARGIN,
+        )
+
         reference_fields.update(
+            refresh=_literal(CHORD_REFRESH_CONTRACTION),
+            halvings=str(int(BACKTRACKING_STEPS)),
+            u_margin=_literal(U_MARGIN),
             grid_points=str(grid_u.shape[0]),
             tol=_literal(reference.tol),
             max_iter=str(int(reference.max_iter)),
@@ -264,7 +285,8 @@ def export_model_c(
         fields["has_reference"] = "1"
         fields["grid_points"] = str(grid_u.shape[0])
         fields["reference_code"] = _template("reference.c.in").substitute(reference_fields)
-        doubles += 6 * nz + (2 * n + p) + nz * nz + grid_u.shape[0]
+        doubles += 6 * nz + 2 * n + 4 * n * n + 2 * n * m + (2 * n + p) + nz * nz
+        doubles += grid_u.shape[0]
         ints += grid_u.shape[0] + nz
         state_bytes = 8 * (nz + p + nz * nz) + 8  # (the int, padded)
     fields["has_tightening"] = "0"
@@ -288,8 +310,15 @@ def export_model_c(
         fields["has_tightening"] = "1"
         fields["horizon"] = str(N)
         fields["tightening_code"] = _template("tightening.c.in").substitute(tightening_fields)
+    if reference is not None:
+        for name in ("max_iter", "restarts"):
+            value = int(getattr(reference, name))
+            if not 0 < value < 2**31:
+                raise InvalidValueError(
+                    f"reference.{name} = {value} does not fit a C int: use 1..2**31 - 1"
+                )
     workspace_bytes = 8 * doubles + 4 * ints
-    workspace_bytes += (-workspace_bytes) % 8  # the struct's alignment
+    workspace_bytes += (-workspace_bytes) % 8  # the struct's alignment (8-byte doubles)
     fields["workspace_bytes"] = str(workspace_bytes)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -303,4 +332,7 @@ def export_model_c(
         prefix=prefix,
         workspace_bytes=workspace_bytes,
         reference_state_bytes=state_bytes,
+        n=n,
+        m=m,
+        p=p,
     )

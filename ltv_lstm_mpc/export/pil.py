@@ -118,7 +118,8 @@ def write_observer_replay(
     Returns
     -------
     Path
-        ``pil_main.c`` (with ``pil_startup.c`` and ``pil.ld`` beside it).
+        ``pil_main.c`` (with ``pil_startup.c`` and ``pil.ld`` beside it; one replay per
+        folder: a second one replaces them).
     """
     from ltv_lstm_mpc import __version__
 
@@ -128,20 +129,37 @@ def write_observer_replay(
             f"{exported.source} has no observer update: export with "
             "export_model_c(model, out_dir, observer=controller.observer)"
         )
-    Y = np.atleast_2d(np.asarray(y, dtype=np.float64))
-    U = np.atleast_2d(np.asarray(u, dtype=np.float64))
+    n, m, p = exported.n, exported.m, exported.p
+    Y = np.asarray(y, dtype=np.float64)
+    U = np.asarray(u, dtype=np.float64)
+    Y = Y.reshape(-1, p) if Y.ndim == 1 and p == 1 else Y
+    U = U.reshape(-1, m) if U.ndim == 1 and m == 1 else U
+    if Y.ndim != 2 or U.ndim != 2 or Y.shape[1] != p or U.shape[1] != m:
+        raise InvalidValueError(
+            f"y has shape {Y.shape} and u {U.shape}: pass y as (K, {p}) and u as (K, {m}) "
+            "(one row per step)"
+        )
     if Y.shape[0] != U.shape[0] or Y.shape[0] < 1:
         raise InvalidValueError(
             f"y has {Y.shape[0]} rows and u {U.shape[0]}: pass one row of each per step (K >= 1)"
         )
+    x_first = np.ravel(np.asarray(x_hat0, dtype=np.float64))
+    d_first = np.ravel(np.asarray(d_hat0, dtype=np.float64))
+    if x_first.shape != (2 * n,) or d_first.shape != (p,):
+        raise InvalidValueError(
+            f"x_hat0 has {x_first.size} values and d_hat0 {d_first.size}: pass {2 * n} and "
+            f"{p} (the state [c; h] and the disturbance estimate)"
+        )
+    if not (np.all(np.isfinite(Y)) and np.all(np.isfinite(U))):
+        raise InvalidValueError("y and u must be finite: replay a recorded loop's signals")
     folder = exported.source.parent
     fields = {
         "prefix": exported.prefix,
         "PREFIX": exported.prefix.upper(),
         "version": __version__,
         "steps": str(Y.shape[0]),
-        "x_hat0": ", ".join(_literal(v) for v in np.ravel(x_hat0)),
-        "d_hat0": ", ".join(_literal(v) for v in np.ravel(d_hat0)),
+        "x_hat0": ", ".join(_literal(v) for v in x_first),
+        "d_hat0": ", ".join(_literal(v) for v in d_first),
         "Y": _matrix(Y),
         "U": _matrix(U),
     }
