@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +42,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from ltv_lstm_mpc import MPCConfig, Observer, OffsetFreeController  # noqa: E402
+from ltv_lstm_mpc import MPCConfig, Observer, OffsetFreeController, simulate  # noqa: E402
 from ltv_lstm_mpc.export import export_model_c  # noqa: E402
 from ltv_lstm_mpc.export.pil import (  # noqa: E402
     find_toolchain,
@@ -59,16 +58,9 @@ def ph_loop(steps: int) -> tuple[Any, Any, Any, Any, Any, Any]:
     """The paper's scenario 3 on the pH plant: model, observer, first estimate, y, u."""
     model = load_model("ph_lstm_n5.npz")
     scenario = paper_scenarios(model)[2]
-    controller = OffsetFreeController(
-        model, replace(scenario.config, solver="daqp", N=5),
-        setpoint_rate_limit=scenario.setpoint_rate_limit,
-    )  # fmt: skip
-    plant = scenario.make_plant(model)
-    y = plant.output()
-    for k in range(steps):
-        u = controller.step(y, scenario.setpoints[k])
-        d = scenario.disturbances[k]
-        y = plant.step(u, None if np.isnan(d) else d)
+    controller = scenario.make_controller(model, solver="daqp", N=5)
+    plant = scenario.make_plant(model, controller.certification)
+    simulate(plant, controller, scenario.setpoints, scenario.disturbances, steps, progress=False)
     records = controller.records
     Y = np.array([r.y for r in records])
     U = np.array([r.u for r in records])

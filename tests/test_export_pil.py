@@ -7,14 +7,13 @@ qemu-system-arm (.ci/run installs them)."""
 from __future__ import annotations
 
 import shutil
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from ltv_lstm_mpc import MPCConfig, Observer, OffsetFreeController
+from ltv_lstm_mpc import MPCConfig, Observer, OffsetFreeController, simulate
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.export import export_model_c
 from ltv_lstm_mpc.export.pil import find_toolchain, run_host, run_pil, write_observer_replay
@@ -36,16 +35,9 @@ def _scenario3_loop() -> tuple[Any, Any, Any, Any, Any]:
     measurements and applied inputs."""
     model = load_model("ph_lstm_n5.npz")
     scenario = paper_scenarios(model)[2]
-    config = replace(scenario.config, solver="daqp", N=5)
-    controller = OffsetFreeController(
-        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit
-    )
-    plant = scenario.make_plant(model)
-    y = plant.output()
-    for k in range(STEPS):
-        u = controller.step(y, scenario.setpoints[k])
-        d = scenario.disturbances[k]
-        y = plant.step(u, None if np.isnan(d) else d)
+    controller = scenario.make_controller(model, solver="daqp", N=5)
+    plant = scenario.make_plant(model, controller.certification)
+    simulate(plant, controller, scenario.setpoints, scenario.disturbances, STEPS, progress=False)
     records = controller.records
     assert any(not r.mpc.feasible for r in records)  # the loop took the policy somewhere
     Y = np.array([r.y for r in records])
