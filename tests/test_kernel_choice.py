@@ -134,6 +134,7 @@ CALLEES = {
     "_hessian_gram",
     "_invert",
     "_lu_solve",
+    "_pivot",
     "_hessian_backward",
     "_transpose_times",
     "_weight_times",

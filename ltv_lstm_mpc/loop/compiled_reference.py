@@ -120,6 +120,20 @@ def _equilibrium_residual(
 
 
 @njit(cache=True)
+def _pivot(matrix: Any, k: int) -> tuple[int, float]:
+    """Partial pivoting's choice for column ``k`` of ``matrix``: the first row from ``k`` on
+    whose entry has the largest magnitude (LAPACK's choice), and that magnitude (0.0: the
+    column is zero from row ``k`` on, the matrix singular)."""
+    pivot_row = k
+    largest = abs(matrix[k, k])
+    for r in range(k + 1, matrix.shape[0]):
+        if abs(matrix[r, k]) > largest:
+            largest = abs(matrix[r, k])
+            pivot_row = r
+    return pivot_row, largest
+
+
+@njit(cache=True)
 def _invert(matrix: Any, inverse: Any) -> bool:
     """``inverse`` = the inverse of ``matrix`` by Gauss-Jordan elimination with partial
     pivoting, in place (``matrix`` is overwritten): no allocation and no library call in
@@ -129,12 +143,7 @@ def _invert(matrix: Any, inverse: Any) -> bool:
         for c in range(size):
             inverse[r, c] = 1.0 if r == c else 0.0
     for k in range(size):
-        pivot_row = k
-        largest = abs(matrix[k, k])
-        for r in range(k + 1, size):
-            if abs(matrix[r, k]) > largest:
-                largest = abs(matrix[r, k])
-                pivot_row = r
+        pivot_row, largest = _pivot(matrix, k)
         if largest == 0.0:
             return False
         if pivot_row != k:
@@ -298,12 +307,7 @@ def _lu_solve(matrix: Any, rhs: Any, out: Any, pivots: Any) -> bool:
     ``numpy.linalg.solve`` raises ``LinAlgError``); ``out`` is then undefined."""
     size = matrix.shape[0]
     for k in range(size):
-        pivot_row = k
-        largest = abs(matrix[k, k])
-        for r in range(k + 1, size):
-            if abs(matrix[r, k]) > largest:
-                largest = abs(matrix[r, k])
-                pivot_row = r
+        pivot_row, largest = _pivot(matrix, k)
         pivots[k] = pivot_row
         if largest == 0.0:
             return False
