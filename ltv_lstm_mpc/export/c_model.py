@@ -34,6 +34,7 @@ export (``docs/user-guide/export-c.md``).
 
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
 from importlib import resources
@@ -64,6 +65,9 @@ class ExportedC:
         ints 4 bytes (x86-64, Arm; an upper bound where doubles are 4-aligned, as on i386).
     reference_state_bytes : int
         ``sizeof(<prefix>_reference_state)`` (0: no reference calculator exported).
+    mpc_workspace_bytes : int
+        An upper bound of ``sizeof(<prefix>_mpc_workspace)`` (0: no MPC exported; DAQP's
+        structs counted with 8-byte pointers).
     n, m, p : int
         The model's units, inputs and outputs.
     """
@@ -73,6 +77,7 @@ class ExportedC:
     prefix: str
     workspace_bytes: int
     reference_state_bytes: int = 0
+    mpc_workspace_bytes: int = 0
     n: int = 0
     m: int = 0
     p: int = 0
@@ -124,6 +129,7 @@ def export_model_c(
     observer: Any = None,
     reference: Any = None,
     tightening: Any = None,
+    mpc: Any = None,
     prefix: str = "lstm_model",
 ) -> ExportedC:
     r"""Write ``<prefix>.h`` and ``<prefix>.c``: the model of eq. (lstm) and, with
@@ -150,6 +156,14 @@ def export_model_c(
         :math:`\rho_o`, :math:`\bar e_\infty` become the per-step formulas (the tightened
         output bounds, :math:`\alpha_k`, the set-point interval, the :math:`\hat e_o`
         recursion) with the rate limiter and the exit gate (``controller.mpc.tightening``).
+    mpc : RobustMPC, optional
+        The controller's MPC (``controller.mpc``; the condensed transcription on DAQP):
+        its horizon, weights, terminal set, input bound, acceptance tolerance, DAQP
+        settings and infeasibility policy become ``<prefix>_linearize``,
+        ``<prefix>_condense`` and ``<prefix>_feedback`` (eq. optimization as one convex
+        subproblem, with the policies), on a second caller-owned struct,
+        ``<prefix>_mpc_workspace``; DAQP's C sources (the release the library calls) are
+        copied into ``out_dir/daqp`` with its license.
     prefix : str
         Prefix of the files and of every C identifier (a C identifier).
 
@@ -320,19 +334,172 @@ def export_model_c(
     workspace_bytes = 8 * doubles + 4 * ints
     workspace_bytes += (-workspace_bytes) % 8  # the struct's alignment (8-byte doubles)
     fields["workspace_bytes"] = str(workspace_bytes)
+    fields["mpc_declarations"] = ""
+    fields["mpc_code"] = ""
+    fields["has_mpc"] = "0" if mpc is None else "1"
+    fields["mpc_includes"] = ""
+    mpc_bytes = 0
+    if mpc is not None:
+        mpc_fields, mpc_bytes = _mpc_fields(mpc, model, fields, workspace_bytes)
+        fields["mpc_declarations"] = _template("mpc.h.in").substitute(mpc_fields)
+        fields["mpc_code"] = _template("mpc.c.in").substitute(mpc_fields)
+        fields["mpc_includes"] = _template("daqp_wiring.c.in").substitute(mpc_fields)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     header = out / f"{prefix}.h"
     source = out / f"{prefix}.c"
     header.write_text(_template("model.h.in").substitute(fields))
     source.write_text(_template("model.c.in").substitute(fields))
+    if mpc is not None:
+        _copy_daqp(out / "daqp")
     return ExportedC(
         header=header,
         source=source,
         prefix=prefix,
         workspace_bytes=workspace_bytes,
         reference_state_bytes=state_bytes,
+        mpc_workspace_bytes=mpc_bytes,
         n=n,
         m=m,
         p=p,
     )
+
+
+#: The DAQP release whose C sources are vendored in ``export/vendor/daqp``.
+DAQP_VENDORED = "0.11.0"
+
+
+def _copy_daqp(target: Path) -> None:
+    """DAQP's vendored C sources, its license and ``no_heap.h`` into ``target``."""
+    vendor = resources.files("ltv_lstm_mpc.export").joinpath("vendor", "daqp")
+    for folder in ("include", "src"):
+        (target / folder).mkdir(parents=True, exist_ok=True)
+        for entry in vendor.joinpath(folder).iterdir():
+            if entry.name.endswith((".h", ".c")):
+                (target / folder / entry.name).write_bytes(entry.read_bytes())
+    for name in ("LICENSE", "README.md"):
+        (target / name).write_bytes(vendor.joinpath(name).read_bytes())
+    (target / "no_heap.h").write_text(_template("no_heap.h.in").template)
+
+
+def _daqp_settings(config: Any) -> str:
+    """The ``DAQPSettings`` the library's DAQP calls use (``daqp.solve``'s keywords from the
+    solver options) as C designated initializers, equality elimination off."""
+    import importlib.metadata
+
+    from ltv_lstm_mpc.solvers import daqp_native
+    from ltv_lstm_mpc.solvers.tolerances import solver_options
+
+    try:
+        installed = importlib.metadata.version("daqp")
+    except importlib.metadata.PackageNotFoundError:
+        installed = None
+    if installed != DAQP_VENDORED:
+        raise InvalidValueError(
+            f"the C export vendors DAQP {DAQP_VENDORED}, and the library runs DAQP "
+            f"{installed or '(not installed)'}: the exported controller would solve its QPs "
+            f"with other code than the Python one. Install it with "
+            f"pip install daqp=={DAQP_VENDORED}"
+        )
+    options = solver_options("daqp", config.tolerance, dict(config.solver_settings))
+    native = daqp_native.native(options)
+    if native is None:
+        raise InvalidValueError(
+            f"DAQP's settings cannot be read from the installed release "
+            f"({daqp_native.unavailable_reason()}); reinstall daqp=={DAQP_VENDORED}"
+        )
+    settings = daqp_native._Settings.from_buffer_copy(bytes(native.settings))
+    lines = []
+    for name, kind in settings._fields_:
+        value = getattr(settings, name)
+        if name == "eq_reduction":
+            value = -1  # DAQP_EQ_REDUCTION_OFF: the QPs have no equality rows
+        text = str(int(value)) if kind is ctypes.c_int else _literal(value)
+        lines.append(f"    .{name} = {text},")
+    return "\n".join(lines)
+
+
+def _mpc_fields(
+    mpc: Any, model: LSTMModel, fields: dict[str, str], model_bytes: int
+) -> tuple[dict[str, str], int]:
+    """The template fields of ``mpc.h.in`` and ``mpc.c.in`` and the workspace's size bound."""
+    from ltv_lstm_mpc.mpc.rti import RobustMPC
+    from ltv_lstm_mpc.solvers.tolerances import feasibility_tolerance
+
+    if not isinstance(mpc, RobustMPC):
+        raise InvalidValueError(
+            f"mpc must be a RobustMPC, got {type(mpc).__name__}; pass controller.mpc"
+        )
+    config = mpc.config
+    if config.solver != "daqp" or mpc.transcription != "condensed":
+        raise InvalidValueError(
+            f"the C export solves the condensed QP with DAQP; this MPC uses solver="
+            f"{config.solver!r} on the {mpc.transcription} transcription: build the "
+            "controller with MPCConfig(solver='daqp', transcription='condensed')"
+        )
+    if config.sqp_iterations != 1:
+        raise InvalidValueError(
+            f"the C export runs one convex subproblem per step (RTI); this MPC runs up to "
+            f"{config.sqp_iterations} SQP iterations: use MPCConfig(sqp_iterations=1)"
+        )
+    other = mpc.model
+    if other is not model and not (
+        np.array_equal(other.kernel.WU, model.kernel.WU)
+        and np.array_equal(other.W_y, model.W_y)
+        and np.array_equal(other.b_y, model.b_y)
+    ):
+        raise InvalidValueError(
+            "mpc predicts with another model than the one exported (other weights); pass "
+            "the model the controller was built with (controller.model)"
+        )
+    policies = ("nominal", "paper", "soft", "shift")
+    policy = config.infeasibility_policy
+    if policy not in policies[1:]:
+        raise InvalidValueError(
+            f"infeasibility_policy={policy!r} is not exported: use 'paper', 'soft' or 'shift'"
+        )
+    problem: Any = mpc._problem
+    N, n, m, p = int(mpc.N), model.n, model.m, model.p
+    nx, nu = 2 * n, N * m
+    n_out = (N - 1) * p
+    rows = n_out + nx
+    soft = policy == "soft"
+    soft_n = nu + n_out + 1 if soft else 1
+    soft_rows = 2 * n_out + 2 * nx if soft else 1
+    qp_n = max(nu, soft_n if soft else 0)
+    qp_rows = max(rows, soft_rows if soft else 0)
+    qp_m = max(nu + rows, soft_n + soft_rows if soft else 0)
+    values = dict(fields)
+    values.update(
+        mpc_N=str(N),
+        nx=str(nx),
+        nu=str(nu),
+        rows=str(rows),
+        soft_n=str(soft_n),
+        soft_rows=str(soft_rows),
+        qp_n=str(qp_n),
+        qp_m=str(qp_m),
+        qp_rows=str(qp_rows),
+        policy_name=policy,
+        policy_code=str(policies.index(policy)),
+        u_max=_literal(config.u_max),
+        Qs="\n".join("    {\n" + _matrix(Q, "        ") + "\n    }," for Q in problem._Qs),
+        R=_matrix(np.asarray(mpc._R, dtype=np.float64)),
+        Q=_matrix(np.asarray(mpc._Q, dtype=np.float64)),
+        P_terms=", ".join(_literal(v) for v in mpc._P_terms),
+        unit_half=", ".join(_literal(v) for v in problem._unit_half),
+        tolerance=_literal(feasibility_tolerance("daqp", config.tolerance)),
+        slack_regularization=_literal(problem.slack_regularization),
+        soft_penalty=_literal(config.soft_penalty),
+        daqp_settings=_daqp_settings(config),
+    )
+    doubles = (N + 1) * (nx + m) + N * nx * (nx + m) + (N + 1) * nx * nu + nu * nu + 2 * nu
+    doubles += rows * nu + 2 * rows + 2 * (nu + rows) + (N + 1) * nx + 2 * nx * nx
+    doubles += m * nx + 3 * nx + qp_n + qp_m + soft_n * soft_n + soft_n
+    doubles += soft_rows * soft_n + 2 * (soft_n + soft_rows) + 5 * (qp_n + 1)
+    doubles += (qp_n + 1) * (qp_n + 2) // 2 + 2 * qp_n + qp_m + qp_n * qp_rows + qp_rows
+    doubles += 2 * qp_m + (qp_n + 1) * qp_n // 2 + qp_n + N * m + 2 * (N + 1) * nx
+    ints = qp_m + (qp_n + 1) + qp_n + qp_m
+    bound = 8 * doubles + 4 * ints + model_bytes + 1024
+    values["mpc_workspace_bytes"] = f"at most {bound}"
+    return values, bound

@@ -1,0 +1,294 @@
+"""The C99 export of the MPC's subproblem (ltv_lstm_mpc/export: ``mpc=``): the linearized,
+condensed QP of eq. (optimization), DAQP (vendored, on the caller's workspace), the
+acceptance tests, the infeasibility policies and the plan's re-simulation equal
+``RobustMPC.prepare``/``feedback`` step by step over closed loops with infeasible instants;
+the build is warning-free under the strict flags, allocation-free (``nm``), and clean under
+AddressSanitizer and UndefinedBehaviorSanitizer. Skipped where no C compiler is installed."""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+import subprocess
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
+from ltv_lstm_mpc.benchmarks.quadtank import quadtank_scenarios
+from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.export import export_model_c
+from ltv_lstm_mpc.lstm.shipped import load_model
+from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+pytest.importorskip("daqp")
+
+COMPILERS = [name for name in ("gcc", "clang") if shutil.which(name)]
+STRICT = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror"]
+needs_compiler = pytest.mark.skipif(not COMPILERS, reason="no C compiler (gcc or clang)")
+
+#: C status codes and the status names of ``MPCSolution.status``.
+STATUS_NAMES = {
+    1: "optimal",
+    2: "optimal_inaccurate",
+    -1: "infeasible",
+    -2: "failed",
+    -3: "unbounded",
+    -4: "max_iter",
+    -5: "failed",
+    -6: "failed",
+    -100: "infeasible_initial",
+    -101: "alpha_nonpositive",
+    -102: "failed",
+}
+POLICIES = ("nominal", "paper", "soft", "shift", "paper+shift", "soft+shift")
+
+
+class FeedbackResult(ctypes.Structure):
+    """``<prefix>_feedback_result``."""
+
+    _fields_ = [
+        ("status", ctypes.c_int),
+        ("policy", ctypes.c_int),
+        ("iterations", ctypes.c_int),
+        ("qp_iterations", ctypes.c_int),
+        ("sqp_step", ctypes.c_double),
+        ("cost", ctypes.c_double),
+        ("terminal_norm", ctypes.c_double),
+        ("output_violation", ctypes.c_double),
+        ("linearization_gap", ctypes.c_double),
+    ]
+
+
+def build(folder: Path, prefix: str, compiler: str, extra: tuple[str, ...] = ()) -> Path:
+    """The export in ``folder`` (``<prefix>.c`` and DAQP's sources) as a shared library."""
+    daqp = sorted(str(p) for p in (folder / "daqp" / "src").glob("*.c"))
+    library = folder / f"lib{prefix}_{compiler}{'_'.join(extra).replace('=', '')}.so"
+    command = [
+        compiler, *STRICT, *extra, "-fPIC", "-shared", "-ffunction-sections", "-Wl,--gc-sections",
+        "-include", str(folder / "daqp" / "no_heap.h"), "-I", str(folder / "daqp" / "include"),
+        "-o", str(library), str(folder / f"{prefix}.c"), *daqp, "-lm",
+    ]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 0, f"{' '.join(command)}\n{done.stderr}"
+    return library
+
+
+class CMPC:
+    """The exported subproblem through ctypes."""
+
+    def __init__(self, library: Path, prefix: str, exported: Any, N: int) -> None:
+        lib = ctypes.CDLL(str(library))
+        self.lib, self.N, self.n, self.m, self.p = lib, N, exported.n, exported.m, exported.p
+        self.workspace = ctypes.create_string_buffer(exported.mpc_workspace_bytes)
+        pointer = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
+        ws = ctypes.c_void_p
+        self.linearize = getattr(lib, f"{prefix}_linearize")
+        self.linearize.argtypes, self.linearize.restype = [ws, pointer, pointer], None
+        self.condense = getattr(lib, f"{prefix}_condense")
+        self.condense.argtypes = [ws, pointer, pointer, pointer, pointer, ctypes.c_double]
+        self.condense.restype = ctypes.c_double
+        self.feedback = getattr(lib, f"{prefix}_feedback")
+        self.feedback.argtypes = [ws, *[pointer] * 5, ctypes.c_double, ctypes.c_double,
+                                  ctypes.POINTER(FeedbackResult)]  # fmt: skip
+        self.feedback.restype = None
+
+    def solve(self, entry: dict[str, Any]) -> tuple[FeedbackResult, np.ndarray]:
+        """Linearize, condense and feed back one captured step; (result, plan inputs)."""
+        n2, m, N = 2 * self.n, self.m, self.N
+        S = entry["S"]
+        c = np.ascontiguousarray
+        self.linearize(self.workspace, c(S[0, :n2]), c(S[:N, n2 : n2 + m]))
+        scale = self.condense(
+            self.workspace, c(entry["x_bar"]), c(entry["u_bar"]), c(entry["lower"]),
+            c(entry["upper"]), entry["alpha"],
+        )  # fmt: skip
+        result = FeedbackResult()
+        self.feedback(
+            self.workspace, c(entry["x_hat"]), c(entry["x_bar"]), c(entry["u_bar"]),
+            c(entry["lower"]), c(entry["upper"]), entry["alpha"], scale, ctypes.byref(result),
+        )  # fmt: skip
+        return result, self.plan_inputs()
+
+    def plan_inputs(self) -> np.ndarray:
+        """``w->u`` (its offset: the fields before it, from the exported layout)."""
+        return self._u_view.copy()
+
+    def bind_u(self, offset: int) -> None:
+        """Where ``u`` lies in the workspace (from ``<prefix>_mpc_u_offset``)."""
+        count = self.N * self.m
+        self._u_view = np.frombuffer(self.workspace, dtype=np.float64, count=count,
+                                     offset=offset).reshape(self.N, self.m)  # fmt: skip
+
+
+def capture(controller: OffsetFreeController) -> list[dict[str, Any]]:
+    """Record every ``controller.mpc.feedback`` call: the linearization trajectory, the
+    estimate, set-points, tightened bounds and alpha_k it runs on, and its solution."""
+    mpc = controller.mpc
+    original = mpc.feedback
+    rows: list[dict[str, Any]] = []
+
+    def feedback(x_hat: Any, *args: Any, **kwargs: Any) -> Any:
+        entry = {
+            "S": mpc._traj.S.copy(),
+            "x_hat": np.array(x_hat, dtype=np.float64),
+            "x_bar": np.array(mpc._x_bar, dtype=np.float64),
+            "u_bar": np.array(mpc._u_bar, dtype=np.float64),
+            "lower": np.array(mpc._lower, dtype=np.float64),
+            "upper": np.array(mpc._upper, dtype=np.float64),
+            "alpha": float(mpc._alpha),
+        }
+        entry["solution"] = original(x_hat, *args, **kwargs)
+        rows.append(entry)
+        return entry["solution"]
+
+    mpc.feedback = feedback  # type: ignore[method-assign]
+    return rows
+
+
+def closed_loop(
+    plant_name: str, policy: str, N: int, steps: int
+) -> tuple[OffsetFreeController, list[dict[str, Any]]]:
+    """A closed loop with infeasible instants on the reference engine (every step through
+    ``RobustMPC.feedback``) with ``policy``: the paper's scenario 3 on the pH plant, or the
+    quadruple tank's set-point changes."""
+    if plant_name == "ph":
+        model = load_model("ph_lstm_n5.npz")
+        scenario: Any = paper_scenarios(model)[2]
+        plant = None
+    else:
+        model = load_model("quadtank_lstm_n8.npz")
+        scenario = quadtank_scenarios(short=True)[0]
+        plant = scenario.make_plant(model)
+    config = replace(scenario.config, solver="daqp", N=N, infeasibility_policy=policy)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
+    )
+    rows = capture(controller)
+    if plant is None:
+        plant = scenario.make_plant(model, controller.certification)
+    disturbances = scenario.disturbances if plant_name == "ph" else scenario.leaks
+    simulate(plant, controller, scenario.setpoints, disturbances, steps, progress=False)
+    return controller, rows
+
+
+def export(controller: OffsetFreeController, folder: Path, prefix: str = "ctl") -> Any:
+    return export_model_c(
+        controller.model, folder, observer=controller.observer, reference=controller.reference,
+        tightening=controller.mpc.tightening, mpc=controller.mpc, prefix=prefix,
+    )  # fmt: skip
+
+
+def u_offset(folder: Path, prefix: str, compiler: str) -> tuple[int, int]:
+    """``offsetof(<prefix>_mpc_workspace, u)`` and its ``sizeof``, from a compiled probe."""
+    probe = folder / "probe.c"
+    probe.write_text(
+        f'#include <stddef.h>\n#include <stdio.h>\n#include "{prefix}.h"\n'
+        f'int main(void) {{ printf("%zu %zu\\n", offsetof({prefix}_mpc_workspace, u), '
+        f"sizeof({prefix}_mpc_workspace)); return 0; }}\n"
+    )
+    binary = folder / "probe"
+    subprocess.run([compiler, "-std=c99", "-o", str(binary), str(probe)], check=True)
+    offset, size = subprocess.run([str(binary)], capture_output=True, text=True).stdout.split()
+    return int(offset), int(size)
+
+
+def compare(cmpc: CMPC, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Every captured step through the C subproblem: statuses, policies and inputs."""
+    worst_u = worst_cost = 0.0
+    policies: dict[str, int] = {}
+    for k, entry in enumerate(rows):
+        solution = entry["solution"]
+        result, u = cmpc.solve(entry)
+        name = STATUS_NAMES.get(result.status, f"code {result.status}")
+        assert name == solution.status, (k, name, solution.status, solution.reason)
+        assert POLICIES[result.policy] == solution.policy, (k, result.policy, solution.policy)
+        assert result.iterations == solution.iterations, k
+        scale = max(1.0, float(np.abs(solution.u).max()))
+        worst_u = max(worst_u, float(np.abs(u - solution.u).max()) / scale)
+        worst_cost = max(worst_cost, abs(result.cost - solution.cost) / max(1.0, solution.cost))
+        policies[solution.policy] = policies.get(solution.policy, 0) + 1
+    return {"u": worst_u, "cost": worst_cost, "policies": policies}
+
+
+@needs_compiler
+@pytest.mark.parametrize("policy", ["paper", "soft", "shift"])
+def test_the_c_subproblem_equals_robust_mpc_feedback(policy: str, tmp_path: Path) -> None:
+    """Scenario 3 (set-point jumps with infeasible instants), 300 steps, N = 5: on every
+    step the C subproblem gives RobustMPC.feedback's status, policy and SQP iterations
+    exactly, its plan's inputs to 1e-9 (relative) and its cost to 1e-9."""
+    controller, rows = closed_loop("ph", policy, 5, 300)
+    exported = export(controller, tmp_path)
+    compiler = COMPILERS[0]
+    offset, size = u_offset(tmp_path, "ctl", compiler)
+    assert size <= exported.mpc_workspace_bytes
+    cmpc = CMPC(build(tmp_path, "ctl", compiler), "ctl", exported, 5)
+    cmpc.bind_u(offset)
+    found = compare(cmpc, rows)
+    assert found["u"] <= 1e-9 and found["cost"] <= 1e-9, found
+    assert set(found["policies"]) - {"nominal"}, found  # the policy ran somewhere
+
+
+@needs_compiler
+def test_the_c_subproblem_equals_feedback_on_the_quadruple_tank(tmp_path: Path) -> None:
+    """The quadruple tank (n = 8, two pumps, two levels), 240 steps at N = 5 and N = 20:
+    statuses, policies exactly, inputs and cost to 1e-9."""
+    for N in (5, 20):
+        controller, rows = closed_loop("quadtank", "paper", N, 240)
+        folder = tmp_path / f"N{N}"
+        exported = export(controller, folder)
+        compiler = COMPILERS[-1]
+        offset, _ = u_offset(folder, "ctl", compiler)
+        cmpc = CMPC(build(folder, "ctl", compiler), "ctl", exported, N)
+        cmpc.bind_u(offset)
+        found = compare(cmpc, rows)
+        assert found["u"] <= 1e-9 and found["cost"] <= 1e-9, found
+
+
+@needs_compiler
+def test_the_c_prechecks_equal_feedback(tmp_path: Path) -> None:
+    """The pre-checks no solver can fix, as RobustMPC.feedback words them: an estimate whose
+    first output leaves its tightened bounds (infeasible_initial) and a set-point outside
+    the admissible interval (alpha_nonpositive), each followed by the policy."""
+    controller, rows = closed_loop("ph", "paper", 5, 40)
+    mpc = controller.mpc
+    n2 = 2 * controller.model.n
+    entry = rows[-1]
+    y0, e_hat = controller.records[-1].y0, controller.records[-1].e_hat
+    checks = []
+    for shift, setpoint in ((3.0, y0), (0.0, y0 + 50.0)):
+        mpc.prepare(
+            entry["x_bar"], entry["u_bar"], setpoint, e_hat, x_pred=entry["S"][0, :n2],
+            warm=entry["S"][:-1, n2 : n2 + controller.model.m],
+        )  # fmt: skip
+        x_hat = entry["x_hat"].copy()
+        x_hat[n2 // 2 :] += shift
+        mpc.feedback(x_hat)
+        checks.append(rows[-1])
+    assert [c["solution"].status for c in checks] == ["infeasible_initial", "alpha_nonpositive"]
+    exported = export(controller, tmp_path)
+    offset, _ = u_offset(tmp_path, "ctl", COMPILERS[0])
+    cmpc = CMPC(build(tmp_path, "ctl", COMPILERS[0]), "ctl", exported, 5)
+    cmpc.bind_u(offset)
+    found = compare(cmpc, checks)
+    assert found["u"] <= 1e-9 and found["cost"] <= 1e-9, found
+
+
+def test_the_export_refuses_what_it_cannot_run(tmp_path: Path) -> None:
+    """An MPC on another solver or with globalized SQP, or not a RobustMPC: refused, naming
+    the value and the fix."""
+    model = load_model("ph_lstm_n5.npz")
+    for config, match in (
+        (MPCConfig(solver="osqp", N=5), "solver='osqp'"),
+        (MPCConfig(solver="daqp", N=5, sqp_iterations=3), "sqp_iterations=1"),
+    ):
+        if config.solver == "osqp":
+            pytest.importorskip("osqp")
+        controller = OffsetFreeController(model, config)
+        with pytest.raises(InvalidValueError, match=match):
+            export_model_c(model, tmp_path, mpc=controller.mpc)
+    with pytest.raises(InvalidValueError, match=r"controller\.mpc"):
+        export_model_c(model, tmp_path, mpc=object())
