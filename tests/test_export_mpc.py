@@ -292,3 +292,131 @@ def test_the_export_refuses_what_it_cannot_run(tmp_path: Path) -> None:
             export_model_c(model, tmp_path, mpc=controller.mpc)
     with pytest.raises(InvalidValueError, match=r"controller\.mpc"):
         export_model_c(model, tmp_path, mpc=object())
+
+
+DRIVER = r"""
+#include <stdio.h>
+#include <string.h>
+#include "ctl.h"
+
+#define NX CTL_NX
+#define HN CTL_MPC_N
+static ctl_mpc_workspace work[2]; /* two controllers in one program */
+
+int main(int argc, char **argv)
+{
+    double S0[NX], cand[HN * CTL_M], x_hat[NX], x_bar[NX], u_bar[CTL_M];
+    double lower[HN][CTL_P], upper[HN][CTL_P], alpha;
+    FILE *in = fopen(argv[1], "rb");
+    int i, k;
+    (void)argc;
+    for (k = 0;; ++k) {
+        ctl_feedback_result result[2];
+        if (fread(S0, sizeof S0, 1, in) != 1) {
+            break;
+        }
+        if (fread(cand, sizeof cand, 1, in) != 1 || fread(x_hat, sizeof x_hat, 1, in) != 1 ||
+            fread(x_bar, sizeof x_bar, 1, in) != 1 || fread(u_bar, sizeof u_bar, 1, in) != 1 ||
+            fread(lower, sizeof lower, 1, in) != 1 || fread(upper, sizeof upper, 1, in) != 1 ||
+            fread(&alpha, sizeof alpha, 1, in) != 1) {
+            return 2;
+        }
+        for (i = 0; i < 2; ++i) {
+            double scale;
+            ctl_linearize(&work[i], S0, cand);
+            scale = ctl_condense(&work[i], x_bar, u_bar, (const double (*)[CTL_P])lower,
+                                 (const double (*)[CTL_P])upper, alpha);
+            ctl_feedback(&work[i], x_hat, x_bar, u_bar, (const double (*)[CTL_P])lower,
+                         (const double (*)[CTL_P])upper, alpha, scale, &result[i]);
+        }
+        if (memcmp(work[0].u, work[1].u, sizeof work[0].u) != 0 ||
+            result[0].status != result[1].status) {
+            return 3;
+        }
+        printf("%d %d %.17g", result[0].status, result[0].policy, result[0].cost);
+        for (i = 0; i < HN * CTL_M; ++i) {
+            printf(" %.17g", work[0].u[i / CTL_M][i % CTL_M]);
+        }
+        printf("\n");
+    }
+    fclose(in);
+    return 0;
+}
+"""
+
+
+def write_steps(rows: list[dict[str, Any]], path: Path, N: int, n2: int, m: int) -> None:
+    """The captured steps as the driver reads them (float64, native order)."""
+    parts = []
+    for entry in rows:
+        S = entry["S"]
+        parts += [S[0, :n2], S[:N, n2 : n2 + m].ravel(), entry["x_hat"], entry["x_bar"]]
+        parts += [entry["u_bar"], entry["lower"].ravel(), entry["upper"].ravel()]
+        parts.append(np.array([entry["alpha"]]))
+    np.concatenate(parts).astype(np.float64).tofile(path)
+
+
+@needs_compiler
+def test_the_c_subproblem_runs_clean_under_the_sanitizers(tmp_path: Path) -> None:
+    """A C driver replays 120 steps of scenario 3 (the policy included) on two workspaces
+    in one program under AddressSanitizer and UndefinedBehaviorSanitizer: no report, both
+    workspaces give the same plan, equal to RobustMPC.feedback's (statuses, policies
+    exactly; inputs to 1e-9)."""
+    controller, rows = closed_loop("ph", "soft", 5, 120)
+    export(controller, tmp_path)
+    model = controller.model
+    write_steps(rows, tmp_path / "steps.bin", 5, 2 * model.n, model.m)
+    (tmp_path / "driver.c").write_text(DRIVER)
+    compiler = COMPILERS[0]  # (gcc first: clang's sanitizer runtimes are a separate package)
+    binary = tmp_path / "driver"
+    daqp = sorted(str(p) for p in (tmp_path / "daqp" / "src").glob("*.c"))
+    command = [
+        compiler, *STRICT, "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
+        "-include", str(tmp_path / "daqp" / "no_heap.h"), "-I", str(tmp_path),
+        "-I", str(tmp_path / "daqp" / "include"), "-o", str(binary), str(tmp_path / "driver.c"),
+        str(tmp_path / "ctl.c"), *daqp, "-lm",
+    ]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode and ("asan" in done.stderr or "ubsan" in done.stderr):
+        pytest.skip(f"{compiler} has no sanitizer runtime here: {done.stderr[-300:]}")
+    assert done.returncode == 0, done.stderr
+    run = subprocess.run(
+        [str(binary), str(tmp_path / "steps.bin")], capture_output=True, text=True, timeout=300
+    )
+    assert run.returncode == 0 and not run.stderr, run.stderr[-3000:]
+    lines = run.stdout.split("\n")[:-1]
+    assert len(lines) == len(rows)
+    assert any(r["solution"].policy != "nominal" for r in rows)
+    for k, (line, entry) in enumerate(zip(lines, rows, strict=True)):
+        values = line.split()
+        solution = entry["solution"]
+        assert STATUS_NAMES[int(values[0])] == solution.status, k
+        assert POLICIES[int(values[1])] == solution.policy, k
+        u = np.array([float(v) for v in values[3:]]).reshape(solution.u.shape)
+        assert np.abs(u - solution.u).max() <= 1e-9 * max(1.0, np.abs(solution.u).max()), k
+
+
+@needs_compiler
+def test_the_exported_objects_reference_no_heap_and_no_io(tmp_path: Path) -> None:
+    """``nm -u`` on every object of the export (the controller and DAQP, built as the
+    user guide says: DAQP with ``no_heap.h``): no malloc, calloc, realloc, free, and
+    no stdio; only libm and the C library's memory moves."""
+    controller, _ = closed_loop("ph", "paper", 5, 2)
+    export(controller, tmp_path)
+    sources = [tmp_path / "ctl.c", *sorted((tmp_path / "daqp" / "src").glob("*.c"))]
+    undefined: set[str] = set()
+    defined: set[str] = set()
+    for source in sources:
+        obj = tmp_path / (source.stem + ".o")
+        command = [
+            COMPILERS[0], *STRICT, "-c", "-include", str(tmp_path / "daqp" / "no_heap.h"),
+            "-I", str(tmp_path / "daqp" / "include"), "-o", str(obj), str(source),
+        ]  # fmt: skip
+        subprocess.run(command, check=True)
+        for flag, names in (("-u", undefined), ("--defined-only", defined)):
+            listing = subprocess.run(["nm", flag, str(obj)], capture_output=True, text=True)
+            names |= {line.split()[-1] for line in listing.stdout.splitlines() if line.strip()}
+    external = undefined - defined
+    assert not external & {"malloc", "calloc", "realloc", "free", "printf", "fprintf", "puts"}
+    allowed = {"memcpy", "memmove", "memset", "sqrt", "fmax", "floor", "fabs", "copysign"}
+    assert {name for name in external if not name.startswith("_")} <= allowed, external

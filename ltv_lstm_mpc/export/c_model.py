@@ -27,9 +27,15 @@ The C code performs the compiled kernels' operations in their order
 stale rules of the one-call step): the two agree to rounding (the kernels sum with
 reassociation allowed), whatever the target's libm.
 
-What is not exported yet: the condensed FHOCP with DAQP, the infeasibility policies and
-the normalization; the whole controller step follows in later parts of the
-export (``docs/user-guide/export-c.md``).
+With ``mpc=`` (a :class:`~ltv_lstm_mpc.mpc.rti.RobustMPC` on the condensed
+transcription with DAQP), the MPC's subproblem follows: the linearization along a
+candidate, the condensed QP (:mod:`~ltv_lstm_mpc.mpc.compiled_condensing`), DAQP
+(vendored, on the caller's workspace), the acceptance tests, the infeasibility policies
+and the plan's re-simulation (:mod:`~ltv_lstm_mpc.mpc.native_feedback`,
+:mod:`~ltv_lstm_mpc.mpc.compiled_plan`), equal to ``RobustMPC.feedback``
+(``tests/test_export_mpc.py``). What is not exported yet: the exact cones, the
+normalization and the whole controller step, in later parts of the export
+(``docs/user-guide/export-c.md``).
 """
 
 from __future__ import annotations
