@@ -133,6 +133,11 @@ SMOKE = {
         ("--steps", "20"),
         ("pH (n = 5)", "quadruple tank (n = 8)", "host - library"),
     ),
+    "export_sil.py": Smoke(
+        ("--N", "5", "--steps", "20", "--only", "3"),
+        ("policy steps", "max |du|/|u|", "equal"),
+        needs=("daqp",),
+    ),
     "gc_jitter.py": Smoke(
         ("--steps", "40", "--block", "20", "--N", "5"),
         ("collector on", "collector paused", "unreachable objects"),

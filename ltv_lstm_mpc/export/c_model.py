@@ -33,8 +33,10 @@ candidate, the condensed QP (:mod:`~ltv_lstm_mpc.mpc.compiled_condensing`), DAQP
 (vendored, on the caller's workspace), the acceptance tests, the infeasibility policies
 and the plan's re-simulation (:mod:`~ltv_lstm_mpc.mpc.native_feedback`,
 :mod:`~ltv_lstm_mpc.mpc.compiled_plan`), equal to ``RobustMPC.feedback``
-(``tests/test_export_mpc.py``). What is not exported yet: the exact cones, the
-normalization and the whole controller step, in later parts of the export
+(``tests/test_export_mpc.py``). With ``controller=`` (an
+:class:`~ltv_lstm_mpc.OffsetFreeController`), the whole step of Fig. 1 in physical units,
+``<prefix>_controller_step`` (``tests/test_export_step.py``; on the host through
+:mod:`ltv_lstm_mpc.export.sil`). Not exported yet: the exact cones of ``daqp:socp``
 (``docs/user-guide/export-c.md``).
 """
 
@@ -136,6 +138,7 @@ def export_model_c(
     reference: Any = None,
     tightening: Any = None,
     mpc: Any = None,
+    controller: Any = None,
     prefix: str = "lstm_model",
 ) -> ExportedC:
     r"""Write ``<prefix>.h`` and ``<prefix>.c``: the model of eq. (lstm) and, with
@@ -170,6 +173,14 @@ def export_model_c(
         subproblem, with the policies), on a second caller-owned struct,
         ``<prefix>_mpc_workspace``; DAQP's C sources (the release the library calls) are
         copied into ``out_dir/daqp`` with its license.
+    controller : OffsetFreeController, optional
+        The whole controller: its observer, reference calculator, tightening certificate
+        and MPC (the arguments above, taken from it where not given) and its step,
+        ``<prefix>_controller_step`` on a caller-owned ``<prefix>_controller``: the
+        normalization, rate limiter, reference calculator with the stale rule,
+        tightening and :math:`\alpha_k`, candidate, subproblem, exit gate, observer and
+        :math:`\hat e_o` recursion of ``OffsetFreeController.step`` (physical units in
+        and out).
     prefix : str
         Prefix of the files and of every C identifier (a C identifier).
 
@@ -184,6 +195,17 @@ def export_model_c(
 
     model = require_model(model)
     prefix = _check_prefix(prefix)
+    if controller is not None:
+        from ltv_lstm_mpc.loop.controller import OffsetFreeController
+
+        if not isinstance(controller, OffsetFreeController):
+            raise InvalidValueError(
+                f"controller must be an OffsetFreeController, got {type(controller).__name__}"
+            )
+        observer = controller.observer if observer is None else observer
+        reference = controller.reference if reference is None else reference
+        tightening = controller.mpc.tightening if tightening is None else tightening
+        mpc = controller.mpc if mpc is None else mpc
     if reference is not None and not isinstance(reference, ReferenceCalculator):
         raise InvalidValueError(
             f"reference must be an ltv_lstm_mpc.ReferenceCalculator, got "
@@ -350,6 +372,17 @@ def export_model_c(
         fields["mpc_declarations"] = _template("mpc.h.in").substitute(mpc_fields)
         fields["mpc_code"] = _template("mpc.c.in").substitute(mpc_fields)
         fields["mpc_includes"] = _template("daqp_wiring.c.in").substitute(mpc_fields)
+    fields["has_controller"] = "0" if controller is None else "1"
+    if controller is not None:
+        if tightening is None or int(tightening.N) != int(mpc.N):
+            raise InvalidValueError(
+                "the controller step needs the tightening certificate of its MPC's horizon "
+                "(controller.mpc.tightening)"
+            )
+        step_fields = _controller_fields(controller, mpc_fields)
+        fields["mpc_declarations"] += _template("controller.h.in").substitute(step_fields)
+        fields["mpc_code"] += _template("controller.c.in").substitute(step_fields)
+        mpc_bytes += 8 * (2 * (2 * n) + 2 * p + 2 * m + 4 * n + 2 * m) + 8 * 5 + state_bytes
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     header = out / f"{prefix}.h"
@@ -489,7 +522,9 @@ def _mpc_fields(
         policy_name=policy,
         policy_code=str(policies.index(policy)),
         u_max=_literal(config.u_max),
-        Qs="\n".join("    {\n" + _matrix(Q, "        ") + "\n    }," for Q in problem._Qs),
+        Qs="\n".join(
+            "    {\n" + _matrix(Q, "        ") + "\n    }," for Q in problem.stage_weights()[1]
+        ),
         R=_matrix(np.asarray(mpc._R, dtype=np.float64)),
         Q=_matrix(np.asarray(mpc._Q, dtype=np.float64)),
         P_terms=", ".join(_literal(v) for v in mpc._P_terms),
@@ -509,3 +544,39 @@ def _mpc_fields(
     bound = 8 * doubles + 4 * ints + model_bytes + 1024
     values["mpc_workspace_bytes"] = f"at most {bound}"
     return values, bound
+
+
+def _controller_fields(controller: Any, fields: dict[str, str]) -> dict[str, str]:
+    """The template fields of ``controller.h.in`` and ``controller.c.in``."""
+    from ltv_lstm_mpc.loop.compiled_reference import U_MARGIN
+    from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT
+
+    scaling = controller.scaling
+    limit = controller.setpoint_rate_limit
+    values = dict(fields)
+
+    def row(name: str) -> str:
+        return ", ".join(_literal(v) for v in np.ravel(getattr(scaling, name)))
+
+    values.update(
+        y_min=row("y_min"),
+        y_scale=row("y_scale"),
+        u_min=row("u_min"),
+        u_scale=row("u_scale"),
+        u_phi_low=row("u_phi_low"),
+        u_phi_high=row("u_phi_high"),
+        has_limiter="0" if limit is None else "1",
+        rate_limit=_literal(0.0 if limit is None else limit),
+        e_hat0=_literal(_e_hat0(controller)),
+        reuse_tol=_literal(controller.mpc.reuse_tol),
+        implausible=_literal(IMPLAUSIBLE_MEASUREMENT_LIMIT),
+        flag_implausible="1" if controller.implausible_measurements == "flag" else "0",
+        u_margin=_literal(U_MARGIN),
+    )
+    return values
+
+
+def _e_hat0(controller: Any) -> float:
+    r""":math:`\hat e_{o,0}` of ``controller`` (``OffsetFreeController.reset``)."""
+    e_hat0 = controller.config.e_hat0
+    return float(controller.mpc.tightening.e_inf if e_hat0 is None else e_hat0)

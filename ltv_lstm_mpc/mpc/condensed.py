@@ -183,12 +183,7 @@ class CondensedTranscription(TranscriptionBase):
         #: The compiled condensing's buffers exist (built on a compiled kernel).
         self._has_compiled_buffers = self._compiled = model.kernel.compiled
         if self._compiled:
-            Lt_all = (
-                np.stack([np.diag(row) for row in self._sw[:, :, 0]]) if self._diag_Q else self._Lt
-            )
-            self._Lt_all = np.ascontiguousarray(Lt_all)
-            #: Q_i = Lt_i' Lt_i, the weight of x_{i+1} (the backward recursions' form).
-            self._Qs = np.ascontiguousarray(np.matmul(self._Lt_all.transpose(0, 2, 1), Lt_all))
+            self._Lt_all, self._Qs = self.stage_weights()
             # the Gram stack (input columns only), used with full stage weights only
             self._Maug_inputs = np.empty((0 if self._diag_Q else N, n2, nu + 1))
             #: H and g0 by the backward recursion (O(N n^3 + N^2 n m^2)) rather than the rank
@@ -363,6 +358,15 @@ class CondensedTranscription(TranscriptionBase):
         if kind != "paper":
             qp.cones[2].f = float(self._alpha)
         return qp
+
+    def stage_weights(self) -> tuple[FloatArray, FloatArray]:
+        r"""The stage weights of the condensed cost by stage: ``(Lt, Qs)``, ``Qs[i]`` =
+        :math:`L_i^\top L_i` the weight of :math:`x_{i+1}` (row N - 1: the terminal
+        weight), ``Lt[i]`` its factor (N, 2n, 2n each; the compiled condensing's and the
+        C export's form)."""
+        Lt_all = np.stack([np.diag(row) for row in self._sw[:, :, 0]]) if self._diag_Q else self._Lt
+        Lt_all = np.ascontiguousarray(Lt_all)
+        return Lt_all, np.ascontiguousarray(np.matmul(Lt_all.transpose(0, 2, 1), Lt_all))
 
     @property
     def compiled(self) -> bool:

@@ -1,0 +1,156 @@
+r"""The exported C controller on the host, through ctypes (software in the loop).
+
+:func:`compile_controller` builds an export of
+:func:`~ltv_lstm_mpc.export.c_model.export_model_c` with ``controller=`` (``<prefix>.c`` and
+DAQP's vendored sources, DAQP with ``no_heap.h``) into a shared library with the host's C
+compiler; :class:`CController` calls its ``<prefix>_controller_step`` on one
+``<prefix>_controller``, in physical units, with the step's record
+(``<prefix>_step_record``) read into Python. ``experiments/export_sil.py`` replays the
+library's closed loops through it; ``tests/test_export_step.py`` checks it.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ltv_lstm_mpc.exceptions import InvalidValueError
+
+__all__ = [
+    "MPC_STATUS_NAMES",
+    "POLICY_NAMES",
+    "STEP_CODES",
+    "CController",
+    "compile_controller",
+    "host_compiler",
+]
+
+#: ``<prefix>_feedback_result.status`` codes and ``MPCSolution.status`` names.
+MPC_STATUS_NAMES = {
+    1: "optimal",
+    2: "optimal_inaccurate",
+    -1: "infeasible",
+    -2: "failed",
+    -3: "unbounded",
+    -4: "max_iter",
+    -5: "failed",
+    -6: "failed",
+    -100: "infeasible_initial",
+    -101: "alpha_nonpositive",
+    -102: "failed",
+}
+#: ``<prefix>_feedback_result.policy`` codes (``MPCSolution.policy``).
+POLICY_NAMES = ("nominal", "paper", "soft", "shift", "paper+shift", "soft+shift")
+#: ``<prefix>_controller_step``'s return codes.
+STEP_CODES = ("ok", "bad_measurement", "bad_setpoint", "unreachable")
+
+#: The flags the library builds with: strict C99, and no fused multiply-add (the library's
+#: kernels round each product, docs/user-guide/export-c.md).
+BUILD_FLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror")
+
+
+def host_compiler() -> str:
+    """The first of ``cc``, ``gcc``, ``clang`` on the PATH."""
+    for name in ("cc", "gcc", "clang"):
+        if shutil.which(name):
+            return name
+    raise InvalidValueError(
+        "no C compiler on the PATH (cc, gcc or clang): install one, e.g. "
+        "`apt-get install gcc`, to run the exported controller on the host"
+    )
+
+
+def compile_controller(exported: Any, compiler: str | None = None) -> Path:
+    """Build ``exported`` (an :class:`~ltv_lstm_mpc.export.c_model.ExportedC` with the
+    controller step) into ``lib<prefix>.so`` next to its sources; returns its path."""
+    folder = exported.source.parent
+    compiler = compiler or host_compiler()
+    daqp = sorted(str(p) for p in (folder / "daqp" / "src").glob("*.c"))
+    library = folder / f"lib{exported.prefix}_{Path(compiler).name}.so"
+    command = [
+        compiler, *BUILD_FLAGS, "-fPIC", "-shared",
+        "-include", str(folder / "daqp" / "no_heap.h"), "-I", str(folder / "daqp" / "include"),
+        "-o", str(library), str(exported.source), *daqp, "-lm",
+    ]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode:
+        raise InvalidValueError(f"{' '.join(command)} failed:\n{done.stderr[-3000:]}")
+    return library
+
+
+def _record_type(n: int, m: int, p: int) -> type[ctypes.Structure]:
+    """``<prefix>_step_record`` for a model of n units, m inputs and p outputs."""
+    d, i = ctypes.c_double, ctypes.c_int
+    feedback = type(
+        "FeedbackResult",
+        (ctypes.Structure,),
+        {
+            "_fields_": [
+                ("status", i), ("policy", i), ("iterations", i), ("qp_iterations", i),
+                ("sqp_step", d), ("cost", d), ("terminal_norm", d), ("output_violation", d),
+                ("linearization_gap", d),
+            ]
+        },
+    )  # fmt: skip
+    fields = [
+        ("y", d * p), ("y0", d * p), ("u", d * m), ("x_hat", d * (2 * n)), ("d_hat", d * p),
+        ("e_hat", d), ("x_bar", d * (2 * n)), ("u_bar", d * m), ("alpha", d),
+        ("input_clipped", d), ("measurement_status", i), ("setpoint_status", i),
+        ("reference_status", i), ("u_bar_projected", i), ("mpc", feedback),
+    ]  # fmt: skip
+    return type("StepRecord", (ctypes.Structure,), {"_fields_": fields})
+
+
+class CController:
+    """One exported controller (``<prefix>_controller``) in a library of
+    :func:`compile_controller`.
+
+    Parameters
+    ----------
+    library : Path
+        The shared library.
+    exported : ExportedC
+        What the export wrote (prefix, sizes, n, m, p).
+    """
+
+    def __init__(self, library: Path, exported: Any) -> None:
+        lib = ctypes.CDLL(str(library))
+        prefix = exported.prefix
+        self.m, self.p = exported.m, exported.p
+        self.Record = _record_type(exported.n, exported.m, exported.p)
+        size = getattr(lib, f"{prefix}_controller_size")
+        size.argtypes, size.restype = [], ctypes.c_size_t
+        self.state = ctypes.create_string_buffer(int(size()))
+        self._init = getattr(lib, f"{prefix}_controller_init")
+        self._init.argtypes, self._init.restype = [ctypes.c_void_p], None
+        pointer = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
+        self._step = getattr(lib, f"{prefix}_controller_step")
+        self._step.argtypes = [
+            ctypes.c_void_p, pointer, pointer, pointer, ctypes.POINTER(self.Record),
+        ]  # fmt: skip
+        self._step.restype = ctypes.c_int
+        self.library = lib
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to before the first step."""
+        self._init(self.state)
+
+    def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[int, NDArray[np.float64], Any]:
+        """One sample: ``(code, u_phi, record)`` (code: an index of :data:`STEP_CODES`)."""
+        u_phi = np.zeros(self.m)
+        record = self.Record()
+        code = self._step(
+            self.state,
+            np.ascontiguousarray(y_phi, dtype=np.float64).reshape(self.p),
+            np.ascontiguousarray(y0_phi, dtype=np.float64).reshape(self.p),
+            u_phi,
+            ctypes.byref(record),
+        )
+        return int(code), u_phi, record

@@ -1,0 +1,165 @@
+"""The C99 controller step (ltv_lstm_mpc/export, ``controller=``): the whole loop of
+Fig. 1 in C, replayed on the measurements and set-points of the library's closed loops,
+gives the library's inputs and statuses on every step (software in the loop), and
+refuses bad input as the library does, with the input held in U. Skipped where no C
+compiler is installed."""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ltv_lstm_mpc import OffsetFreeController, simulate
+from ltv_lstm_mpc.benchmarks.quadtank import quadtank_scenarios
+from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.export import export_model_c
+from ltv_lstm_mpc.export.sil import MPC_STATUS_NAMES as STATUS_NAMES
+from ltv_lstm_mpc.export.sil import POLICY_NAMES as POLICIES
+from ltv_lstm_mpc.export.sil import CController, compile_controller
+from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
+from ltv_lstm_mpc.lstm.shipped import load_model
+from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+pytest.importorskip("daqp")
+
+COMPILERS = [name for name in ("gcc", "clang") if shutil.which(name)]
+needs_compiler = pytest.mark.skipif(not COMPILERS, reason="no C compiler (gcc or clang)")
+
+
+def closed_loop(plant_name: str, N: int, steps: int, policy: str = "paper") -> tuple[Any, Any]:
+    """The library's closed loop (the reference engine) and its simulation result."""
+    if plant_name == "ph":
+        model = load_model("ph_lstm_n5.npz")
+        scenario: Any = paper_scenarios(model)[2]
+    else:
+        model = load_model("quadtank_lstm_n8.npz")
+        scenario = quadtank_scenarios(short=True)[0]
+    config = replace(scenario.config, solver="daqp", N=N, infeasibility_policy=policy)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
+    )
+    if plant_name == "ph":
+        plant = scenario.make_plant(model, controller.certification)
+        disturbances = scenario.disturbances
+    else:
+        plant, disturbances = scenario.make_plant(model), scenario.leaks
+    sim = simulate(plant, controller, scenario.setpoints, disturbances, steps, progress=False)
+    return controller, sim
+
+
+def replay(controller: Any, sim: Any, folder: Path, compiler: str) -> dict[str, Any]:
+    """The C step on the loop's measurements and set-points, compared on every step."""
+    exported = export_model_c(controller.model, folder, controller=controller, prefix="ctl")
+    c = CController(compile_controller(exported, compiler), exported)
+    worst = 0.0
+    counts: dict[str, int] = {}
+    for k, record in enumerate(controller.records):
+        code, u_phi, r = c.step(sim.y_phi[k], sim.y0_phi[k])
+        assert code == 0, (k, code)
+        assert STATUS_NAMES[r.mpc.status] == record.mpc.status, (k, r.mpc.status, record.mpc)
+        assert POLICIES[r.mpc.policy] == record.mpc.policy, k
+        assert SETPOINT_STATUSES[r.setpoint_status] == record.setpoint_status, k
+        assert MEASUREMENT_STATUSES[r.measurement_status] == record.measurement_status, k
+        assert (r.setpoint_status == 3) == record.stale_reference, k
+        scale = np.maximum(1.0, np.abs(record.u_phi))
+        worst = max(worst, float(np.max(np.abs(u_phi - record.u_phi) / scale)))
+        counts[record.mpc.policy] = counts.get(record.mpc.policy, 0) + 1
+    return {"u_phi": worst, "policies": counts}
+
+
+@needs_compiler
+@pytest.mark.parametrize("N", [5, 20])
+def test_the_c_step_equals_the_library_on_scenario_3(N: int, tmp_path: Path) -> None:
+    """The paper's scenario 3 on the pH plant (set-point jumps, the limiter, infeasible
+    instants with the policy), 600 steps from the first: inputs to 1e-9 (relative),
+    statuses, policies and set-point statuses exactly."""
+    controller, sim = closed_loop("ph", N, 600)
+    found = replay(controller, sim, tmp_path, COMPILERS[0])
+    assert found["u_phi"] <= 1e-9, found
+    if N == 5:
+        assert set(found["policies"]) - {"nominal"}, found
+
+
+@needs_compiler
+def test_the_c_step_equals_the_library_on_the_quadruple_tank(tmp_path: Path) -> None:
+    """The quadruple tank's set-point changes (n = 8, two pumps, two levels), 480 steps."""
+    controller, sim = closed_loop("quadtank", 5, 480)
+    found = replay(controller, sim, tmp_path, COMPILERS[-1])
+    assert found["u_phi"] <= 1e-9, found
+
+
+def unreachable_loop(limit: float | None) -> tuple[Any, Any]:
+    """The pH plant through set-points the model cannot reach (9.6: the stale reference),
+    outside the admissible interval (8.8, 6.0) and back, with or without the limiter."""
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    config = replace(scenario.config, solver="daqp", N=5)
+    controller = OffsetFreeController(model, config, setpoint_rate_limit=limit, one_call_step=False)
+    plant = scenario.make_plant(model, controller.certification)
+    levels = [7.0, 9.6, 8.8, 6.0, 7.5]
+    setpoints = np.repeat(np.array(levels), 40)[:, None]
+    with warnings.catch_warnings():  # (the loop warns of what it meets, once each)
+        warnings.simplefilter("ignore")
+        sim = simulate(
+            plant, controller, setpoints, scenario.disturbances[:200], 200, progress=False
+        )
+    return controller, sim
+
+
+@needs_compiler
+@pytest.mark.parametrize("limit", [None, 0.01])
+def test_the_c_step_keeps_the_statuses_of_unreachable_and_inadmissible_setpoints(
+    limit: float | None, tmp_path: Path
+) -> None:
+    """An unreachable set-point (the last admissible equilibrium kept, alpha_k at the
+    set-point it encodes), set-points outside the admissible interval, and with the
+    limiter a target outside it: the library's inputs (1e-9) and statuses on every step."""
+    controller, sim = unreachable_loop(limit)
+    statuses = {r.setpoint_status for r in controller.records}
+    expected = {"ok", "target_outside_admissible"} if limit else {"ok", "unreachable_stale"}
+    assert expected <= statuses, statuses
+    found = replay(controller, sim, tmp_path, COMPILERS[0])
+    assert found["u_phi"] <= 1e-9, found
+
+
+@needs_compiler
+def test_the_c_step_refuses_bad_input_and_holds_the_input(tmp_path: Path) -> None:
+    """A NaN or infinite measurement, a NaN set-point, an implausible first measurement:
+    the library raises; the C step returns its code, holds the last input (in U; the
+    middle of U before any) and changes nothing, so the loop goes on as the library's."""
+    controller, sim = closed_loop("ph", 5, 60)
+    exported = export_model_c(controller.model, tmp_path, controller=controller, prefix="ctl")
+    c = CController(compile_controller(exported, COMPILERS[0]), exported)
+    norm = controller.model.normalization
+    low, high = controller.scaling.u_phi_low, controller.scaling.u_phi_high
+    middle = (low + high) / 2
+    implausible = norm.y_phi_max + 5 * (norm.y_phi_max - norm.y_phi_min)
+    code, u_phi, _ = c.step(implausible, sim.y0_phi[0])
+    assert code == 1 and np.allclose(u_phi, middle)
+    fresh = OffsetFreeController(controller.model, controller.config)
+    for bad_y, bad_y0 in (
+        (implausible, sim.y0_phi[0]), (np.full(1, np.nan), sim.y0_phi[0]),
+        (sim.y_phi[0], np.full(1, np.inf)),
+    ):  # fmt: skip
+        with pytest.raises(InvalidValueError):
+            fresh.step(bad_y, bad_y0)
+    last = None
+    for k, record in enumerate(controller.records):
+        if k in (10, 30):
+            for bad_y, bad_y0, expected in (
+                (np.full(1, np.nan), sim.y0_phi[k], 1), (np.full(1, -np.inf), sim.y0_phi[k], 1),
+                (sim.y_phi[k], np.full(1, np.nan), 2),
+            ):  # fmt: skip
+                code, u_phi, _ = c.step(bad_y, bad_y0)
+                assert code == expected and np.array_equal(u_phi, last), (k, code)
+                assert np.all((low <= u_phi) & (u_phi <= high))
+        code, u_phi, r = c.step(sim.y_phi[k], sim.y0_phi[k])
+        assert code == 0 and np.abs(u_phi - record.u_phi).max() <= 1e-9, k
+        assert STATUS_NAMES[r.mpc.status] == record.mpc.status, k
+        last = u_phi
