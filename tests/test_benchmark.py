@@ -30,7 +30,7 @@ def _toy(calls: list[tuple[str, str | None]]) -> Benchmark:
     class Scenario:
         name: str
 
-    def run(scenario: Any, model: Any, solver: str | None, progress: bool) -> _Result:
+    def run(scenario: Any, model: Any, solver: str | None, progress: bool, engine: str) -> _Result:
         calls.append((scenario.name, solver))
         return _Result(scenario.name, solver)
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from ltv_lstm_mpc import OffsetFreeController, simulate
+from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.benchmarks.quadtank import quadtank_scenarios
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.export import export_model_c
@@ -163,3 +163,46 @@ def test_the_c_step_refuses_bad_input_and_holds_the_input(tmp_path: Path) -> Non
         assert code == 0 and np.abs(u_phi - record.u_phi).max() <= 1e-9, k
         assert STATUS_NAMES[r.mpc.status] == record.mpc.status, k
         last = u_phi
+
+
+@needs_compiler
+def test_the_c_engine_runs_the_loop_with_the_library_records(tmp_path: Path) -> None:
+    """OffsetFreeController(engine="c") in simulate: the records of the C step equal the
+    reference engine's (inputs to 1e-9, MPC statuses, policies, set-point statuses, the
+    estimates), after a reset too; bad input raises as the library does."""
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    runs = {}
+    for engine in ("reference", "c", "c"):
+        controller = scenario.make_controller(model, solver="daqp", N=5, engine=engine)
+        if engine == "c" and "c" in runs:  # the second C run: after a reset
+            controller = runs["c"][0]
+            controller.reset()
+        plant = scenario.make_plant(model, controller.certification)
+        sim = simulate(plant, controller, scenario.setpoints, scenario.disturbances, 300,
+                       progress=False)  # fmt: skip
+        runs[engine if engine not in runs else "c again"] = (controller, sim)
+    reference, sim_reference = runs["reference"]
+    for name in ("c", "c again"):
+        controller, sim = runs[name]
+        assert controller.engine.name == "c" and controller.records[3].engine == "c"
+        assert np.abs(sim.u_phi - sim_reference.u_phi).max() <= 1e-9 * np.abs(sim.u_phi).max()
+        assert list(sim.status) == list(sim_reference.status)
+        assert list(sim.policy) == list(sim_reference.policy)
+        assert any(p != "nominal" for p in sim.policy)
+        for a, b in zip(controller.records, reference.records, strict=True):
+            assert a.setpoint_status == b.setpoint_status
+            assert np.abs(a.x_hat - b.x_hat).max() <= 1e-9
+    controller = runs["c"][0]
+    with pytest.raises(InvalidValueError):
+        controller.step(np.array([np.nan]), sim.y0_phi[0])
+
+
+def test_the_c_engine_refuses_what_the_export_does_not_cover() -> None:
+    """engine="c" for a configuration the C export does not cover, or an unknown engine:
+    refused at construction, with the reason and the fix."""
+    model = load_model("ph_lstm_n5.npz")
+    with pytest.raises(InvalidValueError, match="sqp_iterations=1"):
+        OffsetFreeController(model, replace(MPCConfig(solver="daqp"), sqp_iterations=3), engine="c")
+    with pytest.raises(InvalidValueError, match="not an engine"):
+        OffsetFreeController(model, MPCConfig(solver="daqp"), engine="fortran")

@@ -58,7 +58,7 @@ class Benchmark:
     plant: str
     model: str
     scenarios: Callable[[LSTMModel, bool], Sequence[Any]]
-    run: Callable[[Any, LSTMModel, str | None, bool], Any]
+    run: Callable[[Any, LSTMModel, str | None, bool, str], Any]
     write: Callable[[Any, Path, bool], dict[str, Any]]
     certificate_key: str
     certificate: Callable[[LSTMModel, list[Any]], dict[str, Any]]
@@ -94,8 +94,10 @@ class Benchmark:
         progress: bool = True,
         plot: bool = True,
         model_info: dict[str, Any] | None = None,
+        engine: str = "auto",
     ) -> dict[str, Any]:
-        """Run the scenarios on every solver path; optionally write the outputs.
+        """Run the scenarios on every solver path; optionally write the outputs
+        (``engine``: the controllers' step engine, ``OffsetFreeController(engine=...)``).
 
         Returns
         -------
@@ -110,7 +112,7 @@ class Benchmark:
         summaries, results = [], []
         for scenario in scenarios:
             for solver in paths:
-                result = self.run(scenario, model, solver, progress)
+                result = self.run(scenario, model, solver, progress, engine)
                 results.append(result)
                 summaries.append(
                     self.write(result, out, plot) if out is not None else result.summary()

@@ -124,10 +124,14 @@ class QuadTankScenario:
         plant.reset(self.v_initial)
         return plant
 
-    def make_controller(self, model: LSTMModel, solver: str | None = None) -> OffsetFreeController:
-        """The controller of this scenario (optionally with another solver)."""
+    def make_controller(
+        self, model: LSTMModel, solver: str | None = None, engine: str = "auto"
+    ) -> OffsetFreeController:
+        """The controller of this scenario (optionally with another solver or engine)."""
         config = self.config if solver is None else replace(self.config, solver=solver)
-        return OffsetFreeController(model, config, setpoint_rate_limit=self.setpoint_rate_limit)
+        return OffsetFreeController(
+            model, config, setpoint_rate_limit=self.setpoint_rate_limit, engine=engine
+        )
 
 
 @dataclass(frozen=True)
@@ -237,6 +241,7 @@ def run_quadtank_scenario(
     *,
     solver: str | None = None,
     progress: bool = False,
+    engine: str = "auto",
 ) -> QuadTankResult:
     """Simulate one scenario on the true plant in closed loop."""
     if model.m != 2 or model.p != 2:
@@ -245,7 +250,7 @@ def run_quadtank_scenario(
             f"m = {model.m}, p = {model.p} (use {QUADTANK_MODEL} or train one with "
             "`ltv-lstm-mpc train --plant quadtank`)"
         )
-    controller = scenario.make_controller(model, solver)
+    controller = scenario.make_controller(model, solver, engine)
     plant = scenario.make_plant(model)
     start = time.perf_counter()
     result = simulate(
@@ -434,8 +439,8 @@ QUADTANK_BENCHMARK = Benchmark(
     plant="quadtank",
     model=QUADTANK_MODEL,
     scenarios=lambda model, short: quadtank_scenarios(short=short),
-    run=lambda scenario, model, solver, progress: run_quadtank_scenario(
-        scenario, model, solver=solver, progress=progress
+    run=lambda scenario, model, solver, progress, engine: run_quadtank_scenario(
+        scenario, model, solver=solver, progress=progress, engine=engine
     ),
     write=lambda result, out, plot: write_quadtank_outputs(result, out, plot=plot),
     certificate_key="certificate",

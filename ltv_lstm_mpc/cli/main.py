@@ -274,6 +274,16 @@ def _add_reproduce(subparsers: Any) -> None:
             "terminal cones, for the paper's scenarios; --benchmark quadtank: daqp and clarabel)"
         ),
     )
+    parser.add_argument(
+        "--engine",
+        choices=["auto", "reference", "one-call", "c"],
+        default="auto",
+        help=(
+            "the controllers' step engine: auto (the fastest that runs the configuration), "
+            "reference, one-call, or c: the exported C99 step built with the host's C "
+            "compiler (software in the loop; its solver: daqp, the default with --engine c)"
+        ),
+    )
     parser.add_argument("--short", action="store_true", help="quarter-length schedules (smoke)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG files")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -293,11 +303,15 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     benchmark = _benchmarks()[args.benchmark]
     path = model_path(args.model or benchmark.model)
     model = load_model(path)  # .npz or .onnx
+    solver = args.solver
+    if args.engine == "c" and solver is None:  # the one solver path the C export covers
+        solver = "daqp"
     report = benchmark.reproduce(
         model,
         args.out,
         only=args.only,
-        solvers=None if args.solver is None else (args.solver,),
+        engine=args.engine,
+        solvers=None if solver is None else (solver,),
         short=args.short,
         progress=not args.no_progress,
         plot=not args.no_plots,

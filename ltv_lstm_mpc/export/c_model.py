@@ -73,6 +73,8 @@ class ExportedC:
         ints 4 bytes (x86-64, Arm; an upper bound where doubles are 4-aligned, as on i386).
     reference_state_bytes : int
         ``sizeof(<prefix>_reference_state)`` (0: no reference calculator exported).
+    horizon : int
+        The exported MPC's horizon N (0: no MPC exported).
     mpc_workspace_bytes : int
         An upper bound of ``sizeof(<prefix>_mpc_workspace)`` (0: no MPC exported; DAQP's
         structs counted with 8-byte pointers).
@@ -86,6 +88,7 @@ class ExportedC:
     workspace_bytes: int
     reference_state_bytes: int = 0
     mpc_workspace_bytes: int = 0
+    horizon: int = 0
     n: int = 0
     m: int = 0
     p: int = 0
@@ -196,9 +199,8 @@ def export_model_c(
     model = require_model(model)
     prefix = _check_prefix(prefix)
     if controller is not None:
-        from ltv_lstm_mpc.loop.controller import OffsetFreeController
-
-        if not isinstance(controller, OffsetFreeController):
+        # (by its parts, not its class: the C engine of the controller's package calls this)
+        if not all(hasattr(controller, a) for a in ("mpc", "observer", "reference", "scaling")):
             raise InvalidValueError(
                 f"controller must be an OffsetFreeController, got {type(controller).__name__}"
             )
@@ -398,6 +400,7 @@ def export_model_c(
         workspace_bytes=workspace_bytes,
         reference_state_bytes=state_bytes,
         mpc_workspace_bytes=mpc_bytes,
+        horizon=0 if mpc is None else int(mpc.N),
         n=n,
         m=m,
         p=p,
@@ -462,25 +465,12 @@ def _mpc_fields(
     mpc: Any, model: LSTMModel, fields: dict[str, str], model_bytes: int
 ) -> tuple[dict[str, str], int]:
     """The template fields of ``mpc.h.in`` and ``mpc.c.in`` and the workspace's size bound."""
-    from ltv_lstm_mpc.mpc.rti import RobustMPC
     from ltv_lstm_mpc.solvers.tolerances import feasibility_tolerance
 
-    if not isinstance(mpc, RobustMPC):
-        raise InvalidValueError(
-            f"mpc must be a RobustMPC, got {type(mpc).__name__}; pass controller.mpc"
-        )
+    reason = mpc_refusal(mpc)
+    if reason is not None:
+        raise InvalidValueError(reason)
     config = mpc.config
-    if config.solver != "daqp" or mpc.transcription != "condensed":
-        raise InvalidValueError(
-            f"the C export solves the condensed QP with DAQP; this MPC uses solver="
-            f"{config.solver!r} on the {mpc.transcription} transcription: build the "
-            "controller with MPCConfig(solver='daqp', transcription='condensed')"
-        )
-    if config.sqp_iterations != 1:
-        raise InvalidValueError(
-            f"the C export runs one convex subproblem per step (RTI); this MPC runs up to "
-            f"{config.sqp_iterations} SQP iterations: use MPCConfig(sqp_iterations=1)"
-        )
     other = mpc.model
     if other is not model and not (
         np.array_equal(other.kernel.WU, model.kernel.WU)
@@ -493,10 +483,6 @@ def _mpc_fields(
         )
     policies = ("nominal", "paper", "soft", "shift")
     policy = config.infeasibility_policy
-    if policy not in policies[1:]:
-        raise InvalidValueError(
-            f"infeasibility_policy={policy!r} is not exported: use 'paper', 'soft' or 'shift'"
-        )
     problem: Any = mpc._problem
     N, n, m, p = int(mpc.N), model.n, model.m, model.p
     nx, nu = 2 * n, N * m
@@ -580,3 +566,56 @@ def _e_hat0(controller: Any) -> float:
     r""":math:`\hat e_{o,0}` of ``controller`` (``OffsetFreeController.reset``)."""
     e_hat0 = controller.config.e_hat0
     return float(controller.mpc.tightening.e_inf if e_hat0 is None else e_hat0)
+
+
+def mpc_refusal(mpc: Any) -> str | None:
+    """Why the C export does not cover ``mpc`` (None: it does): the condensed QP with
+    DAQP, one SQP iteration per step, the policy ``"paper"``, ``"soft"`` or ``"shift"``."""
+    from ltv_lstm_mpc.mpc.rti import RobustMPC
+
+    if not isinstance(mpc, RobustMPC):
+        return f"mpc must be a RobustMPC, got {type(mpc).__name__}; pass controller.mpc"
+    config = mpc.config
+    if config.solver != "daqp" or mpc.transcription != "condensed":
+        return (
+            f"the C export solves the condensed QP with DAQP; this MPC uses solver="
+            f"{config.solver!r} on the {mpc.transcription} transcription: build the "
+            "controller with MPCConfig(solver='daqp', transcription='condensed')"
+        )
+    if config.sqp_iterations != 1:
+        return (
+            f"the C export runs one convex subproblem per step (RTI); this MPC runs up to "
+            f"{config.sqp_iterations} SQP iterations: use MPCConfig(sqp_iterations=1)"
+        )
+    if config.infeasibility_policy not in ("paper", "soft", "shift"):
+        return (
+            f"infeasibility_policy={config.infeasibility_policy!r} is not exported: use "
+            "'paper', 'soft' or 'shift'"
+        )
+    return None
+
+
+def export_refusal(controller: Any) -> str | None:
+    """Why ``controller`` cannot run as exported C on this machine (None: it can): the
+    export's coverage (:func:`mpc_refusal`; the controller's own MPC), the DAQP release,
+    a C compiler on the PATH."""
+    import importlib.metadata
+    import shutil
+
+    if controller.custom_mpc:
+        return "the controller runs an MPC given by the caller (mpc=...): not exported"
+    reason = mpc_refusal(controller.mpc)
+    if reason is not None:
+        return reason
+    try:
+        installed = importlib.metadata.version("daqp")
+    except importlib.metadata.PackageNotFoundError:
+        installed = None
+    if installed != DAQP_VENDORED:
+        return (
+            f"the C export vendors DAQP {DAQP_VENDORED}, the library runs "
+            f"{installed or 'none'}: pip install daqp=={DAQP_VENDORED}"
+        )
+    if not any(shutil.which(name) for name in ("cc", "gcc", "clang")):
+        return "no C compiler on the PATH (cc, gcc or clang): install one, e.g. gcc"
+    return None

@@ -126,7 +126,7 @@ class CController:
         self.Record = _record_type(exported.n, exported.m, exported.p)
         size = getattr(lib, f"{prefix}_controller_size")
         size.argtypes, size.restype = [], ctypes.c_size_t
-        self.state = ctypes.create_string_buffer(int(size()))
+        self.state_buffer = ctypes.create_string_buffer(int(size()))
         self._init = getattr(lib, f"{prefix}_controller_init")
         self._init.argtypes, self._init.restype = [ctypes.c_void_p], None
         pointer = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
@@ -135,22 +135,42 @@ class CController:
             ctypes.c_void_p, pointer, pointer, pointer, ctypes.POINTER(self.Record),
         ]  # fmt: skip
         self._step.restype = ctypes.c_int
+        self._state = getattr(lib, f"{prefix}_controller_state")
+        self._state.argtypes = [ctypes.c_void_p, pointer, pointer, ctypes.POINTER(ctypes.c_double)]
+        self._state.restype = None
+        self._plan = getattr(lib, f"{prefix}_controller_plan")
+        self._plan.argtypes = [ctypes.c_void_p, pointer, pointer, pointer]
+        self._plan.restype = None
+        self.N, self.nx = exported.horizon, 2 * exported.n
         self.library = lib
         self.reset()
 
     def reset(self) -> None:
         """Back to before the first step."""
-        self._init(self.state)
+        self._init(self.state_buffer)
 
     def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[int, NDArray[np.float64], Any]:
         """One sample: ``(code, u_phi, record)`` (code: an index of :data:`STEP_CODES`)."""
         u_phi = np.zeros(self.m)
         record = self.Record()
         code = self._step(
-            self.state,
+            self.state_buffer,
             np.ascontiguousarray(y_phi, dtype=np.float64).reshape(self.p),
             np.ascontiguousarray(y0_phi, dtype=np.float64).reshape(self.p),
             u_phi,
             ctypes.byref(record),
         )
         return int(code), u_phi, record
+
+    def state(self) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        r"""The estimates the next step starts from and its :math:`\hat e_o`."""
+        x_hat, d_hat, e_hat = np.zeros(self.nx), np.zeros(self.p), ctypes.c_double()
+        self._state(self.state_buffer, x_hat, d_hat, ctypes.byref(e_hat))
+        return x_hat, d_hat, float(e_hat.value)
+
+    def plan(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The last plan: inputs (N, m), re-simulated and linearized states (N + 1, 2n)."""
+        u = np.zeros((self.N, self.m))
+        x_plan, x_linear = np.zeros((self.N + 1, self.nx)), np.zeros((self.N + 1, self.nx))
+        self._plan(self.state_buffer, u, x_plan, x_linear)
+        return u, x_plan, x_linear

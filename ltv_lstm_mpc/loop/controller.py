@@ -100,6 +100,12 @@ class OffsetFreeController(DeferredState):
         :mod:`ltv_lstm_mpc.loop.engines.one_call_engine`), handing any step that call does
         not accept to the reference engine. False: the reference engine on every step
         (the readable specification; same numbers to 1e-12).
+    engine : {"auto", "reference", "one-call", "c"}
+        The step engine (:mod:`ltv_lstm_mpc.loop.engines`): ``"auto"`` (default) the
+        fastest that supports the configuration; ``"c"`` the exported C99 step built
+        with the host's C compiler (:mod:`~ltv_lstm_mpc.export.c_engine`, software
+        in the loop: the configurations the C export covers); a named engine that does
+        not support the configuration raises, with its reason.
 
     Attributes
     ----------
@@ -140,9 +146,15 @@ class OffsetFreeController(DeferredState):
         kernels: str = "auto",
         monitor: AssumptionMonitor | None = None,
         one_call_step: bool = True,
+        engine: str = "auto",
     ) -> None:
         model, config = require_model(model), require_config(config)
         expect_bool("one_call_step", one_call_step)
+        if not isinstance(engine, str):
+            raise InvalidValueError(
+                f"engine must be a string ('auto', 'reference', 'one-call' or 'c'), got "
+                f"{type(engine).__name__}"
+            )
         if mpc is not None:
             _check_mpc(mpc)
         if setpoint_rate_limit is not None:
@@ -199,7 +211,7 @@ class OffsetFreeController(DeferredState):
         self.engine: StepEngine
         #: Why each engine faster than :attr:`engine` refused this configuration.
         self.engine_refusals: dict[str, str]
-        self.engine, self.engine_refusals = choose_engine(self)
+        self.engine, self.engine_refusals = choose_engine(self, engine)
         if self.kernels == "compiled":
             prime_typeof()  # the first compiled steps then type their workspaces at once
         self.reset()

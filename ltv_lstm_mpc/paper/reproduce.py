@@ -323,8 +323,10 @@ def format_certificates(comparison: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _run(scenario: Scenario, model: LSTMModel, solver: str | None, progress: bool) -> Any:
-    return run_scenario(scenario, model, solver=solver, progress=progress)
+def _run(
+    scenario: Scenario, model: LSTMModel, solver: str | None, progress: bool, engine: str
+) -> Any:
+    return run_scenario(scenario, model, solver=solver, progress=progress, engine=engine)
 
 
 def _write(result: ScenarioResult, out: Path, plot: bool) -> dict[str, Any]:
@@ -360,6 +362,7 @@ def reproduce(
     progress: bool = True,
     plot: bool = True,
     model_info: dict[str, Any] | None = None,
+    engine: str = "auto",
 ) -> dict[str, Any]:
     """Run the paper's scenarios (all, or those whose name contains one of ``only``):
     :meth:`~ltv_lstm_mpc.benchmarks.benchmark.Benchmark.reproduce` of
@@ -373,5 +376,5 @@ def reproduce(
     """
     return PAPER_BENCHMARK.reproduce(
         model, out, only=only, solvers=(solver,), short=short, progress=progress, plot=plot,
-        model_info=model_info,
+        model_info=model_info, engine=engine,
     )  # fmt: skip

@@ -169,8 +169,10 @@ class Scenario:
         mpc: MPCSolver | None = None,
         solver: str | None = None,
         N: int | None = None,
+        engine: str = "auto",
     ) -> OffsetFreeController:
-        """The controller of this scenario (optionally another solver, horizon or MPC)."""
+        """The controller of this scenario (optionally another solver, horizon, MPC or step
+        engine)."""
         config = self.config
         if solver is not None:
             config = replace(config, solver=solver)
@@ -180,8 +182,9 @@ class Scenario:
         if self.rate_certification is not None:
             monitor = AssumptionMonitor(model, self.rate_certification)
         return OffsetFreeController(
-            model, config, setpoint_rate_limit=self.setpoint_rate_limit, mpc=mpc, monitor=monitor
-        )
+            model, config, setpoint_rate_limit=self.setpoint_rate_limit, mpc=mpc, monitor=monitor,
+            engine=engine,
+        )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -527,10 +530,11 @@ def run_scenario(
     N: int | None = None,
     progress: bool = False,
     check_sampling_time: bool = True,
+    engine: str = "auto",
 ) -> ScenarioResult:
     """Simulate one scenario in closed loop and return it with its summary
     (``check_sampling_time``: as :func:`~ltv_lstm_mpc.simulate`'s)."""
-    controller = scenario.make_controller(model, mpc=mpc, solver=solver, N=N)
+    controller = scenario.make_controller(model, mpc=mpc, solver=solver, N=N, engine=engine)
     plant = scenario.make_plant(model, controller.certification)
     disturbances = scenario.disturbances
     result = simulate(
