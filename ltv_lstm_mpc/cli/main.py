@@ -680,6 +680,7 @@ OPTIONAL_COMMAND_MODULES = (
     "ltv_lstm_mpc.campaign.cli",
     "ltv_lstm_mpc.cli.warmup",
     "ltv_lstm_mpc.cli.convert",
+    "ltv_lstm_mpc.cli.export_c",
 )
 
 

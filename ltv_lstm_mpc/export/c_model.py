@@ -55,7 +55,7 @@ import numpy as np
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 
-__all__ = ["ExportedC", "export_model_c"]
+__all__ = ["ExportedC", "export_model_c", "export_refusal", "mpc_refusal"]
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,84 @@
+r"""The exported controller as a C project for integrators (``ltv-lstm-mpc export-c``).
+
+:func:`export_controller_c` writes what :func:`~ltv_lstm_mpc.export.c_model.export_model_c`
+writes for a whole controller (``<prefix>.h``, ``<prefix>.c``, DAQP's sources) and the
+files to build and check it: a ``Makefile``, a ``CMakeLists.txt``, ``example.c`` (the
+controller in closed loop with its own LSTM model as the plant) and a ``README.md`` for
+integrators (files, use, units, return codes and statuses, memory, how to verify), from
+the templates in ``export/templates``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ltv_lstm_mpc.export.c_model import (
+    DAQP_VENDORED,
+    ExportedC,
+    _template,
+    export_model_c,
+)
+
+__all__ = ["export_controller_c"]
+
+
+def _values(values: Any, unit: str) -> str:
+    return ", ".join(f"{float(v):.6g}" for v in np.ravel(values)) + (f" {unit}" if unit else "")
+
+
+def export_controller_c(
+    controller: Any, out_dir: str | Path, *, prefix: str = "controller"
+) -> ExportedC:
+    """Write the controller's C project into ``out_dir`` (module docstring).
+
+    Parameters
+    ----------
+    controller : OffsetFreeController
+        The controller (DAQP on the condensed transcription, one SQP iteration per step;
+        :func:`~ltv_lstm_mpc.export.c_model.mpc_refusal` says what is covered).
+    out_dir : str or Path
+        Folder to write into (created if missing; files of the same names are replaced).
+    prefix : str
+        Prefix of the files and of every C identifier.
+
+    Returns
+    -------
+    ExportedC
+    """
+    from ltv_lstm_mpc import __version__
+    from ltv_lstm_mpc.plotting import signal_labels
+
+    exported = export_model_c(controller.model, out_dir, controller=controller, prefix=prefix)
+    out = Path(out_dir)
+    model, config = controller.model, controller.config
+    labels = signal_labels(None, model)
+    units = f"outputs {', '.join(labels.outputs)}; inputs {', '.join(labels.inputs)}"
+    low, high = controller.input_bounds_phi
+    limit = controller.setpoint_rate_limit
+    fields = {
+        "prefix": prefix,
+        "PREFIX": prefix.upper(),
+        "version": __version__,
+        "source": f"an LSTM model (n = {model.n}, m = {model.m}, p = {model.p})",
+        "daqp_version": DAQP_VENDORED,
+        "controller_bytes": f"at most {exported.mpc_workspace_bytes} bytes",
+        "sample_time": f"T_s = {model.Ts:g} s"
+        if model.Ts is not None
+        else "the model's sampling time",
+        "units": units,
+        "u_bounds": f"[{_values(low, '')}] .. [{_values(high, '')}]",
+        "implausible_note": (
+            "" if controller.implausible_measurements == "flag" else ", or at any step"
+        ),
+        "N": str(config.N),
+        "policy": config.infeasibility_policy,
+        "L_d": f"{config.L_d:g}",
+        "d_max": f"{config.d_max:g}",
+        "rate_limit": "none" if limit is None else f"{limit:g} per step (normalized)",
+    }
+    for name in ("Makefile", "CMakeLists.txt", "README.md", "example.c"):
+        (out / name).write_text(_template(name + ".in").substitute(fields))
+    return exported
