@@ -11,7 +11,18 @@ difference host / library and target / host, and on the target the exported code
 (text + rodata + data) and RAM (data + bss, the caller's workspace, the measured stack of
 the updates).
 
-    python experiments/export_pil.py [--steps 600]
+Then the whole controller step (``export_model_c(..., controller=...)``): the paper's
+scenario 3 on the pH plant at N = 5 and 20 and the quadruple tank's set-point changes at
+N = 5, each replayed through ``<prefix>_controller_step`` on the host and on the Cortex-M7
+(the largest input difference host / library and target / host, the steps where the
+codes differ), the controller code's flash (its and DAQP's symbols in the linked
+program), ``sizeof(<prefix>_controller)``, the measured stack, and the instructions per
+step of the first ``--count`` steps from QEMU's instruction trace (``-singlestep -d
+exec``) with their time at 600 MHz and one instruction per cycle (an estimate: the
+Cortex-M7 issues up to two instructions per cycle, and a double-precision division takes
+many).
+
+    python experiments/export_pil.py [--steps 600] [--count 60] [--step-runs ph5 ph20 tank5]
 """
 
 from __future__ import annotations
@@ -31,6 +42,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--steps 20.",
     )
     parser.add_argument("--steps", type=int, default=600, help="updates replayed (600)")
+    parser.add_argument(
+        "--count", type=int, default=60, help="steps whose instructions are counted (60)"
+    )
+    parser.add_argument(
+        "--step-runs",
+        nargs="*",
+        default=["ph5", "ph20", "tank5"],
+        help="controller-step runs: ph5, ph20 (scenario 3 at N = 5, 20), tank5 (none: skip)",
+    )
     return parser
 
 
@@ -48,7 +68,10 @@ from ltv_lstm_mpc.export.pil import (  # noqa: E402
     find_toolchain,
     run_host,
     run_pil,
+    run_step_host,
+    run_step_pil,
     write_observer_replay,
+    write_step_replay,
 )
 from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
 from ltv_lstm_mpc.paper.scenarios import paper_scenarios  # noqa: E402
@@ -115,5 +138,79 @@ def main() -> None:
         print(f"{label:<22} {len(Y):>7} {gap:>15.1e} {target_gap:>14} {flash:>8} {ram:>38}")
 
 
+def step_loop(name: str, N: int, steps: int) -> tuple[Any, Any]:
+    """The library's closed loop (reference engine): the controller and its simulation."""
+    from dataclasses import replace
+
+    from ltv_lstm_mpc.benchmarks.quadtank import quadtank_scenarios
+
+    if name == "ph":
+        model = load_model("ph_lstm_n5.npz")
+        scenario: Any = paper_scenarios(model)[2]
+    else:
+        model = load_model("quadtank_lstm_n8.npz")
+        scenario = quadtank_scenarios()[0]
+    config = replace(scenario.config, solver="daqp", N=N)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
+    )
+    if name == "ph":
+        plant = scenario.make_plant(model, controller.certification)
+        disturbances = scenario.disturbances
+    else:
+        plant, disturbances = scenario.make_plant(model), scenario.leaks
+    sim = simulate(plant, controller, scenario.setpoints, disturbances, steps, progress=False)
+    return controller, sim
+
+
+def step_rows(steps: int, count: int, runs: list[str], toolchain: Any) -> None:
+    """The whole controller step: agreement, memory and instructions (module docstring)."""
+    print(
+        f"\n{'controller step':<24} {'steps':>5} {'host-lib':>8} {'M7-host':>7} {'codes':>5} "
+        f"{'flash B':>8} {'struct B':>8} {'stack B':>7}  instructions per step "
+        "(median / p95 / max; at 600 MHz)"
+    )
+    known = {"ph5": ("pH scenario 3, N = 5", "ph", 5), "ph20": ("pH scenario 3, N = 20", "ph", 20),
+             "tank5": ("quadruple tank, N = 5", "quadtank", 5)}  # fmt: skip
+    for label, name, N in (known[run] for run in runs):
+        controller, sim = step_loop(name, N, steps)
+        with tempfile.TemporaryDirectory() as scratch:
+            folder = Path(scratch)
+            exported = export_model_c(controller.model, folder, controller=controller, prefix="c")
+            main_c = write_step_replay(exported, sim.y_phi, sim.y0_phi)
+            host = run_step_host(main_c, exported)
+            scale = max(1.0, float(np.abs(sim.u_phi).max()))
+            gap = float(np.abs(host.u_phi - sim.u_phi).max()) / scale
+            if toolchain is None:
+                print(f"{label:<24} {len(sim.u_phi):>5} {gap:>8.1e}   (no Cortex-M7 toolchain)")
+                continue
+            target = run_step_pil(main_c, exported, toolchain)
+            target_gap = float(np.abs(target.u_phi - host.u_phi).max()) / scale
+            differ = int(np.any(target.codes != host.codes, axis=1).sum())
+            short = folder / "short"
+            short.mkdir()
+            exported_short = export_model_c(
+                controller.model, short, controller=controller, prefix="c"
+            )
+            counted = run_step_pil(
+                write_step_replay(exported_short, sim.y_phi[:count], sim.y0_phi[:count]),
+                exported_short, toolchain, count_instructions=True,
+            )  # fmt: skip
+            sections = target.sections or {}
+            flash = sections.get("text", 0) + sections.get("rodata", 0) + sections.get("data", 0)
+            ins = np.asarray(counted.instructions, dtype=float)[1:]  # (the first: start-up)
+            median, p95, top = np.median(ins), np.percentile(ins, 95), ins.max()
+            print(
+                f"{label:<24} {len(sim.u_phi):>5} {gap:>8.1e} {target_gap:>7.1e} {differ:>5} "
+                f"{flash:>8} {target.controller_bytes:>8} {target.stack_bytes:>7}  "
+                f"{median:,.0f} / {p95:,.0f} / {top:,.0f}; {median / 600:.0f} / {p95 / 600:.0f} "
+                f"/ {top / 600:.0f} us (first step {counted.instructions[0]:,})",
+                flush=True,
+            )
+
+
 if __name__ == "__main__":
     main()
+    arguments = build_parser().parse_args()
+    if arguments.step_runs:
+        step_rows(arguments.steps, arguments.count, arguments.step_runs, find_toolchain())

@@ -130,8 +130,9 @@ SMOKE = {
         needs=("daqp", "clarabel", "cvxpy"),
     ),
     "export_pil.py": Smoke(
-        ("--steps", "20"),
-        ("pH (n = 5)", "quadruple tank (n = 8)", "host - library"),
+        ("--steps", "20", "--count", "3", "--step-runs", "ph5"),
+        ("pH (n = 5)", "quadruple tank (n = 8)", "host - library", "pH scenario 3, N = 5"),
+        needs=("daqp",),
     ),
     "export_sil.py": Smoke(
         ("--N", "5", "--steps", "20", "--only", "3"),

@@ -27,6 +27,7 @@ needs_toolchain = pytest.mark.skipif(
     reason="no Cortex-M7 toolchain (gcc-arm-none-eabi, libnewlib-arm-none-eabi, qemu-system-arm)",
 )
 STEPS = 600
+STEP_REPLAY = 200
 
 
 def _scenario3_loop() -> tuple[Any, Any, Any, Any, Any]:
@@ -135,3 +136,56 @@ def test_the_replay_refuses_an_export_without_observer_and_uneven_data(tmp_path:
         write_observer_replay(exported, x0, d0, np.zeros((3, 2)), np.zeros((3, 1)))
     main = write_observer_replay(exported, x0, d0, np.zeros(3), np.zeros(3))  # SISO: (K,)
     assert "static const double Y[K][P]" in main.read_text()
+
+
+@pytest.fixture(scope="module")
+def step_loop() -> tuple[Any, Any]:
+    """Scenario 3's first steps on the reference engine: the controller and its simulation."""
+    from dataclasses import replace
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    config = replace(scenario.config, solver="daqp", N=5)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
+    )
+    plant = scenario.make_plant(model, controller.certification)
+    sim = simulate(plant, controller, scenario.setpoints, scenario.disturbances, STEP_REPLAY,
+                   progress=False)  # fmt: skip
+    return controller, sim
+
+
+@needs_gcc
+@needs_toolchain
+def test_the_whole_step_on_the_cortex_m7_equals_the_host_and_the_library(
+    step_loop: Any, tmp_path: Path
+) -> None:
+    """Processor in the loop of the whole controller step: 200 steps of scenario 3 (the
+    policy on some) replayed through <prefix>_controller_step on QEMU's Cortex-M7 give the
+    host's inputs bit for bit and its codes, statuses and policies; the host's equal the
+    library's to 1e-9; the first 8 steps' instructions are counted from QEMU's trace
+    (experiments/export_pil.py replays 600 steps and counts 60)."""
+    from ltv_lstm_mpc.export.pil import run_step_host, run_step_pil, write_step_replay
+
+    assert TOOLCHAIN is not None
+    controller, sim = step_loop
+    exported = export_model_c(controller.model, tmp_path, controller=controller, prefix="ph")
+    main = write_step_replay(exported, sim.y_phi, sim.y0_phi)
+    host = run_step_host(main, exported)
+    assert np.abs(host.u_phi - sim.u_phi).max() <= 1e-9 * np.abs(sim.u_phi).max()
+    assert (host.codes[:, 2] > 0).sum() == sum(p != "nominal" for p in sim.policy) > 0
+    target = run_step_pil(main, exported, TOOLCHAIN)
+    assert np.array_equal(target.u_phi.view(np.uint64), host.u_phi.view(np.uint64))
+    assert np.array_equal(target.codes, host.codes)
+    assert target.stack_bytes is not None and 0 < target.stack_bytes < 16384
+    assert target.sections is not None and target.sections["text"] > 0
+    assert target.controller_bytes is not None
+    assert target.controller_bytes <= exported.mpc_workspace_bytes
+    short = tmp_path / "short"
+    short.mkdir()
+    exported = export_model_c(controller.model, short, controller=controller, prefix="ph")
+    main = write_step_replay(exported, sim.y_phi[:8], sim.y0_phi[:8])
+    counted = run_step_pil(main, exported, TOOLCHAIN, count_instructions=True)
+    assert counted.instructions is not None and counted.instructions.shape == (8,)
+    assert np.all((10_000 < counted.instructions) & (counted.instructions < 2_000_000))
+    assert np.array_equal(counted.u_phi.view(np.uint64), target.u_phi[:8].view(np.uint64))

@@ -494,6 +494,10 @@ def _mpc_fields(
     qp_n = max(nu, soft_n if soft else 0)
     qp_rows = max(rows, soft_rows if soft else 0)
     qp_m = max(nu + rows, soft_n + soft_rows if soft else 0)
+    Qs = problem.stage_weights()[1]
+    diagonal_weights = all(np.array_equal(W, np.diag(np.diag(W))) for W in Qs)
+    Q = np.asarray(mpc._Q, dtype=np.float64)
+    Q_diagonal = bool(np.array_equal(Q, np.diag(np.diag(Q))))
     values = dict(fields)
     values.update(
         mpc_N=str(N),
@@ -508,11 +512,15 @@ def _mpc_fields(
         policy_name=policy,
         policy_code=str(policies.index(policy)),
         u_max=_literal(config.u_max),
-        Qs="\n".join(
-            "    {\n" + _matrix(Q, "        ") + "\n    }," for Q in problem.stage_weights()[1]
+        weights_diagonal="1" if diagonal_weights else "0",
+        Qs=(
+            _matrix(np.array([np.diag(W) for W in Qs]))
+            if diagonal_weights
+            else "\n".join("    {\n" + _matrix(W, "        ") + "\n    }," for W in Qs)
         ),
+        Q_diagonal="1" if Q_diagonal else "0",
         R=_matrix(np.asarray(mpc._R, dtype=np.float64)),
-        Q=_matrix(np.asarray(mpc._Q, dtype=np.float64)),
+        Q=", ".join(_literal(v) for v in np.diag(Q)) if Q_diagonal else _matrix(Q),
         P_terms=", ".join(_literal(v) for v in mpc._P_terms),
         unit_half=", ".join(_literal(v) for v in problem._unit_half),
         tolerance=_literal(feasibility_tolerance("daqp", config.tolerance)),

@@ -1,5 +1,6 @@
-r"""Software and processor in the loop for the C export: a recorded closed loop replayed
-through the exported observer (eq. (lstm_observer)) on the host and on a Cortex-M7.
+r"""Software and processor in the loop for the C export: recorded closed loops replayed
+through the exported observer (eq. (lstm_observer)) and through the whole controller step,
+on the host and on a Cortex-M7.
 
 :func:`write_observer_replay` renders a ``pil_main.c`` that feeds the loop's measurements
 and inputs through ``<prefix>_observer_update`` and prints the estimates (each double's
@@ -9,10 +10,20 @@ compiler (software in the loop); :func:`run_pil` cross-compiles it with
 ``arm-none-eabi-gcc -mcpu=cortex-m7 -mfpu=fpv5-d16 -mfloat-abi=hard`` and runs it on
 ``qemu-system-arm -M mps2-an500 -semihosting`` (processor in the loop), which also reports
 the stack the updates used (measured: a painted region) and the sizes of the exported
-code's sections (``arm-none-eabi-size``). Instructions per step are not reported yet:
-QEMU's virtual clock under ``-icount shift=0``, read with semihosting's ``SYS_ELAPSED``,
-gave totals for the same 600 updates that differed up to 1.8x between runs on this
-machine (2026-12-04), so it is no instruction count here.
+code's sections (``arm-none-eabi-size``).
+
+:func:`write_step_replay`, :func:`run_step_host` and :func:`run_step_pil` do the same for
+``<prefix>_controller_step`` (an export with ``controller=``; DAQP's sources built with
+``no_heap.h``): the measurements and set-points of a loop in, the inputs (bits), return
+codes, MPC statuses and policies out; on the target also the flash of the export's own
+symbols in the linked program, ``sizeof(<prefix>_controller)``, the stack, and with
+``count_instructions`` the instructions of each step. They are counted from QEMU's
+instruction trace: with ``-singlestep`` each translation block is one instruction and
+``-d exec,nochain`` logs each one executed, with its function's name; the replay calls
+``pil_mark(k)`` (through a volatile pointer, never inlined) before step k, and the lines
+between marks are the step's instructions (deterministic; QEMU's virtual clock under
+``-icount``, read with semihosting's ``SYS_ELAPSED``, varied up to 1.8x between runs on
+this machine). Instructions are not cycles: a time from them is an estimate.
 
 The toolchain: Debian's ``gcc-arm-none-eabi``, ``libnewlib-arm-none-eabi`` and
 ``qemu-system-arm`` (:func:`find_toolchain` says what is missing). The facts this rests on
@@ -38,11 +49,15 @@ from ltv_lstm_mpc.export.c_model import ExportedC, _literal, _matrix
 __all__ = [
     "CORTEX_M7_FLAGS",
     "ReplayResult",
+    "StepReplayResult",
     "Toolchain",
     "find_toolchain",
     "run_host",
     "run_pil",
+    "run_step_host",
+    "run_step_pil",
     "write_observer_replay",
+    "write_step_replay",
 ]
 
 #: The Cortex-M7 build: double-precision FPU, hard-float calling convention, Thumb.
@@ -244,3 +259,213 @@ def run_pil(
         stack_bytes=stack[0] if stack else None,
         sections=sections,
     )
+
+
+@dataclass(frozen=True)
+class StepReplayResult:
+    """What a replay of the controller step printed.
+
+    Attributes
+    ----------
+    u_phi : ndarray (K, m)
+        The inputs, bit for bit.
+    codes : ndarray (K, 3)
+        Per step: the return code, the MPC's status and policy.
+    stack_bytes : int or None
+        The stack the steps used (target only).
+    instructions : ndarray (K,) or None
+        Instructions executed per step (target only, when counted).
+    sections : dict or None
+        Flash and RAM of the controller's code and data in the linked target program,
+        bytes: ``text``, ``rodata``, ``data``, ``bss`` (the harness's own excluded; the
+        controller struct the harness declares is ``controller_bytes``).
+    controller_bytes : int or None
+        ``sizeof(<prefix>_controller)`` on the target.
+    """
+
+    u_phi: Any
+    codes: Any
+    stack_bytes: int | None = None
+    instructions: Any = None
+    sections: dict[str, int] | None = None
+    controller_bytes: int | None = None
+
+
+def write_step_replay(exported: ExportedC, y_phi: Any, y0_phi: Any) -> Path:
+    r"""Render the replay of ``K`` controller steps next to ``exported``'s files.
+
+    Parameters
+    ----------
+    exported : ExportedC
+        From :func:`~ltv_lstm_mpc.export.c_model.export_model_c` with ``controller=``.
+    y_phi, y0_phi : array_like, shape (K, p)
+        The measurements and requested set-points, physical units (a recorded loop's).
+
+    Returns
+    -------
+    Path
+        ``pil_step_main.c`` (with ``pil_startup.c`` and ``pil.ld`` beside it).
+    """
+    from ltv_lstm_mpc import __version__
+
+    if "_controller_step(" not in exported.source.read_text():
+        raise InvalidValueError(
+            f"{exported.source} has no controller step: export with "
+            "export_model_c(model, out_dir, controller=controller)"
+        )
+    p = exported.p
+    Y = np.asarray(y_phi, dtype=np.float64).reshape(-1, p)
+    Y0 = np.asarray(y0_phi, dtype=np.float64).reshape(-1, p)
+    if Y.shape != Y0.shape or Y.shape[0] < 1:
+        raise InvalidValueError(
+            f"y_phi has {Y.shape[0]} rows and y0_phi {Y0.shape[0]}: pass one row of each "
+            f"per step, {p} values each"
+        )
+    folder = exported.source.parent
+    fields = {
+        "prefix": exported.prefix,
+        "PREFIX": exported.prefix.upper(),
+        "version": __version__,
+        "steps": str(Y.shape[0]),
+        "Y": _matrix(Y),
+        "Y0": _matrix(Y0),
+    }
+    main = folder / "pil_step_main.c"
+    main.write_text(_render("pil_step_main.c.in", fields))
+    (folder / "pil_startup.c").write_text(_render("pil_startup.c.in", fields))
+    (folder / "pil.ld").write_text(_render("pil.ld.in", fields))
+    return main
+
+
+def _step_sources(main: Path, exported: ExportedC) -> list[str]:
+    folder = exported.source.parent
+    daqp = sorted(str(p) for p in (folder / "daqp" / "src").glob("*.c"))
+    return [str(main), str(exported.source), *daqp]
+
+
+def _daqp_flags(exported: ExportedC) -> list[str]:
+    daqp = exported.source.parent / "daqp"
+    return ["-include", str(daqp / "no_heap.h"), "-I", str(daqp / "include")]
+
+
+def _step_outcome(output: str, m: int) -> tuple[Any, Any]:
+    rows = [line.split()[1:] for line in output.splitlines() if line.startswith("u ")]
+    bits = np.array([[int(word, 16) for word in row[:m]] for row in rows], dtype=np.uint64)
+    codes = np.array([[int(word) for word in row[m:]] for row in rows], dtype=np.int64)
+    return bits.view(np.float64), codes
+
+
+def run_step_host(
+    main: Path, exported: ExportedC, compiler: str = "gcc", timeout: float = 300.0
+) -> StepReplayResult:
+    """Build the step replay with the host's ``compiler`` (the strict flags) and run it."""
+    binary = main.parent / "pil_step_host"
+    _run(
+        [compiler, *STRICT_FLAGS, *_daqp_flags(exported), "-o", str(binary),
+         *_step_sources(main, exported), "-lm"],
+        timeout,
+        f"building the step replay with {compiler}",
+    )  # fmt: skip
+    u_phi, codes = _step_outcome(_run([str(binary)], timeout, "the host replay"), exported.m)
+    return StepReplayResult(u_phi=u_phi, codes=codes)
+
+
+def _count_instructions(command: list[str], steps: int, timeout: float) -> Any:
+    """Instructions between the replay's ``pil_mark`` calls: QEMU with ``-singlestep``
+    (one instruction per translation block) and ``-d exec,nochain`` logs one line per
+    instruction executed, named by its function; the lines are counted as they stream."""
+    process = subprocess.Popen(
+        [*command, "-singlestep", "-d", "exec,nochain", "-D", "/dev/stderr"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert process.stderr is not None
+    marks: list[int] = []
+    count, previous = 0, ""
+    try:
+        for line in process.stderr:
+            if not line.startswith("Trace"):
+                continue
+            count += 1
+            name = line.rstrip().rsplit(" ", 1)[-1]
+            if name == "pil_mark" and previous != "pil_mark":
+                marks.append(count)
+            previous = name
+        process.wait(timeout=timeout)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    if len(marks) != steps + 1:
+        raise RuntimeError(f"the instruction trace has {len(marks)} marks, expected {steps + 1}")
+    return np.diff(np.array(marks, dtype=np.int64))
+
+
+def run_step_pil(
+    main: Path,
+    exported: ExportedC,
+    toolchain: Toolchain,
+    *,
+    count_instructions: bool = False,
+    timeout: float = 600.0,
+) -> StepReplayResult:
+    """Cross-compile the step replay for the Cortex-M7 and run it on QEMU; with
+    ``count_instructions``, run it a second time under QEMU's instruction trace and count
+    the instructions of each step (module docstring; about 1 s per million instructions
+    here, so replay a few dozen steps for it)."""
+    folder = main.parent
+    flags = [*STRICT_FLAGS, *CORTEX_M7_FLAGS, "-ffunction-sections", "-fdata-sections"]
+    elf = folder / "pil_step.elf"
+    link = [toolchain.gcc, *flags, *_daqp_flags(exported), "--specs=rdimon.specs",
+            "-Wl,--gc-sections", "-T", str(folder / "pil.ld")]  # fmt: skip
+    _run(
+        [*link, "-o", str(elf), str(folder / "pil_startup.c"), *_step_sources(main, exported),
+         "-lm"],
+        timeout,
+        "cross-compiling the step replay (arm-none-eabi-gcc)",
+    )  # fmt: skip
+    qemu = [toolchain.qemu, "-M", "mps2-an500", "-nographic", "-semihosting"]
+    output = _run([*qemu, "-kernel", str(elf)], timeout, "running the step replay on QEMU")
+    u_phi, codes = _step_outcome(output, exported.m)
+    stack = [int(line.split()[1]) for line in output.splitlines() if line.startswith("stack ")]
+    instructions = None
+    if count_instructions:
+        instructions = _count_instructions([*qemu, "-kernel", str(elf)], u_phi.shape[0], timeout)
+    sections, controller = _controller_sections(elf, exported, toolchain, timeout)
+    return StepReplayResult(
+        u_phi=u_phi, codes=codes, stack_bytes=stack[0] if stack else None,
+        instructions=instructions, sections=sections, controller_bytes=controller,
+    )  # fmt: skip
+
+
+def _controller_sections(
+    elf: Path, exported: ExportedC, toolchain: Toolchain, timeout: float
+) -> tuple[dict[str, int], int | None]:
+    """The linked program's symbols that come from the export (the controller's source and
+    DAQP's), summed by section kind; and the size of the harness's controller struct."""
+    nm = str(Path(toolchain.size).with_name(Path(toolchain.size).name.replace("size", "nm")))
+    listing = _run([nm, "-S", "--size-sort", str(elf)], timeout, "arm-none-eabi-nm")
+    harness = {"main", "pil_mark", "print_bits", "stack_pointer", "pil_reset", "Y_PHI",
+               "Y0_PHI", "controller", "record", "inputs", "outcome", "marked", "mark"}  # fmt: skip
+    kinds = {"t": "text", "r": "rodata", "d": "data", "b": "bss"}
+    sections = {"text": 0, "rodata": 0, "data": 0, "bss": 0}
+    exported_symbols = set()
+    folder = exported.source.parent
+    for source in [exported.source, *sorted((folder / "daqp" / "src").glob("*.c"))]:
+        obj = folder / (source.stem + "_m7_symbols.o")
+        _run([toolchain.gcc, *STRICT_FLAGS, *CORTEX_M7_FLAGS, *_daqp_flags(exported), "-c",
+              "-o", str(obj), str(source)], timeout, "compiling for the symbol list")  # fmt: skip
+        names = _run([nm, "--defined-only", str(obj)], timeout, "arm-none-eabi-nm")
+        exported_symbols |= {line.split()[-1] for line in names.splitlines() if line.strip()}
+    controller = None
+    for line in listing.splitlines():
+        parts = line.split()
+        if len(parts) != 4:
+            continue
+        size, kind, name = int(parts[1], 16), parts[2].lower(), parts[3]
+        if name == "controller":
+            controller = size
+        if name in harness or kind not in kinds:
+            continue
+        base = name.split(".")[0]
+        if name in exported_symbols or base in exported_symbols:
+            sections[kinds[kind]] += size
+    return sections, controller
