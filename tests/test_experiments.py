@@ -134,6 +134,11 @@ SMOKE = {
         ("pH (n = 5)", "quadruple tank (n = 8)", "host - library", "pH scenario 3, N = 5"),
         needs=("daqp",),
     ),
+    "export_speed.py": Smoke(
+        ("--N", "5", "--steps", "30", "--repeats", "1"),
+        ("C (gcc)", "C / Python"),
+        needs=("daqp",),
+    ),
     "export_sil.py": Smoke(
         ("--N", "5", "--steps", "20", "--only", "3"),
         ("policy steps", "max |du|/|u|", "equal"),

@@ -281,6 +281,8 @@ class StepReplayResult:
         controller struct the harness declares is ``controller_bytes``).
     controller_bytes : int or None
         ``sizeof(<prefix>_controller)`` on the target.
+    seconds : ndarray (K,) or None
+        Each step's wall time on the host (the best of the replays timed).
     """
 
     u_phi: Any
@@ -289,6 +291,7 @@ class StepReplayResult:
     instructions: Any = None
     sections: dict[str, int] | None = None
     controller_bytes: int | None = None
+    seconds: Any = None
 
 
 def write_step_replay(exported: ExportedC, y_phi: Any, y0_phi: Any) -> Path:
@@ -356,18 +359,35 @@ def _step_outcome(output: str, m: int) -> tuple[Any, Any]:
 
 
 def run_step_host(
-    main: Path, exported: ExportedC, compiler: str = "gcc", timeout: float = 300.0
+    main: Path,
+    exported: ExportedC,
+    compiler: str = "gcc",
+    timeout: float = 300.0,
+    *,
+    timing_repeats: int = 0,
 ) -> StepReplayResult:
-    """Build the step replay with the host's ``compiler`` (the strict flags) and run it."""
+    """Build the step replay with the host's ``compiler`` (the strict flags) and run it;
+    with ``timing_repeats`` > 0 (a POSIX host), also each step's wall time, the best of
+    that many replays (``seconds``)."""
     binary = main.parent / "pil_step_host"
+    timing = (
+        [f"-DPIL_TIMING={int(timing_repeats)}", "-D_POSIX_C_SOURCE=199309L"]
+        if timing_repeats > 0
+        else []
+    )
     _run(
-        [compiler, *STRICT_FLAGS, *_daqp_flags(exported), "-o", str(binary),
+        [compiler, *STRICT_FLAGS, *timing, *_daqp_flags(exported), "-o", str(binary),
          *_step_sources(main, exported), "-lm"],
         timeout,
         f"building the step replay with {compiler}",
     )  # fmt: skip
-    u_phi, codes = _step_outcome(_run([str(binary)], timeout, "the host replay"), exported.m)
-    return StepReplayResult(u_phi=u_phi, codes=codes)
+    output = _run([str(binary)], timeout, "the host replay")
+    u_phi, codes = _step_outcome(output, exported.m)
+    seconds = None
+    if timing_repeats > 0:
+        seconds = np.array([float(line.split()[1]) for line in output.splitlines()
+                            if line.startswith("t ")])  # fmt: skip
+    return StepReplayResult(u_phi=u_phi, codes=codes, seconds=seconds)
 
 
 def _count_instructions(command: list[str], steps: int, timeout: float) -> Any:

@@ -1,0 +1,110 @@
+"""The exported C step on the host against the library's one-call step, per step.
+
+The paper's scenario 3 on the pH plant (set-point jumps, steps on the infeasibility
+policy) at each horizon: the library's closed loop is run once (the reference engine) for
+its measurements and set-points; then, in this one run, a fresh controller on the default
+engine (the one-call compiled step) and the exported C step built with ``gcc -O2``
+(``ltv_lstm_mpc.export.pil``, ``-DPIL_TIMING``) replay them, each step timed (best of
+``--repeats`` replays; Python: ``time.perf_counter`` around ``controller.step``, C:
+``CLOCK_MONOTONIC`` around ``<prefix>_controller_step``). Prints the median, p95 and max
+per horizon and the ratios C / Python, and checks both give the same inputs. acados is
+not in this run (``experiments/acados_speed.py`` times it).
+
+    python experiments/export_speed.py [--N 5 20 50] [--steps 600] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (``--help`` answers before numpy and the library are imported)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog='Figures: docs/user-guide/export-c.md, "Speed on the host". Smallest run: '
+        "--N 5 --steps 30 --repeats 1.",
+    )
+    parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
+    parser.add_argument("--steps", type=int, default=600, help="steps replayed (600)")
+    parser.add_argument("--repeats", type=int, default=3, help="replays timed, best kept (3)")
+    return parser
+
+
+if __name__ == "__main__":
+    build_parser().parse_args()
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+from dataclasses import replace  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from ltv_lstm_mpc import OffsetFreeController, simulate  # noqa: E402
+from ltv_lstm_mpc.export import export_model_c  # noqa: E402
+from ltv_lstm_mpc.export.pil import run_step_host, write_step_replay  # noqa: E402
+from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
+from ltv_lstm_mpc.paper.scenarios import paper_scenarios  # noqa: E402
+
+
+def python_times(model: Any, config: Any, limit: Any, sim: Any, repeats: int) -> Any:
+    """Each step's best time over ``repeats`` replays through a fresh controller on the
+    default engine, and the inputs of the last replay."""
+    best = np.full(len(sim.y_phi), np.inf)
+    inputs = np.zeros_like(sim.u_phi)
+    for _ in range(repeats):
+        controller = OffsetFreeController(model, config, setpoint_rate_limit=limit,
+                                          kernels="compiled")  # fmt: skip
+        for k, (y, y0) in enumerate(zip(sim.y_phi, sim.y0_phi, strict=True)):
+            start = time.perf_counter()
+            inputs[k] = controller.step(y, y0)
+            best[k] = min(best[k], time.perf_counter() - start)
+    return best, inputs, controller.engine.name
+
+
+def stats(seconds: Any) -> tuple[float, float, float]:
+    """Median, p95 and max over the steps after the first, us."""
+    tail = 1e6 * np.asarray(seconds)[1:]
+    return float(np.median(tail)), float(np.percentile(tail, 95)), float(tail.max())
+
+
+def main() -> None:
+    args = build_parser().parse_args()
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    print(
+        f"{'N':>3} {'engine':<9} {'median us':>9} {'p95 us':>8} {'max us':>8}   "
+        f"C / Python: median, p95, max   inputs |C - Python|"
+    )
+    for N in args.N:
+        config = replace(scenario.config, solver="daqp", N=N)
+        limit = scenario.setpoint_rate_limit
+        reference = OffsetFreeController(model, config, setpoint_rate_limit=limit,
+                                         one_call_step=False)  # fmt: skip
+        plant = scenario.make_plant(model, reference.certification)
+        sim = simulate(plant, reference, scenario.setpoints, scenario.disturbances, args.steps,
+                       progress=False)  # fmt: skip
+        py_seconds, py_inputs, engine = python_times(model, config, limit, sim, args.repeats)
+        with tempfile.TemporaryDirectory() as scratch:
+            exported = export_model_c(model, Path(scratch), controller=reference, prefix="c")
+            main_c = write_step_replay(exported, sim.y_phi, sim.y0_phi)
+            c = run_step_host(main_c, exported, timing_repeats=args.repeats)
+        python, native = stats(py_seconds), stats(c.seconds)
+        gap = float(np.abs(c.u_phi - py_inputs).max())
+        print(f"{N:>3} {engine:<9} {python[0]:>9.1f} {python[1]:>8.1f} {python[2]:>8.1f}")
+        print(
+            f"{N:>3} {'C (gcc)':<9} {native[0]:>9.1f} {native[1]:>8.1f} {native[2]:>8.1f}   "
+            f"{native[0] / python[0]:.2f}, {native[1] / python[1]:.2f}, "
+            f"{native[2] / python[2]:.2f}   {gap:.1e}",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
