@@ -397,3 +397,14 @@ def test_export_refuses_a_bad_prefix_and_a_foreign_observer(tmp_path: Path) -> N
         export_model_c(model, tmp_path, observer=Observer(other, gains, d_max=0.1))
     with pytest.raises(InvalidValueError, match=r"must be an ltv_lstm_mpc\.Observer"):
         export_model_c(model, tmp_path, observer="observer")
+
+
+@needs_compiler
+def test_the_export_refuses_fast_math(tmp_path: Path) -> None:
+    """-ffast-math would remove the NaN checks: the generated source stops the build."""
+    model = load_model("ph_lstm_n5.npz")
+    exported = export_model_c(model, tmp_path, prefix="fm")
+    command = [COMPILERS[0], "-std=c99", "-ffast-math", "-c", "-o", str(tmp_path / "fm.o"),
+               str(exported.source)]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode != 0 and "-ffast-math" in done.stderr
