@@ -315,3 +315,20 @@ def add_check_sampling_time_option(parser: argparse.ArgumentParser) -> None:
         help="run even where the model's sampling time differs from the plant's or is "
         "unknown (at your risk)",
     )
+
+
+def add_rate_limit_option(parser: argparse.ArgumentParser) -> None:
+    """``--rate-limit``: the set-point rate limiter's bound per step (0: none)."""
+    parser.add_argument(
+        "--rate-limit",
+        type=nonnegative_float,
+        default=0.01,
+        help="largest normalized set-point change per step (0 = no limiter)",
+    )
+
+
+def add_policy_option(parser: argparse.ArgumentParser) -> None:
+    """``--policy``: the infeasibility policy (``MPCConfig.infeasibility_policy``)."""
+    parser.add_argument(
+        "--policy", choices=["paper", "soft", "shift"], default="paper", help="infeasibility policy"
+    )

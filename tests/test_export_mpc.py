@@ -12,6 +12,7 @@ import shutil
 import subprocess
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,9 @@ from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.benchmarks.quadtank import quadtank_scenarios
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.export import export_model_c
+from ltv_lstm_mpc.export.sil import MPC_STATUS_NAMES as STATUS_NAMES
+from ltv_lstm_mpc.export.sil import POLICY_NAMES as POLICIES
+from ltv_lstm_mpc.export.sil import FeedbackResult, compile_controller
 from ltv_lstm_mpc.lstm.shipped import load_model
 from ltv_lstm_mpc.paper.scenarios import paper_scenarios
 
@@ -30,51 +34,11 @@ COMPILERS = [name for name in ("gcc", "clang") if shutil.which(name)]
 STRICT = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror"]
 needs_compiler = pytest.mark.skipif(not COMPILERS, reason="no C compiler (gcc or clang)")
 
-#: C status codes and the status names of ``MPCSolution.status``.
-STATUS_NAMES = {
-    1: "optimal",
-    2: "optimal_inaccurate",
-    -1: "infeasible",
-    -2: "failed",
-    -3: "unbounded",
-    -4: "max_iter",
-    -5: "failed",
-    -6: "failed",
-    -100: "infeasible_initial",
-    -101: "alpha_nonpositive",
-    -102: "failed",
-}
-POLICIES = ("nominal", "paper", "soft", "shift", "paper+shift", "soft+shift")
 
-
-class FeedbackResult(ctypes.Structure):
-    """``<prefix>_feedback_result``."""
-
-    _fields_ = [
-        ("status", ctypes.c_int),
-        ("policy", ctypes.c_int),
-        ("iterations", ctypes.c_int),
-        ("qp_iterations", ctypes.c_int),
-        ("sqp_step", ctypes.c_double),
-        ("cost", ctypes.c_double),
-        ("terminal_norm", ctypes.c_double),
-        ("output_violation", ctypes.c_double),
-        ("linearization_gap", ctypes.c_double),
-    ]
-
-
-def build(folder: Path, prefix: str, compiler: str, extra: tuple[str, ...] = ()) -> Path:
+def build(folder: Path, prefix: str, compiler: str) -> Path:
     """The export in ``folder`` (``<prefix>.c`` and DAQP's sources) as a shared library."""
-    daqp = sorted(str(p) for p in (folder / "daqp" / "src").glob("*.c"))
-    library = folder / f"lib{prefix}_{compiler}{'_'.join(extra).replace('=', '')}.so"
-    command = [
-        compiler, *STRICT, *extra, "-fPIC", "-shared", "-ffunction-sections", "-Wl,--gc-sections",
-        "-include", str(folder / "daqp" / "no_heap.h"), "-I", str(folder / "daqp" / "include"),
-        "-o", str(library), str(folder / f"{prefix}.c"), *daqp, "-lm",
-    ]  # fmt: skip
-    done = subprocess.run(command, capture_output=True, text=True)
-    assert done.returncode == 0, f"{' '.join(command)}\n{done.stderr}"
-    return library
+    return compile_controller(SimpleNamespace(source=folder / f"{prefix}.c", prefix=prefix),
+                              compiler)  # fmt: skip
 
 
 class CMPC:

@@ -21,7 +21,8 @@ def register(subparsers: Any) -> None:
         add_d_max_option,
         add_l_d_option,
         add_n_option,
-        nonnegative_float,
+        add_policy_option,
+        add_rate_limit_option,
         output_folder,
     )
 
@@ -49,15 +50,8 @@ def register(subparsers: Any) -> None:
     add_n_option(parser)
     add_l_d_option(parser)
     add_d_max_option(parser)
-    parser.add_argument(
-        "--rate-limit",
-        type=nonnegative_float,
-        default=0.01,
-        help="largest normalized set-point change per step (0 = no limiter)",
-    )
-    parser.add_argument(
-        "--policy", choices=["paper", "soft", "shift"], default="paper", help="infeasibility policy"
-    )
+    add_rate_limit_option(parser)
+    add_policy_option(parser)
     parser.add_argument(
         "--implausible-measurements",
         choices=["flag", "raise"],

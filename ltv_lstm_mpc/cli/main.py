@@ -48,6 +48,8 @@ from ltv_lstm_mpc.command_arguments import (
     add_d_max_option,
     add_l_d_option,
     add_n_option,
+    add_policy_option,
+    add_rate_limit_option,
     add_solver_option,
     check_order,
     nonnegative_float,
@@ -414,15 +416,8 @@ def _add_simulate(subparsers: Any) -> None:
     )
     add_l_d_option(parser)
     add_d_max_option(parser)
-    parser.add_argument(
-        "--rate-limit",
-        type=nonnegative_float,
-        default=0.01,
-        help="largest normalized set-point change per step (0 = no limiter)",
-    )
-    parser.add_argument(
-        "--policy", choices=["paper", "soft", "shift"], default="paper", help="infeasibility policy"
-    )
+    add_rate_limit_option(parser)
+    add_policy_option(parser)
     parser.add_argument(
         "--sqp-iterations", type=positive_int, default=1, help="SQP iterations (1 = RTI)"
     )

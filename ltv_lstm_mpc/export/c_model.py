@@ -55,7 +55,7 @@ import numpy as np
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 
-__all__ = ["ExportedC", "export_model_c", "export_refusal", "mpc_refusal"]
+__all__ = ["ExportedC", "daqp_refusal", "export_model_c", "export_refusal", "mpc_refusal"]
 
 
 @dataclass(frozen=True)
@@ -223,11 +223,7 @@ def export_model_c(
             f"tightening has {np.size(tightening.y_min)} outputs, the model {model.p}: pass "
             "the certificate of this model's controller (controller.mpc.tightening)"
         )
-    if reference is not None and not (
-        np.array_equal(reference.model.kernel.WU, model.kernel.WU)
-        and np.array_equal(reference.model.W_y, model.W_y)
-        and np.array_equal(reference.model.b_y, model.b_y)
-    ):
+    if reference is not None and not _same_weights(reference.model, model):
         raise InvalidValueError(
             "reference belongs to another model than the one exported (other weights); "
             "pass the model the reference calculator was built with (reference.model)"
@@ -239,12 +235,7 @@ def export_model_c(
                 "build one with Observer(model, gains, d_max=...) or pass "
                 "controller.observer"
             )
-        other = observer.model
-        if other is not model and not (
-            np.array_equal(other.kernel.WU, model.kernel.WU)
-            and np.array_equal(other.W_y, model.W_y)
-            and np.array_equal(other.b_y, model.b_y)
-        ):
+        if not _same_weights(observer.model, model):
             raise InvalidValueError(
                 "observer observes another model than the one exported (other weights); "
                 "pass the model the observer was built with (observer.model)"
@@ -427,22 +418,12 @@ def _copy_daqp(target: Path) -> None:
 def _daqp_settings(config: Any) -> str:
     """The ``DAQPSettings`` the library's DAQP calls use (``daqp.solve``'s keywords from the
     solver options) as C designated initializers, equality elimination off."""
-    import importlib.metadata
-
     from ltv_lstm_mpc.solvers import daqp_native
     from ltv_lstm_mpc.solvers.tolerances import solver_options
 
-    try:
-        installed = importlib.metadata.version("daqp")
-    except importlib.metadata.PackageNotFoundError:
-        installed = None
-    if installed != DAQP_VENDORED:
-        raise InvalidValueError(
-            f"the C export vendors DAQP {DAQP_VENDORED}, and the library runs DAQP "
-            f"{installed or '(not installed)'}: the exported controller would solve its QPs "
-            f"with other code than the Python one. Install it with "
-            f"pip install daqp=={DAQP_VENDORED}"
-        )
+    reason = daqp_refusal()
+    if reason is not None:
+        raise InvalidValueError(reason)
     options = solver_options("daqp", config.tolerance, dict(config.solver_settings))
     native = daqp_native.native(options)
     if native is None:
@@ -471,12 +452,7 @@ def _mpc_fields(
     if reason is not None:
         raise InvalidValueError(reason)
     config = mpc.config
-    other = mpc.model
-    if other is not model and not (
-        np.array_equal(other.kernel.WU, model.kernel.WU)
-        and np.array_equal(other.W_y, model.W_y)
-        and np.array_equal(other.b_y, model.b_y)
-    ):
+    if not _same_weights(mpc.model, model):
         raise InvalidValueError(
             "mpc predicts with another model than the one exported (other weights); pass "
             "the model the controller was built with (controller.model)"
@@ -603,27 +579,44 @@ def mpc_refusal(mpc: Any) -> str | None:
     return None
 
 
+def daqp_refusal() -> str | None:
+    """Why the installed DAQP is not the vendored release (None: it is): the exported
+    controller would solve its QPs with other code than the library."""
+    import importlib.metadata
+
+    try:
+        installed: str | None = importlib.metadata.version("daqp")
+    except importlib.metadata.PackageNotFoundError:
+        installed = None
+    if installed == DAQP_VENDORED:
+        return None
+    return (
+        f"the C export vendors DAQP {DAQP_VENDORED}, and the library runs DAQP "
+        f"{installed or '(not installed)'}: the exported controller would solve its QPs with "
+        f"other code than the Python one. Install it with pip install daqp=={DAQP_VENDORED}"
+    )
+
+
 def export_refusal(controller: Any) -> str | None:
     """Why ``controller`` cannot run as exported C on this machine (None: it can): the
-    export's coverage (:func:`mpc_refusal`; the controller's own MPC), the DAQP release,
-    a C compiler on the PATH."""
-    import importlib.metadata
-    import shutil
+    export's coverage (:func:`mpc_refusal`; the controller's own MPC), the DAQP release
+    (:func:`daqp_refusal`), a C compiler on the PATH."""
+    from ltv_lstm_mpc.export.sil import find_c_compiler
 
     if controller.custom_mpc:
         return "the controller runs an MPC given by the caller (mpc=...): not exported"
-    reason = mpc_refusal(controller.mpc)
+    reason = mpc_refusal(controller.mpc) or daqp_refusal()
     if reason is not None:
         return reason
-    try:
-        installed = importlib.metadata.version("daqp")
-    except importlib.metadata.PackageNotFoundError:
-        installed = None
-    if installed != DAQP_VENDORED:
-        return (
-            f"the C export vendors DAQP {DAQP_VENDORED}, the library runs "
-            f"{installed or 'none'}: pip install daqp=={DAQP_VENDORED}"
-        )
-    if not any(shutil.which(name) for name in ("cc", "gcc", "clang")):
+    if find_c_compiler() is None:
         return "no C compiler on the PATH (cc, gcc or clang): install one, e.g. gcc"
     return None
+
+
+def _same_weights(other: LSTMModel, model: LSTMModel) -> bool:
+    """``other`` is ``model`` or has its weights (a component built on it)."""
+    return other is model or (
+        np.array_equal(other.kernel.WU, model.kernel.WU)
+        and np.array_equal(other.W_y, model.W_y)
+        and np.array_equal(other.b_y, model.b_y)
+    )

@@ -27,7 +27,9 @@ __all__ = [
     "POLICY_NAMES",
     "STEP_CODES",
     "CController",
+    "FeedbackResult",
     "compile_controller",
+    "find_c_compiler",
     "host_compiler",
 ]
 
@@ -55,11 +57,16 @@ STEP_CODES = ("ok", "bad_measurement", "bad_setpoint", "unreachable")
 BUILD_FLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror")
 
 
+def find_c_compiler() -> str | None:
+    """The first of ``cc``, ``gcc``, ``clang`` on the PATH (None: none)."""
+    return next((name for name in ("cc", "gcc", "clang") if shutil.which(name)), None)
+
+
 def host_compiler() -> str:
-    """The first of ``cc``, ``gcc``, ``clang`` on the PATH."""
-    for name in ("cc", "gcc", "clang"):
-        if shutil.which(name):
-            return name
+    """:func:`find_c_compiler`, or an error that says what to install."""
+    found = find_c_compiler()
+    if found is not None:
+        return found
     raise InvalidValueError(
         "no C compiler on the PATH (cc, gcc or clang): install one, e.g. "
         "`apt-get install gcc`, to run the exported controller on the host"
@@ -84,25 +91,25 @@ def compile_controller(exported: Any, compiler: str | None = None) -> Path:
     return library
 
 
+class FeedbackResult(ctypes.Structure):
+    """``<prefix>_feedback_result``: the MPC's outcome of a step."""
+
+    _fields_ = [
+        ("status", ctypes.c_int), ("policy", ctypes.c_int), ("iterations", ctypes.c_int),
+        ("qp_iterations", ctypes.c_int), ("sqp_step", ctypes.c_double),
+        ("cost", ctypes.c_double), ("terminal_norm", ctypes.c_double),
+        ("output_violation", ctypes.c_double), ("linearization_gap", ctypes.c_double),
+    ]  # fmt: skip
+
+
 def _record_type(n: int, m: int, p: int) -> type[ctypes.Structure]:
     """``<prefix>_step_record`` for a model of n units, m inputs and p outputs."""
     d, i = ctypes.c_double, ctypes.c_int
-    feedback = type(
-        "FeedbackResult",
-        (ctypes.Structure,),
-        {
-            "_fields_": [
-                ("status", i), ("policy", i), ("iterations", i), ("qp_iterations", i),
-                ("sqp_step", d), ("cost", d), ("terminal_norm", d), ("output_violation", d),
-                ("linearization_gap", d),
-            ]
-        },
-    )  # fmt: skip
     fields = [
         ("y", d * p), ("y0", d * p), ("u", d * m), ("x_hat", d * (2 * n)), ("d_hat", d * p),
         ("e_hat", d), ("x_bar", d * (2 * n)), ("u_bar", d * m), ("alpha", d),
         ("input_clipped", d), ("measurement_status", i), ("setpoint_status", i),
-        ("reference_status", i), ("u_bar_projected", i), ("mpc", feedback),
+        ("reference_status", i), ("u_bar_projected", i), ("mpc", FeedbackResult),
     ]  # fmt: skip
     return type("StepRecord", (ctypes.Structure,), {"_fields_": fields})
 
