@@ -146,18 +146,20 @@ def export(controller: OffsetFreeController, folder: Path, prefix: str = "ctl") 
     )  # fmt: skip
 
 
-def u_offset(folder: Path, prefix: str, compiler: str) -> tuple[int, int]:
-    """``offsetof(<prefix>_mpc_workspace, u)`` and its ``sizeof``, from a compiled probe."""
+def u_offset(folder: Path, prefix: str, compiler: str) -> tuple[int, int, int]:
+    """``offsetof(<prefix>_mpc_workspace, u)``, its ``sizeof`` and that of the model's
+    workspace inside it (``<prefix>_workspace``), from a compiled probe."""
     probe = folder / "probe.c"
     probe.write_text(
         f'#include <stddef.h>\n#include <stdio.h>\n#include "{prefix}.h"\n'
-        f'int main(void) {{ printf("%zu %zu\\n", offsetof({prefix}_mpc_workspace, u), '
-        f"sizeof({prefix}_mpc_workspace)); return 0; }}\n"
+        f'int main(void) {{ printf("%zu %zu %zu\\n", offsetof({prefix}_mpc_workspace, u), '
+        f"sizeof({prefix}_mpc_workspace), sizeof({prefix}_workspace)); return 0; }}\n"
     )
     binary = folder / "probe"
     subprocess.run([compiler, "-std=c99", "-o", str(binary), str(probe)], check=True)
-    offset, size = subprocess.run([str(binary)], capture_output=True, text=True).stdout.split()
-    return int(offset), int(size)
+    found = subprocess.run([str(binary)], capture_output=True, text=True).stdout.split()
+    offset, size, model_size = (int(value) for value in found)
+    return offset, size, model_size
 
 
 def compare(cmpc: CMPC, rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -187,8 +189,9 @@ def test_the_c_subproblem_equals_robust_mpc_feedback(policy: str, tmp_path: Path
     controller, rows = closed_loop("ph", policy, 5, 300)
     exported = export(controller, tmp_path)
     compiler = COMPILERS[0]
-    offset, size = u_offset(tmp_path, "ctl", compiler)
+    offset, size, model_size = u_offset(tmp_path, "ctl", compiler)
     assert size <= exported.mpc_workspace_bytes
+    assert model_size == exported.workspace_bytes  # (the Newton/condensing union included)
     cmpc = CMPC(build(tmp_path, "ctl", compiler), "ctl", exported, 5)
     cmpc.bind_u(offset)
     found = compare(cmpc, rows)
@@ -205,7 +208,7 @@ def test_the_c_subproblem_equals_feedback_on_the_quadruple_tank(tmp_path: Path) 
         folder = tmp_path / f"N{N}"
         exported = export(controller, folder)
         compiler = COMPILERS[-1]
-        offset, _ = u_offset(folder, "ctl", compiler)
+        offset, _, _ = u_offset(folder, "ctl", compiler)
         cmpc = CMPC(build(folder, "ctl", compiler), "ctl", exported, N)
         cmpc.bind_u(offset)
         found = compare(cmpc, rows)
@@ -234,7 +237,7 @@ def test_the_c_prechecks_equal_feedback(tmp_path: Path) -> None:
         checks.append(rows[-1])
     assert [c["solution"].status for c in checks] == ["infeasible_initial", "alpha_nonpositive"]
     exported = export(controller, tmp_path)
-    offset, _ = u_offset(tmp_path, "ctl", COMPILERS[0])
+    offset, _, _ = u_offset(tmp_path, "ctl", COMPILERS[0])
     cmpc = CMPC(build(tmp_path, "ctl", COMPILERS[0]), "ctl", exported, 5)
     cmpc.bind_u(offset)
     found = compare(cmpc, checks)

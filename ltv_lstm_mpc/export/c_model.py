@@ -290,6 +290,7 @@ def export_model_c(
     fields["grid_points"] = "1"
     fields["reference_code"] = ""
     doubles, ints = (n + m + 1) + 4 * n + n + 4 * n + p, 0
+    newton_bytes = 0
     state_bytes = 0
     if reference is not None:
         nz = 2 * n + m
@@ -320,9 +321,9 @@ def export_model_c(
         fields["has_reference"] = "1"
         fields["grid_points"] = str(grid_u.shape[0])
         fields["reference_code"] = _template("reference.c.in").substitute(reference_fields)
-        doubles += 6 * nz + 2 * n + 4 * n * n + 2 * n * m + (2 * n + p) + nz * nz
-        doubles += grid_u.shape[0]
-        ints += grid_u.shape[0] + nz
+        newton_bytes = 8 * (6 * nz + 2 * n + 4 * n * n + 2 * n * m + (2 * n + p) + nz * nz)
+        newton_bytes += 8 * grid_u.shape[0] + 4 * (grid_u.shape[0] + nz)
+        newton_bytes += (-newton_bytes) % 8
         state_bytes = 8 * (nz + p + nz * nz) + 8  # (the int, padded)
     fields["has_tightening"] = "0"
     fields["horizon"] = "1"
@@ -352,8 +353,18 @@ def export_model_c(
                 raise InvalidValueError(
                     f"reference.{name} = {value} does not fit a C int: use 1..2**31 - 1"
                 )
+    # The Newton iterations' and the condensing's scratch share a union (model.h.in).
+    condense_bytes = 0
+    fields["mpc_horizon"] = "1"
+    if mpc is not None:
+        reason = mpc_refusal(mpc)
+        if reason is not None:
+            raise InvalidValueError(reason)
+        fields["mpc_horizon"] = str(int(mpc.N))
+        condense_bytes = 8 * (2 * (2 * n) ** 2 + m * 2 * n + 3 * 2 * n + (int(mpc.N) + 1) * 2 * n)
     workspace_bytes = 8 * doubles + 4 * ints
     workspace_bytes += (-workspace_bytes) % 8  # the struct's alignment (8-byte doubles)
+    workspace_bytes += max(newton_bytes, condense_bytes)
     fields["workspace_bytes"] = str(workspace_bytes)
     fields["mpc_declarations"] = ""
     fields["mpc_code"] = ""
@@ -448,9 +459,6 @@ def _mpc_fields(
     """The template fields of ``mpc.h.in`` and ``mpc.c.in`` and the workspace's size bound."""
     from ltv_lstm_mpc.solvers.tolerances import feasibility_tolerance
 
-    reason = mpc_refusal(mpc)
-    if reason is not None:
-        raise InvalidValueError(reason)
     config = mpc.config
     if not _same_weights(mpc.model, model):
         raise InvalidValueError(
@@ -480,6 +488,7 @@ def _mpc_fields(
         nx=str(nx),
         nu=str(nu),
         rows=str(rows),
+        gamma_size=str(nx * m * N * (N + 1) // 2),
         soft_n=str(soft_n),
         soft_rows=str(soft_rows),
         qp_n=str(qp_n),
@@ -504,9 +513,10 @@ def _mpc_fields(
         soft_penalty=_literal(config.soft_penalty),
         daqp_settings=_daqp_settings(config),
     )
-    doubles = (N + 1) * (nx + m) + N * nx * (nx + m) + (N + 1) * nx * nu + nu * nu + 2 * nu
-    doubles += rows * nu + 2 * rows + 2 * (nu + rows) + (N + 1) * nx + 2 * nx * nx
-    doubles += m * nx + 3 * nx + qp_n + qp_m + soft_n * soft_n + soft_n
+    doubles = (N + 1) * (nx + m) + N * (2 * n + nx * (n + m)) + nx * m * N * (N + 1) // 2
+    doubles += nu * nu + 2 * nu
+    doubles += rows * nu + 2 * rows + 2 * (nu + rows)
+    doubles += qp_n + qp_m + soft_n * soft_n + soft_n
     doubles += soft_rows * soft_n + 2 * (soft_n + soft_rows) + 5 * (qp_n + 1)
     doubles += (qp_n + 1) * (qp_n + 2) // 2 + 2 * qp_n + qp_m + qp_n * qp_rows + qp_rows
     doubles += 2 * qp_m + (qp_n + 1) * qp_n // 2 + qp_n + N * m + 2 * (N + 1) * nx
