@@ -200,6 +200,25 @@ def test_the_c_subproblem_equals_robust_mpc_feedback(policy: str, tmp_path: Path
 
 
 @needs_compiler
+@pytest.mark.parametrize(("N", "backward"), [(5, "0"), (40, "1")])
+def test_the_c_picks_the_librarys_condensing_form(N: int, backward: str, tmp_path: Path) -> None:
+    """H and g0 as the library forms them (CondensedTranscription.backward_condensing):
+    rank updates on the causal columns for N m <= 3.5 (2n) with diagonal weights (pH,
+    2n = 10: N = 5), the backward recursion beyond (N = 40); either equals
+    RobustMPC.feedback to 1e-9 over 80 steps of scenario 3."""
+    controller, rows = closed_loop("ph", "paper", N, 80)
+    assert controller.mpc._problem.backward_condensing == (backward == "1")
+    exported = export(controller, tmp_path)
+    assert f"#define BACKWARD_CONDENSING {backward}\n" in exported.source.read_text()
+    compiler = COMPILERS[0]
+    offset, _, _ = u_offset(tmp_path, "ctl", compiler)
+    cmpc = CMPC(build(tmp_path, "ctl", compiler), "ctl", exported, N)
+    cmpc.bind_u(offset)
+    found = compare(cmpc, rows)
+    assert found["u"] <= 1e-9 and found["cost"] <= 1e-9, found
+
+
+@needs_compiler
 def test_the_c_subproblem_equals_feedback_on_the_quadruple_tank(tmp_path: Path) -> None:
     """The quadruple tank (n = 8, two pumps, two levels), 240 steps at N = 5 and N = 20:
     statuses, policies exactly, inputs and cost to 1e-9."""

@@ -480,6 +480,11 @@ def _mpc_fields(
     qp_m = max(nu + rows, soft_n + soft_rows if soft else 0)
     Qs = problem.stage_weights()[1]
     diagonal_weights = all(np.array_equal(W, np.diag(np.diag(W))) for W in Qs)
+    # the library's choice for diagonal weights (CondensedTranscription: the Gram matrix
+    # for full weights, which C replaces by the backward recursion)
+    from ltv_lstm_mpc.mpc.condensed import BACKWARD_CONDENSING_RATIO_DIAGONAL
+
+    backward = nu > BACKWARD_CONDENSING_RATIO_DIAGONAL * nx
     Q = np.asarray(mpc._Q, dtype=np.float64)
     Q_diagonal = bool(np.array_equal(Q, np.diag(np.diag(Q))))
     values = dict(fields)
@@ -498,6 +503,7 @@ def _mpc_fields(
         policy_code=str(policies.index(policy)),
         u_max=_literal(config.u_max),
         weights_diagonal="1" if diagonal_weights else "0",
+        backward_condensing="1" if backward or not diagonal_weights else "0",
         Qs=(
             _matrix(np.array([np.diag(W) for W in Qs]))
             if diagonal_weights
