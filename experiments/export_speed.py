@@ -7,10 +7,19 @@ engine (the one-call compiled step) and the exported C step built with ``gcc -O2
 (``ltv_lstm_mpc.export.pil``, ``-DPIL_TIMING``) replay them, each step timed (best of
 ``--repeats`` replays; Python: ``time.perf_counter`` around ``controller.step``, C:
 ``CLOCK_MONOTONIC`` around ``<prefix>_controller_step``). Prints the median, p95 and max
-per horizon and the ratios C / Python, and checks both give the same inputs. acados is
-not in this run (``experiments/acados_speed.py`` times it).
+per horizon and the ratios C / Python, and checks both give the same inputs.
 
-    python experiments/export_speed.py [--N 5 20 50] [--steps 600] [--repeats 3]
+With ``--acados DIR`` (acados built from source with DAQP, as ``experiments/acados_speed.py``
+describes), acados' SQP-RTI with full condensing and DAQP (``FULL_CONDENSING_DAQP``) is timed
+in the same run: a fresh controller replays the steps again and, after each step from k = 1
+on, acados is fed that step's data (``acados_speed.feed``: the same linearization point,
+set-points, tightened bounds and terminal box) and its ``solve()`` is timed (the Python call;
+best of ``--repeats`` per step). acados' time covers its MPC step only (linearization,
+condensing, QP), not an observer or a reference calculator; where ours took the
+infeasibility policy, acados' solve fails (it has no policy) and is timed all the same.
+
+    python experiments/export_speed.py [--N 5 20 50] [--steps 600] [--repeats 3] \
+        [--cflags "-O2"] [--acados DIR]
 """
 
 from __future__ import annotations
@@ -33,6 +42,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--N", type=int, nargs="+", default=[5, 20, 50], help="horizons")
     parser.add_argument("--steps", type=int, default=600, help="steps replayed (600)")
     parser.add_argument("--repeats", type=int, default=3, help="replays timed, best kept (3)")
+    parser.add_argument(
+        "--cflags", default="-O2", help='the C step\'s optimization flags ("-O2"; e.g. "-O3")'
+    )
+    parser.add_argument(
+        "--acados", type=Path, default=None,
+        help="an acados source tree built with DAQP (experiments/acados_speed.py): time its "
+        "SQP-RTI solve() in the same run",
+    )  # fmt: skip
     return parser
 
 
@@ -68,6 +85,36 @@ def python_times(model: Any, config: Any, limit: Any, sim: Any, repeats: int) ->
     return best, inputs, controller.engine.name
 
 
+def acados_times(acados: Any, model: Any, config: Any, limit: Any, sim: Any, repeats: int,
+                 folder: Path) -> tuple[Any, int]:  # fmt: skip
+    """acados' ``solve()`` per step from k = 1 on (best of ``repeats``; module docstring) and
+    how many of its solves failed (last replay)."""
+    from acados_speed import build_solver, feed  # experiments/ is the script's folder
+
+    from ltv_lstm_mpc.mpc.nmpc import casadi_dynamics
+
+    def new_controller() -> Any:
+        return OffsetFreeController(model, config, setpoint_rate_limit=limit,
+                                    kernels="compiled")  # fmt: skip
+
+    solver = build_solver(acados, model, new_controller(), "FULL_CONDENSING_DAQP", folder)
+    dynamics = casadi_dynamics(model)
+    best = np.full(len(sim.y_phi), np.inf)
+    failed = 0
+    for _ in range(repeats):
+        controller, failed = new_controller(), 0
+        for k, (y, y0) in enumerate(zip(sim.y_phi, sim.y0_phi, strict=True)):
+            controller.step(y, y0)
+            if k == 0:
+                continue
+            feed(solver, controller, model, dynamics)
+            start = time.perf_counter()
+            status = solver.solve()
+            best[k] = min(best[k], time.perf_counter() - start)
+            failed += int(status != 0)
+    return best, failed
+
+
 def stats(seconds: Any) -> tuple[float, float, float]:
     """Median, p95 and max over the steps after the first, us."""
     tail = 1e6 * np.asarray(seconds)[1:]
@@ -78,6 +125,13 @@ def main() -> None:
     args = build_parser().parse_args()
     model = load_model("ph_lstm_n5.npz")
     scenario = paper_scenarios(model)[2]
+    acados = None
+    if args.acados is not None:
+        from acados_speed import load_acados  # experiments/ is the script's folder
+
+        acados = load_acados(args.acados.resolve())
+    else:
+        print("acados: not in this run (--acados DIR: experiments/acados_speed.py)")
     print(
         f"{'N':>3} {'engine':<9} {'median us':>9} {'p95 us':>8} {'max us':>8}   "
         f"C / Python: median, p95, max   inputs |C - Python|"
@@ -94,7 +148,16 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as scratch:
             exported = export_model_c(model, Path(scratch), controller=reference, prefix="c")
             main_c = write_step_replay(exported, sim.y_phi, sim.y0_phi)
-            c = run_step_host(main_c, exported, timing_repeats=args.repeats)
+            c = run_step_host(main_c, exported, timing_repeats=args.repeats,
+                              cflags=tuple(args.cflags.split()))  # fmt: skip
+            if acados is not None:
+                cwd = os.getcwd()
+                os.chdir(scratch)  # acados writes some files next to the caller
+                try:
+                    theirs, failed = acados_times(acados, model, config, limit, sim,
+                                                  args.repeats, Path(scratch))  # fmt: skip
+                finally:
+                    os.chdir(cwd)
         python, native = stats(py_seconds), stats(c.seconds)
         gap = float(np.abs(c.u_phi - py_inputs).max())
         print(f"{N:>3} {engine:<9} {python[0]:>9.1f} {python[1]:>8.1f} {python[2]:>8.1f}")
@@ -104,6 +167,15 @@ def main() -> None:
             f"{native[2] / python[2]:.2f}   {gap:.1e}",
             flush=True,
         )
+        if acados is not None:
+            other = stats(theirs)
+            print(
+                f"{N:>3} {'acados':<9} {other[0]:>9.1f} {other[1]:>8.1f} {other[2]:>8.1f}   "
+                f"C / acados: {native[0] / other[0]:.2f}, {native[1] / other[1]:.2f}, "
+                f"{native[2] / other[2]:.2f}   (FULL_CONDENSING_DAQP; {failed} failed solves, "
+                "ours on the policy)",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

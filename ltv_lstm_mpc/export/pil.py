@@ -185,14 +185,24 @@ def write_observer_replay(
     return main
 
 
-def _run(command: list[str], timeout: float, what: str) -> str:
-    done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+def _run(command: list[str], timeout: float, what: str, output: Path | None = None) -> str:
+    """Run ``command``; its standard output (through the file ``output`` where given: QEMU
+    writes the replay's lines there, a regular file, which never refuses a write as a full
+    pipe can)."""
+    if output is None:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+        stdout = done.stdout
+    else:
+        with output.open("w") as handle:
+            done = subprocess.run(command, stdout=handle, stderr=subprocess.PIPE, text=True,
+                                  timeout=timeout)  # fmt: skip
+        stdout = output.read_text()
     if done.returncode != 0:
         raise RuntimeError(
             f"{what} failed (exit {done.returncode}): {' '.join(command)}\n"
-            f"{done.stdout[-2000:]}{done.stderr[-2000:]}"
+            f"{stdout[-2000:]}{done.stderr[-2000:]}"
         )
-    return done.stdout
+    return stdout
 
 
 def _estimates(output: str) -> Any:
@@ -237,6 +247,7 @@ def run_pil(
         ],
         timeout,
         "running the replay on QEMU (mps2-an500, Cortex-M7)",
+        folder / "pil_output.txt",
     )  # fmt: skip
     lines = output.splitlines()
     stack = [int(line.split()[1]) for line in lines if line.startswith("stack ")]
@@ -365,10 +376,11 @@ def run_step_host(
     timeout: float = 300.0,
     *,
     timing_repeats: int = 0,
+    cflags: tuple[str, ...] = (),
 ) -> StepReplayResult:
-    """Build the step replay with the host's ``compiler`` (the strict flags) and run it;
-    with ``timing_repeats`` > 0 (a POSIX host), also each step's wall time, the best of
-    that many replays (``seconds``)."""
+    """Build the step replay with the host's ``compiler`` (the strict flags, then
+    ``cflags``, e.g. ``("-O3",)``) and run it; with ``timing_repeats`` > 0 (a POSIX host),
+    also each step's wall time, the best of that many replays (``seconds``)."""
     binary = main.parent / "pil_step_host"
     timing = (
         [f"-DPIL_TIMING={int(timing_repeats)}", "-D_POSIX_C_SOURCE=199309L"]
@@ -376,7 +388,7 @@ def run_step_host(
         else []
     )
     _run(
-        [compiler, *STRICT_FLAGS, *timing, *_daqp_flags(exported), "-o", str(binary),
+        [compiler, *STRICT_FLAGS, *cflags, *timing, *_daqp_flags(exported), "-o", str(binary),
          *_step_sources(main, exported), "-lm"],
         timeout,
         f"building the step replay with {compiler}",
@@ -443,7 +455,8 @@ def run_step_pil(
         "cross-compiling the step replay (arm-none-eabi-gcc)",
     )  # fmt: skip
     qemu = [toolchain.qemu, "-M", "mps2-an500", "-nographic", "-semihosting"]
-    output = _run([*qemu, "-kernel", str(elf)], timeout, "running the step replay on QEMU")
+    output = _run([*qemu, "-kernel", str(elf)], timeout, "running the step replay on QEMU",
+                  folder / "pil_step_output.txt")  # fmt: skip
     u_phi, codes = _step_outcome(output, exported.m)
     stack = [int(line.split()[1]) for line in output.splitlines() if line.startswith("stack ")]
     instructions = None
