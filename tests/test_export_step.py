@@ -17,7 +17,7 @@ import pytest
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.benchmarks.quadtank import quadtank_scenarios
-from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.exceptions import InvalidValueError, UnreachableSetpointError
 from ltv_lstm_mpc.export import export_model_c
 from ltv_lstm_mpc.export.sil import MPC_STATUS_NAMES as STATUS_NAMES
 from ltv_lstm_mpc.export.sil import POLICY_NAMES as POLICIES
@@ -126,6 +126,47 @@ def test_the_c_step_keeps_the_statuses_of_unreachable_and_inadmissible_setpoints
     assert expected <= statuses, statuses
     found = replay(controller, sim, tmp_path, COMPILERS[0])
     assert found["u_phi"] <= 1e-9, found
+
+
+def first_step_loop(levels: list[float]) -> tuple[Any, Any]:
+    """The pH plant from its first step through set-point levels (10 steps each, the last
+    40), on the reference engine."""
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    config = replace(scenario.config, solver="daqp", N=5)
+    controller = OffsetFreeController(model, config, one_call_step=False)
+    plant = scenario.make_plant(model, controller.certification)
+    setpoints = np.concatenate([np.repeat(levels[:-1], 10), np.repeat(levels[-1:], 40)])
+    with warnings.catch_warnings():  # (the loop warns of what it meets, once each)
+        warnings.simplefilter("ignore")
+        sim = simulate(plant, controller, setpoints[:, None], scenario.disturbances,
+                       len(setpoints), progress=False)  # fmt: skip
+    return controller, sim
+
+
+@needs_compiler
+def test_the_c_step_keeps_the_reference_rules_before_any_admissible_equilibrium(
+    tmp_path: Path,
+) -> None:
+    """From the first step, before any admissible equilibrium: a set-point whose
+    equilibrium needs an input outside U (9.3: kept as the last converged one, status
+    unreachable, u_bar projected for the candidate), then one without any (9.6: that
+    equilibrium kept, stale), 5.5 (outside U again), then 7.0 (admissible): the library's
+    inputs (1e-9) and statuses on every step. A first set-point without any equilibrium:
+    the library raises, the C step returns STEP_UNREACHABLE with the middle of U."""
+    controller, sim = first_step_loop([9.3, 9.6, 5.5, 7.0])
+    statuses = [r.setpoint_status for r in controller.records]
+    assert statuses[0] == statuses[25] == "unreachable", statuses
+    assert statuses[15] == "unreachable_stale" and statuses[-1] == "ok", statuses
+    found = replay(controller, sim, tmp_path / "loop", COMPILERS[0])
+    assert found["u_phi"] <= 1e-9, found
+    with pytest.raises(UnreachableSetpointError):
+        OffsetFreeController(controller.model, controller.config).step(sim.y_phi[0], [9.6])
+    exported = export_model_c(controller.model, tmp_path, controller=controller, prefix="ctl")
+    c = CController(compile_controller(exported, COMPILERS[0]), exported)
+    code, u_phi, _ = c.step(sim.y_phi[0], np.array([9.6]))
+    scaling = controller.scaling
+    assert code == 3 and np.allclose(u_phi, (scaling.u_phi_low + scaling.u_phi_high) / 2)
 
 
 @needs_compiler
