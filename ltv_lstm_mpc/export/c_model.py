@@ -494,6 +494,7 @@ def _mpc_fields(
         nu=str(nu),
         rows=str(rows),
         gamma_size=str(nx * m * N * (N + 1) // 2),
+        plan_cell_rows=str(max(N - 1, 1)),
         soft_n=str(soft_n),
         soft_rows=str(soft_rows),
         qp_n=str(qp_n),
@@ -526,6 +527,7 @@ def _mpc_fields(
     doubles += soft_rows * soft_n + 2 * (soft_n + soft_rows) + 5 * (qp_n + 1)
     doubles += (qp_n + 1) * (qp_n + 2) // 2 + 2 * qp_n + qp_m + qp_n * qp_rows + qp_rows
     doubles += 2 * qp_m + (qp_n + 1) * qp_n // 2 + qp_n + N * m + 2 * (N + 1) * nx
+    doubles += max(N - 1, 1) * 5 * n
     ints = qp_m + (qp_n + 1) + qp_n + qp_m
     bound = 8 * doubles + 4 * ints + model_bytes + 1024
     values["mpc_workspace_bytes"] = f"at most {bound}"
