@@ -45,6 +45,7 @@ import numpy as np
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.export.c_model import ExportedC, _literal, _matrix
+from ltv_lstm_mpc.export.sil import daqp_flags, daqp_sources
 
 __all__ = [
     "CORTEX_M7_FLAGS",
@@ -136,8 +137,6 @@ def write_observer_replay(
         ``pil_main.c`` (with ``pil_startup.c`` and ``pil.ld`` beside it; one replay per
         folder: a second one replaces them).
     """
-    from ltv_lstm_mpc import __version__
-
     source = exported.source.read_text()
     if "_observer_update(" not in source:
         raise InvalidValueError(
@@ -167,19 +166,32 @@ def write_observer_replay(
         )
     if not (np.all(np.isfinite(Y)) and np.all(np.isfinite(U))):
         raise InvalidValueError("y and u must be finite: replay a recorded loop's signals")
-    folder = exported.source.parent
     fields = {
-        "prefix": exported.prefix,
-        "PREFIX": exported.prefix.upper(),
-        "version": __version__,
-        "steps": str(Y.shape[0]),
         "x_hat0": ", ".join(_literal(v) for v in x_first),
         "d_hat0": ", ".join(_literal(v) for v in d_first),
         "Y": _matrix(Y),
         "U": _matrix(U),
     }
-    main = folder / "pil_main.c"
-    main.write_text(_render("pil_observer_main.c.in", fields))
+    return _write_replay(exported, "pil_observer_main.c.in", "pil_main.c", Y.shape[0], fields)
+
+
+def _write_replay(
+    exported: ExportedC, template: str, name: str, steps: int, fields: dict[str, str]
+) -> Path:
+    """Render ``template`` as ``name`` next to ``exported``'s files with ``fields`` and the
+    common ones, and the target's start-up code and linker script beside it."""
+    from ltv_lstm_mpc import __version__
+
+    fields = {
+        "prefix": exported.prefix,
+        "PREFIX": exported.prefix.upper(),
+        "version": __version__,
+        "steps": str(steps),
+        **fields,
+    }
+    folder = exported.source.parent
+    main = folder / name
+    main.write_text(_render(template, fields))
     (folder / "pil_startup.c").write_text(_render("pil_startup.c.in", fields))
     (folder / "pil.ld").write_text(_render("pil.ld.in", fields))
     return main
@@ -240,17 +252,9 @@ def run_pil(
         timeout,
         "cross-compiling the replay (arm-none-eabi-gcc)",
     )  # fmt: skip
-    output = _run(
-        [
-            toolchain.qemu, "-M", "mps2-an500", "-nographic", "-semihosting",
-            "-kernel", str(elf),
-        ],
-        timeout,
-        "running the replay on QEMU (mps2-an500, Cortex-M7)",
-        folder / "pil_output.txt",
-    )  # fmt: skip
-    lines = output.splitlines()
-    stack = [int(line.split()[1]) for line in lines if line.startswith("stack ")]
+    output = _run(_qemu(toolchain, elf), timeout,
+                  "running the replay on QEMU (mps2-an500, Cortex-M7)",
+                  folder / "pil_output.txt")  # fmt: skip
     obj = folder / f"{exported.prefix}_m7.o"
     _run(
         [toolchain.gcc, *STRICT_FLAGS, *CORTEX_M7_FLAGS, "-c", "-o", str(obj),
@@ -267,7 +271,7 @@ def run_pil(
                 sections[kind] += int(parts[1])
     return ReplayResult(
         estimates=_estimates(output),
-        stack_bytes=stack[0] if stack else None,
+        stack_bytes=_stack(output),
         sections=sections,
     )
 
@@ -320,8 +324,6 @@ def write_step_replay(exported: ExportedC, y_phi: Any, y0_phi: Any) -> Path:
     Path
         ``pil_step_main.c`` (with ``pil_startup.c`` and ``pil.ld`` beside it).
     """
-    from ltv_lstm_mpc import __version__
-
     if "_controller_step(" not in exported.source.read_text():
         raise InvalidValueError(
             f"{exported.source} has no controller step: export with "
@@ -335,31 +337,27 @@ def write_step_replay(exported: ExportedC, y_phi: Any, y0_phi: Any) -> Path:
             f"y_phi has {Y.shape[0]} rows and y0_phi {Y0.shape[0]}: pass one row of each "
             f"per step, {p} values each"
         )
-    folder = exported.source.parent
-    fields = {
-        "prefix": exported.prefix,
-        "PREFIX": exported.prefix.upper(),
-        "version": __version__,
-        "steps": str(Y.shape[0]),
-        "Y": _matrix(Y),
-        "Y0": _matrix(Y0),
-    }
-    main = folder / "pil_step_main.c"
-    main.write_text(_render("pil_step_main.c.in", fields))
-    (folder / "pil_startup.c").write_text(_render("pil_startup.c.in", fields))
-    (folder / "pil.ld").write_text(_render("pil.ld.in", fields))
-    return main
+    fields = {"Y": _matrix(Y), "Y0": _matrix(Y0)}
+    return _write_replay(exported, "pil_step_main.c.in", "pil_step_main.c", Y.shape[0], fields)
 
 
 def _step_sources(main: Path, exported: ExportedC) -> list[str]:
-    folder = exported.source.parent
-    daqp = sorted(str(p) for p in (folder / "daqp" / "src").glob("*.c"))
-    return [str(main), str(exported.source), *daqp]
+    return [str(main), str(exported.source), *daqp_sources(exported.source.parent)]
 
 
 def _daqp_flags(exported: ExportedC) -> list[str]:
-    daqp = exported.source.parent / "daqp"
-    return ["-include", str(daqp / "no_heap.h"), "-I", str(daqp / "include")]
+    return daqp_flags(exported.source.parent)
+
+
+def _qemu(toolchain: Toolchain, elf: Path) -> list[str]:
+    """QEMU's MPS2 Cortex-M7 board running ``elf`` with semihosting."""
+    return [toolchain.qemu, "-M", "mps2-an500", "-nographic", "-semihosting", "-kernel", str(elf)]
+
+
+def _stack(output: str) -> int | None:
+    """The stack a replay reported (its ``stack`` line; None: none)."""
+    found = [int(line.split()[1]) for line in output.splitlines() if line.startswith("stack ")]
+    return found[0] if found else None
 
 
 def _step_outcome(output: str, m: int) -> tuple[Any, Any]:
@@ -454,17 +452,15 @@ def run_step_pil(
         timeout,
         "cross-compiling the step replay (arm-none-eabi-gcc)",
     )  # fmt: skip
-    qemu = [toolchain.qemu, "-M", "mps2-an500", "-nographic", "-semihosting"]
-    output = _run([*qemu, "-kernel", str(elf)], timeout, "running the step replay on QEMU",
+    output = _run(_qemu(toolchain, elf), timeout, "running the step replay on QEMU",
                   folder / "pil_step_output.txt")  # fmt: skip
     u_phi, codes = _step_outcome(output, exported.m)
-    stack = [int(line.split()[1]) for line in output.splitlines() if line.startswith("stack ")]
     instructions = None
     if count_instructions:
-        instructions = _count_instructions([*qemu, "-kernel", str(elf)], u_phi.shape[0], timeout)
+        instructions = _count_instructions(_qemu(toolchain, elf), u_phi.shape[0], timeout)
     sections, controller = _controller_sections(elf, exported, toolchain, timeout)
     return StepReplayResult(
-        u_phi=u_phi, codes=codes, stack_bytes=stack[0] if stack else None,
+        u_phi=u_phi, codes=codes, stack_bytes=_stack(output),
         instructions=instructions, sections=sections, controller_bytes=controller,
     )  # fmt: skip
 
@@ -482,7 +478,7 @@ def _controller_sections(
     sections = {"text": 0, "rodata": 0, "data": 0, "bss": 0}
     exported_symbols = set()
     folder = exported.source.parent
-    for source in [exported.source, *sorted((folder / "daqp" / "src").glob("*.c"))]:
+    for source in [exported.source, *map(Path, daqp_sources(folder))]:
         obj = folder / (source.stem + "_m7_symbols.o")
         _run([toolchain.gcc, *STRICT_FLAGS, *CORTEX_M7_FLAGS, *_daqp_flags(exported), "-c",
               "-o", str(obj), str(source)], timeout, "compiling for the symbol list")  # fmt: skip

@@ -73,17 +73,27 @@ def host_compiler() -> str:
     )
 
 
+def daqp_flags(folder: Path) -> list[str]:
+    """The compiler flags of DAQP's sources in an export's ``folder``: ``no_heap.h`` forced
+    in, its headers on the include path."""
+    daqp = folder / "daqp"
+    return ["-include", str(daqp / "no_heap.h"), "-I", str(daqp / "include")]
+
+
+def daqp_sources(folder: Path) -> list[str]:
+    """DAQP's C sources in an export's ``folder``, sorted."""
+    return sorted(str(path) for path in (folder / "daqp" / "src").glob("*.c"))
+
+
 def compile_controller(exported: Any, compiler: str | None = None) -> Path:
     """Build ``exported`` (an :class:`~ltv_lstm_mpc.export.c_model.ExportedC` with the
     controller step) into ``lib<prefix>.so`` next to its sources; returns its path."""
     folder = exported.source.parent
     compiler = compiler or host_compiler()
-    daqp = sorted(str(p) for p in (folder / "daqp" / "src").glob("*.c"))
     library = folder / f"lib{exported.prefix}_{Path(compiler).name}.so"
     command = [
-        compiler, *BUILD_FLAGS, "-fPIC", "-shared",
-        "-include", str(folder / "daqp" / "no_heap.h"), "-I", str(folder / "daqp" / "include"),
-        "-o", str(library), str(exported.source), *daqp, "-lm",
+        compiler, *BUILD_FLAGS, "-fPIC", "-shared", *daqp_flags(folder),
+        "-o", str(library), str(exported.source), *daqp_sources(folder), "-lm",
     ]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode:
