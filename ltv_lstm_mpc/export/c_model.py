@@ -480,11 +480,11 @@ def _mpc_fields(
     qp_m = max(nu + rows, soft_n + soft_rows if soft else 0)
     Qs = problem.stage_weights()[1]
     diagonal_weights = all(np.array_equal(W, np.diag(np.diag(W))) for W in Qs)
-    # the library's choice for diagonal weights (CondensedTranscription: the Gram matrix
-    # for full weights, which C replaces by the backward recursion)
-    from ltv_lstm_mpc.mpc.condensed import BACKWARD_CONDENSING_RATIO_DIAGONAL
+    # the library's form of H and g0 (its Gram matrix for full weights at short horizons is
+    # the backward recursion in C)
+    from ltv_lstm_mpc.mpc.condensed import backward_condensing
 
-    backward = nu > BACKWARD_CONDENSING_RATIO_DIAGONAL * nx
+    backward = backward_condensing(N, m, nx, diagonal_weights)
     Q = np.asarray(mpc._Q, dtype=np.float64)
     Q_diagonal = bool(np.array_equal(Q, np.diag(np.diag(Q))))
     values = dict(fields)

@@ -77,6 +77,7 @@ __all__ = [
     "BACKWARD_CONDENSING_RATIO",
     "BACKWARD_CONDENSING_RATIO_DIAGONAL",
     "CondensedTranscription",
+    "backward_condensing",
 ]
 
 #: With full stage weights, the compiled condensing forms H and g0 by the backward recursion
@@ -90,6 +91,16 @@ BACKWARD_CONDENSING_RATIO = 0.75
 #: (backward / rank updates): n = 5, m = 1: 1.69 / 1.31 / 1.10 / 0.90 / 0.77 at N = 5 / 20 /
 #: 30 / 40 / 50; n = 10: 1.08 at N = 50, 0.68 at 80; n = 20, m = 2: 0.90 at N = 50.
 BACKWARD_CONDENSING_RATIO_DIAGONAL = 3.5
+
+
+def backward_condensing(N: int, m: int, n2: int, diagonal: bool) -> bool:
+    """Whether the compiled condensing forms H and g0 by the backward recursion (True) or
+    by the rank updates on the causal columns (diagonal stage weights) or the Gram matrix
+    (full ones): N m beyond :data:`BACKWARD_CONDENSING_RATIO_DIAGONAL` or
+    :data:`BACKWARD_CONDENSING_RATIO` times the state dimension ``n2`` = 2n."""
+    ratio = BACKWARD_CONDENSING_RATIO_DIAGONAL if diagonal else BACKWARD_CONDENSING_RATIO
+    return N * m > ratio * n2
+
 
 FloatArray = NDArray[np.float64]
 
@@ -189,10 +200,7 @@ class CondensedTranscription(TranscriptionBase):
             #: H and g0 by the backward recursion (O(N n^3 + N^2 n m^2)) rather than the rank
             #: updates or the Gram matrix (O(N^3 n m^2)) when the horizon is long for the
             #: state size (measured: experiments/condensing_speed.py).
-            ratio = (
-                BACKWARD_CONDENSING_RATIO_DIAGONAL if self._diag_Q else BACKWARD_CONDENSING_RATIO
-            )
-            self.backward_condensing = N * m > ratio * n2
+            self.backward_condensing = backward_condensing(N, m, n2, self._diag_Q)
             self._R = np.ascontiguousarray(R, dtype=np.float64)
             self._H = np.zeros((nu, nu))  # no F, E: delta x_0 enters at feedback time
             self._g0 = np.zeros(nu)
