@@ -60,6 +60,12 @@ def register(subparsers: Any) -> None:
         "raise: refuse it (the C step holds the last input)",
     )
     parser.add_argument(
+        "--float",
+        action="store_true",
+        help="single precision (float, for FPUs without double, e.g. a Cortex-M4F): refused "
+        "where float's rounding takes more than half a margin of the certificates",
+    )
+    parser.add_argument(
         "--build",
         action="store_true",
         help="then build it with make (the host's C compiler) and run the example",
@@ -84,13 +90,18 @@ def _run_export(args: argparse.Namespace) -> int:
         implausible_measurements=args.implausible_measurements, one_call_step=False,
         kernels="numpy",  # (the export needs none compiled)
     )  # fmt: skip
-    exported = export_controller_c(controller, args.out, prefix=args.prefix)
+    exported = export_controller_c(
+        controller, args.out, prefix=args.prefix, precision="single" if args.float else "double"
+    )
     files = sorted(p.name for p in args.out.iterdir() if p.is_file())
     print(f"wrote {args.out}: {', '.join(files)}, daqp/ (DAQP's sources and license)")
     print(
         f"{args.prefix}_controller: at most {exported.mpc_workspace_bytes} bytes; N = {config.N}, "
-        f"policy {config.infeasibility_policy}; build: make -C {args.out} (or cmake)"
+        f"policy {config.infeasibility_policy}; {exported.precision} precision; build: "
+        f"make -C {args.out} (or cmake)"
     )
+    if exported.single_precision_margins is not None:
+        print(exported.single_precision_margins.summary())
     if not args.build:
         return 0
     if shutil.which("make") is None:

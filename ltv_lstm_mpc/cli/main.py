@@ -278,12 +278,13 @@ def _add_reproduce(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--engine",
-        choices=["auto", "reference", "one-call", "c"],
+        choices=["auto", "reference", "one-call", "c", "c-single"],
         default="auto",
         help=(
             "the controllers' step engine: auto (the fastest that runs the configuration), "
             "reference, one-call, or c: the exported C99 step built with the host's C "
-            "compiler (software in the loop; its solver: daqp, the default with --engine c)"
+            "compiler (software in the loop; its solver: daqp, the default with --engine c), "
+            "c-single: the same in single precision (float)"
         ),
     )
     parser.add_argument("--short", action="store_true", help="quarter-length schedules (smoke)")
@@ -306,7 +307,7 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     path = model_path(args.model or benchmark.model)
     model = load_model(path)  # .npz or .onnx
     solver = args.solver
-    if args.engine == "c" and solver is None:  # the one solver path the C export covers
+    if args.engine in ("c", "c-single") and solver is None:  # the C export's one solver
         solver = "daqp"
     report = benchmark.reproduce(
         model,

@@ -42,7 +42,7 @@ from ltv_lstm_mpc.validation import real_vector
 if TYPE_CHECKING:
     from ltv_lstm_mpc.loop.controller import OffsetFreeController
 
-__all__ = ["CEngine"]
+__all__ = ["CEngine", "SingleCEngine"]
 
 FloatArray = NDArray[np.float64]
 
@@ -60,14 +60,16 @@ class CEngine:
     """
 
     name = "c"
+    #: The export's precision (``export_model_c(..., precision=)``).
+    precision = "double"
     record_shape: tuple[int, int, int, int] | None = None
 
-    @staticmethod
-    def refusal(controller: OffsetFreeController) -> str | None:
+    @classmethod
+    def refusal(cls, controller: OffsetFreeController) -> str | None:
         """Why the C export does not cover this controller (None: it does)."""
         from ltv_lstm_mpc.export.c_model import export_refusal
 
-        return export_refusal(controller)
+        return export_refusal(controller, precision=cls.precision)
 
     def __init__(self, controller: OffsetFreeController) -> None:
         from ltv_lstm_mpc.export.c_model import export_model_c
@@ -78,8 +80,9 @@ class CEngine:
         weakref.finalize(self, shutil.rmtree, folder, True)
         #: What the export wrote (a temporary folder, removed with the engine).
         self.exported = export_model_c(
-            controller.model, folder, controller=controller, prefix=PREFIX
-        )
+            controller.model, folder, controller=controller, prefix=PREFIX,
+            precision=self.precision,
+        )  # fmt: skip
         self.c = CController(compile_controller(self.exported), self.exported)
         self.reset()
 
@@ -178,3 +181,12 @@ class CEngine:
             solver_iterations=int(feedback.qp_iterations), transcription="condensed",
             feedback_time=elapsed, reason=reason,
         )  # fmt: skip
+
+
+class SingleCEngine(CEngine):
+    """The exported C step in single precision (``float``) on the host:
+    ``OffsetFreeController(..., engine="c-single")`` (refused where float's rounding takes
+    more than half a margin of the certificates, :mod:`ltv_lstm_mpc.export.precision`)."""
+
+    name = "c-single"
+    precision = "single"

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import re
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -55,7 +56,15 @@ import numpy as np
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 
-__all__ = ["ExportedC", "daqp_refusal", "export_model_c", "export_refusal", "mpc_refusal"]
+__all__ = [
+    "PRECISIONS",
+    "SINGLE_PRECISION_FLOORS",
+    "ExportedC",
+    "daqp_refusal",
+    "export_model_c",
+    "export_refusal",
+    "mpc_refusal",
+]
 
 
 @dataclass(frozen=True)
@@ -69,8 +78,9 @@ class ExportedC:
     prefix : str
         The C identifiers' prefix.
     workspace_bytes : int
-        ``sizeof(<prefix>_workspace)`` on a target whose doubles are 8 bytes, 8-aligned, and
-        ints 4 bytes (x86-64, Arm; an upper bound where doubles are 4-aligned, as on i386).
+        ``sizeof(<prefix>_workspace)`` on a target whose doubles are 8 bytes, 8-aligned,
+        floats and ints 4 bytes (x86-64, Arm; an upper bound where doubles are 4-aligned, as
+        on i386).
     reference_state_bytes : int
         ``sizeof(<prefix>_reference_state)`` (0: no reference calculator exported).
     horizon : int
@@ -80,6 +90,11 @@ class ExportedC:
         structs counted with 8-byte pointers).
     n, m, p : int
         The model's units, inputs and outputs.
+    precision : str
+        ``"double"`` or ``"single"`` (``<prefix>_real`` is ``double`` or ``float``).
+    single_precision_margins : SinglePrecisionMargins or None
+        In single precision with a controller: its rounding against the certificates'
+        margins (:func:`~ltv_lstm_mpc.export.precision.single_precision_margins`).
     """
 
     header: Path
@@ -92,6 +107,8 @@ class ExportedC:
     n: int = 0
     m: int = 0
     p: int = 0
+    precision: str = "double"
+    single_precision_margins: Any = None
 
 
 def _literal(value: float) -> str:
@@ -101,6 +118,68 @@ def _literal(value: float) -> str:
         raise InvalidValueError(f"cannot export the non-finite value {value!r} as C data")
     text = repr(value)
     return text if any(ch in text for ch in ".en") else text + ".0"
+
+
+#: The precisions of :func:`export_model_c`: C's ``double`` or ``float``.
+PRECISIONS = ("double", "single")
+
+# A floating literal of C (decimal), or a comment or string literal to leave as it is.
+_C_FLOAT_LITERAL = re.compile(
+    r'(/\*.*?\*/|//[^\n]*|"(?:\\.|[^"\\])*")'
+    r"|(?<![\w.])((?:\d+\.\d*|\.\d+)(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+)(?![\w.])",
+    re.DOTALL,
+)
+
+
+def _float_literal(text: str) -> str:
+    """The float literal (``f`` suffix, shortest round trip) of the double literal ``text``."""
+    with np.errstate(over="ignore"):
+        value = np.float32(float(text))
+    if not np.isfinite(value):
+        raise InvalidValueError(
+            f"the constant {text} is beyond the range of a float (FLT_MAX = 3.4e38): this "
+            "controller cannot be exported in single precision; export it in double"
+        )
+    out = str(value)
+    return (out if any(ch in out for ch in ".e") else out + ".0") + "f"
+
+
+def _single_precision(source: str) -> str:
+    """``source`` (rendered C) with every floating literal of its code a float literal
+    (comments and strings as they are): no computation is promoted to double."""
+    return _C_FLOAT_LITERAL.sub(
+        lambda match: match.group(1) or _float_literal(match.group(2)), source
+    )
+
+
+#: The tolerances of a single-precision export (``precision="single"``): the library's
+#: (double's unit roundoff 1.1e-16) below these floors are raised to them, a few to some
+#: hundred units of float's roundoff (6e-8) at the normalized units' scale of 1; larger
+#: ones are kept. ``huge_entry``: a float's range ends at 3.4e38.
+SINGLE_PRECISION_FLOORS: dict[str, float] = {
+    "precheck_tol": 1e-6,  # the pre-check of the i = 0 output row (1e-12)
+    "huge_entry": 1e30,  # larger entries of a solution reject it (1e100; replaced)
+    "u_margin": 1e-6,  # an equilibrium's input within U's bound times 1 + it (1e-12)
+    "reference_tol": 1e-5,  # the reference calculator's Newton residual (1e-10)
+    "reuse_tol": 1e-5,  # the estimate within it of the plan's x_1 reuses the plan (1e-9)
+    "tolerance": 1e-4,  # the acceptance tests' feasibility tolerance (DAQP: 1e-6)
+    "primal_tol": 1e-5,  # DAQP's settings (daqp.solve's in the library)
+    "dual_tol": 1e-5,
+    "zero_tol": 1e-6,
+    "pivot_tol": 1e-5,
+    "progress_tol": 1e-6,
+    "sing_tol": 1e-6,
+    "refactor_tol": 1e-5,
+}
+
+
+def _precision_value(name: str, value: float, single: bool) -> float:
+    """``value`` of the tolerance ``name``, raised to its floor in single precision
+    (:data:`SINGLE_PRECISION_FLOORS`; ``huge_entry`` replaced)."""
+    if not single:
+        return float(value)
+    floor = SINGLE_PRECISION_FLOORS[name]
+    return floor if name == "huge_entry" else max(float(value), floor)
 
 
 def _matrix(rows: Any, indent: str = "    ") -> str:
@@ -143,6 +222,7 @@ def export_model_c(
     mpc: Any = None,
     controller: Any = None,
     prefix: str = "lstm_model",
+    precision: str = "double",
 ) -> ExportedC:
     r"""Write ``<prefix>.h`` and ``<prefix>.c``: the model of eq. (lstm) and, with
     ``observer``, eq. (lstm_observer), as C99 (module docstring).
@@ -186,6 +266,16 @@ def export_model_c(
         and out).
     prefix : str
         Prefix of the files and of every C identifier (a C identifier).
+    precision : {"double", "single"}
+        The C type of every value, ``<prefix>_real``: ``double`` (the library's arithmetic;
+        the code then equals the compiled kernels to rounding), or ``float`` for FPUs
+        without double precision (e.g. a Cortex-M4F): every constant rounded to float,
+        float arithmetic (the activations' own exponential in float), DAQP built with
+        ``DAQP_SINGLE_PRECISION`` and the tolerances raised to
+        :data:`SINGLE_PRECISION_FLOORS`. With ``controller``, refused where float's
+        rounding takes more than half a margin of the certificates
+        (:func:`~ltv_lstm_mpc.export.precision.single_precision_margins`); its deviation
+        from double: ``docs/user-guide/export-c.md``, "Single precision".
 
     Returns
     -------
@@ -198,6 +288,13 @@ def export_model_c(
 
     model = require_model(model)
     prefix = _check_prefix(prefix)
+    if precision not in PRECISIONS:
+        raise InvalidValueError(
+            f"precision={precision!r} is not one of {PRECISIONS}: 'double' for C's double, "
+            "'single' for float (FPUs without double precision)"
+        )
+    single = precision == "single"
+    real_bytes = 4 if single else 8
     if controller is not None:
         # (by its parts, not its class: the C engine of the controller's package calls this)
         if not all(hasattr(controller, a) for a in ("mpc", "observer", "reference", "scaling")):
@@ -250,6 +347,9 @@ def export_model_c(
         "n": str(n),
         "m": str(m),
         "p": str(p),
+        "real_type": "float" if single else "double",
+        "real_name": precision,
+        "single": "1" if single else "0",
         "has_observer": "1" if observer is not None else "0",
         "d_max": _literal(observer.d_max) if observer is not None else "0.0",
         "WU": _matrix(WU),
@@ -267,7 +367,7 @@ def export_model_c(
         observer_fields = dict(fields)
         observer_fields["L_d"] = _matrix(np.asarray(gains.L_d, dtype=np.float64))
         observer_fields["L_gates"] = (
-            "static const double L_gates[4 * N][P] = {  /* rows f, i, o, g (g: none) */\n"
+            "static const real_t L_gates[4 * N][P] = {  /* rows f, i, o, g (g: none) */\n"
             + _matrix(L_gates)
             + "\n};\n"
             if injected
@@ -275,7 +375,7 @@ def export_model_c(
         )
         observer_fields["injection"] = (
             "    for (a = 0; a < 4 * N; ++a) {\n"
-            "        double acc = 0.0;\n"
+            "        real_t acc = 0.0;\n"
             "        for (l = 0; l < P; ++l) {\n"
             "            acc += L_gates[a][l] * w->innovation[l];\n"
             "        }\n"
@@ -307,9 +407,9 @@ def export_model_c(
         reference_fields.update(
             refresh=_literal(CHORD_REFRESH_CONTRACTION),
             halvings=str(int(BACKTRACKING_STEPS)),
-            u_margin=_literal(U_MARGIN),
+            u_margin=_literal(_precision_value("u_margin", U_MARGIN, single)),
             grid_points=str(grid_u.shape[0]),
-            tol=_literal(reference.tol),
+            tol=_literal(_precision_value("reference_tol", reference.tol, single)),
             max_iter=str(int(reference.max_iter)),
             jump=_literal(reference.jump),
             u_max=_literal(reference.u_max),
@@ -321,10 +421,10 @@ def export_model_c(
         fields["has_reference"] = "1"
         fields["grid_points"] = str(grid_u.shape[0])
         fields["reference_code"] = _template("reference.c.in").substitute(reference_fields)
-        newton_bytes = 8 * (6 * nz + 2 * n + 4 * n * n + 2 * n * m + (2 * n + p) + nz * nz)
-        newton_bytes += 8 * grid_u.shape[0] + 4 * (grid_u.shape[0] + nz)
-        newton_bytes += (-newton_bytes) % 8
-        state_bytes = 8 * (nz + p + nz * nz) + 8  # (the int, padded)
+        newton_bytes = real_bytes * (6 * nz + 2 * n + 4 * n * n + 2 * n * m + (2 * n + p) + nz * nz)
+        newton_bytes += real_bytes * grid_u.shape[0] + 4 * (grid_u.shape[0] + nz)
+        newton_bytes += (-newton_bytes) % real_bytes
+        state_bytes = real_bytes * (nz + p + nz * nz + 1)  # (the int, padded)
     fields["has_tightening"] = "0"
     fields["horizon"] = "1"
     fields["tightening_code"] = ""
@@ -353,6 +453,12 @@ def export_model_c(
                 raise InvalidValueError(
                     f"reference.{name} = {value} does not fit a C int: use 1..2**31 - 1"
                 )
+    margins = None
+    if single and controller is not None:
+        margins = _single_margins(controller)
+        reason = margins.refusal()
+        if reason is not None:
+            raise InvalidValueError(reason)
     # The Newton iterations' and the condensing's scratch share a union (model.h.in).
     condense_bytes = 0
     fields["mpc_horizon"] = "1"
@@ -361,9 +467,11 @@ def export_model_c(
         if reason is not None:
             raise InvalidValueError(reason)
         fields["mpc_horizon"] = str(int(mpc.N))
-        condense_bytes = 8 * (2 * (2 * n) ** 2 + m * 2 * n + 3 * 2 * n + (int(mpc.N) + 1) * 2 * n)
-    workspace_bytes = 8 * doubles + 4 * ints
-    workspace_bytes += (-workspace_bytes) % 8  # the struct's alignment (8-byte doubles)
+        condense_bytes = real_bytes * (
+            2 * (2 * n) ** 2 + m * 2 * n + 3 * 2 * n + (int(mpc.N) + 1) * 2 * n
+        )
+    workspace_bytes = real_bytes * doubles + 4 * ints
+    workspace_bytes += (-workspace_bytes) % real_bytes  # the struct's alignment
     workspace_bytes += max(newton_bytes, condense_bytes)
     fields["workspace_bytes"] = str(workspace_bytes)
     fields["mpc_declarations"] = ""
@@ -372,7 +480,7 @@ def export_model_c(
     fields["mpc_includes"] = ""
     mpc_bytes = 0
     if mpc is not None:
-        mpc_fields, mpc_bytes = _mpc_fields(mpc, model, fields, workspace_bytes)
+        mpc_fields, mpc_bytes = _mpc_fields(mpc, model, fields, workspace_bytes, real_bytes)
         fields["mpc_declarations"] = _template("mpc.h.in").substitute(mpc_fields)
         fields["mpc_code"] = _template("mpc.c.in").substitute(mpc_fields)
         fields["mpc_includes"] = _template("daqp_wiring.c.in").substitute(mpc_fields)
@@ -386,15 +494,21 @@ def export_model_c(
         step_fields = _controller_fields(controller, mpc_fields)
         fields["mpc_declarations"] += _template("controller.h.in").substitute(step_fields)
         fields["mpc_code"] += _template("controller.c.in").substitute(step_fields)
-        mpc_bytes += 8 * (2 * (2 * n) + 2 * p + 2 * m + 4 * n + 2 * m) + 8 * 5 + state_bytes
+        mpc_bytes += (
+            real_bytes * (2 * (2 * n) + 2 * p + 2 * m + 4 * n + 2 * m) + 8 * 5 + state_bytes
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     header = out / f"{prefix}.h"
     source = out / f"{prefix}.c"
-    header.write_text(_template("model.h.in").substitute(fields))
-    source.write_text(_template("model.c.in").substitute(fields))
+    header_text = _template("model.h.in").substitute(fields)
+    source_text = _template("model.c.in").substitute(fields)
+    if single:
+        header_text, source_text = _single_precision(header_text), _single_precision(source_text)
+    header.write_text(header_text)
+    source.write_text(source_text)
     if mpc is not None:
-        _copy_daqp(out / "daqp")
+        _copy_daqp(out / "daqp", single=single)
     return ExportedC(
         header=header,
         source=source,
@@ -406,6 +520,8 @@ def export_model_c(
         n=n,
         m=m,
         p=p,
+        precision=precision,
+        single_precision_margins=margins,
     )
 
 
@@ -413,7 +529,7 @@ def export_model_c(
 DAQP_VENDORED = "0.11.0"
 
 
-def _copy_daqp(target: Path) -> None:
+def _copy_daqp(target: Path, *, single: bool = False) -> None:
     """DAQP's vendored C sources, its license and ``no_heap.h`` into ``target``."""
     vendor = resources.files("ltv_lstm_mpc.export").joinpath("vendor", "daqp")
     for folder in ("include", "src"):
@@ -423,10 +539,13 @@ def _copy_daqp(target: Path) -> None:
                 (target / folder / entry.name).write_bytes(entry.read_bytes())
     for name in ("LICENSE", "README.md"):
         (target / name).write_bytes(vendor.joinpath(name).read_bytes())
-    (target / "no_heap.h").write_text(_template("no_heap.h.in").template)
+    no_heap = _template("no_heap.h.in").substitute(
+        single_precision="#define DAQP_SINGLE_PRECISION /* c_float is float */\n" if single else ""
+    )
+    (target / "no_heap.h").write_text(no_heap)
 
 
-def _daqp_settings(config: Any) -> str:
+def _daqp_settings(config: Any, single: bool = False) -> str:
     """The ``DAQPSettings`` the library's DAQP calls use (``daqp.solve``'s keywords from the
     solver options) as C designated initializers, equality elimination off."""
     from ltv_lstm_mpc.solvers import daqp_native
@@ -448,18 +567,23 @@ def _daqp_settings(config: Any) -> str:
         value = getattr(settings, name)
         if name == "eq_reduction":
             value = -1  # DAQP_EQ_REDUCTION_OFF: the QPs have no equality rows
+        if name in SINGLE_PRECISION_FLOORS:
+            value = _precision_value(name, value, single)
         text = str(int(value)) if kind is ctypes.c_int else _literal(value)
         lines.append(f"    .{name} = {text},")
     return "\n".join(lines)
 
 
 def _mpc_fields(
-    mpc: Any, model: LSTMModel, fields: dict[str, str], model_bytes: int
+    mpc: Any, model: LSTMModel, fields: dict[str, str], model_bytes: int, real_bytes: int = 8
 ) -> tuple[dict[str, str], int]:
     """The template fields of ``mpc.h.in`` and ``mpc.c.in`` and the workspace's size bound."""
+    from ltv_lstm_mpc.mpc.fhocp import PRECHECK_TOL
+    from ltv_lstm_mpc.mpc.native_feedback import HUGE_ENTRY
     from ltv_lstm_mpc.solvers.tolerances import feasibility_tolerance
 
     config = mpc.config
+    single = real_bytes == 4
     if not _same_weights(mpc.model, model):
         raise InvalidValueError(
             "mpc predicts with another model than the one exported (other weights); pass "
@@ -515,10 +639,14 @@ def _mpc_fields(
         Q=", ".join(_literal(v) for v in np.diag(Q)) if Q_diagonal else _matrix(Q),
         P_terms=", ".join(_literal(v) for v in mpc._P_terms),
         unit_half=", ".join(_literal(v) for v in problem._unit_half),
-        tolerance=_literal(feasibility_tolerance("daqp", config.tolerance)),
+        tolerance=_literal(
+            _precision_value("tolerance", feasibility_tolerance("daqp", config.tolerance), single)
+        ),
+        precheck_tol=_literal(_precision_value("precheck_tol", PRECHECK_TOL, single)),
+        huge_entry=_literal(_precision_value("huge_entry", HUGE_ENTRY, single)),
         slack_regularization=_literal(problem.slack_regularization),
         soft_penalty=_literal(config.soft_penalty),
-        daqp_settings=_daqp_settings(config),
+        daqp_settings=_daqp_settings(config, single),
     )
     doubles = (N + 1) * (nx + m) + N * (2 * n + nx * (n + m)) + nx * m * N * (N + 1) // 2
     doubles += nu * nu + 2 * nu
@@ -529,7 +657,7 @@ def _mpc_fields(
     doubles += 2 * qp_m + (qp_n + 1) * qp_n // 2 + qp_n + N * m + 2 * (N + 1) * nx
     doubles += max(N - 1, 1) * 5 * n
     ints = qp_m + (qp_n + 1) + qp_n + qp_m
-    bound = 8 * doubles + 4 * ints + model_bytes + 1024
+    bound = real_bytes * doubles + 4 * ints + model_bytes + 1024
     values["mpc_workspace_bytes"] = f"at most {bound}"
     return values, bound
 
@@ -542,6 +670,7 @@ def _controller_fields(controller: Any, fields: dict[str, str]) -> dict[str, str
     scaling = controller.scaling
     limit = controller.setpoint_rate_limit
     values = dict(fields)
+    single = fields["single"] == "1"
 
     def row(name: str) -> str:
         return ", ".join(_literal(v) for v in np.ravel(getattr(scaling, name)))
@@ -556,10 +685,10 @@ def _controller_fields(controller: Any, fields: dict[str, str]) -> dict[str, str
         has_limiter="0" if limit is None else "1",
         rate_limit=_literal(0.0 if limit is None else limit),
         e_hat0=_literal(_e_hat0(controller)),
-        reuse_tol=_literal(controller.mpc.reuse_tol),
+        reuse_tol=_literal(_precision_value("reuse_tol", controller.mpc.reuse_tol, single)),
         implausible=_literal(IMPLAUSIBLE_MEASUREMENT_LIMIT),
         flag_implausible="1" if controller.implausible_measurements == "flag" else "0",
-        u_margin=_literal(U_MARGIN),
+        u_margin=_literal(_precision_value("u_margin", U_MARGIN, single)),
     )
     return values
 
@@ -615,15 +744,28 @@ def daqp_refusal() -> str | None:
     )
 
 
-def export_refusal(controller: Any) -> str | None:
+def _single_margins(controller: Any) -> Any:
+    """:func:`~ltv_lstm_mpc.export.precision.single_precision_margins` of ``controller``
+    at the acceptance tolerance of its single-precision export."""
+    from ltv_lstm_mpc.export.precision import single_precision_margins
+    from ltv_lstm_mpc.solvers.tolerances import feasibility_tolerance
+
+    tolerance = feasibility_tolerance("daqp", controller.mpc.config.tolerance)
+    return single_precision_margins(controller, _precision_value("tolerance", tolerance, True))
+
+
+def export_refusal(controller: Any, precision: str = "double") -> str | None:
     """Why ``controller`` cannot run as exported C on this machine (None: it can): the
     export's coverage (:func:`mpc_refusal`; the controller's own MPC), the DAQP release
-    (:func:`daqp_refusal`), a C compiler on the PATH."""
+    (:func:`daqp_refusal`), in single precision the certificates' margins
+    (:mod:`~ltv_lstm_mpc.export.precision`), a C compiler on the PATH."""
     from ltv_lstm_mpc.export.sil import find_c_compiler
 
     if controller.custom_mpc:
         return "the controller runs an MPC given by the caller (mpc=...): not exported"
     reason = mpc_refusal(controller.mpc) or daqp_refusal()
+    if reason is None and precision == "single":
+        reason = _single_margins(controller).refusal()
     if reason is not None:
         return reason
     if find_c_compiler() is None:

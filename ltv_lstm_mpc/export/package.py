@@ -30,7 +30,7 @@ def _values(values: Any, unit: str) -> str:
 
 
 def export_controller_c(
-    controller: Any, out_dir: str | Path, *, prefix: str = "controller"
+    controller: Any, out_dir: str | Path, *, prefix: str = "controller", precision: str = "double"
 ) -> ExportedC:
     """Write the controller's C project into ``out_dir`` (module docstring).
 
@@ -43,6 +43,8 @@ def export_controller_c(
         Folder to write into (created if missing; files of the same names are replaced).
     prefix : str
         Prefix of the files and of every C identifier.
+    precision : {"double", "single"}
+        C's ``double`` or ``float`` (:func:`~ltv_lstm_mpc.export.c_model.export_model_c`).
 
     Returns
     -------
@@ -51,7 +53,9 @@ def export_controller_c(
     from ltv_lstm_mpc import __version__
     from ltv_lstm_mpc.plotting import signal_labels
 
-    exported = export_model_c(controller.model, out_dir, controller=controller, prefix=prefix)
+    exported = export_model_c(
+        controller.model, out_dir, controller=controller, prefix=prefix, precision=precision
+    )
     out = Path(out_dir)
     model, config = controller.model, controller.config
     labels = signal_labels(None, model)
@@ -79,6 +83,30 @@ def export_controller_c(
         "d_max": f"{config.d_max:g}",
         "rate_limit": "none" if limit is None else f"{limit:g} per step (normalized)",
     }
+    fields["precision_note"] = _precision_note(exported)
     for name in ("Makefile", "CMakeLists.txt", "README.md", "example.c"):
         (out / name).write_text(_template(name + ".in").substitute(fields))
     return exported
+
+
+def _precision_note(exported: ExportedC) -> str:
+    """The README's paragraph on the export's precision."""
+    prefix, upper = exported.prefix, exported.prefix.upper()
+    if exported.precision == "double":
+        return (
+            f"Every value is `{prefix}_real`, here `double` (`{upper}_SINGLE` 0): the\n"
+            "library's arithmetic. `ltv-lstm-mpc export-c --float` writes the controller in\n"
+            "`float` for FPUs without double precision (e.g. a Cortex-M4F)."
+        )
+    margins = exported.single_precision_margins
+    return (
+        f"Every value is `{prefix}_real`, here `float` (`{upper}_SINGLE` 1), for FPUs without\n"
+        "double precision; DAQP is built with `DAQP_SINGLE_PRECISION` (defined in\n"
+        "`daqp/no_heap.h`), and the tolerances are raised to float's (the library's\n"
+        "`SINGLE_PRECISION_FLOORS`). Float's rounding, bounded at export (the library's\n"
+        f"`ltv_lstm_mpc.export.precision`): {margins.summary()}. The certificates hold for\n"
+        "plants whose disturbances stay within the rest of those margins.\n\n"
+        "DAQP's sources write some constants as double literals: with gcc, add\n"
+        "`-fsingle-precision-constant` to `CFLAGS` so that they do not turn its float\n"
+        "arithmetic into (software) double."
+    )

@@ -14,6 +14,7 @@ from __future__ import annotations
 import ctypes
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -85,6 +86,13 @@ def daqp_sources(folder: Path) -> list[str]:
     return sorted(str(path) for path in (folder / "daqp" / "src").glob("*.c"))
 
 
+def _own_symbols() -> list[str]:
+    """On ELF hosts, the library's calls bound to its own definitions: the process already
+    holds DAQP (the ``daqp`` package's build, in double precision), whose exported
+    functions would otherwise take the calls of the vendored copy (``-Bsymbolic``)."""
+    return ["-Wl,-Bsymbolic"] if sys.platform.startswith(("linux", "freebsd")) else []
+
+
 def compile_controller(exported: Any, compiler: str | None = None) -> Path:
     """Build ``exported`` (an :class:`~ltv_lstm_mpc.export.c_model.ExportedC` with the
     controller step) into ``lib<prefix>.so`` next to its sources; returns its path."""
@@ -92,7 +100,7 @@ def compile_controller(exported: Any, compiler: str | None = None) -> Path:
     compiler = compiler or host_compiler()
     library = folder / f"lib{exported.prefix}_{Path(compiler).name}.so"
     command = [
-        compiler, *BUILD_FLAGS, "-fPIC", "-shared", *daqp_flags(folder),
+        compiler, *BUILD_FLAGS, "-fPIC", "-shared", *_own_symbols(), *daqp_flags(folder),
         "-o", str(library), str(exported.source), *daqp_sources(folder), "-lm",
     ]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True)
@@ -101,20 +109,30 @@ def compile_controller(exported: Any, compiler: str | None = None) -> Path:
     return library
 
 
-class FeedbackResult(ctypes.Structure):
+def _real(precision: str) -> Any:
+    """The ctypes type of ``<prefix>_real``."""
+    return ctypes.c_float if precision == "single" else ctypes.c_double
+
+
+def _feedback_type(precision: str = "double") -> type[ctypes.Structure]:
     """``<prefix>_feedback_result``: the MPC's outcome of a step."""
-
-    _fields_ = [
-        ("status", ctypes.c_int), ("policy", ctypes.c_int), ("iterations", ctypes.c_int),
-        ("qp_iterations", ctypes.c_int), ("sqp_step", ctypes.c_double),
-        ("cost", ctypes.c_double), ("terminal_norm", ctypes.c_double),
-        ("output_violation", ctypes.c_double), ("linearization_gap", ctypes.c_double),
+    d, i = _real(precision), ctypes.c_int
+    fields = [
+        ("status", i), ("policy", i), ("iterations", i), ("qp_iterations", i),
+        ("sqp_step", d), ("cost", d), ("terminal_norm", d), ("output_violation", d),
+        ("linearization_gap", d),
     ]  # fmt: skip
+    return type("FeedbackResult", (ctypes.Structure,), {"_fields_": fields})
 
 
-def _record_type(n: int, m: int, p: int) -> type[ctypes.Structure]:
+#: ``<prefix>_feedback_result`` of a double-precision export.
+FeedbackResult = _feedback_type()
+
+
+def _record_type(n: int, m: int, p: int, precision: str = "double") -> type[ctypes.Structure]:
     """``<prefix>_step_record`` for a model of n units, m inputs and p outputs."""
-    d, i = ctypes.c_double, ctypes.c_int
+    d, i = _real(precision), ctypes.c_int
+    FeedbackResult = _feedback_type(precision)
     fields = [
         ("y", d * p), ("y0", d * p), ("u", d * m), ("x_hat", d * (2 * n)), ("d_hat", d * p),
         ("e_hat", d), ("x_bar", d * (2 * n)), ("u_bar", d * m), ("alpha", d),
@@ -140,20 +158,24 @@ class CController:
         lib = ctypes.CDLL(str(library))
         prefix = exported.prefix
         self.m, self.p = exported.m, exported.p
-        self.Record = _record_type(exported.n, exported.m, exported.p)
+        precision = getattr(exported, "precision", "double")
+        #: The numpy type of ``<prefix>_real``.
+        self.dtype = np.float32 if precision == "single" else np.float64
+        real = _real(precision)
+        self.Record = _record_type(exported.n, exported.m, exported.p, precision)
         size = getattr(lib, f"{prefix}_controller_size")
         size.argtypes, size.restype = [], ctypes.c_size_t
         self.state_buffer = ctypes.create_string_buffer(int(size()))
         self._init = getattr(lib, f"{prefix}_controller_init")
         self._init.argtypes, self._init.restype = [ctypes.c_void_p], None
-        pointer = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
+        pointer = np.ctypeslib.ndpointer(dtype=self.dtype, flags="C_CONTIGUOUS")
         self._step = getattr(lib, f"{prefix}_controller_step")
         self._step.argtypes = [
             ctypes.c_void_p, pointer, pointer, pointer, ctypes.POINTER(self.Record),
         ]  # fmt: skip
         self._step.restype = ctypes.c_int
         self._state = getattr(lib, f"{prefix}_controller_state")
-        self._state.argtypes = [ctypes.c_void_p, pointer, pointer, ctypes.POINTER(ctypes.c_double)]
+        self._state.argtypes = [ctypes.c_void_p, pointer, pointer, ctypes.POINTER(real)]
         self._state.restype = None
         self._plan = getattr(lib, f"{prefix}_controller_plan")
         self._plan.argtypes = [ctypes.c_void_p, pointer, pointer, pointer]
@@ -167,27 +189,30 @@ class CController:
         self._init(self.state_buffer)
 
     def step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> tuple[int, NDArray[np.float64], Any]:
-        """One sample: ``(code, u_phi, record)`` (code: an index of :data:`STEP_CODES`)."""
-        u_phi = np.zeros(self.m)
+        """One sample: ``(code, u_phi, record)`` (code: an index of :data:`STEP_CODES`;
+        ``y_phi``, ``y0_phi`` rounded to ``<prefix>_real``, ``u_phi`` as float64)."""
+        u_phi = np.zeros(self.m, dtype=self.dtype)
         record = self.Record()
         code = self._step(
             self.state_buffer,
-            np.ascontiguousarray(y_phi, dtype=np.float64).reshape(self.p),
-            np.ascontiguousarray(y0_phi, dtype=np.float64).reshape(self.p),
+            np.ascontiguousarray(y_phi, dtype=self.dtype).reshape(self.p),
+            np.ascontiguousarray(y0_phi, dtype=self.dtype).reshape(self.p),
             u_phi,
             ctypes.byref(record),
         )
-        return int(code), u_phi, record
+        return int(code), u_phi.astype(np.float64), record
 
     def state(self) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         r"""The estimates the next step starts from and its :math:`\hat e_o`."""
-        x_hat, d_hat, e_hat = np.zeros(self.nx), np.zeros(self.p), ctypes.c_double()
+        x_hat, d_hat = np.zeros(self.nx, self.dtype), np.zeros(self.p, self.dtype)
+        e_hat = self._state.argtypes[3]._type_()
         self._state(self.state_buffer, x_hat, d_hat, ctypes.byref(e_hat))
-        return x_hat, d_hat, float(e_hat.value)
+        return x_hat.astype(np.float64), d_hat.astype(np.float64), float(e_hat.value)
 
     def plan(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """The last plan: inputs (N, m), re-simulated and linearized states (N + 1, 2n)."""
-        u = np.zeros((self.N, self.m))
-        x_plan, x_linear = np.zeros((self.N + 1, self.nx)), np.zeros((self.N + 1, self.nx))
+        u = np.zeros((self.N, self.m), self.dtype)
+        x_plan = np.zeros((self.N + 1, self.nx), self.dtype)
+        x_linear = np.zeros((self.N + 1, self.nx), self.dtype)
         self._plan(self.state_buffer, u, x_plan, x_linear)
-        return u, x_plan, x_linear
+        return u.astype(np.float64), x_plan.astype(np.float64), x_linear.astype(np.float64)

@@ -100,12 +100,13 @@ class OffsetFreeController(DeferredState):
         :mod:`ltv_lstm_mpc.loop.engines.one_call_engine`), handing any step that call does
         not accept to the reference engine. False: the reference engine on every step
         (the readable specification; same numbers to 1e-12).
-    engine : {"auto", "reference", "one-call", "c"}
+    engine : {"auto", "reference", "one-call", "c", "c-single"}
         The step engine (:mod:`ltv_lstm_mpc.loop.engines`): ``"auto"`` (default) the
         fastest that supports the configuration; ``"c"`` the exported C99 step built
         with the host's C compiler (:mod:`~ltv_lstm_mpc.export.c_engine`, software
-        in the loop: the configurations the C export covers); a named engine that does
-        not support the configuration raises, with its reason.
+        in the loop: the configurations the C export covers), ``"c-single"`` the same in
+        single precision (float); a named engine that does not support the configuration
+        raises, with its reason.
 
     Attributes
     ----------
@@ -152,7 +153,8 @@ class OffsetFreeController(DeferredState):
         expect_bool("one_call_step", one_call_step)
         if not isinstance(engine, str):
             raise InvalidValueError(
-                f"engine must be a string ('auto', 'reference', 'one-call' or 'c'), got "
+                f"engine must be a string ('auto', 'reference', 'one-call', 'c' or "
+                f"'c-single'), got "
                 f"{type(engine).__name__}"
             )
         if mpc is not None:

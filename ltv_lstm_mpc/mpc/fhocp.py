@@ -129,6 +129,10 @@ def shifted_candidate(previous_u: FloatArray | None, u_bar: FloatArray, N: int) 
     return np.vstack([previous_u[1:], u_bar[None, :]])
 
 
+#: The pre-check's tolerance on the i = 0 output row (:func:`precheck_status`).
+PRECHECK_TOL = 1e-12
+
+
 def precheck_status(
     y_first: Iterable[float], lower_row: Iterable[float], upper_row: Iterable[float], alpha: float
 ) -> str:
@@ -138,7 +142,7 @@ def precheck_status(
     :math:`\\hat h_k` (paper notes 1), fails; ``"alpha_nonpositive"``: :math:`\\alpha_k \\le 0`
     (Assumption 5 violated, empty terminal set); ``""``: both pass.
     """
-    tol = 1e-12
+    tol = PRECHECK_TOL
     for y, low, high in zip(y_first, lower_row, upper_row, strict=True):
         if not low - tol <= y <= high + tol:
             return "infeasible_initial"

@@ -37,6 +37,7 @@ import numpy as np
 
 from ltv_lstm_mpc.mpc.compiled_condensing import expand_point, insert_state
 from ltv_lstm_mpc.mpc.compiled_plan import plan_metrics
+from ltv_lstm_mpc.mpc.fhocp import PRECHECK_TOL
 from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
 # compiled code binds its callees when it compiles: the public entry points that the
@@ -68,8 +69,9 @@ __all__ = [
 #: The pre-check accepts ``y`` only within ``[lower - 1e-12, upper + 1e-12]`` shrunk by this
 #: much (its sum runs in another order than the general path's, so ulps may differ there).
 PRECHECK_MARGIN = 1e-13
-_PRECHECK_TOL = 1e-12  # fhocp.precheck_status
-_HUGE = 1e100  # entries beyond it go to the general path (its finiteness test sums them)
+#: Entries beyond it go to the general path (its finiteness test sums them).
+HUGE_ENTRY = 1e100
+_PRECHECK_TOL, _HUGE = PRECHECK_TOL, HUGE_ENTRY
 
 #: ``MPCSolution.policy`` of each policy code (``fallback.codes[POLICY_CODE]``): a policy
 #: whose QP gives no accepted point is ``SHIFT_AFTER`` further ("<policy>+shift").

@@ -36,7 +36,10 @@ ENGINES: tuple[Any, ...] = (OneCallEngine, ReferenceEngine)
 #: The engines built only when asked for by name (``OffsetFreeController(engine=...)``),
 #: by import path: plugins from packages above this one (the C export depends on the loop,
 #: not the other way), imported when asked for.
-ON_REQUEST: dict[str, str] = {"c": "ltv_lstm_mpc.export.c_engine.CEngine"}
+ON_REQUEST: dict[str, str] = {
+    "c": "ltv_lstm_mpc.export.c_engine.CEngine",
+    "c-single": "ltv_lstm_mpc.export.c_engine.SingleCEngine",
+}
 
 
 def _on_request(name: str) -> Any:

@@ -1,0 +1,219 @@
+r"""What single precision costs the certificates: a bound of the rounding of the exported
+controller in ``float`` and the share of the certificates' margins it takes.
+
+A controller exported with ``precision="single"`` computes in float (unit roundoff
+:math:`u = 2^{-24} \approx 6 \cdot 10^{-8}` against double's :math:`1.1 \cdot 10^{-16}`).
+Its rounding acts on the certified loop like disturbances the certificates must absorb:
+
+* **the observer** (eq. lstm_observer): one update rounds :math:`\hat c, \hat h, \hat d`
+  by at most :math:`\delta_c, \delta_h, \delta_d` (2-norms, below). In the proof of
+  Theorem 2 they enter the error bound's dynamics beside the disturbance variation, so
+  :math:`\hat e_{o,k+1} \le \rho_o \hat e_{o,k} + \bar w + \varepsilon_o` with
+  :math:`\varepsilon_o = \|P_o^{1/2} [\delta_c, \delta_h, \delta_d]\|`: the float
+  controller keeps the certificate's :math:`\bar w` (hence every :math:`a_i, b_i`,
+  :math:`\bar e_\infty`) for disturbance variations up to
+  :math:`(\bar w - \varepsilon_o) / \sqrt{P_{o(3,3)}}` instead of :math:`w_{max}`
+  (paper notes 2.3, 3);
+* **the predictions** (eq. optimization): the tightened output rows hold for the float
+  model's outputs, which differ from the LSTM's by the output map's rounding
+  :math:`\delta_y` plus the rollout's, at most
+  :math:`\|W_{y(j*)}\| \frac{c_{s,u}}{c_{s,l}} \frac{1 - \rho_s^N}{1 - \rho_s} \delta_x`
+  (Lemma 2's incremental Lyapunov function, one rounding :math:`\delta_x` per stage), and
+  by the acceptance tolerance of a single-precision export: together
+  :math:`\varepsilon_y`, taken from :math:`d_{max}` (the plant keeps the guarantee of
+  Theorem 3 for output disturbances up to :math:`d_{max} - \varepsilon_y`).
+
+:func:`single_precision_margins` computes both from the weights, by the standard bound of a
+float sum of k products, :math:`\gamma_k = k u / (1 - k u)` times the sum of the products'
+magnitudes, over the sets the certificates bound (:math:`|h| \le 1`, :math:`|u| \le
+u_{max}`, :math:`|c| \le` the invariant set's bound, :math:`|\hat d| \le d_{max}`,
+measurements within the plausibility limit), with the activations' own float error
+:data:`ACTIVATION_ERROR` (measured: ``tests/test_export_precision.py``). The export is
+refused when either takes more than :data:`MARGIN_SHARE` of its margin.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "ACTIVATION_ERROR",
+    "MARGIN_SHARE",
+    "UNIT_ROUNDOFF",
+    "SinglePrecisionMargins",
+    "single_precision_margins",
+]
+
+#: The unit roundoff of float (round to nearest): :math:`2^{-24}`.
+UNIT_ROUNDOFF = 2.0**-24
+#: The largest absolute error of the exported float sigmoid and tanh (``model.c.in``: the
+#: activations on a float ``exp``), as a bound: 8 u. Measured over 7 million points
+#: (a grid of [-30, 30] and random ones of magnitudes 1e-17 to 33): 1.5 u and 2.5 u.
+ACTIVATION_ERROR = 8.0 * UNIT_ROUNDOFF
+#: The share of :math:`\bar w` and of :math:`d_{max}` single precision may take: the float
+#: controller keeps its certificates for at least half the disturbances certified.
+MARGIN_SHARE = 0.5
+
+
+def _gamma(k: int) -> float:
+    """:math:`\\gamma_k = k u / (1 - k u)`: a float sum of k products errs by at most this
+    times the sum of their magnitudes."""
+    ku = k * UNIT_ROUNDOFF
+    return ku / (1.0 - ku)
+
+
+@dataclass(frozen=True)
+class SinglePrecisionMargins:
+    r"""The rounding of a single-precision export against the certificates' margins
+    (module docstring).
+
+    Attributes
+    ----------
+    delta_c, delta_h, delta_d : float
+        Bounds of one observer update's rounding of :math:`\hat c, \hat h, \hat d`
+        (2-norms, normalized units).
+    observer_rounding : float
+        :math:`\varepsilon_o = \|P_o^{1/2} [\delta_c, \delta_h, \delta_d]\|`.
+    w_bar : float
+        The certificate's :math:`\bar w`.
+    delta_x : float
+        One prediction step's rounding (2-norm of the state).
+    output_rounding : float
+        :math:`\varepsilon_y`: output map, prediction drift over N stages and the
+        acceptance tolerance (largest over the outputs).
+    d_max : float
+        The certificate's :math:`d_{max}`.
+    share : float
+        The largest share of a margin allowed (:data:`MARGIN_SHARE`).
+    """
+
+    delta_c: float
+    delta_h: float
+    delta_d: float
+    observer_rounding: float
+    w_bar: float
+    delta_x: float
+    output_rounding: float
+    d_max: float
+    share: float
+
+    @property
+    def holds(self) -> bool:
+        """Whether both roundings take at most :attr:`share` of their margins."""
+        return (
+            self.observer_rounding <= self.share * self.w_bar
+            and self.output_rounding <= self.share * self.d_max
+        )
+
+    def summary(self) -> str:
+        """One line: the two shares."""
+        return (
+            f"single precision takes {self.observer_rounding / self.w_bar:.2%} of w_bar "
+            f"(observer rounding {self.observer_rounding:.3g} of {self.w_bar:.3g}) and "
+            f"{self.output_rounding / self.d_max:.2%} of d_max (prediction rounding and "
+            f"tolerance {self.output_rounding:.3g} of {self.d_max:.3g}); at most "
+            f"{self.share:.0%} each allowed"
+        )
+
+    def refusal(self) -> str | None:
+        """Why single precision is refused (None: it is not)."""
+        if self.holds:
+            return None
+        return (
+            f"single precision is refused for this controller: {self.summary()}. The "
+            "certificates' margins do not cover float's rounding; export in double "
+            "precision, or certify with a larger w_bar or d_max (MPCConfig w_bar, d_max)"
+        )
+
+
+def _observer_rounding(
+    model: Any, observer: Any, certificate: Any, u_max: float
+) -> tuple[float, float, float]:
+    """:math:`\\delta_c, \\delta_h, \\delta_d` of one float observer update."""
+    from ltv_lstm_mpc.loop.statuses import IMPLAUSIBLE_MEASUREMENT_LIMIT
+
+    n, m, p = model.n, model.m, model.p
+    gains = observer.gains
+    d_max = float(observer.d_max)
+    WU = np.abs(np.asarray(model.kernel.WU, dtype=np.float64))
+    W_y, b_y = np.abs(model.W_y), np.abs(model.b_y)
+    L_gates = np.abs(np.vstack([gains.L_f, gains.L_i, gains.L_o, np.zeros((n, p))]))
+    L_d = np.abs(np.atleast_2d(gains.L_d))
+    y_bound = IMPLAUSIBLE_MEASUREMENT_LIMIT
+    # the innovation y - W_y h - b_y - d_hat: its magnitude and rounding (with y's own)
+    innovation = y_bound + b_y + d_max + W_y.sum(axis=1)
+    d_innovation = _gamma(n + 3) * innovation + _gamma(3) * (y_bound + 1.0)
+    z_bound = np.concatenate([np.ones(n), np.full(m, u_max), [1.0]])
+    magnitude = WU @ z_bound + L_gates @ innovation
+    d_pre = _gamma(n + m + p + 2) * magnitude + L_gates @ d_innovation
+    d_c, d_h = _cell_rounding(d_pre, n, float(certificate.c_hat_bound))
+    d_d = _gamma(p + 1) * (d_max + L_d @ innovation) + L_d @ d_innovation
+    return (
+        float(np.linalg.norm(d_c)),
+        float(np.linalg.norm(d_h)),
+        float(np.linalg.norm(d_d)),
+    )
+
+
+def _cell_rounding(d_pre: Any, n: int, c_bound: float) -> tuple[Any, Any]:
+    """Per unit: the rounding of c+ and h+ from that of the gates' pre-activations
+    (rows f, i, o, g): sigmoid' <= 1/4, tanh' <= 1, each activation's own error."""
+    if not math.isfinite(c_bound):
+        return np.full(n, math.inf), np.full(n, math.inf)
+    e = ACTIVATION_ERROR
+    d_f, d_i = d_pre[:n] / 4 + e, d_pre[n : 2 * n] / 4 + e
+    d_o, d_g = d_pre[2 * n : 3 * n] / 4 + e, d_pre[3 * n :] + e
+    d_c = d_f * c_bound + d_i + d_g + _gamma(3) * (c_bound + 1.0)
+    d_h = d_o + d_c + e + UNIT_ROUNDOFF
+    return d_c, d_h
+
+
+def single_precision_margins(controller: Any, tolerance: float) -> SinglePrecisionMargins:
+    """The rounding of ``controller`` exported in single precision against its
+    certificates' margins (module docstring).
+
+    Parameters
+    ----------
+    controller : OffsetFreeController
+        The controller (its model, observer and certification).
+    tolerance : float
+        The export's acceptance tolerance in single precision (normalized outputs).
+    """
+    certification = controller.certification
+    model = controller.model
+    u_max = float(controller.config.u_max)
+    d_c, d_h, d_d = _observer_rounding(model, controller.observer, certification.observer, u_max)
+    P_o = np.asarray(certification.observer.P_o, dtype=np.float64)
+    r = np.array([d_c, d_h, d_d])
+    observer_rounding = float(np.sqrt(r @ P_o @ r)) if np.all(np.isfinite(r)) else math.inf
+    # the predictions: the cell without injection on the invariant set of the model
+    n, m = model.n, model.m
+    WU = np.abs(np.asarray(model.kernel.WU, dtype=np.float64))
+    z_bound = np.concatenate([np.ones(n), np.full(m, u_max), [1.0]])
+    d_pre = _gamma(n + m + 1) * (WU @ z_bound)
+    c_bound = float(certification.delta_iss.c_bound)
+    p_c, p_h = _cell_rounding(d_pre, n, c_bound)
+    delta_x = float(np.linalg.norm(np.concatenate([p_c, p_h])))
+    lyapunov = certification.lyapunov
+    N = int(controller.config.N)
+    rho_s = float(lyapunov.rho_s)
+    drift = float(lyapunov.c_s_u / lyapunov.c_s_l) * delta_x * (1.0 - rho_s**N) / (1.0 - rho_s)
+    W_y = np.asarray(model.W_y, dtype=np.float64)
+    d_y = _gamma(n + 1) * (np.abs(W_y).sum(axis=1) + np.abs(model.b_y))
+    output = d_y + np.linalg.norm(W_y, axis=1) * drift + float(tolerance)
+    tightening = certification.tightening
+    return SinglePrecisionMargins(
+        delta_c=d_c,
+        delta_h=d_h,
+        delta_d=d_d,
+        observer_rounding=observer_rounding,
+        w_bar=float(tightening.w_bar),
+        delta_x=delta_x,
+        output_rounding=float(np.max(output)),
+        d_max=float(tightening.d_max),
+        share=MARGIN_SHARE,
+    )
