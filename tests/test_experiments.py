@@ -144,6 +144,11 @@ SMOKE = {
         ("policy steps", "max |du|/|u|", "equal"),
         needs=("daqp",),
     ),
+    "export_float.py": Smoke(
+        ("--N", "5", "--steps", "20", "--only", "3"),
+        ("w_bar share", "max |du|/|u|", "status diff"),
+        needs=("daqp",),
+    ),
     "gc_jitter.py": Smoke(
         ("--steps", "40", "--block", "20", "--N", "5"),
         ("collector on", "collector paused", "unreachable objects"),
