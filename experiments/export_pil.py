@@ -20,9 +20,11 @@ program), ``sizeof(<prefix>_controller)``, the measured stack, and the instructi
 step of the first ``--count`` steps from QEMU's instruction trace (``-singlestep -d
 exec``) with their time at 600 MHz and one instruction per cycle (an estimate: the
 Cortex-M7 issues up to two instructions per cycle, and a double-precision division takes
-many).
+many). The runs ``ph5f`` and ``tank5f`` export in single precision and run on QEMU's
+mps2-an386 Cortex-M4F (single-precision FPU; the time at 168 MHz, a typical part's clock).
 
-    python experiments/export_pil.py [--steps 600] [--count 60] [--step-runs ph5 ph20 tank5]
+    python experiments/export_pil.py [--steps 600] [--count 60]
+        [--step-runs ph5 ph20 tank5 ph5f tank5f]
 """
 
 from __future__ import annotations
@@ -48,8 +50,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--step-runs",
         nargs="*",
-        default=["ph5", "ph20", "tank5"],
-        help="controller-step runs: ph5, ph20 (scenario 3 at N = 5, 20), tank5 (none: skip)",
+        default=["ph5", "ph20", "tank5", "ph5f", "tank5f"],
+        help="controller-step runs: ph5, ph20 (scenario 3 at N = 5, 20), tank5, and in single "
+        "precision on a Cortex-M4F ph5f, tank5f (none: skip)",
     )
     return parser
 
@@ -70,6 +73,7 @@ from ltv_lstm_mpc.export.pil import (  # noqa: E402
     run_pil,
     run_step_host,
     run_step_pil,
+    target_of,
     write_observer_replay,
     write_step_replay,
 )
@@ -166,23 +170,30 @@ def step_loop(name: str, N: int, steps: int) -> tuple[Any, Any]:
 def step_rows(steps: int, count: int, runs: list[str], toolchain: Any) -> None:
     """The whole controller step: agreement, memory and instructions (module docstring)."""
     print(
-        f"\n{'controller step':<24} {'steps':>5} {'host-lib':>8} {'M7-host':>7} {'codes':>5} "
+        f"\n{'controller step':<30} {'steps':>5} {'host-lib':>8} {'MCU-host':>8} {'codes':>5} "
         f"{'flash B':>8} {'struct B':>8} {'stack B':>7}  instructions per step "
-        "(median / p95 / max; at 600 MHz)"
+        "(median / p95 / max; at the clock)"
     )
-    known = {"ph5": ("pH scenario 3, N = 5", "ph", 5), "ph20": ("pH scenario 3, N = 20", "ph", 20),
-             "tank5": ("quadruple tank, N = 5", "quadtank", 5)}  # fmt: skip
-    for label, name, N in (known[run] for run in runs):
+    known = {
+        "ph5": ("pH scenario 3, N = 5", "ph", 5, "double"),
+        "ph20": ("pH scenario 3, N = 20", "ph", 20, "double"),
+        "tank5": ("quadruple tank, N = 5", "quadtank", 5, "double"),
+        "ph5f": ("pH scenario 3, N = 5, float", "ph", 5, "single"),
+        "tank5f": ("quadruple tank, N = 5, float", "quadtank", 5, "single"),
+    }
+    for label, name, N, precision in (known[run] for run in runs):
         controller, sim = step_loop(name, N, steps)
         with tempfile.TemporaryDirectory() as scratch:
             folder = Path(scratch)
-            exported = export_model_c(controller.model, folder, controller=controller, prefix="c")
+            exported = export_model_c(
+                controller.model, folder, controller=controller, prefix="c", precision=precision
+            )
             main_c = write_step_replay(exported, sim.y_phi, sim.y0_phi)
             host = run_step_host(main_c, exported)
             scale = max(1.0, float(np.abs(sim.u_phi).max()))
             gap = float(np.abs(host.u_phi - sim.u_phi).max()) / scale
             if toolchain is None:
-                print(f"{label:<24} {len(sim.u_phi):>5} {gap:>8.1e}   (no Cortex-M7 toolchain)")
+                print(f"{label:<30} {len(sim.u_phi):>5} {gap:>8.1e}   (no Cortex-M toolchain)")
                 continue
             target = run_step_pil(main_c, exported, toolchain)
             target_gap = float(np.abs(target.u_phi - host.u_phi).max()) / scale
@@ -190,7 +201,7 @@ def step_rows(steps: int, count: int, runs: list[str], toolchain: Any) -> None:
             short = folder / "short"
             short.mkdir()
             exported_short = export_model_c(
-                controller.model, short, controller=controller, prefix="c"
+                controller.model, short, controller=controller, prefix="c", precision=precision
             )
             counted = run_step_pil(
                 write_step_replay(exported_short, sim.y_phi[:count], sim.y0_phi[:count]),
@@ -200,11 +211,14 @@ def step_rows(steps: int, count: int, runs: list[str], toolchain: Any) -> None:
             flash = sections.get("text", 0) + sections.get("rodata", 0) + sections.get("data", 0)
             ins = np.asarray(counted.instructions, dtype=float)[1:]  # (the first: start-up)
             median, p95, top = np.median(ins), np.percentile(ins, 95), ins.max()
+            mcu = target_of(exported)
+            clock = mcu.clock_mhz
             print(
-                f"{label:<24} {len(sim.u_phi):>5} {gap:>8.1e} {target_gap:>7.1e} {differ:>5} "
+                f"{label:<30} {len(sim.u_phi):>5} {gap:>8.1e} {target_gap:>8.1e} {differ:>5} "
                 f"{flash:>8} {target.controller_bytes:>8} {target.stack_bytes:>7}  "
-                f"{median:,.0f} / {p95:,.0f} / {top:,.0f}; {median / 600:.0f} / {p95 / 600:.0f} "
-                f"/ {top / 600:.0f} us (first step {counted.instructions[0]:,})",
+                f"{median:,.0f} / {p95:,.0f} / {top:,.0f}; {median / clock:.0f} / "
+                f"{p95 / clock:.0f} / {top / clock:.0f} us on a {mcu.name} at {clock:.0f} MHz "
+                f"(first step {counted.instructions[0]:,})",
                 flush=True,
             )
 

@@ -196,3 +196,58 @@ def test_the_whole_step_on_the_cortex_m7_equals_the_host_and_the_library(
     assert counted.instructions is not None and counted.instructions.shape == (8,)
     assert np.all((10_000 < counted.instructions) & (counted.instructions < 2_000_000))
     assert np.array_equal(counted.u_phi.view(np.uint64), target.u_phi[:8].view(np.uint64))
+
+
+@needs_gcc
+@needs_toolchain
+def test_the_float_step_on_the_cortex_m4f_equals_the_host(step_loop: Any, tmp_path: Path) -> None:
+    """Single precision on a Cortex-M4F (QEMU's mps2-an386, single-precision FPU): the
+    replay of scenario 3 (the policy on some steps) gives the float host build's inputs
+    bit for bit and its codes, within 1e-4 of the library's; the flash and RAM are within
+    the double build's targets (64 KiB, 16 KiB); no double-precision arithmetic (software
+    helpers) is linked but the harness's printf's; instructions counted."""
+    import subprocess
+
+    from ltv_lstm_mpc.export.pil import run_step_host, run_step_pil, write_step_replay
+
+    assert TOOLCHAIN is not None
+    controller, sim = step_loop
+    exported = export_model_c(
+        controller.model, tmp_path, controller=controller, prefix="pf", precision="single"
+    )
+    main = write_step_replay(exported, sim.y_phi[:100], sim.y0_phi[:100])
+    host = run_step_host(main, exported)
+    scale = np.abs(sim.u_phi).max()
+    assert 0 < np.abs(host.u_phi - sim.u_phi[:100]).max() <= 1e-4 * scale
+    target = run_step_pil(main, exported, TOOLCHAIN, count_instructions=True)
+    assert np.array_equal(target.u_phi, host.u_phi)
+    assert np.array_equal(target.codes, host.codes)
+    assert (target.codes[:, 2] > 0).any()
+    sections = target.sections
+    assert sections is not None and target.controller_bytes is not None
+    assert target.stack_bytes is not None
+    assert sections["text"] + sections["rodata"] + sections["data"] <= 64 * 1024, sections
+    ram = sections["data"] + sections["bss"] + target.controller_bytes + target.stack_bytes
+    assert ram <= 16 * 1024, (ram, target.controller_bytes, target.stack_bytes)
+    assert target.instructions is not None and target.instructions.shape == (100,)
+    assert np.all((10_000 < target.instructions) & (target.instructions < 2_000_000))
+    # the controller's and DAQP's objects reference no double-precision helper (__aeabi_d*)
+    from ltv_lstm_mpc.export.pil import STRICT_FLAGS, target_of
+    from ltv_lstm_mpc.export.sil import daqp_flags, daqp_sources
+
+    nm = str(Path(TOOLCHAIN.size).with_name(Path(TOOLCHAIN.size).name.replace("size", "nm")))
+    helpers = {}
+    for source in [str(exported.source), *daqp_sources(tmp_path)]:
+        obj = tmp_path / (Path(source).stem + "_m4f.o")
+        subprocess.run(
+            [TOOLCHAIN.gcc, *STRICT_FLAGS, *target_of(exported).flags, *daqp_flags(tmp_path),
+             "-c", "-o", str(obj), source],
+            check=True, capture_output=True,
+        )  # fmt: skip
+        undefined = subprocess.run(
+            [nm, "-u", str(obj)], capture_output=True, text=True, check=True
+        ).stdout.split()
+        helpers[Path(source).name] = [name for name in undefined if name.startswith("__aeabi_d")]
+    assert not any(helpers.values()), helpers
+    with pytest.raises(InvalidValueError, match="double-precision exports"):
+        write_observer_replay(exported, np.zeros(10), np.zeros(1), np.zeros(3), np.zeros(3))

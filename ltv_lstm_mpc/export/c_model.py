@@ -540,7 +540,13 @@ def _copy_daqp(target: Path, *, single: bool = False) -> None:
     for name in ("LICENSE", "README.md"):
         (target / name).write_bytes(vendor.joinpath(name).read_bytes())
     no_heap = _template("no_heap.h.in").substitute(
-        single_precision="#define DAQP_SINGLE_PRECISION /* c_float is float */\n" if single else ""
+        single_precision=(
+            "#define DAQP_SINGLE_PRECISION /* c_float is float */\n"
+            "/* sqrt, fabs of a float are float's (math.h's would compute in double) */\n"
+            "#include <tgmath.h>\n"
+        )
+        if single
+        else ""
     )
     (target / "no_heap.h").write_text(no_heap)
 

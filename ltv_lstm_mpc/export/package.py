@@ -108,5 +108,7 @@ def _precision_note(exported: ExportedC) -> str:
         "plants whose disturbances stay within the rest of those margins.\n\n"
         "DAQP's sources write some constants as double literals: with gcc, add\n"
         "`-fsingle-precision-constant` to `CFLAGS` so that they do not turn its float\n"
-        "arithmetic into (software) double."
+        "arithmetic into (software) double (`daqp/no_heap.h` includes `<tgmath.h>` for its\n"
+        "`sqrt` and `fabs` of floats). On a Cortex-M4F the objects then call no\n"
+        "double-precision helper (`arm-none-eabi-nm -u`: no `__aeabi_d*`)."
     )

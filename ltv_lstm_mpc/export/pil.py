@@ -44,25 +44,63 @@ from typing import Any
 import numpy as np
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
-from ltv_lstm_mpc.export.c_model import ExportedC, _literal, _matrix
+from ltv_lstm_mpc.export.c_model import ExportedC, _literal, _matrix, _single_precision
 from ltv_lstm_mpc.export.sil import daqp_flags, daqp_sources
 
 __all__ = [
+    "CORTEX_M4F_FLAGS",
     "CORTEX_M7_FLAGS",
+    "TARGETS",
     "ReplayResult",
     "StepReplayResult",
+    "Target",
     "Toolchain",
     "find_toolchain",
     "run_host",
     "run_pil",
     "run_step_host",
     "run_step_pil",
+    "target_of",
     "write_observer_replay",
     "write_step_replay",
 ]
 
 #: The Cortex-M7 build: double-precision FPU, hard-float calling convention, Thumb.
 CORTEX_M7_FLAGS = ("-mcpu=cortex-m7", "-mfpu=fpv5-d16", "-mfloat-abi=hard", "-mthumb")
+#: The Cortex-M4F build (an export in single precision): single-precision FPU, hard-float
+#: calling convention, Thumb; DAQP's double literals as float (gcc's
+#: ``-fsingle-precision-constant``, which the host build of the comparison takes too).
+CORTEX_M4F_FLAGS = (
+    "-mcpu=cortex-m4", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-mthumb",
+    "-fsingle-precision-constant",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Target:
+    """A processor of the PIL check: its name, compiler flags, QEMU board and the clock of
+    a typical part (for a time estimate from instructions: one per cycle)."""
+
+    name: str
+    flags: tuple[str, ...]
+    board: str
+    clock_mhz: float
+
+
+#: The targets: a Cortex-M7 (double precision) on QEMU's ``mps2-an500``, a Cortex-M4F
+#: (single precision) on ``mps2-an386``.
+TARGETS = {
+    "double": Target("Cortex-M7", CORTEX_M7_FLAGS, "mps2-an500", 600.0),
+    "single": Target("Cortex-M4F", CORTEX_M4F_FLAGS, "mps2-an386", 168.0),
+}
+
+
+def target_of(exported: ExportedC) -> Target:
+    """The PIL target of ``exported``'s precision: a Cortex-M7 for double, a Cortex-M4F (no
+    double-precision FPU) for single."""
+    return TARGETS[getattr(exported, "precision", "double")]
+
+
 #: The C dialect and warnings of every build of the exported code.
 STRICT_FLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror")
 
@@ -142,6 +180,11 @@ def write_observer_replay(
         raise InvalidValueError(
             f"{exported.source} has no observer update: export with "
             "export_model_c(model, out_dir, observer=controller.observer)"
+        )
+    if _single(exported):
+        raise InvalidValueError(
+            "the observer replay runs double-precision exports: replay the whole step of a "
+            "single-precision one (write_step_replay, run_step_pil)"
         )
     n, m, p = exported.n, exported.m, exported.p
     Y = np.asarray(y, dtype=np.float64)
@@ -338,7 +381,19 @@ def write_step_replay(exported: ExportedC, y_phi: Any, y0_phi: Any) -> Path:
             f"per step, {p} values each"
         )
     fields = {"Y": _matrix(Y), "Y0": _matrix(Y0)}
+    if getattr(exported, "precision", "double") == "single":  # (the data as float literals)
+        fields = {name: _single_precision(value) for name, value in fields.items()}
     return _write_replay(exported, "pil_step_main.c.in", "pil_step_main.c", Y.shape[0], fields)
+
+
+def _single(exported: ExportedC) -> bool:
+    return getattr(exported, "precision", "double") == "single"
+
+
+def _is_gcc(compiler: str) -> bool:
+    """Whether ``compiler`` is gcc (``cc`` may be): it takes gcc's own flags."""
+    done = subprocess.run([compiler, "--version"], capture_output=True, text=True)
+    return done.returncode == 0 and "Free Software Foundation" in done.stdout
 
 
 def _step_sources(main: Path, exported: ExportedC) -> list[str]:
@@ -349,9 +404,9 @@ def _daqp_flags(exported: ExportedC) -> list[str]:
     return daqp_flags(exported.source.parent)
 
 
-def _qemu(toolchain: Toolchain, elf: Path) -> list[str]:
-    """QEMU's MPS2 Cortex-M7 board running ``elf`` with semihosting."""
-    return [toolchain.qemu, "-M", "mps2-an500", "-nographic", "-semihosting", "-kernel", str(elf)]
+def _qemu(toolchain: Toolchain, elf: Path, board: str = "mps2-an500") -> list[str]:
+    """QEMU's MPS2 ``board`` (default: the Cortex-M7's) running ``elf`` with semihosting."""
+    return [toolchain.qemu, "-M", board, "-nographic", "-semihosting", "-kernel", str(elf)]
 
 
 def _stack(output: str) -> int | None:
@@ -360,11 +415,14 @@ def _stack(output: str) -> int | None:
     return found[0] if found else None
 
 
-def _step_outcome(output: str, m: int) -> tuple[Any, Any]:
+def _step_outcome(output: str, m: int, single: bool = False) -> tuple[Any, Any]:
+    """The inputs (float64; from a float's bits in single precision) and codes printed."""
     rows = [line.split()[1:] for line in output.splitlines() if line.startswith("u ")]
-    bits = np.array([[int(word, 16) for word in row[:m]] for row in rows], dtype=np.uint64)
+    kind = np.uint32 if single else np.uint64
+    bits = np.array([[int(word, 16) for word in row[:m]] for row in rows], dtype=kind)
     codes = np.array([[int(word) for word in row[m:]] for row in rows], dtype=np.int64)
-    return bits.view(np.float64), codes
+    values = bits.view(np.float32 if single else np.float64)
+    return values.astype(np.float64), codes
 
 
 def run_step_host(
@@ -380,6 +438,8 @@ def run_step_host(
     ``cflags``, e.g. ``("-O3",)``) and run it; with ``timing_repeats`` > 0 (a POSIX host),
     also each step's wall time, the best of that many replays (``seconds``)."""
     binary = main.parent / "pil_step_host"
+    if _single(exported) and _is_gcc(compiler):  # (the target's constants: float)
+        cflags = ("-fsingle-precision-constant", *cflags)
     timing = (
         [f"-DPIL_TIMING={int(timing_repeats)}", "-D_POSIX_C_SOURCE=199309L"]
         if timing_repeats > 0
@@ -392,7 +452,7 @@ def run_step_host(
         f"building the step replay with {compiler}",
     )  # fmt: skip
     output = _run([str(binary)], timeout, "the host replay")
-    u_phi, codes = _step_outcome(output, exported.m)
+    u_phi, codes = _step_outcome(output, exported.m, _single(exported))
     seconds = None
     if timing_repeats > 0:
         seconds = np.array([float(line.split()[1]) for line in output.splitlines()
@@ -437,12 +497,14 @@ def run_step_pil(
     count_instructions: bool = False,
     timeout: float = 600.0,
 ) -> StepReplayResult:
-    """Cross-compile the step replay for the Cortex-M7 and run it on QEMU; with
+    """Cross-compile the step replay for its target (:func:`target_of`: a Cortex-M7 for
+    double, a Cortex-M4F for single precision) and run it on QEMU; with
     ``count_instructions``, run it a second time under QEMU's instruction trace and count
     the instructions of each step (module docstring; about 1 s per million instructions
     here, so replay a few dozen steps for it)."""
     folder = main.parent
-    flags = [*STRICT_FLAGS, *CORTEX_M7_FLAGS, "-ffunction-sections", "-fdata-sections"]
+    target = target_of(exported)
+    flags = [*STRICT_FLAGS, *target.flags, "-ffunction-sections", "-fdata-sections"]
     elf = folder / "pil_step.elf"
     link = [toolchain.gcc, *flags, *_daqp_flags(exported), "--specs=rdimon.specs",
             "-Wl,--gc-sections", "-T", str(folder / "pil.ld")]  # fmt: skip
@@ -452,12 +514,13 @@ def run_step_pil(
         timeout,
         "cross-compiling the step replay (arm-none-eabi-gcc)",
     )  # fmt: skip
-    output = _run(_qemu(toolchain, elf), timeout, "running the step replay on QEMU",
+    qemu = _qemu(toolchain, elf, target.board)
+    output = _run(qemu, timeout, f"running the step replay on QEMU ({target.board})",
                   folder / "pil_step_output.txt")  # fmt: skip
-    u_phi, codes = _step_outcome(output, exported.m)
+    u_phi, codes = _step_outcome(output, exported.m, _single(exported))
     instructions = None
     if count_instructions:
-        instructions = _count_instructions(_qemu(toolchain, elf), u_phi.shape[0], timeout)
+        instructions = _count_instructions(qemu, u_phi.shape[0], timeout)
     sections, controller = _controller_sections(elf, exported, toolchain, timeout)
     return StepReplayResult(
         u_phi=u_phi, codes=codes, stack_bytes=_stack(output),
@@ -480,8 +543,9 @@ def _controller_sections(
     folder = exported.source.parent
     for source in [exported.source, *map(Path, daqp_sources(folder))]:
         obj = folder / (source.stem + "_m7_symbols.o")
-        _run([toolchain.gcc, *STRICT_FLAGS, *CORTEX_M7_FLAGS, *_daqp_flags(exported), "-c",
-              "-o", str(obj), str(source)], timeout, "compiling for the symbol list")  # fmt: skip
+        _run([toolchain.gcc, *STRICT_FLAGS, *target_of(exported).flags, *_daqp_flags(exported),
+              "-c", "-o", str(obj), str(source)], timeout,
+             "compiling for the symbol list")  # fmt: skip
         names = _run([nm, "--defined-only", str(obj)], timeout, "arm-none-eabi-nm")
         exported_symbols |= {line.split()[-1] for line in names.splitlines() if line.strip()}
     controller = None
