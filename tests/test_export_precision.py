@@ -59,8 +59,13 @@ def test_literals_become_float_literals_outside_comments() -> None:
         '/* 0.5 stays */ x = 0.5f * y + 1e-12f - 2000.0f; // 3.0 stays\n#error "1.5"\n'
         "k = 0x4B400000L + 12;"
     )
+    assert _single_precision('c = \'"\'; x = 2.5; s = "1.5";') == 'c = \'"\'; x = 2.5f; s = "1.5";'
     with pytest.raises(InvalidValueError, match="beyond the range of a float"):
         _single_precision("x = 1e100;")
+    with pytest.raises(InvalidValueError, match="below the range of a float"):
+        _single_precision("x = 1e-50;")
+    with pytest.raises(InvalidValueError, match=r"hexadecimal floating constant 0x1\.8p3"):
+        _single_precision("x = 0x1.8p3;")
 
 
 def test_export_rejects_an_unknown_precision(tmp_path: Path) -> None:

@@ -123,10 +123,12 @@ def _literal(value: float) -> str:
 #: The precisions of :func:`export_model_c`: C's ``double`` or ``float``.
 PRECISIONS = ("double", "single")
 
-# A floating literal of C (decimal), or a comment or string literal to leave as it is.
+# A floating literal of C (decimal), or a comment, string or character literal to leave
+# as it is; a hexadecimal floating literal is refused (the templates write none).
 _C_FLOAT_LITERAL = re.compile(
-    r'(/\*.*?\*/|//[^\n]*|"(?:\\.|[^"\\])*")'
-    r"|(?<![\w.])((?:\d+\.\d*|\.\d+)(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+)(?![\w.])",
+    r'(/\*.*?\*/|//[^\n]*|"(?:\\.|[^"\\])*"|\'(?:\\.|[^\'\\])+\')'
+    r"|(?<![\w.])((?:\d+\.\d*|\.\d+)(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+)(?![\w.])"
+    r"|(?<![\w.])(0[xX][0-9a-fA-F]*\.?[0-9a-fA-F]*[pP][-+]?\d+)",
     re.DOTALL,
 )
 
@@ -140,16 +142,30 @@ def _float_literal(text: str) -> str:
             f"the constant {text} is beyond the range of a float (FLT_MAX = 3.4e38): this "
             "controller cannot be exported in single precision; export it in double"
         )
+    if value == 0.0 and float(text) != 0.0:
+        raise InvalidValueError(
+            f"the constant {text} is below the range of a float (it would become 0): this "
+            "controller cannot be exported in single precision; export it in double"
+        )
     out = str(value)
     return (out if any(ch in out for ch in ".e") else out + ".0") + "f"
+
+
+def _float_token(match: Any) -> str:
+    if match.group(1):
+        return str(match.group(1))
+    if match.group(3):
+        raise InvalidValueError(
+            f"the hexadecimal floating constant {match.group(3)} has no float form here: "
+            "write it in decimal"
+        )
+    return _float_literal(match.group(2))
 
 
 def _single_precision(source: str) -> str:
     """``source`` (rendered C) with every floating literal of its code a float literal
     (comments and strings as they are): no computation is promoted to double."""
-    return _C_FLOAT_LITERAL.sub(
-        lambda match: match.group(1) or _float_literal(match.group(2)), source
-    )
+    return _C_FLOAT_LITERAL.sub(_float_token, source)
 
 
 #: The tolerances of a single-precision export (``precision="single"``): the library's

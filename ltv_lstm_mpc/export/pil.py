@@ -45,7 +45,7 @@ import numpy as np
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.export.c_model import ExportedC, _literal, _matrix, _single_precision
-from ltv_lstm_mpc.export.sil import daqp_flags, daqp_sources
+from ltv_lstm_mpc.export.sil import daqp_flags, daqp_sources, precision_flags
 
 __all__ = [
     "CORTEX_M4F_FLAGS",
@@ -390,12 +390,6 @@ def _single(exported: ExportedC) -> bool:
     return getattr(exported, "precision", "double") == "single"
 
 
-def _is_gcc(compiler: str) -> bool:
-    """Whether ``compiler`` is gcc (``cc`` may be): it takes gcc's own flags."""
-    done = subprocess.run([compiler, "--version"], capture_output=True, text=True)
-    return done.returncode == 0 and "Free Software Foundation" in done.stdout
-
-
 def _step_sources(main: Path, exported: ExportedC) -> list[str]:
     return [str(main), str(exported.source), *daqp_sources(exported.source.parent)]
 
@@ -438,8 +432,7 @@ def run_step_host(
     ``cflags``, e.g. ``("-O3",)``) and run it; with ``timing_repeats`` > 0 (a POSIX host),
     also each step's wall time, the best of that many replays (``seconds``)."""
     binary = main.parent / "pil_step_host"
-    if _single(exported) and _is_gcc(compiler):  # (the target's constants: float)
-        cflags = ("-fsingle-precision-constant", *cflags)
+    cflags = (*precision_flags(exported, compiler), *cflags)  # (the target's constants)
     timing = (
         [f"-DPIL_TIMING={int(timing_repeats)}", "-D_POSIX_C_SOURCE=199309L"]
         if timing_repeats > 0

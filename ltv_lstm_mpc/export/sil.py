@@ -86,6 +86,20 @@ def daqp_sources(folder: Path) -> list[str]:
     return sorted(str(path) for path in (folder / "daqp" / "src").glob("*.c"))
 
 
+def _is_gcc(compiler: str) -> bool:
+    """Whether ``compiler`` is gcc (``cc`` may be): it takes gcc's own flags."""
+    done = subprocess.run([compiler, "--version"], capture_output=True, text=True)
+    return done.returncode == 0 and "Free Software Foundation" in done.stdout
+
+
+def precision_flags(exported: Any, compiler: str) -> list[str]:
+    """The flags of a single-precision export's build with ``compiler``: with gcc,
+    ``-fsingle-precision-constant`` (DAQP's double literals as float, as on the target,
+    :data:`~ltv_lstm_mpc.export.pil.CORTEX_M4F_FLAGS`); none otherwise."""
+    single = getattr(exported, "precision", "double") == "single"
+    return ["-fsingle-precision-constant"] if single and _is_gcc(compiler) else []
+
+
 def _own_symbols() -> list[str]:
     """On ELF hosts, the library's calls bound to its own definitions: the process already
     holds DAQP (the ``daqp`` package's build, in double precision), whose exported
@@ -100,7 +114,8 @@ def compile_controller(exported: Any, compiler: str | None = None) -> Path:
     compiler = compiler or host_compiler()
     library = folder / f"lib{exported.prefix}_{Path(compiler).name}.so"
     command = [
-        compiler, *BUILD_FLAGS, "-fPIC", "-shared", *_own_symbols(), *daqp_flags(folder),
+        compiler, *BUILD_FLAGS, *precision_flags(exported, compiler), "-fPIC", "-shared",
+        *_own_symbols(), *daqp_flags(folder),
         "-o", str(library), str(exported.source), *daqp_sources(folder), "-lm",
     ]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True)
