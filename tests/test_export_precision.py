@@ -235,9 +235,11 @@ def test_the_float_step_follows_the_library_on_scenario_3(tmp_path: Path) -> Non
     )
     c = CController(compile_controller(exported), exported)
     worst, policies = 0.0, set()
+    e_inf = controller.mpc.tightening.e_inf
     for k, record in enumerate(controller.records):
         code, u_phi, r = c.step(sim.y_phi[k], sim.y0_phi[k])
         assert code == 0
+        assert r.e_hat <= e_inf, (k, r.e_hat, e_inf)  # (float's rounding kept below)
         assert MPC_STATUS_NAMES[r.mpc.status] == record.mpc.status, k
         assert POLICY_NAMES[r.mpc.policy] == record.mpc.policy, k
         policies.add(record.mpc.policy)
@@ -246,6 +248,41 @@ def test_the_float_step_follows_the_library_on_scenario_3(tmp_path: Path) -> Non
         )
     assert policies != {"nominal"}
     assert 1e-9 < worst <= 1e-4  # (float's accuracy: not double's)
+
+
+@needs_compiler
+def test_float_rounding_keeps_the_bounds_the_rate_bound_rests_on(tmp_path: Path) -> None:
+    """Scenario 1 (set-points moved at Theorem 3's rate bound): in float the observer-error
+    bound e_hat never exceeds the certificate's e_inf and no step of the set-point exceeds
+    the rate limit (the limit and e_inf rounded down for float), so the run-time monitor's
+    verdicts can hold as in double; statuses equal the library's."""
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[0]
+    limit = scenario.setpoint_rate_limit
+    assert limit is not None
+    controller = OffsetFreeController(
+        model, replace(scenario.config, solver="daqp", N=5), setpoint_rate_limit=limit,
+        one_call_step=False,
+    )  # fmt: skip
+    plant = scenario.make_plant(model, controller.certification)
+    sim = simulate(
+        plant, controller, scenario.setpoints, scenario.disturbances, 300, progress=False
+    )
+    exported = export_model_c(
+        model, tmp_path, controller=controller, prefix="fr", precision="single"
+    )
+    c = CController(compile_controller(exported), exported)
+    e_inf = controller.mpc.tightening.e_inf
+    previous, largest = None, 0.0
+    for k, record in enumerate(controller.records):
+        code, _, r = c.step(sim.y_phi[k], sim.y0_phi[k])
+        assert code == 0 and MPC_STATUS_NAMES[r.mpc.status] == record.mpc.status, k
+        assert r.e_hat <= e_inf, (k, r.e_hat, e_inf)
+        y0 = np.array(r.y0[:], dtype=np.float64)
+        if previous is not None:
+            largest = max(largest, float(np.max(np.abs(y0 - previous))))
+        previous = y0
+    assert limit * 0.99 < largest <= limit  # (the limiter moved at its limit, not beyond)
 
 
 DRIVER = r"""

@@ -189,6 +189,15 @@ SINGLE_PRECISION_FLOORS: dict[str, float] = {
 }
 
 
+def _float_below(value: float) -> float:
+    """The largest float (single precision) <= ``value``: a bound the float code must not
+    exceed, rounded towards it."""
+    rounded = np.float32(value)
+    if float(rounded) > value:
+        rounded = np.nextafter(rounded, np.float32(-np.inf))
+    return float(rounded)
+
+
 def _precision_value(name: str, value: float, single: bool) -> float:
     """``value`` of the tolerance ``name``, raised to its floor in single precision
     (:data:`SINGLE_PRECISION_FLOORS`; ``huge_entry`` replaced)."""
@@ -458,6 +467,7 @@ def export_model_c(
             w_bar=_literal(tightening.w_bar),
             rho_o=_literal(tightening.rho_o),
             e_inf=_literal(tightening.e_inf),
+            e_inf_below=_literal(_float_below(tightening.e_inf)),
         )
         fields["has_tightening"] = "1"
         fields["horizon"] = str(N)
@@ -705,14 +715,22 @@ def _controller_fields(controller: Any, fields: dict[str, str]) -> dict[str, str
         u_phi_low=row("u_phi_low"),
         u_phi_high=row("u_phi_high"),
         has_limiter="0" if limit is None else "1",
-        rate_limit=_literal(0.0 if limit is None else limit),
-        e_hat0=_literal(_e_hat0(controller)),
+        rate_limit=_literal(_rate_limit(limit, single)),
+        e_hat0=_literal(_float_below(_e_hat0(controller)) if single else _e_hat0(controller)),
         reuse_tol=_literal(_precision_value("reuse_tol", controller.mpc.reuse_tol, single)),
         implausible=_literal(IMPLAUSIBLE_MEASUREMENT_LIMIT),
         flag_implausible="1" if controller.implausible_measurements == "flag" else "0",
         u_margin=_literal(_precision_value("u_margin", U_MARGIN, single)),
     )
     return values
+
+
+def _rate_limit(limit: float | None, single: bool) -> float:
+    """The set-point rate limit as rendered (0: none); in single precision rounded down
+    (the float limiter then steps back where its sum rounds past it: tightening.c.in)."""
+    if limit is None:
+        return 0.0
+    return _float_below(float(limit)) if single else float(limit)
 
 
 def _e_hat0(controller: Any) -> float:
