@@ -18,8 +18,11 @@ best of ``--repeats`` per step). acados' time covers its MPC step only (lineariz
 condensing, QP), not an observer or a reference calculator; where ours took the
 infeasibility policy, acados' solve fails (it has no policy) and is timed all the same.
 
+With ``--float``, the C step exported in single precision is timed too (host build as for
+the Cortex-M4F comparison).
+
     python experiments/export_speed.py [--N 5 20 50] [--steps 600] [--repeats 3] \
-        [--cflags "-O2"] [--acados DIR]
+        [--cflags "-O2"] [--float] [--acados DIR]
 """
 
 from __future__ import annotations
@@ -45,6 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--cflags", default="-O2", help='the C step\'s optimization flags ("-O2"; e.g. "-O3")'
     )
+    parser.add_argument(
+        "--float", action="store_true",
+        help="also the C step exported in single precision (float) on the host",
+    )  # fmt: skip
     parser.add_argument(
         "--acados", type=Path, default=None,
         help="an acados source tree built with DAQP (experiments/acados_speed.py): time its "
@@ -150,6 +157,16 @@ def main() -> None:
             main_c = write_step_replay(exported, sim.y_phi, sim.y0_phi)
             c = run_step_host(main_c, exported, timing_repeats=args.repeats,
                               cflags=tuple(args.cflags.split()))  # fmt: skip
+            single = None
+            if args.float:
+                folder = Path(scratch) / "float"
+                folder.mkdir()
+                exported_f = export_model_c(model, folder, controller=reference, prefix="c",
+                                            precision="single")  # fmt: skip
+                single = run_step_host(
+                    write_step_replay(exported_f, sim.y_phi, sim.y0_phi), exported_f,
+                    timing_repeats=args.repeats, cflags=tuple(args.cflags.split()),
+                )  # fmt: skip
             if acados is not None:
                 cwd = os.getcwd()
                 os.chdir(scratch)  # acados writes some files next to the caller
@@ -167,6 +184,17 @@ def main() -> None:
             f"{native[2] / python[2]:.2f}   {gap:.1e}",
             flush=True,
         )
+        if single is not None:
+            floats = stats(single.seconds)
+            scale = max(1.0, float(np.abs(py_inputs).max()))
+            print(
+                f"{N:>3} {'C float':<9} {floats[0]:>9.1f} {floats[1]:>8.1f} {floats[2]:>8.1f}   "
+                f"{floats[0] / python[0]:.2f}, {floats[1] / python[1]:.2f}, "
+                f"{floats[2] / python[2]:.2f}   "
+                f"{float(np.abs(single.u_phi - py_inputs).max()) / scale:.1e} (relative); "
+                f"float / double median {floats[0] / native[0]:.2f}",
+                flush=True,
+            )
         if acados is not None:
             other = stats(theirs)
             print(

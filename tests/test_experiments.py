@@ -135,8 +135,8 @@ SMOKE = {
         needs=("daqp",),
     ),
     "export_speed.py": Smoke(
-        ("--N", "5", "--steps", "30", "--repeats", "1"),
-        ("C (gcc)", "C / Python"),
+        ("--N", "5", "--steps", "30", "--repeats", "1", "--float"),
+        ("C (gcc)", "C / Python", "C float", "float / double"),
         needs=("daqp",),
     ),
     "export_sil.py": Smoke(
