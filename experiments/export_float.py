@@ -46,19 +46,9 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 from dataclasses import replace  # noqa: E402
 
 import numpy as np  # noqa: E402
+from export_sil import runs  # noqa: E402  (experiments/ is the script's folder)
 
 from ltv_lstm_mpc import OffsetFreeController, simulate  # noqa: E402
-from ltv_lstm_mpc.benchmarks.quadtank import quadtank_scenarios  # noqa: E402
-from ltv_lstm_mpc.lstm.shipped import load_model  # noqa: E402
-from ltv_lstm_mpc.paper.scenarios import paper_scenarios  # noqa: E402
-
-
-def runs(only: list[str] | None) -> list[tuple[str, Any, Any, bool]]:
-    """(label, model, scenario, is the pH plant) of the runs asked for."""
-    ph = load_model("ph_lstm_n5.npz")
-    found = [(str(i + 1), ph, s, True) for i, s in enumerate(paper_scenarios(ph))]
-    found.append(("quadtank", load_model("quadtank_lstm_n8.npz"), quadtank_scenarios()[0], False))
-    return [run for run in found if only is None or run[0] in only]
 
 
 def closed_loop(model: Any, scenario: Any, ph: bool, N: int, engine: str, steps: int) -> Any:

@@ -37,8 +37,8 @@ needs_compiler = pytest.mark.skipif(not COMPILERS, reason="no C compiler (gcc or
 
 def build(folder: Path, prefix: str, compiler: str) -> Path:
     """The export in ``folder`` (``<prefix>.c`` and DAQP's sources) as a shared library."""
-    return compile_controller(SimpleNamespace(source=folder / f"{prefix}.c", prefix=prefix),
-                              compiler)  # fmt: skip
+    exported = SimpleNamespace(source=folder / f"{prefix}.c", prefix=prefix, single=False)
+    return compile_controller(exported, compiler)
 
 
 class CMPC:

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from test_export_step import closed_loop  # (scenario 3's library loop)
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.exceptions import InvalidValueError
@@ -220,18 +221,9 @@ def test_the_float_step_follows_the_library_on_scenario_3(tmp_path: Path) -> Non
     """The paper's scenario 3 (set-point jumps, infeasible instants with the policy), 600
     steps replayed through the float controller step: the library's MPC statuses and
     policies on every step, inputs to 1e-4 (relative; measured 5e-6 over 2400 steps)."""
-    model = load_model("ph_lstm_n5.npz")
-    scenario = paper_scenarios(model)[2]
-    controller = OffsetFreeController(
-        model, replace(scenario.config, solver="daqp", N=5),
-        setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False,
-    )  # fmt: skip
-    plant = scenario.make_plant(model, controller.certification)
-    sim = simulate(
-        plant, controller, scenario.setpoints, scenario.disturbances, 600, progress=False
-    )
+    controller, sim = closed_loop("ph", 5, 600)
     exported = export_model_c(
-        model, tmp_path, controller=controller, prefix="fs", precision="single"
+        controller.model, tmp_path, controller=controller, prefix="fs", precision="single"
     )
     c = CController(compile_controller(exported), exported)
     worst, policies = 0.0, set()
@@ -321,17 +313,10 @@ def test_the_float_step_runs_clean_under_the_sanitizers(tmp_path: Path) -> None:
     """Two float controllers in one program, 150 steps of the library's loop under
     AddressSanitizer and UndefinedBehaviorSanitizer: no report, the same inputs, within
     1e-4 of the library's."""
-    model = load_model("ph_lstm_n5.npz")
-    scenario = paper_scenarios(model)[2]
-    controller = OffsetFreeController(
-        model, replace(scenario.config, solver="daqp", N=5),
-        setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False,
-    )  # fmt: skip
-    plant = scenario.make_plant(model, controller.certification)
-    sim = simulate(
-        plant, controller, scenario.setpoints, scenario.disturbances, 150, progress=False
+    controller, sim = closed_loop("ph", 5, 150)
+    export_model_c(
+        controller.model, tmp_path, controller=controller, prefix="fs", precision="single"
     )
-    export_model_c(model, tmp_path, controller=controller, prefix="fs", precision="single")
     rows = np.hstack([sim.y_phi, sim.y0_phi]).astype(np.float32)
     (tmp_path / "steps.bin").write_bytes(rows.tobytes())
     (tmp_path / "driver.c").write_text(DRIVER)

@@ -110,6 +110,11 @@ class ExportedC:
     precision: str = "double"
     single_precision_margins: Any = None
 
+    @property
+    def single(self) -> bool:
+        """Whether ``<prefix>_real`` is ``float`` (``precision="single"``)."""
+        return self.precision == "single"
+
 
 def _literal(value: float) -> str:
     """A C double literal that reads back as ``value`` exactly (shortest round trip)."""

@@ -98,7 +98,7 @@ TARGETS = {
 def target_of(exported: ExportedC) -> Target:
     """The PIL target of ``exported``'s precision: a Cortex-M7 for double, a Cortex-M4F (no
     double-precision FPU) for single."""
-    return TARGETS[getattr(exported, "precision", "double")]
+    return TARGETS[exported.precision]
 
 
 #: The C dialect and warnings of every build of the exported code.
@@ -181,7 +181,7 @@ def write_observer_replay(
             f"{exported.source} has no observer update: export with "
             "export_model_c(model, out_dir, observer=controller.observer)"
         )
-    if _single(exported):
+    if exported.single:
         raise InvalidValueError(
             "the observer replay runs double-precision exports: replay the whole step of a "
             "single-precision one (write_step_replay, run_step_pil)"
@@ -381,13 +381,9 @@ def write_step_replay(exported: ExportedC, y_phi: Any, y0_phi: Any) -> Path:
             f"per step, {p} values each"
         )
     fields = {"Y": _matrix(Y), "Y0": _matrix(Y0)}
-    if getattr(exported, "precision", "double") == "single":  # (the data as float literals)
+    if exported.single:  # (the data as float literals)
         fields = {name: _single_precision(value) for name, value in fields.items()}
     return _write_replay(exported, "pil_step_main.c.in", "pil_step_main.c", Y.shape[0], fields)
-
-
-def _single(exported: ExportedC) -> bool:
-    return getattr(exported, "precision", "double") == "single"
 
 
 def _step_sources(main: Path, exported: ExportedC) -> list[str]:
@@ -445,7 +441,7 @@ def run_step_host(
         f"building the step replay with {compiler}",
     )  # fmt: skip
     output = _run([str(binary)], timeout, "the host replay")
-    u_phi, codes = _step_outcome(output, exported.m, _single(exported))
+    u_phi, codes = _step_outcome(output, exported.m, exported.single)
     seconds = None
     if timing_repeats > 0:
         seconds = np.array([float(line.split()[1]) for line in output.splitlines()
@@ -510,7 +506,7 @@ def run_step_pil(
     qemu = _qemu(toolchain, elf, target.board)
     output = _run(qemu, timeout, f"running the step replay on QEMU ({target.board})",
                   folder / "pil_step_output.txt")  # fmt: skip
-    u_phi, codes = _step_outcome(output, exported.m, _single(exported))
+    u_phi, codes = _step_outcome(output, exported.m, exported.single)
     instructions = None
     if count_instructions:
         instructions = _count_instructions(qemu, u_phi.shape[0], timeout)

@@ -139,6 +139,12 @@ class SinglePrecisionMargins:
         )
 
 
+def _gate_magnitude(model: Any, u_max: float) -> Any:
+    """Per gate row, the sum of the magnitudes of WU [h; u; 1] over |h| <= 1, |u| <= u_max."""
+    z_bound = np.concatenate([np.ones(model.n), np.full(model.m, u_max), [1.0]])
+    return np.abs(np.asarray(model.kernel.WU, dtype=np.float64)) @ z_bound
+
+
 def _observer_rounding(
     model: Any, observer: Any, certificate: Any, u_max: float, scaling: Any
 ) -> tuple[float, float, float]:
@@ -149,7 +155,6 @@ def _observer_rounding(
     n, m, p = model.n, model.m, model.p
     gains = observer.gains
     d_max = float(observer.d_max)
-    WU = np.abs(np.asarray(model.kernel.WU, dtype=np.float64))
     W_y, b_y = np.abs(model.W_y), np.abs(model.b_y)
     L_gates = np.abs(np.vstack([gains.L_f, gains.L_i, gains.L_o, np.zeros((n, p))]))
     L_d = np.abs(np.atleast_2d(gains.L_d))
@@ -161,8 +166,7 @@ def _observer_rounding(
     # the innovation y - W_y h - b_y - d_hat: its magnitude and rounding (with y's own)
     innovation = y_bound + b_y + d_max + W_y.sum(axis=1)
     d_innovation = _gamma(n + 4) * innovation + d_measurement
-    z_bound = np.concatenate([np.ones(n), np.full(m, u_max), [1.0]])
-    magnitude = WU @ z_bound + L_gates @ innovation
+    magnitude = _gate_magnitude(model, u_max) + L_gates @ innovation
     d_pre = _gamma(n + m + p + 3) * magnitude + L_gates @ d_innovation
     d_c, d_h = _cell_rounding(d_pre, n, float(certificate.c_hat_bound))
     d_d = _gamma(p + 2) * (d_max + L_d @ innovation) + L_d @ d_innovation
@@ -209,9 +213,7 @@ def single_precision_margins(controller: Any, tolerance: float) -> SinglePrecisi
     # the predictions: the cell without injection, from an estimate in the observer's
     # invariant set or the model's
     n, m = model.n, model.m
-    WU = np.abs(np.asarray(model.kernel.WU, dtype=np.float64))
-    z_bound = np.concatenate([np.ones(n), np.full(m, u_max), [1.0]])
-    d_pre = _gamma(n + m + 2) * (WU @ z_bound)
+    d_pre = _gamma(n + m + 2) * _gate_magnitude(model, u_max)
     c_bound = max(float(certification.delta_iss.c_bound), float(certification.observer.c_hat_bound))
     p_c, p_h = _cell_rounding(d_pre, n, c_bound)
     delta_x = float(np.linalg.norm(np.concatenate([p_c, p_h])))

@@ -12,6 +12,7 @@ library's closed loops through it; ``tests/test_export_step.py`` checks it.
 from __future__ import annotations
 
 import ctypes
+import functools
 import shutil
 import subprocess
 import sys
@@ -86,6 +87,7 @@ def daqp_sources(folder: Path) -> list[str]:
     return sorted(str(path) for path in (folder / "daqp" / "src").glob("*.c"))
 
 
+@functools.cache
 def _is_gcc(compiler: str) -> bool:
     """Whether ``compiler`` is gcc (``cc`` may be): it takes gcc's own flags."""
     done = subprocess.run([compiler, "--version"], capture_output=True, text=True)
@@ -96,8 +98,7 @@ def precision_flags(exported: Any, compiler: str) -> list[str]:
     """The flags of a single-precision export's build with ``compiler``: with gcc,
     ``-fsingle-precision-constant`` (DAQP's double literals as float, as on the target,
     :data:`~ltv_lstm_mpc.export.pil.CORTEX_M4F_FLAGS`); none otherwise."""
-    single = getattr(exported, "precision", "double") == "single"
-    return ["-fsingle-precision-constant"] if single and _is_gcc(compiler) else []
+    return ["-fsingle-precision-constant"] if exported.single and _is_gcc(compiler) else []
 
 
 def _own_symbols() -> list[str]:
@@ -173,9 +174,9 @@ class CController:
         lib = ctypes.CDLL(str(library))
         prefix = exported.prefix
         self.m, self.p = exported.m, exported.p
-        precision = getattr(exported, "precision", "double")
+        precision = exported.precision
         #: The numpy type of ``<prefix>_real``.
-        self.dtype = np.float32 if precision == "single" else np.float64
+        self.dtype = np.float32 if exported.single else np.float64
         real = _real(precision)
         self.Record = _record_type(exported.n, exported.m, exported.p, precision)
         size = getattr(lib, f"{prefix}_controller_size")
@@ -215,14 +216,18 @@ class CController:
             u_phi,
             ctypes.byref(record),
         )
-        return int(code), u_phi.astype(np.float64), record
+        return int(code), u_phi.astype(np.float64, copy=False), record
 
     def state(self) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         r"""The estimates the next step starts from and its :math:`\hat e_o`."""
         x_hat, d_hat = np.zeros(self.nx, self.dtype), np.zeros(self.p, self.dtype)
         e_hat = self._state.argtypes[3]._type_()
         self._state(self.state_buffer, x_hat, d_hat, ctypes.byref(e_hat))
-        return x_hat.astype(np.float64), d_hat.astype(np.float64), float(e_hat.value)
+        return (
+            x_hat.astype(np.float64, copy=False),
+            d_hat.astype(np.float64, copy=False),
+            float(e_hat.value),
+        )
 
     def plan(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """The last plan: inputs (N, m), re-simulated and linearized states (N + 1, 2n)."""
@@ -230,4 +235,9 @@ class CController:
         x_plan = np.zeros((self.N + 1, self.nx), self.dtype)
         x_linear = np.zeros((self.N + 1, self.nx), self.dtype)
         self._plan(self.state_buffer, u, x_plan, x_linear)
-        return u.astype(np.float64), x_plan.astype(np.float64), x_linear.astype(np.float64)
+        f64 = np.float64
+        return (
+            u.astype(f64, copy=False),
+            x_plan.astype(f64, copy=False),
+            x_linear.astype(f64, copy=False),
+        )
