@@ -2,7 +2,8 @@
 quadruple tank, software in the loop.
 
 For each of the paper's five scenarios on the pH plant and the quadruple tank's set-point
-changes, at each horizon: runs the library's closed loop (the reference engine, DAQP),
+changes, for each solver and horizon: runs the library's closed loop (the reference engine;
+DAQP on the terminal box, or ``daqp:socp``'s exact cones),
 exports the controller (``export_model_c(..., controller=...)``), builds the C code on the
 host (``ltv_lstm_mpc.export.sil``) and replays the loop's measurements and requested
 set-points through ``<prefix>_controller_step``. Prints per run: the steps, the steps on an
@@ -11,11 +12,13 @@ physical inputs (C / library), and whether the MPC statuses, policies, set-point
 measurement statuses agree on every step.
 
     python experiments/export_sil.py [--N 5 20] [--steps 0] [--only 3 quadtank]
+        [--solver daqp daqp:socp]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import tempfile
 import warnings
@@ -37,6 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--only", nargs="+", default=None, help="runs to do: 1..5 (paper scenarios), quadtank"
     )
+    parser.add_argument(
+        "--solver", nargs="+", default=["daqp"], choices=["daqp", "daqp:socp"],
+        help="daqp (the terminal box) and/or daqp:socp (the exact cones); default daqp",
+    )  # fmt: skip
     return parser
 
 
@@ -54,7 +61,6 @@ from ltv_lstm_mpc import OffsetFreeController, simulate  # noqa: E402
 from ltv_lstm_mpc.benchmarks.quadtank import quadtank_scenarios  # noqa: E402
 from ltv_lstm_mpc.export import export_model_c  # noqa: E402
 from ltv_lstm_mpc.export.sil import (  # noqa: E402
-    MPC_STATUS_NAMES,
     POLICY_NAMES,
     CController,
     compile_controller,
@@ -79,7 +85,7 @@ def compare(controller: Any, sim: Any, c: CController) -> tuple[float, bool]:
     for k, record in enumerate(controller.records):
         code, u_phi, r = c.step(sim.y_phi[k], sim.y0_phi[k])
         equal = equal and code == 0
-        equal = equal and MPC_STATUS_NAMES[r.mpc.status] == record.mpc.status
+        equal = equal and c.mpc_status(r.mpc, controller.mpc.config) == record.mpc.status
         equal = equal and POLICY_NAMES[r.mpc.policy] == record.mpc.policy
         equal = equal and SETPOINT_STATUSES[r.setpoint_status] == record.setpoint_status
         equal = equal and MEASUREMENT_STATUSES[r.measurement_status] == record.measurement_status
@@ -91,39 +97,40 @@ def compare(controller: Any, sim: Any, c: CController) -> tuple[float, bool]:
 def main() -> None:
     args = build_parser().parse_args()
     print(
-        f"{'run':<9} {'N':>3} {'steps':>6} {'policy steps':>12} {'max |du|/|u|':>13} "
-        f"{'statuses':>9}  set-point statuses"
+        f"{'run':<9} {'solver':<9} {'N':>3} {'steps':>6} {'policy steps':>12} "
+        f"{'max |du|/|u|':>13} {'statuses':>9}  set-point statuses"
     )
-    for label, model, scenario, ph in runs(args.only):
-        for N in args.N:
-            config = replace(scenario.config, solver="daqp", N=N)
-            controller = OffsetFreeController(
-                model, config, setpoint_rate_limit=scenario.setpoint_rate_limit,
-                one_call_step=False,
-            )  # fmt: skip
-            if ph:
-                plant = scenario.make_plant(model, controller.certification)
-                disturbances = scenario.disturbances
-            else:
-                plant, disturbances = scenario.make_plant(model), scenario.leaks
-            steps = args.steps or scenario.steps
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                sim = simulate(
-                    plant, controller, scenario.setpoints, disturbances, steps, progress=False
-                )
-            with tempfile.TemporaryDirectory() as scratch:
-                exported = export_model_c(model, Path(scratch), controller=controller, prefix="c")
-                c = CController(compile_controller(exported), exported)
-                worst, equal = compare(controller, sim, c)
-            records = controller.records
-            policy_steps = sum(r.mpc.policy != "nominal" for r in records)
-            statuses = sorted({r.setpoint_status for r in records})
-            print(
-                f"{label:<9} {N:>3} {len(records):>6} {policy_steps:>12} {worst:>13.1e} "
-                f"{'equal' if equal else 'DIFFER':>9}  {', '.join(statuses)}",
-                flush=True,
+    for (label, model, scenario, ph), solver, N in itertools.product(
+        runs(args.only), args.solver, args.N
+    ):
+        config = replace(scenario.config, solver=solver, N=N)
+        controller = OffsetFreeController(
+            model, config, setpoint_rate_limit=scenario.setpoint_rate_limit,
+            one_call_step=False,
+        )  # fmt: skip
+        if ph:
+            plant = scenario.make_plant(model, controller.certification)
+            disturbances = scenario.disturbances
+        else:
+            plant, disturbances = scenario.make_plant(model), scenario.leaks
+        steps = args.steps or scenario.steps
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sim = simulate(
+                plant, controller, scenario.setpoints, disturbances, steps, progress=False
             )
+        with tempfile.TemporaryDirectory() as scratch:
+            exported = export_model_c(model, Path(scratch), controller=controller, prefix="c")
+            c = CController(compile_controller(exported), exported)
+            worst, equal = compare(controller, sim, c)
+        records = controller.records
+        policy_steps = sum(r.mpc.policy != "nominal" for r in records)
+        statuses = sorted({r.setpoint_status for r in records})
+        print(
+            f"{label:<9} {solver:<9} {N:>3} {len(records):>6} {policy_steps:>12} {worst:>13.1e} "
+            f"{'equal' if equal else 'DIFFER':>9}  {', '.join(statuses)}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -140,8 +140,8 @@ SMOKE = {
         needs=("daqp",),
     ),
     "export_sil.py": Smoke(
-        ("--N", "5", "--steps", "20", "--only", "3"),
-        ("policy steps", "max |du|/|u|", "equal"),
+        ("--N", "5", "--steps", "20", "--only", "3", "--solver", "daqp", "daqp:socp"),
+        ("policy steps", "max |du|/|u|", "equal", "daqp:socp"),
         needs=("daqp",),
     ),
     "export_float.py": Smoke(

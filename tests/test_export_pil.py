@@ -251,3 +251,68 @@ def test_the_float_step_on_the_cortex_m4f_equals_the_host(step_loop: Any, tmp_pa
     assert not any(helpers.values()), helpers
     with pytest.raises(InvalidValueError, match="double-precision exports"):
         write_observer_replay(exported, np.zeros(10), np.zeros(1), np.zeros(3), np.zeros(3))
+
+
+@pytest.fixture(scope="module")
+def cone_loop() -> tuple[Any, Any]:
+    """200 steps of scenario 3 on solver="daqp:socp" (the exact terminal cones; the
+    reference engine): the controller and the simulation."""
+    from dataclasses import replace
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    config = replace(scenario.config, solver="daqp:socp", N=5)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
+    )
+    plant = scenario.make_plant(model, controller.certification)
+    sim = simulate(plant, controller, scenario.setpoints, scenario.disturbances, STEP_REPLAY,
+                   progress=False)  # fmt: skip
+    return controller, sim
+
+
+@needs_gcc
+def test_the_exact_cone_step_runs_clean_under_the_sanitizers(
+    cone_loop: Any, tmp_path: Path
+) -> None:
+    """The daqp:socp controller step (the SQP on DAQP, its failed solves and the policy)
+    built with -fsanitize=address,undefined: the replay of scenario 3 reports nothing and
+    gives the library's inputs to 1e-9."""
+    from ltv_lstm_mpc.export.pil import run_step_host, write_step_replay
+
+    controller, sim = cone_loop
+    exported = export_model_c(controller.model, tmp_path, controller=controller, prefix="pc")
+    main = write_step_replay(exported, sim.y_phi, sim.y0_phi)
+    flags = ("-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all")
+    try:
+        host = run_step_host(main, exported, cflags=flags)
+    except InvalidValueError as error:
+        if "asan" in str(error) or "ubsan" in str(error):
+            pytest.skip(f"gcc has no sanitizer runtime here: {str(error)[-300:]}")
+        raise
+    assert np.abs(host.u_phi - sim.u_phi).max() <= 1e-9 * np.abs(sim.u_phi).max()
+    assert (host.codes[:, 2] > 0).sum() == sum(p != "nominal" for p in sim.policy) > 0
+
+
+@needs_gcc
+@needs_toolchain
+def test_the_exact_cone_step_on_the_cortex_m7_equals_the_host(
+    cone_loop: Any, tmp_path: Path
+) -> None:
+    """Processor in the loop of the daqp:socp step: scenario 3's replay on QEMU's
+    Cortex-M7 gives the host's inputs bit for bit and its codes (the policy on some
+    steps); the controller struct is within the export's bound."""
+    from ltv_lstm_mpc.export.pil import run_step_host, run_step_pil, write_step_replay
+
+    assert TOOLCHAIN is not None
+    controller, sim = cone_loop
+    exported = export_model_c(controller.model, tmp_path, controller=controller, prefix="pc")
+    main = write_step_replay(exported, sim.y_phi, sim.y0_phi)
+    host = run_step_host(main, exported)
+    assert np.abs(host.u_phi - sim.u_phi).max() <= 1e-9 * np.abs(sim.u_phi).max()
+    target = run_step_pil(main, exported, TOOLCHAIN)
+    assert np.array_equal(target.u_phi.view(np.uint64), host.u_phi.view(np.uint64))
+    assert np.array_equal(target.codes, host.codes)
+    assert (target.codes[:, 2] > 0).any()
+    assert target.controller_bytes is not None
+    assert target.controller_bytes <= exported.mpc_workspace_bytes

@@ -32,7 +32,9 @@ COMPILERS = [name for name in ("gcc", "clang") if shutil.which(name)]
 needs_compiler = pytest.mark.skipif(not COMPILERS, reason="no C compiler (gcc or clang)")
 
 
-def closed_loop(plant_name: str, N: int, steps: int, policy: str = "paper") -> tuple[Any, Any]:
+def closed_loop(
+    plant_name: str, N: int, steps: int, policy: str = "paper", solver: str = "daqp"
+) -> tuple[Any, Any]:
     """The library's closed loop (the reference engine) and its simulation result."""
     if plant_name == "ph":
         model = load_model("ph_lstm_n5.npz")
@@ -40,7 +42,7 @@ def closed_loop(plant_name: str, N: int, steps: int, policy: str = "paper") -> t
     else:
         model = load_model("quadtank_lstm_n8.npz")
         scenario = quadtank_scenarios(short=True)[0]
-    config = replace(scenario.config, solver="daqp", N=N, infeasibility_policy=policy)
+    config = replace(scenario.config, solver=solver, N=N, infeasibility_policy=policy)
     controller = OffsetFreeController(
         model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
     )
@@ -59,10 +61,12 @@ def replay(controller: Any, sim: Any, folder: Path, compiler: str) -> dict[str, 
     c = CController(compile_controller(exported, compiler), exported)
     worst = 0.0
     counts: dict[str, int] = {}
+    statuses: dict[str, int] = {}
     for k, record in enumerate(controller.records):
         code, u_phi, r = c.step(sim.y_phi[k], sim.y0_phi[k])
         assert code == 0, (k, code)
-        assert STATUS_NAMES[r.mpc.status] == record.mpc.status, (k, r.mpc.status, record.mpc)
+        status = c.mpc_status(r.mpc, controller.mpc.config)  # (the cones': certificates)
+        assert status == record.mpc.status, (k, r.mpc.status, record.mpc)
         assert POLICIES[r.mpc.policy] == record.mpc.policy, k
         assert SETPOINT_STATUSES[r.setpoint_status] == record.setpoint_status, k
         assert MEASUREMENT_STATUSES[r.measurement_status] == record.measurement_status, k
@@ -70,7 +74,8 @@ def replay(controller: Any, sim: Any, folder: Path, compiler: str) -> dict[str, 
         scale = np.maximum(1.0, np.abs(record.u_phi))
         worst = max(worst, float(np.max(np.abs(u_phi - record.u_phi) / scale)))
         counts[record.mpc.policy] = counts.get(record.mpc.policy, 0) + 1
-    return {"u_phi": worst, "policies": counts}
+        statuses[record.mpc.status] = statuses.get(record.mpc.status, 0) + 1
+    return {"u_phi": worst, "policies": counts, "statuses": statuses}
 
 
 @needs_compiler
@@ -92,6 +97,28 @@ def test_the_c_step_equals_the_library_on_the_quadruple_tank(tmp_path: Path) -> 
     controller, sim = closed_loop("quadtank", 5, 480)
     found = replay(controller, sim, tmp_path, COMPILERS[-1])
     assert found["u_phi"] <= 1e-9, found
+
+
+@needs_compiler
+@pytest.mark.parametrize(
+    ("plant", "N", "steps", "policy"),
+    [("ph", 5, 300, "paper"), ("ph", 5, 150, "soft"), ("ph", 5, 150, "shift"),
+     ("ph", 20, 150, "paper"), ("quadtank", 5, 240, "soft")],
+)  # fmt: skip
+def test_the_exact_cones_in_c_equal_the_library(
+    plant: str, N: int, steps: int, policy: str, tmp_path: Path
+) -> None:
+    """solver="daqp:socp" (the exact terminal cones by SQP on DAQP): the C step on the
+    library's closed loop, from the first step: inputs to 1e-9 (relative), statuses
+    (those of failed SQPs from the certificate checks on the C SQP's last iterate),
+    policies and set-point statuses exactly. Scenario 3's first 300 steps hold 15 whose
+    nominal SQP ends on an infeasible subproblem, certified infeasible."""
+    controller, sim = closed_loop(plant, N, steps, policy, solver="daqp:socp")
+    found = replay(controller, sim, tmp_path, COMPILERS[0])
+    assert found["u_phi"] <= 1e-9, found
+    if (plant, N, policy) == ("ph", 5, "paper"):
+        assert found["statuses"].get("infeasible", 0) >= 10, found
+        assert found["policies"].get("paper", 0) >= 10, found
 
 
 def unreachable_loop(limit: float | None) -> tuple[Any, Any]:
@@ -239,11 +266,39 @@ def test_the_c_engine_runs_the_loop_with_the_library_records(tmp_path: Path) -> 
         controller.step(np.array([np.nan]), sim.y0_phi[0])
 
 
+@needs_compiler
+def test_the_c_engine_runs_the_exact_cones() -> None:
+    """engine="c" on solver="daqp:socp": 200 steps of scenario 3 through simulate give the
+    reference engine's inputs (to 1e-9), statuses (a failed SQP's from the certificate
+    checks, with their reasons), policies and estimates."""
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    runs = {}
+    for engine in ("reference", "c"):
+        controller = scenario.make_controller(model, solver="daqp:socp", N=5, engine=engine)
+        plant = scenario.make_plant(model, controller.certification)
+        sim = simulate(plant, controller, scenario.setpoints, scenario.disturbances, 200,
+                       progress=False)  # fmt: skip
+        runs[engine] = (controller, sim)
+    (reference, sim_reference), (controller, sim) = runs["reference"], runs["c"]
+    assert controller.engine.name == "c"
+    assert np.abs(sim.u_phi - sim_reference.u_phi).max() <= 1e-9 * np.abs(sim.u_phi).max()
+    assert list(sim.status) == list(sim_reference.status)
+    assert list(sim.policy) == list(sim_reference.policy)
+    assert "infeasible" in list(sim.status)
+    for a, b in zip(controller.records, reference.records, strict=True):
+        assert np.abs(a.x_hat - b.x_hat).max() <= 1e-9
+        if a.mpc.status == "infeasible":
+            assert a.mpc.reason.split(";")[0] == b.mpc.reason.split(";")[0]
+
+
 def test_the_c_engine_refuses_what_the_export_does_not_cover() -> None:
     """engine="c" for a configuration the C export does not cover, or an unknown engine:
     refused at construction, with the reason and the fix."""
     model = load_model("ph_lstm_n5.npz")
     with pytest.raises(InvalidValueError, match="sqp_iterations=1"):
         OffsetFreeController(model, replace(MPCConfig(solver="daqp"), sqp_iterations=3), engine="c")
+    with pytest.raises(InvalidValueError, match="double precision only"):
+        OffsetFreeController(model, MPCConfig(solver="daqp:socp"), engine="c-single")
     with pytest.raises(InvalidValueError, match="not an engine"):
         OffsetFreeController(model, MPCConfig(solver="daqp"), engine="fortran")

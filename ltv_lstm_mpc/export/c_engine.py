@@ -155,7 +155,12 @@ class CEngine:
 
     def _solution(self, r: Any, elapsed: float) -> MPCSolution:
         """The MPC's outcome of the C record (and the plan the C controller holds)."""
-        from ltv_lstm_mpc.export.sil import MPC_STATUS_NAMES, POLICY_NAMES
+        from ltv_lstm_mpc.export.sil import (
+            CONE_FAILED,
+            CONE_MAX_ITER,
+            MPC_STATUS_NAMES,
+            POLICY_NAMES,
+        )
 
         mpc = self.controller.mpc
         feedback = r.mpc
@@ -166,6 +171,8 @@ class CEngine:
             reason = status if feedback.status <= -100 else f"exitflag {feedback.status}"
             if feedback.status == -102:
                 reason = "the QP's point failed the acceptance tests (C step)"
+            if feedback.status in (CONE_FAILED, CONE_MAX_ITER):
+                status, reason = self.c.cone_outcome(feedback, self.controller.config)
         u, x_plan, x_linear = self.c.plan()
         return MPCSolution(
             u=u, x=x_plan, x_linear=x_linear, status=status, feasible=feasible,

@@ -57,13 +57,19 @@ from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 
 __all__ = [
+    "EXPORTED_SOLVERS",
     "PRECISIONS",
     "SINGLE_PRECISION_FLOORS",
+    "SOCP_PROBLEMS",
+    "SOCP_STRUCT",
     "ExportedC",
     "daqp_refusal",
     "export_model_c",
     "export_refusal",
     "mpc_refusal",
+    "socp_declaration",
+    "socp_length",
+    "socp_sizes",
 ]
 
 
@@ -95,6 +101,9 @@ class ExportedC:
     single_precision_margins : SinglePrecisionMargins or None
         In single precision with a controller: its rounding against the certificates'
         margins (:func:`~ltv_lstm_mpc.export.precision.single_precision_margins`).
+    socp_sizes : tuple of int
+        With the exact cones of ``daqp:socp``: the sizes of ``<prefix>_socp``'s arrays
+        (:func:`socp_sizes`); empty otherwise.
     """
 
     header: Path
@@ -109,6 +118,7 @@ class ExportedC:
     p: int = 0
     precision: str = "double"
     single_precision_margins: Any = None
+    socp_sizes: tuple[int, ...] = ()
 
     @property
     def single(self) -> bool:
@@ -484,6 +494,10 @@ def export_model_c(
                 raise InvalidValueError(
                     f"reference.{name} = {value} does not fit a C int: use 1..2**31 - 1"
                 )
+    if mpc is not None:
+        reason = mpc_refusal(mpc, precision)
+        if reason is not None:
+            raise InvalidValueError(reason)
     margins = None
     if single and controller is not None:
         margins = _single_margins(controller)
@@ -494,9 +508,6 @@ def export_model_c(
     condense_bytes = 0
     fields["mpc_horizon"] = "1"
     if mpc is not None:
-        reason = mpc_refusal(mpc)
-        if reason is not None:
-            raise InvalidValueError(reason)
         fields["mpc_horizon"] = str(int(mpc.N))
         condense_bytes = real_bytes * (
             2 * (2 * n) ** 2 + m * 2 * n + 3 * 2 * n + (int(mpc.N) + 1) * 2 * n
@@ -553,7 +564,90 @@ def export_model_c(
         p=p,
         precision=precision,
         single_precision_margins=margins,
+        socp_sizes=_exported_socp_sizes(mpc, model),
     )
+
+
+def _exported_socp_sizes(mpc: Any, model: LSTMModel) -> tuple[int, ...]:
+    """:attr:`ExportedC.socp_sizes` of an export of ``mpc`` (n, m, f, c, k)."""
+    if mpc is None or not mpc._problem.exact_cones:
+        return ()
+    sizes = socp_sizes(int(mpc.N), model.n, model.m, model.p, mpc.config.infeasibility_policy)
+    return tuple(sizes[key] for key in ("n", "m", "f", "c", "k"))
+
+
+#: The fields of ``<prefix>_socp`` (the exact cones' SQP buffers, ``socp.c.in``) in order:
+#: (name, C type, length), the length in the sizes of :func:`socp_sizes` ("n", "m", "f",
+#: "c", "k": the largest problem's variables, rows, cone rows, cones, and n + m + c). The
+#: C declaration (:func:`socp_declaration`) and the ctypes mirror of the SIL
+#: (:func:`ltv_lstm_mpc.export.sil.socp_type`) are both made from it.
+SOCP_STRUCT = (
+    ("n", "int", "1"), ("m", "int", "1"), ("cones", "int", "1"), ("cone_rows", "int", "c+1"),
+    ("H", "real", "n*n"), ("f", "real", "n"), ("A", "real", "m*n"), ("lb", "real", "n"),
+    ("ub", "real", "n"), ("lo", "real", "m"), ("up", "real", "m"), ("F", "real", "f*n"),
+    ("g", "real", "f"), ("e", "real", "c*n"), ("offsets", "real", "c"), ("z", "real", "n"),
+    ("mu", "real", "c"), ("lam", "real", "k"), ("hessian", "real", "n*n"),
+    ("A_k", "real", "(m+c)*n"), ("bupper", "real", "k"), ("blower", "real", "k"),
+    ("sense", "int", "k"), ("x", "real", "n"), ("v", "real", "f"), ("w", "real", "n"),
+    ("linear", "real", "n"), ("gradients", "real", "c*n"), ("gradient_bounds", "real", "c"),
+    ("kept", "int", "m"), ("lam_k", "real", "k"), ("row_values", "real", "m"),
+    ("row_norms", "real", "m"), ("epigraph", "int", "c"), ("eliminated", "int", "c"),
+    ("first_active", "int", "c"), ("reduced_index", "int", "n"), ("tau", "real", "c*n"),
+    ("tau_offset", "real", "c"), ("coupled", "real", "c*n"),
+    ("reduced_hessian", "real", "n*n"), ("reduced_linear", "real", "n"),
+    ("reduced_rows", "real", "(m+c)*n"), ("reduced_upper", "real", "k"),
+    ("reduced_lower", "real", "k"), ("reduced_sense", "int", "k"), ("reduced_x", "real", "n"),
+    ("reduced_lam", "real", "k"), ("direction", "real", "n"), ("regularized", "int", "2"),
+)  # fmt: skip
+#: The exact-cone problems a cone export holds, in the order of ``<prefix>_mpc_workspace``'s
+#: ``socp`` array: the nominal one, the nominal one on the general path's buffers (solved
+#: where the first does not converge), the infeasibility policy's.
+SOCP_PROBLEMS = ("nominal", "failure", "policy")
+
+
+def socp_sizes(N: int, n: int, m: int, p: int, policy: str) -> dict[str, int]:
+    """The sizes of ``<prefix>_socp``'s arrays for horizon ``N``, a model of ``n`` units,
+    ``m`` inputs, ``p`` outputs and the infeasibility ``policy``: the largest of the
+    exact-cone problems' variables ``n`` (``[du, t_c, t_h]``, with ``"soft"`` the output
+    slacks and ``s_T``), rows ``m`` (the outputs i = 1..N-1, twice with ``"soft"``; at
+    least 4), cone rows ``f`` (2n + 2) and cones ``c`` (3); ``k`` = n + m + c."""
+    n_out = (N - 1) * p
+    variables = N * m + 2 + (n_out + 1 if policy == "soft" else 0)
+    # (at least 4: gcc's -Warray-bounds reads the four-row pass of sqp_row_values at
+    # shorter arrays, where it never runs)
+    rows = max(n_out * (2 if policy == "soft" else 1), 4)
+    sizes = {"n": variables, "m": rows, "f": 2 * n + 2, "c": 3}
+    sizes["k"] = variables + rows + 3
+    return sizes
+
+
+def socp_length(length: str, sizes: dict[str, int]) -> int:
+    """A :data:`SOCP_STRUCT` length for ``sizes``."""
+    total = 1
+    for factor in length.split("*"):  # a product of sums of sizes and integers
+        terms = factor.strip("()").split("+")
+        total *= sum(int(term) if term.isdigit() else sizes[term] for term in terms)
+    return total
+
+
+def socp_declaration(prefix: str, sizes: dict[str, int]) -> str:
+    """The C declaration of ``<prefix>_socp`` (:data:`SOCP_STRUCT` at ``sizes``)."""
+    lines = [
+        "",
+        f"/** One exact-cone problem of {prefix}_feedback on daqp:socp and its SQP's buffers",
+        " * (solvers/socp_sqp.py's SocpWorkspace): min 1/2 z'Hz + f'z s.t. lo <= A z <= up,",
+        " * lb <= z <= ub, ||F_j z + g_j|| <= e_j'z + f_j (j < cones), f_j in offsets. The",
+        " * arrays are packed with the problem's own sizes n, m (H: n x n row-major, A: m x n,",
+        " * F: the cones' rows in turn, cone j rows cone_rows[j] .. cone_rows[j + 1] - 1) and",
+        " * sized for the largest of the controller's problems. */",
+        "typedef struct {",
+    ]
+    for name, kind, length in SOCP_STRUCT:
+        ctype = f"{prefix}_real" if kind == "real" else "int"
+        count = socp_length(length, sizes)
+        lines.append(f"    {ctype} {name}" + ("" if length == "1" else f"[{count}]") + ";")
+    lines.append(f"}} {prefix}_socp;")
+    return "\n".join(lines) + "\n"
 
 
 #: The DAQP release whose C sources are vendored in ``export/vendor/daqp``.
@@ -633,12 +727,18 @@ def _mpc_fields(
     nx, nu = 2 * n, N * m
     n_out = (N - 1) * p
     rows = n_out + nx
-    soft = policy == "soft"
+    cones = bool(problem.exact_cones)
+    soft = policy == "soft" and not cones  # (with cones: the soft problem is a socp's)
     soft_n = nu + n_out + 1 if soft else 1
     soft_rows = 2 * n_out + 2 * nx if soft else 1
     qp_n = max(nu, soft_n if soft else 0)
     qp_rows = max(rows, soft_rows if soft else 0)
     qp_m = max(nu + rows, soft_n + soft_rows if soft else 0)
+    sizes = socp_sizes(N, n, m, p, policy) if cones else {}
+    if cones:  # DAQP's buffers also hold the SQP's subproblems
+        qp_n = max(qp_n, sizes["n"])
+        qp_rows = max(qp_rows, sizes["m"] + sizes["c"])
+        qp_m = max(qp_m, sizes["k"])
     Qs = problem.stage_weights()[1]
     diagonal_weights = all(np.array_equal(W, np.diag(np.diag(W))) for W in Qs)
     # the library's form of H and g0 (its Gram matrix for full weights at short horizons is
@@ -684,7 +784,42 @@ def _mpc_fields(
         slack_regularization=_literal(problem.slack_regularization),
         soft_penalty=_literal(config.soft_penalty),
         daqp_settings=_daqp_settings(config, single),
+        exact_cones="1" if cones else "0",
+        socp_declarations="",
+        socp_members="",
+        cone_feedback_code="",
     )
+    if cones:
+        from ltv_lstm_mpc.solvers import socp_sqp
+
+        constants = {
+            f"sqp_{name.lower()}": (
+                str(value) if isinstance(value, int) else _literal(float(value))
+            )
+            for name, value in (
+                ("SMOOTHING", socp_sqp.SMOOTHING), ("STEP_TOLERANCE", socp_sqp.STEP_TOLERANCE),
+                ("CONE_TOLERANCE", socp_sqp.CONE_TOLERANCE),
+                ("MAX_ITERATIONS", socp_sqp.MAX_ITERATIONS),
+                ("FULL_STEPS", socp_sqp.FULL_STEPS), ("PROXIMAL", socp_sqp.PROXIMAL),
+                ("PROXIMAL_DECREASE", socp_sqp.PROXIMAL_DECREASE),
+                ("PROXIMAL_FLOOR", socp_sqp.PROXIMAL_FLOOR), ("ARMIJO", socp_sqp.ARMIJO),
+                ("BACKTRACKS", socp_sqp.BACKTRACKS),
+                ("SCREENING_MARGIN", socp_sqp.SCREENING_MARGIN),
+            )
+        }  # fmt: skip
+        cone_values = dict(values, **constants)
+        cone_values.update(
+            P_f=_matrix(np.asarray(problem.terminal.P_f, dtype=np.float64)),
+            P_root=_matrix(np.asarray(problem.terminal.square_root, dtype=np.float64)),
+        )
+        values["socp_declarations"] = socp_declaration(fields["prefix"], sizes)
+        values["socp_members"] = (
+            f"    {fields['prefix']}_socp socp[{len(SOCP_PROBLEMS)}];"
+            "   /* the exact-cone problems: nominal, its second solve, the policy's */\n"
+        )
+        values["cone_feedback_code"] = _template("socp.c.in").substitute(cone_values) + _template(
+            "cone_feedback.c.in"
+        ).substitute(cone_values)
     doubles = (N + 1) * (nx + m) + N * (2 * n + nx * (n + m)) + nx * m * N * (N + 1) // 2
     doubles += nu * nu + 2 * nu
     doubles += rows * nu + 2 * rows + 2 * (nu + rows)
@@ -694,6 +829,10 @@ def _mpc_fields(
     doubles += 2 * qp_m + (qp_n + 1) * qp_n // 2 + qp_n + N * m + 2 * (N + 1) * nx
     doubles += max(N - 1, 1) * 5 * n
     ints = qp_m + (qp_n + 1) + qp_n + qp_m
+    for _name, kind, length in SOCP_STRUCT if cones else ():
+        count = socp_length(length, sizes) * len(SOCP_PROBLEMS)
+        doubles += count if kind == "real" else 0
+        ints += count if kind == "int" else 0
     bound = real_bytes * doubles + 4 * ints + model_bytes + 1024
     values["mpc_workspace_bytes"] = f"at most {bound}"
     return values, bound
@@ -744,19 +883,26 @@ def _e_hat0(controller: Any) -> float:
     return float(controller.mpc.tightening.e_inf if e_hat0 is None else e_hat0)
 
 
-def mpc_refusal(mpc: Any) -> str | None:
-    """Why the C export does not cover ``mpc`` (None: it does): the condensed QP with
-    DAQP, one SQP iteration per step, the policy ``"paper"``, ``"soft"`` or ``"shift"``."""
+#: The solvers of the MPCs the C export covers: DAQP on the terminal box, and the SQP of
+#: ``daqp:socp`` on the exact cones.
+EXPORTED_SOLVERS = ("daqp", "daqp:socp")
+
+
+def mpc_refusal(mpc: Any, precision: str = "double") -> str | None:
+    """Why the C export does not cover ``mpc`` (None: it does): the condensed problem on
+    DAQP (:data:`EXPORTED_SOLVERS`; the exact cones in double precision only), one SQP
+    iteration per step, the policy ``"paper"``, ``"soft"`` or ``"shift"``."""
     from ltv_lstm_mpc.mpc.rti import RobustMPC
 
     if not isinstance(mpc, RobustMPC):
         return f"mpc must be a RobustMPC, got {type(mpc).__name__}; pass controller.mpc"
     config = mpc.config
-    if config.solver != "daqp" or mpc.transcription != "condensed":
+    if config.solver not in EXPORTED_SOLVERS or mpc.transcription != "condensed":
         return (
-            f"the C export solves the condensed QP with DAQP; this MPC uses solver="
-            f"{config.solver!r} on the {mpc.transcription} transcription: build the "
-            "controller with MPCConfig(solver='daqp', transcription='condensed')"
+            f"the C export solves the condensed problem with DAQP ('daqp': the terminal box; "
+            f"'daqp:socp': the exact cones); this MPC uses solver={config.solver!r} on the "
+            f"{mpc.transcription} transcription: build the controller with "
+            "MPCConfig(solver='daqp' or 'daqp:socp', transcription='condensed')"
         )
     if config.sqp_iterations != 1:
         return (
@@ -767,6 +913,13 @@ def mpc_refusal(mpc: Any) -> str | None:
         return (
             f"infeasibility_policy={config.infeasibility_policy!r} is not exported: use "
             "'paper', 'soft' or 'shift'"
+        )
+    if precision == "single" and config.solver == "daqp:socp":
+        return (
+            "the exact cones (solver='daqp:socp') are exported in double precision only: "
+            "their SQP stops at steps of 1e-7 relative and cone violations of 1e-9, below "
+            "float's resolution; export them with precision='double', or the terminal box "
+            "(solver='daqp') in single precision"
         )
     return None
 
@@ -808,7 +961,7 @@ def export_refusal(controller: Any, precision: str = "double") -> str | None:
 
     if controller.custom_mpc:
         return "the controller runs an MPC given by the caller (mpc=...): not exported"
-    reason = mpc_refusal(controller.mpc) or daqp_refusal()
+    reason = mpc_refusal(controller.mpc, precision) or daqp_refusal()
     if reason is None and precision == "single":
         reason = _single_margins(controller).refusal()
     if reason is not None:

@@ -25,6 +25,8 @@ from numpy.typing import ArrayLike, NDArray
 from ltv_lstm_mpc.exceptions import InvalidValueError
 
 __all__ = [
+    "CONE_FAILED",
+    "CONE_MAX_ITER",
     "MPC_STATUS_NAMES",
     "POLICY_NAMES",
     "STEP_CODES",
@@ -33,6 +35,7 @@ __all__ = [
     "compile_controller",
     "find_c_compiler",
     "host_compiler",
+    "socp_type",
 ]
 
 #: ``<prefix>_feedback_result.status`` codes and ``MPCSolution.status`` names.
@@ -49,6 +52,10 @@ MPC_STATUS_NAMES = {
     -101: "alpha_nonpositive",
     -102: "failed",
 }
+#: ``<prefix>_STATUS_CONE_FAILED`` and ``<prefix>_STATUS_CONE_MAX_ITER`` (exact cones): the
+#: nominal problem's SQP ended with a negative DAQP flag or ran out of iterations; the
+#: library's status then comes from the certificate checks (:meth:`CController.cone_outcome`).
+CONE_FAILED, CONE_MAX_ITER = -103, -104
 #: ``<prefix>_feedback_result.policy`` codes (``MPCSolution.policy``).
 POLICY_NAMES = ("nominal", "paper", "soft", "shift", "paper+shift", "soft+shift")
 #: ``<prefix>_controller_step``'s return codes.
@@ -136,7 +143,7 @@ def _feedback_type(precision: str = "double") -> type[ctypes.Structure]:
     fields = [
         ("status", i), ("policy", i), ("iterations", i), ("qp_iterations", i),
         ("sqp_step", d), ("cost", d), ("terminal_norm", d), ("output_violation", d),
-        ("linearization_gap", d),
+        ("linearization_gap", d), ("cone_flag", i), ("cone_sqp", i), ("cone_violation", d),
     ]  # fmt: skip
     return type("FeedbackResult", (ctypes.Structure,), {"_fields_": fields})
 
@@ -156,6 +163,21 @@ def _record_type(n: int, m: int, p: int, precision: str = "double") -> type[ctyp
         ("reference_status", i), ("u_bar_projected", i), ("mpc", FeedbackResult),
     ]  # fmt: skip
     return type("StepRecord", (ctypes.Structure,), {"_fields_": fields})
+
+
+def socp_type(sizes: tuple[int, ...], precision: str = "double") -> type[ctypes.Structure]:
+    """``<prefix>_socp`` of an export with :attr:`~ltv_lstm_mpc.export.c_model.ExportedC.
+    socp_sizes` ``sizes`` (from :data:`~ltv_lstm_mpc.export.c_model.SOCP_STRUCT`, as the C
+    declaration)."""
+    from ltv_lstm_mpc.export.c_model import SOCP_STRUCT, socp_length
+
+    named = dict(zip(("n", "m", "f", "c", "k"), sizes, strict=True))
+    fields = []
+    for name, kind, length in SOCP_STRUCT:
+        ctype = _real(precision) if kind == "real" else ctypes.c_int
+        count = socp_length(length, named)
+        fields.append((name, ctype if length == "1" else ctype * count))
+    return type("Socp", (ctypes.Structure,), {"_fields_": fields})
 
 
 class CController:
@@ -198,6 +220,12 @@ class CController:
         self._plan.restype = None
         self.N, self.nx = exported.horizon, 2 * exported.n
         self.library = lib
+        self._socp: Any = None
+        if exported.socp_sizes:
+            Socp = socp_type(exported.socp_sizes, precision)
+            self._socp = getattr(lib, f"{prefix}_controller_socp")
+            self._socp.argtypes = [ctypes.c_void_p, ctypes.c_int]
+            self._socp.restype = ctypes.POINTER(Socp)
         self.reset()
 
     def reset(self) -> None:
@@ -228,6 +256,78 @@ class CController:
             d_hat.astype(np.float64, copy=False),
             float(e_hat.value),
         )
+
+    def socp_arrays(self, which: int = 1) -> dict[str, Any]:
+        """The exact-cone problem ``which`` (0: nominal, 1: its second solve, 2: the
+        policy's; :data:`~ltv_lstm_mpc.export.c_model.SOCP_PROBLEMS`) as the C SQP left
+        it: copies of its arrays at the problem's own sizes, shaped and named as the
+        library's :func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_arrays` (what
+        :func:`~ltv_lstm_mpc.solvers.daqp_socp.failure_outcome` and the certificate checks
+        read). Only for an export with the exact cones."""
+        if self._socp is None:
+            raise InvalidValueError("this export has no exact cones (solver='daqp:socp')")
+        s = self._socp(self.state_buffer, which).contents
+        n, m, cones = int(s.n), int(s.m), int(s.cones)
+        rows = list(s.cone_rows)[: cones + 1]
+        k = n + m + cones
+
+        def take(name: str, *shape: int) -> NDArray[Any]:
+            flat = np.ctypeslib.as_array(getattr(s, name))
+            size = int(np.prod(shape))
+            dtype = np.float64 if flat.dtype.kind == "f" else np.int64
+            return np.array(flat[:size], dtype=dtype).reshape(shape)
+
+        return {
+            "H": take("H", n, n), "f": take("f", n), "A": take("A", m, n), "lb": take("lb", n),
+            "ub": take("ub", n), "lo": take("lo", m), "up": take("up", m),
+            "F": take("F", rows[-1], n), "g": take("g", rows[-1]),
+            "cone_rows": np.array(rows, dtype=np.int64), "e": take("e", cones, n),
+            "offsets": take("offsets", cones), "z": take("z", n), "mu": take("mu", cones),
+            "lam": take("lam", k), "regularized": take("regularized", 2),
+            "direction": take("direction", n), "first_active": take("first_active", cones),
+        }  # fmt: skip
+
+    def cone_outcome(self, feedback: Any, config: Any) -> tuple[str, str]:
+        """The library's status and reason of a step whose nominal exact-cone SQP did not
+        converge (``feedback.status`` :data:`CONE_FAILED` or :data:`CONE_MAX_ITER`): the
+        certificate checks of :mod:`~ltv_lstm_mpc.solvers.socp_certificates` on the C
+        SQP's problem and last iterate (:meth:`socp_arrays`), as the one-call engine reads
+        its own when a record is read; ``config``: the controller's ``MPCConfig``."""
+        from ltv_lstm_mpc.solvers.acceptance import ProblemView
+        from ltv_lstm_mpc.solvers.daqp_socp import failure_outcome
+        from ltv_lstm_mpc.solvers.dense import DenseCone, DenseQP
+        from ltv_lstm_mpc.solvers.socp_certificates import max_iter_status
+
+        arrays = self.socp_arrays(1)
+        if feedback.status == CONE_FAILED:
+            outcome, reason = failure_outcome(
+                arrays, int(feedback.cone_flag), int(feedback.cone_sqp), config.tolerance,
+                dict(config.solver_settings),
+            )  # fmt: skip
+            return outcome.name.lower(), reason
+        rows = arrays["cone_rows"]
+        cones = tuple(
+            DenseCone(
+                arrays["F"][rows[j] : rows[j + 1]], arrays["g"][rows[j] : rows[j + 1]],
+                arrays["e"][j], float(arrays["offsets"][j]),
+            )
+            for j in range(len(rows) - 1)
+        )  # fmt: skip
+        qp = DenseQP(
+            H=arrays["H"], f=arrays["f"], A=arrays["A"], lo=arrays["lo"], up=arrays["up"],
+            lb=arrays["lb"], ub=arrays["ub"], cones=cones,
+        )  # fmt: skip
+        outcome, reason, _certificate = max_iter_status(
+            arrays, float(feedback.cone_violation), ProblemView.of_dense(qp)
+        )
+        return outcome.name.lower(), reason
+
+    def mpc_status(self, feedback: Any, config: Any) -> str:
+        """The library's MPC status name of a step's ``feedback`` (``<prefix>_feedback_
+        result``): :data:`MPC_STATUS_NAMES`, or :meth:`cone_outcome`'s."""
+        if feedback.status in (CONE_FAILED, CONE_MAX_ITER):
+            return self.cone_outcome(feedback, config)[0]
+        return MPC_STATUS_NAMES[feedback.status]
 
     def plan(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """The last plan: inputs (N, m), re-simulated and linearized states (N + 1, 2n)."""
