@@ -70,3 +70,25 @@ def test_a_mimo_project_builds_with_cmake(tmp_path: Path) -> None:
     run = subprocess.run([str(build / "tank_example")], capture_output=True, text=True)
     assert run.returncode == 0, run.stdout + run.stderr
     assert final_offset(run.stdout) < 1e-6
+
+
+@needs_make
+def test_export_c_writes_the_exact_cones_for_another_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--solver daqp:socp on a model that is not the pH plant's (the delta-ISS example,
+    n = 3): the project builds under the strict flags, its example tracks without offset,
+    its README names the cone statuses and no pH figure; --float with the cones is
+    refused with the reason."""
+    out = tmp_path / "own"
+    arguments = ["export-c", "example_delta_iss_n3.npz", "--out", str(out), "--prefix", "own"]
+    assert main([*arguments, "--N", "7", "--solver", "daqp:socp", "--build"]) == 0
+    printed = capsys.readouterr().out
+    assert "solver daqp:socp" in printed
+    assert final_offset(printed) < 1e-6
+    readme = (out / "README.md").read_text()
+    for text in ("OWN_STATUS_CONE_FAILED", "own_controller_socp", "exact second-order cones"):
+        assert text in readme, text
+    assert "pH" not in readme
+    assert main([*arguments, "--solver", "daqp:socp", "--float"]) != 0
+    assert "double precision only" in capsys.readouterr().err

@@ -34,7 +34,8 @@ def register(subparsers: Any) -> None:
             "whole controller step (normalization, rate limiter, reference calculator, "
             "tightening, the condensed QP solved by DAQP with the infeasibility policy, exit "
             "gate, observer), DAQP's sources with its license, a Makefile, a CMakeLists.txt, "
-            "an example and a README for integrators. The solver is daqp on the condensed "
+            "an example and a README for integrators. The solver is daqp (the terminal box) "
+            "or daqp:socp (the exact terminal cones by SQP on DAQP) on the condensed "
             "transcription, one SQP iteration per step (RTI)."
         ),
     )
@@ -52,6 +53,13 @@ def register(subparsers: Any) -> None:
     add_d_max_option(parser)
     add_rate_limit_option(parser)
     add_policy_option(parser)
+    parser.add_argument(
+        "--solver",
+        choices=["daqp", "daqp:socp"],
+        default="daqp",
+        help="daqp: the terminal set as the conservative box (QP); daqp:socp: as the exact "
+        "cones, by SQP on DAQP (double precision only)",
+    )
     parser.add_argument(
         "--implausible-measurements",
         choices=["flag", "raise"],
@@ -82,7 +90,7 @@ def _run_export(args: argparse.Namespace) -> int:
 
     model = load_model(args.model)
     config = MPCConfig(
-        N=args.N, L_d=args.L_d, d_max=args.d_max, solver="daqp", transcription="condensed",
+        N=args.N, L_d=args.L_d, d_max=args.d_max, solver=args.solver, transcription="condensed",
         infeasibility_policy=args.policy,
     )  # fmt: skip
     controller = OffsetFreeController(
@@ -97,7 +105,8 @@ def _run_export(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: {', '.join(files)}, daqp/ (DAQP's sources and license)")
     print(
         f"{args.prefix}_controller: at most {exported.mpc_workspace_bytes} bytes; N = {config.N}, "
-        f"policy {config.infeasibility_policy}; {exported.precision} precision; build: "
+        f"solver {config.solver}, policy {config.infeasibility_policy}; "
+        f"{exported.precision} precision; build: "
         f"make -C {args.out} (or cmake)"
     )
     if exported.single_precision_margins is not None:

@@ -77,6 +77,22 @@ def export_controller_c(
         "implausible_note": (
             "" if controller.implausible_measurements == "flag" else ", or at any step"
         ),
+        "terminal_note": (
+            "the terminal set as exact second-order cones, by the SQP of the library's "
+            "daqp:socp (a few QPs a step)"
+            if exported.socp_sizes
+            else "the terminal set as the conservative box of the library's daqp"
+        ),
+        "cone_status_note": (
+            f" With the exact cones, `{prefix.upper()}_STATUS_CONE_FAILED` (the SQP ended "
+            "on a subproblem DAQP could not solve: its exit flag and SQP iteration in "
+            "`cone_flag`, `cone_sqp`) and `_STATUS_CONE_MAX_ITER` (it ran out of "
+            "iterations) precede the infeasibility policy; the library tells infeasible "
+            f"from failed there by its certificate checks on `{prefix}_controller_socp(c, 1)` "
+            "(the SIL does)."
+            if exported.socp_sizes
+            else ""
+        ),
         "N": str(config.N),
         "policy": config.infeasibility_policy,
         "L_d": f"{config.L_d:g}",
