@@ -21,10 +21,12 @@ step of the first ``--count`` steps from QEMU's instruction trace (``-singlestep
 exec``) with their time at 600 MHz and one instruction per cycle (an estimate: the
 Cortex-M7 issues up to two instructions per cycle, and a double-precision division takes
 many). The runs ``ph5f`` and ``tank5f`` export in single precision and run on QEMU's
-mps2-an386 Cortex-M4F (single-precision FPU; the time at 168 MHz, a typical part's clock).
+mps2-an386 Cortex-M4F (single-precision FPU; the time at 168 MHz, a typical part's clock);
+``ph5c``, ``ph20c`` and ``tank5c`` export the exact terminal cones (``daqp:socp``: the SQP
+on DAQP) in double precision, on the Cortex-M7.
 
     python experiments/export_pil.py [--steps 600] [--count 60]
-        [--step-runs ph5 ph20 tank5 ph5f tank5f]
+        [--step-runs ph5 ph20 tank5 ph5f tank5f ph5c ph20c tank5c]
 """
 
 from __future__ import annotations
@@ -50,9 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--step-runs",
         nargs="*",
-        default=["ph5", "ph20", "tank5", "ph5f", "tank5f"],
-        help="controller-step runs: ph5, ph20 (scenario 3 at N = 5, 20), tank5, and in single "
-        "precision on a Cortex-M4F ph5f, tank5f (none: skip)",
+        default=["ph5", "ph20", "tank5", "ph5f", "tank5f", "ph5c", "ph20c", "tank5c"],
+        help="controller-step runs: ph5, ph20 (scenario 3 at N = 5, 20), tank5, in single "
+        "precision on a Cortex-M4F ph5f, tank5f, with the exact cones (daqp:socp) ph5c, "
+        "ph20c, tank5c (none: skip)",
     )
     return parser
 
@@ -142,7 +145,7 @@ def main() -> None:
         print(f"{label:<22} {len(Y):>7} {gap:>15.1e} {target_gap:>14} {flash:>8} {ram:>38}")
 
 
-def step_loop(name: str, N: int, steps: int) -> tuple[Any, Any]:
+def step_loop(name: str, N: int, steps: int, solver: str = "daqp") -> tuple[Any, Any]:
     """The library's closed loop (reference engine): the controller and its simulation."""
     from dataclasses import replace
 
@@ -154,7 +157,7 @@ def step_loop(name: str, N: int, steps: int) -> tuple[Any, Any]:
     else:
         model = load_model("quadtank_lstm_n8.npz")
         scenario = quadtank_scenarios()[0]
-    config = replace(scenario.config, solver="daqp", N=N)
+    config = replace(scenario.config, solver=solver, N=N)
     controller = OffsetFreeController(
         model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
     )
@@ -175,14 +178,17 @@ def step_rows(steps: int, count: int, runs: list[str], toolchain: Any) -> None:
         "(median / p95 / max; at the clock)"
     )
     known = {
-        "ph5": ("pH scenario 3, N = 5", "ph", 5, "double"),
-        "ph20": ("pH scenario 3, N = 20", "ph", 20, "double"),
-        "tank5": ("quadruple tank, N = 5", "quadtank", 5, "double"),
-        "ph5f": ("pH scenario 3, N = 5, float", "ph", 5, "single"),
-        "tank5f": ("quadruple tank, N = 5, float", "quadtank", 5, "single"),
+        "ph5": ("pH scenario 3, N = 5", "ph", 5, "double", "daqp"),
+        "ph20": ("pH scenario 3, N = 20", "ph", 20, "double", "daqp"),
+        "tank5": ("quadruple tank, N = 5", "quadtank", 5, "double", "daqp"),
+        "ph5f": ("pH scenario 3, N = 5, float", "ph", 5, "single", "daqp"),
+        "tank5f": ("quadruple tank, N = 5, float", "quadtank", 5, "single", "daqp"),
+        "ph5c": ("pH scenario 3, N = 5, cones", "ph", 5, "double", "daqp:socp"),
+        "ph20c": ("pH scenario 3, N = 20, cones", "ph", 20, "double", "daqp:socp"),
+        "tank5c": ("quadruple tank, N = 5, cones", "quadtank", 5, "double", "daqp:socp"),
     }
-    for label, name, N, precision in (known[run] for run in runs):
-        controller, sim = step_loop(name, N, steps)
+    for label, name, N, precision, solver in (known[run] for run in runs):
+        controller, sim = step_loop(name, N, steps, solver)
         with tempfile.TemporaryDirectory() as scratch:
             folder = Path(scratch)
             exported = export_model_c(

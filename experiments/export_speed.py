@@ -19,10 +19,11 @@ condensing, QP), not an observer or a reference calculator; where ours took the
 infeasibility policy, acados' solve fails (it has no policy) and is timed all the same.
 
 With ``--float``, the C step exported in single precision is timed too (host build as for
-the Cortex-M4F comparison).
+the Cortex-M4F comparison). With ``--solver daqp:socp``, both steps solve the exact
+terminal cones (the SQP on DAQP) instead of the box.
 
     python experiments/export_speed.py [--N 5 20 50] [--steps 600] [--repeats 3] \
-        [--cflags "-O2"] [--float] [--acados DIR]
+        [--cflags "-O2"] [--float] [--acados DIR] [--solver daqp|daqp:socp]
 """
 
 from __future__ import annotations
@@ -51,6 +52,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--float", action="store_true",
         help="also the C step exported in single precision (float) on the host",
+    )  # fmt: skip
+    parser.add_argument(
+        "--solver", choices=["daqp", "daqp:socp"], default="daqp",
+        help="daqp (the terminal box, default) or daqp:socp (the exact cones by SQP on DAQP; "
+        "without --float and --acados, which solve the box)",
     )  # fmt: skip
     parser.add_argument(
         "--acados", type=Path, default=None,
@@ -129,7 +135,13 @@ def stats(seconds: Any) -> tuple[float, float, float]:
 
 
 def main() -> None:
-    args = build_parser().parse_args()
+    parser = build_parser()
+    args = parser.parse_args()
+    if args.solver != "daqp" and (args.float or args.acados is not None):
+        parser.error(
+            f"--solver {args.solver} goes without --float and --acados (the exact cones are "
+            "exported in double precision; acados solves the terminal box): drop them"
+        )
     model = load_model("ph_lstm_n5.npz")
     scenario = paper_scenarios(model)[2]
     acados = None
@@ -140,11 +152,12 @@ def main() -> None:
     else:
         print("acados: not in this run (--acados DIR: experiments/acados_speed.py)")
     print(
-        f"{'N':>3} {'engine':<9} {'median us':>9} {'p95 us':>8} {'max us':>8}   "
+        f"solver {args.solver}\n{'N':>3} {'engine':<9} {'median us':>9} {'p95 us':>8} "
+        f"{'max us':>8}   "
         f"C / Python: median, p95, max   inputs |C - Python|"
     )
     for N in args.N:
-        config = replace(scenario.config, solver="daqp", N=N)
+        config = replace(scenario.config, solver=args.solver, N=N)
         limit = scenario.setpoint_rate_limit
         reference = OffsetFreeController(model, config, setpoint_rate_limit=limit,
                                          one_call_step=False)  # fmt: skip

@@ -130,8 +130,14 @@ SMOKE = {
         needs=("daqp", "clarabel", "cvxpy"),
     ),
     "export_pil.py": Smoke(
-        ("--steps", "20", "--count", "3", "--step-runs", "ph5"),
-        ("pH (n = 5)", "quadruple tank (n = 8)", "host - library", "pH scenario 3, N = 5"),
+        ("--steps", "20", "--count", "3", "--step-runs", "ph5", "ph5c"),
+        (
+            "pH (n = 5)",
+            "quadruple tank (n = 8)",
+            "host - library",
+            "pH scenario 3, N = 5",
+            "N = 5, cones",
+        ),
         needs=("daqp",),
     ),
     "export_speed.py": Smoke(

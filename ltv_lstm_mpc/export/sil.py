@@ -166,10 +166,9 @@ def _record_type(n: int, m: int, p: int, precision: str = "double") -> type[ctyp
 
 
 def socp_type(sizes: tuple[int, ...], precision: str = "double") -> type[ctypes.Structure]:
-    """``<prefix>_socp`` of an export with :attr:`~ltv_lstm_mpc.export.c_model.ExportedC.
-    socp_sizes` ``sizes`` (from :data:`~ltv_lstm_mpc.export.c_model.SOCP_STRUCT`, as the C
-    declaration)."""
-    from ltv_lstm_mpc.export.c_model import SOCP_STRUCT, socp_length
+    """``<prefix>_socp`` of an export whose ``ExportedC.socp_sizes`` are ``sizes`` (from
+    :data:`~ltv_lstm_mpc.export.socp_struct.SOCP_STRUCT`, as the C declaration)."""
+    from ltv_lstm_mpc.export.socp_struct import SOCP_STRUCT, socp_length
 
     named = dict(zip(("n", "m", "f", "c", "k"), sizes, strict=True))
     fields = []
@@ -259,7 +258,7 @@ class CController:
 
     def socp_arrays(self, which: int = 1) -> dict[str, Any]:
         """The exact-cone problem ``which`` (0: nominal, 1: its second solve, 2: the
-        policy's; :data:`~ltv_lstm_mpc.export.c_model.SOCP_PROBLEMS`) as the C SQP left
+        policy's; :data:`~ltv_lstm_mpc.export.socp_struct.SOCP_PROBLEMS`) as the C SQP left
         it: copies of its arrays at the problem's own sizes, shaped and named as the
         library's :func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_arrays` (what
         :func:`~ltv_lstm_mpc.solvers.daqp_socp.failure_outcome` and the certificate checks
