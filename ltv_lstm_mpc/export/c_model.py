@@ -713,6 +713,7 @@ def _mpc_fields(
         soft_penalty=_literal(config.soft_penalty),
         daqp_settings=_daqp_settings(config, single),
         exact_cones="1" if cones else "0",
+        sqp_max_iterations="0",
         socp_declarations="",
         socp_members="",
         cone_feedback_code="",
@@ -735,7 +736,8 @@ def _mpc_fields(
                 ("SCREENING_MARGIN", socp_sqp.SCREENING_MARGIN),
             )
         }  # fmt: skip
-        cone_values = dict(values, **constants)
+        values.update(constants)
+        cone_values = dict(values)
         cone_values.update(
             P_f=_matrix(np.asarray(problem.terminal.P_f, dtype=np.float64)),
             P_root=_matrix(np.asarray(problem.terminal.square_root, dtype=np.float64)),

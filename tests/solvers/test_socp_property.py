@@ -29,82 +29,15 @@ import warnings
 
 import numpy as np
 import pytest
-from ltv_lstm_mpc.solvers import DenseCone, DenseQP, DenseSession, Solution, SolverStatus
+from ltv_lstm_mpc.solvers import DenseQP, DenseSession, Solution, SolverStatus
+from ltv_lstm_mpc.solvers.testing import SOCP_KINDS as KINDS
+from ltv_lstm_mpc.solvers.testing import controller_socp
 from optional_extras import requires_solver
 
 hypothesis = pytest.importorskip("hypothesis")
 st = hypothesis.strategies
 
 pytestmark = requires_solver("daqp:socp", "clarabel")
-
-KINDS = ("feasible", "infeasible", "unbounded")
-P_F = np.array([[2.0, 0.5], [0.5, 1.0]])  # the terminal weight: >= 0 entrywise, definite
-
-
-def controller_socp(seed: int, kind: str, linear_t: bool) -> DenseQP:
-    """A random SOCP of the controller's shape, ``kind`` by construction (module docstring)."""
-    rng = np.random.default_rng(seed)
-    p = int(rng.integers(2, 7))  # inputs over the horizon
-    k = int(rng.integers(1, 4))  # rows of each state cone
-    rows = int(rng.integers(0, 4))
-    n = p + 2
-    Q, _ = np.linalg.qr(rng.standard_normal((p, p)))
-    H = np.zeros((n, n))
-    H[:p, :p] = (Q * np.geomspace(0.1, 10.0, p)) @ Q.T
-    f = np.zeros(n)
-    f[:p] = rng.standard_normal(p) * 3.0
-    if linear_t:
-        f[p:] = rng.uniform(0.1, 2.0, 2)
-    else:
-        H[p:, p:] = P_F
-    u_max = rng.uniform(0.5, 2.0)
-    lb = np.concatenate([np.full(p, -u_max), np.full(2, -np.inf)])
-    ub = np.concatenate([np.full(p, u_max), np.full(2, np.inf)])
-    du0 = rng.uniform(-0.5, 0.5, p) * u_max
-    A = np.zeros((rows, n))
-    A[:, :p] = rng.standard_normal((rows, p))
-    if kind == "unbounded":  # du_0 in no row (below): the rows are centred without it
-        A[:, 0] = 0.0
-    center = A[:, :p] @ du0
-    lo = center - rng.uniform(0.1, 1.0, rows)
-    up = center + rng.uniform(0.1, 1.0, rows)
-    F_c = np.zeros((k, n))
-    F_h = np.zeros((k, n))
-    F_c[:, :p] = rng.standard_normal((k, p))
-    F_h[:, :p] = rng.standard_normal((k, p))
-    g_c = rng.standard_normal(k)
-    g_h = rng.standard_normal(k)
-    if kind == "unbounded":  # du_0 free, flat, costed, in no row or cone
-        H[0, :] = 0.0
-        H[:, 0] = 0.0
-        f[0] = rng.choice([-1.0, 1.0]) * rng.uniform(0.5, 2.0)
-        lb[0], ub[0] = -np.inf, np.inf
-        A[:, 0] = 0.0
-        F_c[:, 0] = 0.0
-        F_h[:, 0] = 0.0
-    if kind == "infeasible":  # the boxes keep |F_c du + g_c| >= m_c > 0
-        g_c = g_c / np.linalg.norm(g_c) * (np.abs(F_c[:, :p]).sum(axis=1).max() * u_max * 2 + 1)
-        m_c = np.linalg.norm(g_c) - np.linalg.norm(F_c[:, :p], 2) * u_max * np.sqrt(p)
-        assert m_c > 0
-        alpha = 0.9 * np.sqrt(P_F[0, 0]) * m_c
-    else:
-        x0 = np.append(du0, [0.0, 0.0])
-        t0 = np.array([np.linalg.norm(F_c @ x0 + g_c) + 0.1, np.linalg.norm(F_h @ x0 + g_h) + 0.1])
-        w, V = np.linalg.eigh(P_F)
-        alpha = float(np.linalg.norm((V * np.sqrt(w)) @ V.T @ t0)) * rng.uniform(1.05, 2.0)
-    e_c = np.zeros(n)
-    e_c[p] = 1.0
-    e_h = np.zeros(n)
-    e_h[p + 1] = 1.0
-    w, V = np.linalg.eigh(P_F)
-    F_t = np.zeros((2, n))
-    F_t[:, p:] = (V * np.sqrt(w)) @ V.T
-    cones = (
-        DenseCone(F_c, g_c, e_c, 0.0),
-        DenseCone(F_h, g_h, e_h, 0.0),
-        DenseCone(F_t, np.zeros(2), np.zeros(n), float(alpha)),
-    )
-    return DenseQP(H=H, f=f, A=A, lo=lo, up=up, lb=lb, ub=ub, cones=cones)
 
 
 def _solve(solver: str, qp: DenseQP) -> Solution:

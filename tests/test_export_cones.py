@@ -1,0 +1,160 @@
+"""The C SQP of the exact cones (``export/templates/socp.c.in``, ``<prefix>_socp_solve``)
+against the library's :func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_solve`, problem by
+problem, on random SOCPs of the controller's shape (feasible, infeasible and unbounded by
+construction, the terminal cost quadratic or linear in ``t``:
+:func:`~ltv_lstm_mpc.solvers.testing.controller_socp`). These reach the SQP's rare paths,
+which the closed loops of ``tests/test_export_step.py`` seldom take: the proximal re-solve
+of unbounded and infeasible subproblems, the line search after the full steps, failed
+solves and runs out of iterations. Skipped without a C compiler."""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+from typing import Any
+
+import numpy as np
+import pytest
+from ltv_lstm_mpc.solvers.daqp_native import native
+from ltv_lstm_mpc.solvers.socp_sqp import (
+    FULL_STEPS,
+    MAX_ITERATIONS,
+    new_socp_workspace,
+    socp_arrays,
+    socp_solve,
+)
+from ltv_lstm_mpc.solvers.testing import SOCP_KINDS, controller_socp
+from ltv_lstm_mpc.solvers.tolerances import solver_options
+
+from ltv_lstm_mpc import MPCConfig, OffsetFreeController
+from ltv_lstm_mpc.export import export_model_c
+from ltv_lstm_mpc.export.sil import CController, compile_controller
+from ltv_lstm_mpc.lstm.shipped import load_model
+
+pytest.importorskip("daqp")
+pytestmark = pytest.mark.skipif(
+    not any(shutil.which(c) for c in ("gcc", "clang")), reason="no C compiler (gcc or clang)"
+)
+
+
+@pytest.fixture(scope="module")
+def c_sqp(tmp_path_factory: pytest.TempPathFactory) -> tuple[CController, Any, Any]:
+    """A cone controller's C library (pH, N = 5, the soft policy: the largest problem,
+    12 variables, 8 rows, 12 cone rows), its ``<prefix>_socp_solve``, and the DAQP
+    buffers of the library's SQP with the same settings."""
+    model = load_model("ph_lstm_n5.npz")
+    config = MPCConfig(N=5, solver="daqp:socp", infeasibility_policy="soft")
+    controller = OffsetFreeController(model, config, kernels="numpy", one_call_step=False)
+    folder = tmp_path_factory.mktemp("cones")
+    exported = export_model_c(model, folder, controller=controller, prefix="ctl")
+    assert exported.socp_sizes[:3] == (12, 8, 12)
+    c = CController(compile_controller(exported), exported)
+    solve = c.library.ctl_socp_solve
+    solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [ctypes.c_void_p] * 3
+    solve.restype = ctypes.c_int
+    buffers = native(solver_options("daqp", config.tolerance, dict(config.solver_settings)))
+    return c, solve, buffers
+
+
+def write_c(c: CController, qp: Any) -> Any:
+    """``qp`` into the controller's third ``<prefix>_socp`` (the policy's); its pointer."""
+    pointer = c._socp(c.state_buffer, 2)
+    s = pointer.contents
+    n, m = qp.H.shape[0], qp.A.shape[0]
+    sizes = [cone.F.shape[0] for cone in qp.cones]
+    s.n, s.m, s.cones = n, m, len(sizes)
+    rows = np.cumsum([0, *sizes])
+    for j, value in enumerate(rows):
+        s.cone_rows[j] = int(value)
+    s.first_active[:] = [0] * len(s.first_active)
+
+    def put(name: str, values: Any) -> None:
+        flat = np.ravel(values)
+        np.ctypeslib.as_array(getattr(s, name))[: flat.size] = flat
+
+    for name in ("H", "f", "A", "lb", "ub", "lo", "up"):
+        put(name, getattr(qp, name))
+    put("F", np.vstack([cone.F for cone in qp.cones]))
+    put("g", np.concatenate([cone.g for cone in qp.cones]))
+    put("e", np.vstack([cone.e for cone in qp.cones]))
+    put("offsets", [cone.f for cone in qp.cones])
+    return pointer
+
+
+def library_workspace(qp: Any, buffers: Any) -> tuple[Any, dict[str, Any]]:
+    """``qp`` in a workspace of the library's SQP."""
+    sizes = [int(cone.F.shape[0]) for cone in qp.cones]
+    arrays = socp_arrays(qp.H.shape[0], qp.A.shape[0], sizes, buffers)
+    for name in ("H", "f", "A", "lb", "ub", "lo", "up"):
+        arrays[name][...] = getattr(qp, name)
+    arrays["F"][...] = np.vstack([cone.F for cone in qp.cones])
+    arrays["g"][...] = np.concatenate([cone.g for cone in qp.cones])
+    arrays["e"][...] = np.vstack([cone.e for cone in qp.cones])
+    arrays["offsets"][...] = [cone.f for cone in qp.cones]
+    return new_socp_workspace(**arrays), arrays
+
+
+def c_solve(solve: Any, c: CController, pointer: Any) -> tuple[int, int, int, float]:
+    """One cold ``<prefix>_socp_solve`` on the controller's buffers."""
+    sqp, total, violation = ctypes.c_int(), ctypes.c_int(), ctypes.c_double()
+    address = ctypes.addressof(pointer.contents)
+    flag = solve(c.state_buffer, address, ctypes.byref(sqp), ctypes.byref(total),
+                 ctypes.byref(violation))  # fmt: skip
+    return int(flag), sqp.value, total.value, violation.value
+
+
+CASES = [(seed, kind, linear) for seed in range(12) for kind in SOCP_KINDS for linear in (0, 1)]
+
+
+def test_the_c_sqp_equals_the_librarys_on_random_socps(c_sqp: Any) -> None:
+    """72 random SOCPs, each solved twice (the second solve starts from the first's
+        epigraph prediction). On every solve: DAQP's last exit flag, whether the SQP
+        converged, the proximal iterations and the epigraph prediction equal the library's;
+        a converged iterate within 1e-6 (relative) of the library's. Where the SQP ends within
+        its full steps (no line search), also the SQP iterations, and a converged iterate to
+    1e-9. The
+        line search's later iterates amplify the ulps by which the two DAQP builds differ
+        (the library calls the daqp package's, with equality elimination on automatic), so the
+        SQP iterations may differ there: they must on at most 1 in 10 solves. The set covers
+        converged, infeasible (DAQP's -1) and unbounded problems (the proximal re-solves, DAQP's
+        iteration limit -4, runs out of SQP iterations) and line searches (all counted)."""
+    c, solve, buffers = c_sqp
+    seen: dict[str, int] = {}
+    differing = 0
+    for seed, kind, linear in CASES:
+        qp = controller_socp(seed, kind, bool(linear))
+        pointer = write_c(c, qp)
+        ws, arrays = library_workspace(qp, buffers)
+        s = pointer.contents
+        n, cones = qp.H.shape[0], len(qp.cones)
+        for solve_index in range(2):
+            flag, sqp, _total, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
+            c_flag, c_iterations, _c_total, _c_violation = c_solve(solve, c, pointer)
+            where = (seed, kind, linear, solve_index, flag, sqp, c_flag, c_iterations)
+            converged = flag in (1, 2) and sqp <= MAX_ITERATIONS
+            assert c_flag == flag, where
+            assert (c_flag in (1, 2) and c_iterations <= MAX_ITERATIONS) == converged, where
+            assert list(s.regularized) == list(arrays["regularized"]), where
+            assert list(s.first_active)[:cones] == list(arrays["first_active"]), where
+            z = np.ctypeslib.as_array(s.z)[:n]
+            gap = np.abs(z - arrays["z"]).max() / (1.0 + np.abs(arrays["z"]).max())
+            if converged:
+                assert gap <= 1e-6, where
+            if flag > 0 and arrays["regularized"][1]:  # (the last step a proximal one)
+                direction = np.ctypeslib.as_array(s.direction)[:n]
+                scale = 1.0 + np.abs(arrays["direction"]).max()
+                assert np.abs(direction - arrays["direction"]).max() <= 1e-6 * scale, where
+            if sqp <= FULL_STEPS:  # (a failed solve's iterate may hold an unbounded
+                # subproblem's huge entries, whose size depends on DAQP's rounding)
+                assert c_iterations == sqp, where
+                assert gap <= 1e-9 or not converged, (where, gap)
+            differing += c_iterations != sqp
+        label = "converged" if converged else ("max_iter" if flag > 0 else f"flag {flag}")
+        seen[label] = seen.get(label, 0) + 1
+        if arrays["regularized"][0]:
+            seen["proximal"] = seen.get("proximal", 0) + 1
+        if sqp > FULL_STEPS:
+            seen["line search"] = seen.get("line search", 0) + 1
+    assert differing <= 0.1 * 2 * len(CASES), (differing, seen)
+    for label in ("converged", "flag -1", "flag -4", "max_iter", "proximal", "line search"):
+        assert seen.get(label, 0) > 0, (label, seen)
