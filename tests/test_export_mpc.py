@@ -383,11 +383,18 @@ def test_the_c_subproblem_runs_clean_under_the_sanitizers(tmp_path: Path) -> Non
 
 
 @needs_compiler
-def test_the_exported_objects_reference_no_heap_and_no_io(tmp_path: Path) -> None:
+@pytest.mark.parametrize("solver", ["daqp", "daqp:socp"])
+def test_the_exported_objects_reference_no_heap_and_no_io(solver: str, tmp_path: Path) -> None:
     """``nm -u`` on every object of the export (the controller and DAQP, built as the
-    user guide says: DAQP with ``no_heap.h``): no malloc, calloc, realloc, free, and
-    no stdio; only libm and the C library's memory moves."""
-    controller, _ = closed_loop("ph", "paper", 5, 2)
+    user guide says: DAQP with ``no_heap.h``; the terminal box and the exact cones): no
+    malloc, calloc, realloc, free, and no stdio; only libm and the C library's memory
+    moves."""
+    if solver == "daqp":
+        controller, _ = closed_loop("ph", "paper", 5, 2)
+    else:
+        model = load_model("ph_lstm_n5.npz")
+        config = MPCConfig(solver=solver, N=5, infeasibility_policy="soft")
+        controller = OffsetFreeController(model, config, kernels="numpy")
     export(controller, tmp_path)
     sources = [tmp_path / "ctl.c", *sorted((tmp_path / "daqp" / "src").glob("*.c"))]
     undefined: set[str] = set()
