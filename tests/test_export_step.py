@@ -6,6 +6,7 @@ compiler is installed."""
 
 from __future__ import annotations
 
+import ctypes
 import shutil
 import warnings
 from dataclasses import replace
@@ -119,6 +120,47 @@ def test_the_exact_cones_in_c_equal_the_library(
     if (plant, N, policy) == ("ph", 5, "paper"):
         assert found["statuses"].get("infeasible", 0) >= 10, found
         assert found["policies"].get("paper", 0) >= 10, found
+
+
+@needs_compiler
+@pytest.mark.parametrize(
+    ("fault", "policy"), [("nan", "paper"), ("garbage", "soft"), ("infeasible", "paper")]
+)
+def test_the_c_step_meets_a_faulty_solver_as_the_library(
+    fault: str, policy: str, tmp_path: Path
+) -> None:
+    """solvers.testing.faulty("daqp", fault, calls) in the library's loop (scenario 3,
+    200 steps: every 5th QP solve and every 7th faulted, the nominal and the policy's
+    alike); the C step built with -D<PREFIX>_TEST_FAULTS, told the same calls, on the
+    loop's measurements: a point reported solved but NaN or outside U gives "failed" and
+    the policy, a faulted policy QP its "+shift", "infeasible" the policy; statuses,
+    policies and set-point statuses exactly, inputs to 1e-9."""
+    from ltv_lstm_mpc.solvers.testing import faulty
+
+    calls = sorted(set(range(0, 400, 5)) | set(range(3, 400, 7)))
+    controller, sim = closed_loop("ph", 5, 200, policy, solver=faulty("daqp", fault, calls))
+    clean, _ = closed_loop("ph", 5, 1, policy)  # (the same controller on the plain daqp)
+    exported = export_model_c(clean.model, tmp_path, controller=clean, prefix="ctl")
+    library = compile_controller(exported, COMPILERS[0], ("-DCTL_TEST_FAULTS",))
+    c = CController(library, exported)
+    table = (ctypes.c_ubyte * (1 << 16)).in_dll(c.library, "ctl_test_fault_calls")
+    for call in calls:
+        table[call] = {"nan": 1, "garbage": 2, "infeasible": 3}[fault]
+    worst = 0.0
+    policies: dict[str, int] = {}
+    for k, record in enumerate(controller.records):
+        code, u_phi, r = c.step(sim.y_phi[k], sim.y0_phi[k])
+        assert code == 0, k
+        assert c.mpc_status(r.mpc, clean.config) == record.mpc.status, (k, record.mpc.status)
+        assert POLICIES[r.mpc.policy] == record.mpc.policy, (k, record.mpc.policy)
+        assert SETPOINT_STATUSES[r.setpoint_status] == record.setpoint_status, k
+        worst = max(worst, float(np.max(np.abs(u_phi - record.u_phi) / np.abs(record.u_phi))))
+        policies[record.mpc.policy] = policies.get(record.mpc.policy, 0) + 1
+    assert worst <= 1e-9, worst
+    assert ctypes.c_long.in_dll(c.library, "ctl_test_fault_count").value > 100
+    assert policies.get(f"{policy}+shift", 0) > 0 and policies.get(policy, 0) > 0, policies
+    if fault != "infeasible":
+        assert "failed" in {r.mpc.status for r in controller.records}
 
 
 def unreachable_loop(limit: float | None) -> tuple[Any, Any]:

@@ -115,14 +115,19 @@ def _own_symbols() -> list[str]:
     return ["-Wl,-Bsymbolic"] if sys.platform.startswith(("linux", "freebsd")) else []
 
 
-def compile_controller(exported: Any, compiler: str | None = None) -> Path:
+def compile_controller(
+    exported: Any, compiler: str | None = None, extra_flags: tuple[str, ...] = ()
+) -> Path:
     """Build ``exported`` (an :class:`~ltv_lstm_mpc.export.c_model.ExportedC` with the
-    controller step) into ``lib<prefix>.so`` next to its sources; returns its path."""
+    controller step) into ``lib<prefix>.so`` next to its sources; returns its path.
+    ``extra_flags`` follow the library's (e.g. ``-D<PREFIX>_TEST_FAULTS`` for the
+    fault-injection tests)."""
     folder = exported.source.parent
     compiler = compiler or host_compiler()
     library = folder / f"lib{exported.prefix}_{Path(compiler).name}.so"
     command = [
-        compiler, *BUILD_FLAGS, *precision_flags(exported, compiler), "-fPIC", "-shared",
+        compiler, *BUILD_FLAGS, *precision_flags(exported, compiler), *extra_flags,
+        "-fPIC", "-shared",
         *_own_symbols(), *daqp_flags(folder),
         "-o", str(library), str(exported.source), *daqp_sources(folder), "-lm",
     ]  # fmt: skip
