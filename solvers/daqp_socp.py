@@ -176,6 +176,22 @@ class DaqpSocpDense(DenseBackend):
             certificate=certificate,
         )
 
+    def adopt_point(
+        self, flag: int, sqp: int, iterations: int
+    ) -> tuple[SolverStatus, FloatArray | None, int, str]:
+        """The status :meth:`solve_point` gives a cold solve that ended with DAQP's exit
+        flag ``flag`` (not 1 or 2) at SQP iteration ``sqp``, for such a solve that a
+        compiled caller ran on this backend's workspace (:meth:`compiled_workspace`): the
+        same certificate checks
+        (:func:`~ltv_lstm_mpc.solvers.socp_certificates.failure_status`) on the workspace
+        as it left it, without solving again. ``iterations``: its DAQP iterations."""
+        a = self._arrays
+        cones = a["offsets"].shape[0]
+        start = (False, np.zeros(self._n), np.zeros(cones))  # (a cold solve's)
+        view = ProblemView.of_dense(self._qp)
+        status, why, _certificate = failure_status(a, self._ws, start, int(flag), int(sqp), view)
+        return status, None, int(iterations), why
+
     def solve_point(self) -> tuple[SolverStatus, FloatArray | None, int, str]:
         """One cold SQP solve without multipliers; the status mapped as in :meth:`solve`."""
         status, native_status, iterations, _wall, _certificate = self._run(None)

@@ -268,6 +268,27 @@ class DenseSession:
             return SolverStatus.FAILED, None, iterations, f"{info}; solver returned no point"
         return status, z, iterations, info
 
+    def adopt_point(
+        self, qp: DenseQP, flag: int, sqp: int, iterations: int
+    ) -> tuple[SolverStatus, FloatArray | None, int, str]:
+        """:meth:`solve_point` for a solve that already ran on this session's compiled
+        workspace (:meth:`compiled_workspace`; a compiled caller's, e.g. the MPC's one-call
+        exact-cone feedback) and did not converge: ``flag``, ``sqp``, ``iterations`` its
+        outcome. ``qp``'s values (the ones that solve ran on) are written as by
+        :meth:`solve_point`, and the status is the backend's reading of the workspace as
+        that solve left it (``adopt_point`` of the backend), without solving again."""
+        work, _scaling = self._equilibrated(qp)
+        if work.structure_key() != self._key:  # pragma: no cover - set up by the caller
+            raise InvalidValueError("adopt_point() needs the workspace the solve ran on")
+        self.update(work)
+        adopt = getattr(self._backend, "adopt_point", None)
+        if adopt is None:  # pragma: no cover - only daqp:socp hands out its workspace
+            raise InvalidValueError(f"{self.solver} cannot adopt a compiled caller's solve")
+        status, z, count, info = adopt(flag, sqp, iterations)
+        if z is not None or status.has_solution:  # pragma: no cover - failed solves only
+            return SolverStatus.FAILED, None, count, f"{info}; adopted solves have no point"
+        return status, None, count, info
+
     def _to_solution(self, qp: DenseQP, raw: RawResult, setup: float, wall: float) -> Solution:
         z: FloatArray | None = None
         objective = float("nan")

@@ -498,3 +498,68 @@ def test_a_problem_on_which_full_steps_cycle_converges_with_the_line_search() ->
     assert result[0] > 0 and FULL_STEPS < result[1] <= MAX_ITERATIONS
     np.testing.assert_allclose(arrays["z"], [0.78784996, 0.61185416], atol=1e-6)
     np.testing.assert_allclose(arrays["mu"][0], 2.8812936, atol=1e-6)
+
+
+def test_adopting_a_failed_solve_gives_the_status_of_solving_it() -> None:
+    """DaqpSocpDense.adopt_point on the workspace as a compiled caller's failed SQP left it
+    gives the status and reason that solve_point gives for the same solve (the certificate
+    checks on the same workspace), on infeasible problems of the controller's shape."""
+    from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.testing import controller_socp
+
+    seen = 0
+    for seed in range(6):
+        qp = controller_socp(seed, "infeasible", bool(seed % 2))
+        solved = DaqpSocpDense("daqp:socp", 1e-8, {})
+        solved.setup(qp)
+        status, _z, iterations, info = solved.solve_point()
+        adopted = DaqpSocpDense("daqp:socp", 1e-8, {})
+        adopted.setup(qp)
+        flag, sqp, total, _violation, _seconds = socp_solve(adopted._ws, False, MAX_ITERATIONS)
+        assert flag not in (1, 2), (seed, flag)
+        verdict = adopted.adopt_point(flag, sqp, total)
+        assert verdict == (status, None, iterations, info), (seed, verdict, info)
+        seen += status is SolverStatus.INFEASIBLE
+    assert seen >= 3
+
+
+def test_a_failed_nominal_cone_solve_is_not_repeated() -> None:
+    """Bench scenario 3 on daqp:socp, 300 steps, on the reference engine (every step
+    through RobustMPC.feedback): where the one-call exact-cone feedback's nominal SQP fails,
+    the general path takes that solve's outcome (the nominal session's adopt_point, once
+    per such step) rather than solving the nominal problem again (its solve_point is not
+    called on those steps); the records say infeasible, with the certificates' reasons."""
+    from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense
+
+    from ltv_lstm_mpc import simulate
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[2]
+    config = replace(scenario.config, solver="daqp:socp", N=5)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False,
+        kernels="compiled",
+    )  # fmt: skip
+    nominal = controller.mpc._problem._sessions["nominal"]._backend
+    calls = {"adopt": 0, "solve": 0}
+    adopt, solve = DaqpSocpDense.adopt_point, DaqpSocpDense.solve_point
+
+    def counting_adopt(self, *args):  # type: ignore[no-untyped-def]
+        calls["adopt"] += self is nominal
+        return adopt(self, *args)
+
+    def counting_solve(self):  # type: ignore[no-untyped-def]
+        calls["solve"] += self is nominal
+        return solve(self)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(DaqpSocpDense, "adopt_point", counting_adopt)
+        patch.setattr(DaqpSocpDense, "solve_point", counting_solve)
+        simulate(scenario.make_plant(model), controller, scenario.setpoints[:300],
+                 scenario.disturbances[:300], 300, progress=False)  # fmt: skip
+    failed = [r for r in controller.records if r.mpc.status == "infeasible"]
+    assert len(failed) >= 5
+    assert calls["adopt"] == len(failed) and calls["solve"] == 0, (calls, len(failed))
+    assert all(r.mpc.reason.startswith("exitflag -1 at SQP iteration") for r in failed)

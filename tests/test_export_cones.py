@@ -57,8 +57,8 @@ def c_sqp(tmp_path_factory: pytest.TempPathFactory) -> tuple[CController, Any, A
 
 
 def write_c(c: CController, qp: Any) -> Any:
-    """``qp`` into the controller's third ``<prefix>_socp`` (the policy's); its pointer."""
-    pointer = c._socp(c.state_buffer, 2)
+    """``qp`` into the controller's second ``<prefix>_socp`` (the policy's); its pointer."""
+    pointer = c._socp(c.state_buffer, 1)
     s = pointer.contents
     n, m = qp.H.shape[0], qp.A.shape[0]
     sizes = [cone.F.shape[0] for cone in qp.cones]

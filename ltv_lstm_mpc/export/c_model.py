@@ -745,7 +745,7 @@ def _mpc_fields(
         values["socp_declarations"] = socp_declaration(fields["prefix"], sizes)
         values["socp_members"] = (
             f"    {fields['prefix']}_socp socp[{len(SOCP_PROBLEMS)}];"
-            "   /* the exact-cone problems: nominal, its second solve, the policy's */\n"
+            "   /* the exact-cone problems: the nominal one, the policy's */\n"
         )
         values["cone_feedback_code"] = _template("socp.c.in").substitute(cone_values) + _template(
             "cone_feedback.c.in"

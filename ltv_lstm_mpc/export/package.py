@@ -88,7 +88,7 @@ def export_controller_c(
             "on a subproblem DAQP could not solve: its exit flag and SQP iteration in "
             "`cone_flag`, `cone_sqp`) and `_STATUS_CONE_MAX_ITER` (it ran out of "
             "iterations) precede the infeasibility policy; the library tells infeasible "
-            f"from failed there by its certificate checks on `{prefix}_controller_socp(c, 1)` "
+            f"from failed there by its certificate checks on `{prefix}_controller_socp(c, 0)` "
             "(the SIL does)."
             if exported.socp_sizes
             else ""

@@ -261,9 +261,9 @@ class CController:
             float(e_hat.value),
         )
 
-    def socp_arrays(self, which: int = 1) -> dict[str, Any]:
-        """The exact-cone problem ``which`` (0: nominal, 1: its second solve, 2: the
-        policy's; :data:`~ltv_lstm_mpc.export.socp_struct.SOCP_PROBLEMS`) as the C SQP left
+    def socp_arrays(self, which: int = 0) -> dict[str, Any]:
+        """The exact-cone problem ``which`` (0: nominal, 1: the policy's;
+        :data:`~ltv_lstm_mpc.export.socp_struct.SOCP_PROBLEMS`) as the C SQP left
         it: copies of its arrays at the problem's own sizes, shaped and named as the
         library's :func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_arrays` (what
         :func:`~ltv_lstm_mpc.solvers.daqp_socp.failure_outcome` and the certificate checks
@@ -302,7 +302,7 @@ class CController:
         from ltv_lstm_mpc.solvers.dense import DenseCone, DenseQP
         from ltv_lstm_mpc.solvers.socp_certificates import max_iter_status
 
-        arrays = self.socp_arrays(1)
+        arrays = self.socp_arrays(0)
         if feedback.status == CONE_FAILED:
             outcome, reason = failure_outcome(
                 arrays, int(feedback.cone_flag), int(feedback.cone_sqp), config.tolerance,

@@ -39,9 +39,9 @@ SOCP_STRUCT = (
     ("reduced_lam", "real", "k"), ("direction", "real", "n"), ("regularized", "int", "2"),
 )  # fmt: skip
 #: The exact-cone problems a cone export holds, in the order of ``<prefix>_mpc_workspace``'s
-#: ``socp`` array: the nominal one, the nominal one on the general path's buffers (solved
-#: where the first does not converge), the infeasibility policy's.
-SOCP_PROBLEMS = ("nominal", "failure", "policy")
+#: ``socp`` array: the nominal one (solved once a step; a failed solve's status is read
+#: from it), the infeasibility policy's.
+SOCP_PROBLEMS = ("nominal", "policy")
 
 
 def socp_sizes(N: int, n: int, m: int, p: int, policy: str) -> dict[str, int]:

@@ -64,7 +64,6 @@ from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.mpc.terminal import TerminalBoxReformulation, TerminalSet
 from ltv_lstm_mpc.mpc.transcription import StepResult, TranscriptionBase
 from ltv_lstm_mpc.solvers import (
-    CompiledForm,
     DenseCone,
     DenseQP,
     DenseSession,
@@ -246,27 +245,31 @@ class CondensedTranscription(TranscriptionBase):
             self.fallback_workspace = self._new_fallback_workspace(config)
             daqp_form = compiled_form(config.solver)
             self.flag_outcome = None if daqp_form is None else daqp_form.flag_outcome
-        # Exact cones by SQP on DAQP as one compiled call (mpc/native_feedback.cone_feedback):
-        # its workspace holds the nominal exact-cone QP, the constant parts written once.
+        # Exact cones by SQP on DAQP as one compiled call (mpc/native_feedback.cone_feedback)
+        # on the workspaces of the general path's sessions (the SQP's epigraph prediction
+        # carries from one solve to the next in a workspace, so the same history gives the
+        # same iterates): the nominal problem on the ``"nominal"`` session's (its constant
+        # parts written by the session's set-up), the infeasibility policy's (``"paper"``,
+        # ``"soft"``; None otherwise) on its session's. A failed nominal solve is not
+        # repeated: its status is read from that workspace (``failure_outcome``).
         self._socp_workspace: Any = None
-        form = compiled_form(config.solver) if self.compiled and self.exact_cones else None
-        if form is not None and form.socp_solve is not None and "nominal" in self._sessions:
-            self._socp_workspace = self._new_socp_workspace(config, form)
-        #: The one-call feedback on ``daqp:socp`` solves where the general path's sessions
-        #: do, on their workspaces (the SQP's epigraph prediction carries from one solve to
-        #: the next in a workspace, so the same history gives the same iterates): a failed
-        #: nominal problem again on the ``"nominal"`` session's, the infeasibility
-        #: policy's (``"paper"``, ``"soft"``; None otherwise) on its session's.
+        self._adopted: tuple[int, int, int, float] | None = None  # (adopt_failed_solve)
+        #: The nominal exact-cone workspace (the same object as :attr:`socp_workspace`'s,
+        #: kept under this name for the compiled step's fallback workspace).
         self.failure_socp_workspace: Any = None
         self.policy_socp_workspace: Any = None
         #: The ``"nominal"`` session's arrays (what a failed solve's status is read from:
         #: ``failure_outcome`` of :class:`~ltv_lstm_mpc.solvers.CompiledForm`).
         self.socp_arrays: dict[str, Any] | None = None
-        if self._socp_workspace is not None:
-            assert form is not None and form.failure_outcome is not None
+        form = compiled_form(config.solver) if self.compiled and self.exact_cones else None
+        nominal = None
+        if form is not None and form.socp_solve is not None and "nominal" in self._sessions:
             nominal = self._sessions["nominal"].compiled_workspace(self._cone_qp["nominal"])
-            assert nominal is not None  # (daqp:socp has one)
-            self.failure_socp_workspace, self.socp_arrays = nominal
+        if nominal is not None:
+            assert form is not None and form.failure_outcome is not None
+            self._socp_workspace, self.socp_arrays = nominal
+            self._socp_arrays = self.socp_arrays
+            self.failure_socp_workspace = self._socp_workspace
             self.failure_outcome = functools.partial(
                 form.failure_outcome,
                 tolerance=config.tolerance,
@@ -444,28 +447,6 @@ class CondensedTranscription(TranscriptionBase):
             regularization=float(self.slack_regularization), codes=np.zeros(5, dtype=np.int64),
         )  # fmt: skip
 
-    def _new_socp_workspace(self, config: MPCConfig, form: CompiledForm) -> Any:
-        """The :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` of the nominal
-        exact-cone QP (variables ``[du, t_c, t_h]``, the output rows, the cones of
-        :meth:`_cone_problem`) from the solver's compiled ``form``, or None where its
-        compiled solve is not bound natively."""
-        assert form.native_buffers is not None and form.socp_arrays is not None
-        assert form.new_socp_workspace is not None
-        buffers = form.native_buffers(config.tolerance, dict(config.solver_settings))
-        if buffers is None:
-            return None
-        n, nu, ns = self.n, self.N * self.m, self._n_out
-        nz = nu + 2
-        arrays = form.socp_arrays(nz, ns, [n, n, 2], buffers)
-        arrays["H"][nu:, nu:] = self.terminal.P_f  # half the cost: 1/2 t'P_f t
-        arrays["lb"][nu:] = -np.inf  # t >= 0 follows from its cones
-        arrays["ub"][nu:] = np.inf
-        arrays["e"][0, nu] = 1.0  # ||c_N - c_bar|| <= t_c
-        arrays["e"][1, nu + 1] = 1.0  # ||h_N - h_bar|| <= t_h
-        arrays["F"][2 * n :, nu:] = self.terminal.square_root  # ||S t|| <= alpha_k
-        self._socp_arrays = arrays
-        return form.new_socp_workspace(**arrays)
-
     @property
     def socp_workspace(self) -> Any:
         """The buffers of the core's one-call exact-cone feedback on ``daqp:socp`` (None
@@ -519,6 +500,7 @@ class CondensedTranscription(TranscriptionBase):
         if not self.compiled or self._workspace is None:
             return False
         self._last.clear()
+        self._adopted = None
         self.scale, _ = prepare_condensed(
             trajectories, self._workspace, cand, previous_u, candidate, x0,
             reuse_tol if reuse_allowed else -1.0, x_bar, u_bar, lower, upper, float(alpha),
@@ -544,15 +526,26 @@ class CondensedTranscription(TranscriptionBase):
             )
         return self._last[kind].copy()
 
+    def adopt_failed_solve(self, flag: int, sqp: int, iterations: int, seconds: float) -> None:
+        """The one-call exact-cone feedback (``native_feedback.cone_feedback``) solved the
+        nominal problem on the ``"nominal"`` session's workspace and its SQP failed (DAQP's
+        exit flag ``flag`` at SQP iteration ``sqp``; ``iterations`` DAQP iterations in
+        ``seconds``): the next :meth:`solve` of ``"nominal"`` takes that solve's outcome
+        (the session's status checks on the workspace as the SQP left it) rather than
+        solving the same problem again."""
+        self._adopted = (int(flag), int(sqp), int(iterations), float(seconds))
+
     def forget_preparation(self) -> None:
         """The last preparation was solved outside (a compiled step engine): no scaling,
         no solved subproblems (:meth:`linearize_and_build` or :meth:`build` set them)."""
         self.scale = math.nan
         self._last.clear()
+        self._adopted = None
 
     def reset(self) -> None:
         """Drop the solver workspaces' warm starts (in place where a session can: the
         one-call feedback on ``daqp:socp`` holds its workspaces)."""
+        self._adopted = None
         for session in self._sessions.values():
             session.clear_state()
 
@@ -568,6 +561,7 @@ class CondensedTranscription(TranscriptionBase):
     ) -> None:
         """Condense the linearization in ``traj`` into H, F, g0 and the rows (no solve)."""
         self._last.clear()
+        self._adopted = None
         self._traj = traj
         self._alpha = alpha
         self.scale = self._condense(traj, x_bar, u_bar, lower, upper, alpha)
@@ -699,8 +693,16 @@ class CondensedTranscription(TranscriptionBase):
         qp = self._cone_data(kind, f, lo, up) if exact else self._data(kind, f, lo, up)
         self._last[kind] = qp
         start = time.perf_counter()
-        status, z, iterations, info = self._sessions[kind].solve_point(qp)
-        elapsed = time.perf_counter() - start
+        adopted, self._adopted = self._adopted, None
+        if adopted is not None and kind == "nominal":  # the one-call feedback's failed solve
+            flag, sqp, iterations, seconds = adopted
+            status, z, iterations, info = self._sessions[kind].adopt_point(
+                qp, flag, sqp, iterations
+            )
+            elapsed = seconds + time.perf_counter() - start
+        else:
+            status, z, iterations, info = self._sessions[kind].solve_point(qp)
+            elapsed = time.perf_counter() - start
         if z is None or not status.has_solution:
             return StepResult(
                 status=status,

@@ -622,7 +622,7 @@ def cone_feedback(
     x_linear: Any,
     u: Any,
     x_plan: Any,
-) -> tuple[int, int, float, float]:
+) -> tuple[int, int, float, float, int, int]:
     """:func:`nominal_feedback` with the exact terminal cones, by SQP on DAQP.
 
     The same pre-check, insertion, expansion, acceptance and re-simulation; the QP is the
@@ -634,29 +634,34 @@ def cone_feedback(
     transcription wrote once) and solved by
     :func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_solve` from a cold start, as the general
     path's ``daqp:socp`` session does. Returns ``(code, DAQP iterations, sqp step, DAQP's
-    time)``; code 0: not accepted here (the general path runs). ``tolerance``: the
-    acceptance tolerance of the point (the transcription's).
+    time, DAQP's last exit flag, SQP iterations)``; code 0: not accepted here (the general
+    path runs); :data:`STATUS_CONE_FAILURE`: the SQP ended on a subproblem DAQP could not
+    solve (an exit flag other than 1 or 2): the general path takes that solve's outcome
+    from ``socp`` (the ``"nominal"`` session's workspace) rather than solving again.
+    ``tolerance``: the acceptance tolerance of the point (the transcription's).
     """
     W_y, b_y = condensing.W_y, condensing.b_y
     S, u_max = condensing.S, condensing.u_max
     N, m = u.shape
     nu = N * m
     if _precheck(W_y, b_y, x_hat, lower, upper, alpha) != PRECHECK_PASSED:
-        return 0, 0, 0.0, 0.0
+        return 0, 0, 0.0, 0.0, 0, 0
     # ---- insert, then the exact-cone QP (CondensedTranscription._cone_data)
     insert_state(condensing, x_hat)
     _write_cone_nominal(condensing, socp, alpha)
     flag, sqp, iterations, violation, seconds = socp_solve(socp, False, MAX_ITERATIONS)
-    if (flag != 1 and flag != 2) or sqp > MAX_ITERATIONS:
-        return 0, iterations, 0.0, seconds
+    if flag != 1 and flag != 2:
+        return STATUS_CONE_FAILURE, iterations, 0.0, seconds, flag, sqp
+    if sqp > MAX_ITERATIONS:
+        return 0, iterations, 0.0, seconds, flag, sqp
     z = socp.z
     violation_rows = expand_point(condensing, z, nu + socp.A.shape[0], x_linear, u)
     violation = max(violation_rows, violation)
     verdict, step = _accept(z, x_linear, u, S, violation, tolerance, scale, u_max)
     if verdict != ACCEPTED:
-        return 0, iterations, 0.0, seconds
+        return 0, iterations, 0.0, seconds, flag, sqp
     _simulate_plan(plan, x_hat, x_bar, u_bar, lower, upper, x_linear, u, x_plan)
-    return flag, iterations, step, seconds
+    return flag, iterations, step, seconds, flag, sqp
 
 
 @njit(cache=True)
@@ -677,23 +682,23 @@ def cone_policy_feedback(
     x_plan: Any,
 ) -> tuple[int, int, float, float]:
     """:func:`cone_feedback`, and where the pre-check fails or the SQP ends with a negative
-    DAQP exit flag, what ``RobustMPC.feedback`` does next on ``daqp:socp``: the nominal
-    problem solved again on ``fallback.failure_socp`` (the ``"nominal"`` session's
-    workspace, as the general path does), then the infeasibility policy of ``fallback`` on
-    its exact-cone problem (``fallback.policy_socp``, its session's: ``"paper"`` or
-    ``"soft"``; the candidate for ``"shift"`` and ``"<policy>+shift"``). The nominal
-    problem is first solved on ``fallback.socp``, as by :func:`cone_feedback`.
+    DAQP exit flag, what ``RobustMPC.feedback`` does next on ``daqp:socp``: the
+    infeasibility policy of ``fallback`` on its exact-cone problem (``fallback.policy_socp``,
+    its session's: ``"paper"`` or ``"soft"``; the candidate for ``"shift"`` and
+    ``"<policy>+shift"``). The nominal problem is solved once, on ``fallback.socp`` (the
+    ``"nominal"`` session's workspace, ``fallback.failure_socp`` too), as by
+    :func:`cone_feedback`.
 
     Returns as :func:`policy_feedback`. A failed nominal solve is recorded with the status
     code :data:`STATUS_CONE_FAILURE` and its exit flag and SQP iterations in
     ``fallback.codes`` (:data:`FAILURE_FLAG`, :data:`FAILURE_SQP`): its status and reason
     come from the certificate checks, which the caller runs on a copy of
     ``fallback.failure_socp``'s arrays when the step's record is read. Code 0 (the general path
-    runs): a point within a margin of a test, a solve that ran out of SQP iterations (its
-    status names the cones it stalled at), or a second nominal solve that converged.
+    runs): a point within a margin of a test, or a solve that ran out of SQP iterations (its
+    status names the cones it stalled at).
     """
     codes = fallback.codes
-    socp, failure_socp, policy_socp = fallback.socp, fallback.failure_socp, fallback.policy_socp
+    socp, policy_socp = fallback.socp, fallback.policy_socp
     status = _precheck(condensing.W_y, condensing.b_y, x_hat, lower, upper, alpha)
     if status == PRECHECK_UNDECIDED:
         return 0, 0, 0.0, 0.0
@@ -717,12 +722,7 @@ def cone_policy_feedback(
             _simulate_plan(plan, x_hat, x_bar, u_bar, lower, upper, x_linear, u, x_plan)
             codes[STATUS_CODE], codes[POLICY_CODE], codes[PLAN_ITERATIONS] = flag, POLICY_NOMINAL, 1
             return flag, iterations, step, seconds
-        # the session's second solve (the general path counts its iterations, not the first's)
-        _write_cone_nominal(condensing, failure_socp, alpha)
-        flag, sqp, iterations, _violation, seconds = socp_solve(failure_socp, False, MAX_ITERATIONS)
-        if flag == 1 or flag == 2:  # (its history differs: the general path decides)
-            return 0, iterations, 0.0, seconds
-        status = STATUS_CONE_FAILURE
+        status = STATUS_CONE_FAILURE  # (socp is the session's workspace: not solved again)
         codes[FAILURE_FLAG], codes[FAILURE_SQP] = flag, sqp
     policy = fallback.policy
     linear = False

@@ -752,11 +752,15 @@ class RobustMPC(DeferredState):
                 x_plan,
             )  # fmt: skip
         else:
-            code, iterations, step, solver_time = self._native_feedback(
+            code, iterations, step, solver_time, flag, sqp = self._native_feedback(
                 self._condensing_workspace, socp, self._plan_workspace, x_hat, self._x_bar,
                 self._u_bar, self._lower, self._upper, alpha, problem.scale,
                 problem.tolerance, x_linear, u, x_plan,
             )  # fmt: skip
+            if code < 0:  # (native_feedback.STATUS_CONE_FAILURE: the SQP failed) the
+                # general path takes this solve's outcome rather than solving again
+                problem.adopt_failed_solve(flag, sqp, iterations, solver_time)
+                return None
         if not code:
             return None
         self.plan_valid = True

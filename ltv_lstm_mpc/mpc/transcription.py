@@ -33,7 +33,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ltv_lstm_mpc.exceptions import InvalidValueError
+from ltv_lstm_mpc.exceptions import InvalidValueError, LtvMpcError
 from ltv_lstm_mpc.lstm.kernel import Trajectory
 from ltv_lstm_mpc.mpc.config import MPCConfig
 from ltv_lstm_mpc.solvers import SolverStatus
@@ -182,6 +182,21 @@ class TranscriptionBase(abc.ABC):
         """
         raise InvalidValueError(
             f"last_problem() needs the sparse or condensed transcription; this one is {self.name!r}"
+        )
+
+    def adopt_failed_solve(self, flag: int, sqp: int, iterations: int, seconds: float) -> None:
+        """The one-call exact-cone feedback's nominal SQP failed on this transcription's
+        workspace: the next nominal :meth:`solve` takes its outcome (the condensed
+        transcription, which has that feedback, overrides this).
+
+        Raises
+        ------
+        LtvMpcError
+            Always here: no one-call exact-cone feedback runs on this transcription.
+        """
+        raise LtvMpcError(
+            f"the {self.name!r} transcription has no one-call exact-cone feedback whose "
+            f"solve it could adopt (exit flag {flag} at SQP iteration {sqp})"
         )
 
     def reset(self) -> None:  # noqa: B027 - optional hook
