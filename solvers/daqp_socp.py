@@ -45,6 +45,7 @@ __all__ = [
     "failure_outcome",
     "local_solution",
     "make_dense",
+    "snapshot_qp",
     "warm_up",
 ]
 
@@ -219,23 +220,29 @@ def failure_outcome(
     for name in FAILURE_FIELDS:
         arrays[name][...] = snapshot[name]
     ws = new_socp_workspace(**arrays)
+    start = (False, np.zeros(n), np.zeros(len(sizes)))
+    status, why, _certificate = failure_status(
+        arrays, ws, start, int(flag), int(sqp), ProblemView.of_dense(snapshot_qp(arrays))
+    )
+    return status, why
+
+
+def snapshot_qp(arrays: Mapping[str, Any]) -> DenseQP:
+    """The :class:`~ltv_lstm_mpc.solvers.DenseQP` (views, not copies) whose data the SQP
+    arrays ``arrays`` hold (:func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_arrays`' names;
+    the problem of a workspace or of a snapshot of one)."""
     rows = arrays["cone_rows"]
     cones = tuple(
         DenseCone(
             arrays["F"][rows[j] : rows[j + 1]], arrays["g"][rows[j] : rows[j + 1]],
             arrays["e"][j], float(arrays["offsets"][j]),
         )
-        for j in range(len(sizes))
+        for j in range(len(rows) - 1)
     )  # fmt: skip
-    qp = DenseQP(
+    return DenseQP(
         H=arrays["H"], f=arrays["f"], A=arrays["A"], lo=arrays["lo"], up=arrays["up"],
         lb=arrays["lb"], ub=arrays["ub"], cones=cones,
     )  # fmt: skip
-    start = (False, np.zeros(n), np.zeros(len(sizes)))
-    status, why, _certificate = failure_status(
-        arrays, ws, start, int(flag), int(sqp), ProblemView.of_dense(qp)
-    )
-    return status, why
 
 
 def local_solution(

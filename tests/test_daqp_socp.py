@@ -271,7 +271,7 @@ def _mpc_subproblems(index: int, steps: int):
         model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
     )
     problem = controller.mpc._problem
-    arrays, ws = problem._socp_arrays, problem.socp_workspace
+    arrays, ws = problem.socp_arrays, problem.socp_workspace
     assert ws is not None
     plant = scenario.make_plant(model)
     y = plant.output()

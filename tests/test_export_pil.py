@@ -138,14 +138,14 @@ def test_the_replay_refuses_an_export_without_observer_and_uneven_data(tmp_path:
     assert "static const double Y[K][P]" in main.read_text()
 
 
-@pytest.fixture(scope="module")
-def step_loop() -> tuple[Any, Any]:
-    """Scenario 3's first steps on the reference engine: the controller and its simulation."""
+def scenario3_steps(solver: str) -> tuple[Any, Any]:
+    """Scenario 3's first STEP_REPLAY steps on ``solver`` (N = 5, the reference engine):
+    the controller and its simulation."""
     from dataclasses import replace
 
     model = load_model("ph_lstm_n5.npz")
     scenario = paper_scenarios(model)[2]
-    config = replace(scenario.config, solver="daqp", N=5)
+    config = replace(scenario.config, solver=solver, N=5)
     controller = OffsetFreeController(
         model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
     )
@@ -153,6 +153,12 @@ def step_loop() -> tuple[Any, Any]:
     sim = simulate(plant, controller, scenario.setpoints, scenario.disturbances, STEP_REPLAY,
                    progress=False)  # fmt: skip
     return controller, sim
+
+
+@pytest.fixture(scope="module")
+def step_loop() -> tuple[Any, Any]:
+    """Scenario 3's first steps on daqp (the terminal box)."""
+    return scenario3_steps("daqp")
 
 
 @needs_gcc
@@ -255,20 +261,8 @@ def test_the_float_step_on_the_cortex_m4f_equals_the_host(step_loop: Any, tmp_pa
 
 @pytest.fixture(scope="module")
 def cone_loop() -> tuple[Any, Any]:
-    """200 steps of scenario 3 on solver="daqp:socp" (the exact terminal cones; the
-    reference engine): the controller and the simulation."""
-    from dataclasses import replace
-
-    model = load_model("ph_lstm_n5.npz")
-    scenario = paper_scenarios(model)[2]
-    config = replace(scenario.config, solver="daqp:socp", N=5)
-    controller = OffsetFreeController(
-        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, one_call_step=False
-    )
-    plant = scenario.make_plant(model, controller.certification)
-    sim = simulate(plant, controller, scenario.setpoints, scenario.disturbances, STEP_REPLAY,
-                   progress=False)  # fmt: skip
-    return controller, sim
+    """Scenario 3's first steps on daqp:socp (the exact terminal cones)."""
+    return scenario3_steps("daqp:socp")
 
 
 @needs_gcc

@@ -298,8 +298,7 @@ class CController:
         SQP's problem and last iterate (:meth:`socp_arrays`), as the one-call engine reads
         its own when a record is read; ``config``: the controller's ``MPCConfig``."""
         from ltv_lstm_mpc.solvers.acceptance import ProblemView
-        from ltv_lstm_mpc.solvers.daqp_socp import failure_outcome
-        from ltv_lstm_mpc.solvers.dense import DenseCone, DenseQP
+        from ltv_lstm_mpc.solvers.daqp_socp import failure_outcome, snapshot_qp
         from ltv_lstm_mpc.solvers.socp_certificates import max_iter_status
 
         arrays = self.socp_arrays(0)
@@ -309,20 +308,9 @@ class CController:
                 dict(config.solver_settings),
             )  # fmt: skip
             return outcome.name.lower(), reason
-        rows = arrays["cone_rows"]
-        cones = tuple(
-            DenseCone(
-                arrays["F"][rows[j] : rows[j + 1]], arrays["g"][rows[j] : rows[j + 1]],
-                arrays["e"][j], float(arrays["offsets"][j]),
-            )
-            for j in range(len(rows) - 1)
-        )  # fmt: skip
-        qp = DenseQP(
-            H=arrays["H"], f=arrays["f"], A=arrays["A"], lo=arrays["lo"], up=arrays["up"],
-            lb=arrays["lb"], ub=arrays["ub"], cones=cones,
-        )  # fmt: skip
+        view = ProblemView.of_dense(snapshot_qp(arrays))
         outcome, reason, _certificate = max_iter_status(
-            arrays, float(feedback.cone_violation), ProblemView.of_dense(qp)
+            arrays, float(feedback.cone_violation), view
         )
         return outcome.name.lower(), reason
 

@@ -254,9 +254,6 @@ class CondensedTranscription(TranscriptionBase):
         # repeated: its status is read from that workspace (``failure_outcome``).
         self._socp_workspace: Any = None
         self._adopted: tuple[int, int, int, float] | None = None  # (adopt_failed_solve)
-        #: The nominal exact-cone workspace (the same object as :attr:`socp_workspace`'s,
-        #: kept under this name for the compiled step's fallback workspace).
-        self.failure_socp_workspace: Any = None
         self.policy_socp_workspace: Any = None
         #: The ``"nominal"`` session's arrays (what a failed solve's status is read from:
         #: ``failure_outcome`` of :class:`~ltv_lstm_mpc.solvers.CompiledForm`).
@@ -268,8 +265,6 @@ class CondensedTranscription(TranscriptionBase):
         if nominal is not None:
             assert form is not None and form.failure_outcome is not None
             self._socp_workspace, self.socp_arrays = nominal
-            self._socp_arrays = self.socp_arrays
-            self.failure_socp_workspace = self._socp_workspace
             self.failure_outcome = functools.partial(
                 form.failure_outcome,
                 tolerance=config.tolerance,
@@ -440,8 +435,7 @@ class CondensedTranscription(TranscriptionBase):
         if cones:
             socp = self._socp_workspace
         return new_fallback_workspace(
-            socp=socp, failure_socp=self.failure_socp_workspace or socp,
-            policy_socp=self.policy_socp_workspace or socp,
+            socp=socp, policy_socp=self.policy_socp_workspace or socp,
             policy=policy, ns=ns, H=H, f=f, A=A, high=high, low=low,
             sense=np.zeros(nz + rows, dtype=np.intc), z=np.zeros(nz), lam=np.zeros(nz + rows),
             regularization=float(self.slack_regularization), codes=np.zeros(5, dtype=np.int64),

@@ -113,7 +113,7 @@ def feedback_outcome(code: int, flag_outcome: Any) -> tuple[str, str]:
 #: Fields of :data:`FallbackWorkspace`, in the order of its compiled constructor.
 FALLBACK_FIELDS = (
     "policy", "ns", "H", "f", "A", "high", "low", "sense", "z", "lam", "regularization",
-    "codes", "socp", "failure_socp", "policy_socp",
+    "codes", "socp", "policy_socp",
 )  # fmt: skip
 
 FallbackWorkspace = workspace_type(
@@ -130,10 +130,10 @@ FallbackWorkspace = workspace_type(
     ``codes`` (int64, 5): the outcome (:data:`STATUS_CODE`, :data:`POLICY_CODE`,
     :data:`PLAN_ITERATIONS`; a failed exact-cone solve's :data:`FAILURE_FLAG` and
     :data:`FAILURE_SQP`). With the exact cones of ``daqp:socp``
-    (:func:`cone_policy_feedback`): ``socp``, the nominal problem's
-    :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace`, ``failure_socp`` and
-    ``policy_socp``, the general path's session workspaces of the nominal problem and of
-    the policy's (placeholders otherwise: :func:`placeholder_socp`).
+    (:func:`cone_policy_feedback`): ``socp`` and ``policy_socp``, the
+    :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` of the general path's sessions of
+    the nominal problem and of the policy's (placeholders otherwise:
+    :func:`placeholder_socp`).
     """,
     __name__,
 )
@@ -159,13 +159,12 @@ def placeholder_socp() -> Any:
 
 @njit(cache=True)
 def _new_fallback_workspace(  # type: ignore[no-untyped-def]
-    policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes, socp, failure_socp,
-    policy_socp,
+    policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes, socp, policy_socp,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return FallbackWorkspace(
         policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes, socp,
-        failure_socp, policy_socp,
+        policy_socp,
     )  # fmt: skip
 
 
@@ -686,14 +685,13 @@ def cone_policy_feedback(
     infeasibility policy of ``fallback`` on its exact-cone problem (``fallback.policy_socp``,
     its session's: ``"paper"`` or ``"soft"``; the candidate for ``"shift"`` and
     ``"<policy>+shift"``). The nominal problem is solved once, on ``fallback.socp`` (the
-    ``"nominal"`` session's workspace, ``fallback.failure_socp`` too), as by
-    :func:`cone_feedback`.
+    ``"nominal"`` session's workspace), as by :func:`cone_feedback`.
 
     Returns as :func:`policy_feedback`. A failed nominal solve is recorded with the status
     code :data:`STATUS_CONE_FAILURE` and its exit flag and SQP iterations in
     ``fallback.codes`` (:data:`FAILURE_FLAG`, :data:`FAILURE_SQP`): its status and reason
     come from the certificate checks, which the caller runs on a copy of
-    ``fallback.failure_socp``'s arrays when the step's record is read. Code 0 (the general path
+    ``fallback.socp``'s arrays when the step's record is read. Code 0 (the general path
     runs): a point within a margin of a test, or a solve that ran out of SQP iterations (its
     status names the cones it stalled at).
     """

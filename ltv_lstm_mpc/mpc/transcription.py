@@ -116,9 +116,8 @@ class TranscriptionBase(abc.ABC):
     failure_outcome: Any = None
     #: With ``socp_workspace``: its arrays by name.
     socp_arrays: Any = None
-    #: With ``socp_workspace``: the exact-cone workspaces of a failed nominal solve's
-    #: second solve and of the infeasibility policy (None for ``"shift"``).
-    failure_socp_workspace: Any = None
+    #: With ``socp_workspace``: the exact-cone workspace of the infeasibility policy (None
+    #: for ``"shift"``).
     policy_socp_workspace: Any = None
 
     @abc.abstractmethod
