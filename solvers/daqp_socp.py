@@ -30,6 +30,7 @@ from .dense import DenseBackend, DenseCone, DenseQP
 from .problem import SolverStatus
 from .socp_certificates import cone_multipliers, failure_status, max_iter_status
 from .socp_sqp import (
+    FAILURE_FIELDS,
     MAX_ITERATIONS,
     new_socp_workspace,
     new_socp_workspace_kernel,
@@ -49,13 +50,6 @@ __all__ = [
     "warm_up",
 ]
 
-#: The arrays of a :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` that
-#: :func:`failure_outcome` reads (the problem and the last iterate of a failed solve, and
-#: the epigraph prediction its certificate's rerun starts from).
-FAILURE_FIELDS = (
-    "H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets", "z", "mu",
-    "lam", "regularized", "direction", "first_active",
-)  # fmt: skip
 # The problem's data and DAQP's buffers in the workspace's arrays (clear_state keeps them).
 _PROBLEM_FIELDS = frozenset(
     ("H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets",

@@ -108,6 +108,7 @@ __all__ = [
     "ARMIJO",
     "BACKTRACKS",
     "CONE_TOLERANCE",
+    "FAILURE_FIELDS",
     "FULL_STEPS",
     "MAX_ITERATIONS",
     "PROXIMAL",
@@ -123,6 +124,9 @@ __all__ = [
     "max_abs",
     "new_socp_workspace",
     "new_socp_workspace_kernel",
+    "snapshot_into",
+    "snapshot_sizes",
+    "snapshot_views",
     "socp_arrays",
     "socp_solve",
 ]
@@ -915,6 +919,84 @@ def max_abs(values: Any) -> float:
     for a in range(values.shape[0]):
         largest = max(largest, abs(values[a]))
     return largest
+
+
+#: The arrays of a :data:`SocpWorkspace` that a failed solve's status is read from (the
+#: problem, the last iterate, and the epigraph prediction its certificate's rerun starts
+#: from), in the order :func:`snapshot_into` lays them out: the float64 ones one after the
+#: other in one flat array, the int64 ones (``cone_rows``, ``regularized``,
+#: ``first_active``) in another.
+FAILURE_FIELDS = (
+    "H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets", "z", "mu",
+    "lam", "regularized", "direction", "first_active",
+)  # fmt: skip
+_INTEGER_FIELDS = ("cone_rows", "regularized", "first_active")
+
+
+@njit(cache=True)
+def _put_vector(target: Any, at: int, source: Any) -> int:
+    """``source`` (1-D) into ``target`` from ``at``; returns the next free index."""
+    for a in range(source.shape[0]):
+        target[at + a] = source[a]
+    return at + source.shape[0]
+
+
+@njit(cache=True)
+def _put_matrix(target: Any, at: int, source: Any) -> int:
+    """``source`` (2-D) into ``target`` from ``at``, row by row; the next free index."""
+    for a in range(source.shape[0]):
+        at = _put_vector(target, at, source[a])
+    return at
+
+
+@njit(cache=True)
+def snapshot_into(ws: Any, real: Any, integer: Any) -> None:
+    """Copy the :data:`FAILURE_FIELDS` of ``ws`` into the flat arrays ``real`` (float64)
+    and ``integer`` (int64), sized by :func:`snapshot_sizes` (read back with
+    :func:`snapshot_views`): a failed solve's record, taken in the compiled step where it
+    fails, in one pass (the one-call step engine keeps a copy of the two arrays)."""
+    at = _put_matrix(real, 0, ws.H)
+    at = _put_vector(real, at, ws.f)
+    at = _put_matrix(real, at, ws.A)
+    at = _put_vector(real, at, ws.lb)
+    at = _put_vector(real, at, ws.ub)
+    at = _put_vector(real, at, ws.lo)
+    at = _put_vector(real, at, ws.up)
+    at = _put_matrix(real, at, ws.F)
+    at = _put_vector(real, at, ws.g)
+    at = _put_matrix(real, at, ws.e)
+    at = _put_vector(real, at, ws.offsets)
+    at = _put_vector(real, at, ws.z)
+    at = _put_vector(real, at, ws.mu)
+    at = _put_vector(real, at, ws.lam)
+    _put_vector(real, at, ws.direction)
+    at = _put_vector(integer, 0, ws.cone_rows)
+    at = _put_vector(integer, at, ws.regularized)
+    _put_vector(integer, at, ws.first_active)
+
+
+def snapshot_sizes(arrays: dict[str, Any]) -> tuple[int, int]:
+    """The lengths of :func:`snapshot_into`'s ``real`` and ``integer`` for the workspace
+    whose arrays (:func:`socp_arrays`) are ``arrays``."""
+    sizes = [0, 0]
+    for name in FAILURE_FIELDS:
+        sizes[name in _INTEGER_FIELDS] += int(np.size(arrays[name]))
+    return sizes[0], sizes[1]
+
+
+def snapshot_views(real: Any, integer: Any, arrays: dict[str, Any]) -> dict[str, Any]:
+    """The :data:`FAILURE_FIELDS` of a :func:`snapshot_into` copy as views of ``real`` and
+    ``integer``, shaped as the workspace's ``arrays`` it was taken from."""
+    views: dict[str, Any] = {}
+    at = [0, 0]
+    for name in FAILURE_FIELDS:
+        which = int(name in _INTEGER_FIELDS)
+        shape = np.shape(arrays[name])
+        size = int(np.prod(shape, dtype=np.int64))
+        source = integer if which else real
+        views[name] = source[at[which] : at[which] + size].reshape(shape)
+        at[which] += size
+    return views
 
 
 def new_socp_workspace(**fields: Any) -> Any:

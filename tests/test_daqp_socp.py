@@ -563,3 +563,43 @@ def test_a_failed_nominal_cone_solve_is_not_repeated() -> None:
     assert len(failed) >= 5
     assert calls["adopt"] == len(failed) and calls["solve"] == 0, (calls, len(failed))
     assert all(r.mpc.reason.startswith("exitflag -1 at SQP iteration") for r in failed)
+
+
+def test_a_failed_solve_snapshot_holds_the_workspace_arrays() -> None:
+    """snapshot_into (the compiled step's copy of a failed solve) then snapshot_views gives
+    every array of FAILURE_FIELDS as the workspace holds it, bit for bit and in its shape
+    and dtype, and failure_outcome reads the same status and reason from it as from a copy
+    of the arrays by name (infeasible problems of the controller's shape; a wrong order or
+    length in the flat layout changes some array)."""
+    from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense, failure_outcome
+    from ltv_lstm_mpc.solvers.socp_sqp import (
+        FAILURE_FIELDS,
+        MAX_ITERATIONS,
+        snapshot_into,
+        snapshot_sizes,
+        snapshot_views,
+        socp_solve,
+    )
+    from ltv_lstm_mpc.solvers.testing import controller_socp
+
+    for seed in range(4):
+        qp = controller_socp(seed, "infeasible", bool(seed % 2))
+        backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+        backend.setup(qp)
+        flag, sqp, *_ = socp_solve(backend._ws, False, MAX_ITERATIONS)
+        assert flag < 0, (seed, flag)
+        arrays = backend._arrays
+        real_size, int_size = snapshot_sizes(arrays)
+        real, integer = np.full(real_size, np.nan), np.full(int_size, -7, dtype=np.int64)
+        snapshot_into(backend._ws, real, integer)
+        assert not np.isnan(real).any() and not (integer == -7).any()
+        views = snapshot_views(real, integer, arrays)
+        assert set(views) == set(FAILURE_FIELDS)
+        for name in FAILURE_FIELDS:
+            assert views[name].shape == arrays[name].shape, name
+            assert views[name].dtype == arrays[name].dtype, name
+            np.testing.assert_array_equal(views[name], arrays[name], err_msg=name)
+        copies = {name: arrays[name].copy() for name in FAILURE_FIELDS}
+        assert failure_outcome(views, flag, sqp, 1e-8, {}) == failure_outcome(
+            copies, flag, sqp, 1e-8, {}
+        )

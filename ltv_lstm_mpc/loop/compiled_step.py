@@ -281,7 +281,7 @@ def placeholder_fallback() -> Any:
         policy=0, ns=0, H=np.zeros((0, 0)), f=np.zeros(0), A=np.zeros((0, 0)),
         high=np.zeros(0), low=np.zeros(0), sense=np.zeros(0, dtype=np.intc), z=np.zeros(0),
         lam=np.zeros(0), regularization=0.0, codes=np.zeros(5, dtype=np.int64), socp=socp,
-        policy_socp=socp,
+        policy_socp=socp, snapshot=np.zeros(0), snapshot_int=np.zeros(0, dtype=np.int64),
     )  # fmt: skip
 
 

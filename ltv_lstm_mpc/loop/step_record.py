@@ -22,6 +22,7 @@ from ltv_lstm_mpc.loop.reference import ReferenceSolution
 from ltv_lstm_mpc.loop.statuses import MEASUREMENT_STATUSES, SETPOINT_STATUSES
 from ltv_lstm_mpc.mpc.fhocp import MPCSolution
 from ltv_lstm_mpc.mpc.native_feedback import POLICIES, STATUS_CONE_FAILURE, feedback_outcome
+from ltv_lstm_mpc.solvers.socp_sqp import snapshot_views
 
 __all__ = ["ControllerStep", "recorded_reference", "recorded_step"]
 
@@ -154,8 +155,10 @@ def recorded_step(records: ControllerRecords, k: int, mpc: Any) -> ControllerSte
     prepare_time, feedback_time = real[c.PREPARE_TIME], real[c.FEEDBACK_TIME]
     parts = mpc.one_call_parts()
     if integer[c.STATUS] == STATUS_CONE_FAILURE:  # the certificate checks, on the copy
+        real_copy, integer_copy = records.extras[k]
+        snapshot = snapshot_views(real_copy, integer_copy, parts.socp_arrays)
         outcome, reason = parts.failure_outcome(
-            records.extras[k], integer[c.FAILURE_FLAG_COLUMN], integer[c.FAILURE_SQP_COLUMN]
+            snapshot, integer[c.FAILURE_FLAG_COLUMN], integer[c.FAILURE_SQP_COLUMN]
         )
         status = outcome.name.lower()
     else:

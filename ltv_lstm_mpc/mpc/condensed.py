@@ -410,6 +410,7 @@ class CondensedTranscription(TranscriptionBase):
             new_fallback_workspace,
             placeholder_socp,
         )
+        from ltv_lstm_mpc.solvers.socp_sqp import snapshot_sizes
 
         nu, ns, n2 = self.N * self.m, self._n_out, 2 * self.n
         policy = POLICIES.index(config.infeasibility_policy)
@@ -432,13 +433,20 @@ class CondensedTranscription(TranscriptionBase):
             high[nz + 2 * ns : nz + 2 * ns + n2] = np.inf
             low[nz + 2 * ns + n2 :] = -np.inf
         socp = placeholder_socp()  # (the cone workspaces: the sessions' with cones)
+        real_size, int_size = 0, 0
         if cones:
             socp = self._socp_workspace
+            assert self.socp_arrays is not None
+            real_size, int_size = snapshot_sizes(self.socp_arrays)
+        #: Where the nominal SQP fails, the copy of its workspace that its status is read
+        #: from (:func:`~ltv_lstm_mpc.solvers.socp_sqp.snapshot_into`; empty without cones).
+        self.failure_snapshot = (np.zeros(real_size), np.zeros(int_size, dtype=np.int64))
         return new_fallback_workspace(
             socp=socp, policy_socp=self.policy_socp_workspace or socp,
             policy=policy, ns=ns, H=H, f=f, A=A, high=high, low=low,
             sense=np.zeros(nz + rows, dtype=np.intc), z=np.zeros(nz), lam=np.zeros(nz + rows),
             regularization=float(self.slack_regularization), codes=np.zeros(5, dtype=np.int64),
+            snapshot=self.failure_snapshot[0], snapshot_int=self.failure_snapshot[1],
         )  # fmt: skip
 
     @property

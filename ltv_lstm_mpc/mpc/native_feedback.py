@@ -44,7 +44,12 @@ from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 # solver layer's compiled forms of daqp and daqp:socp hold (solvers.compiled_form)
 from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
 from ltv_lstm_mpc.solvers.dense import bounds_rows_violation, cone_violation
-from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, new_socp_workspace_kernel, socp_solve
+from ltv_lstm_mpc.solvers.socp_sqp import (
+    MAX_ITERATIONS,
+    new_socp_workspace_kernel,
+    snapshot_into,
+    socp_solve,
+)
 
 __all__ = [
     "CONSTRUCTORS",
@@ -113,7 +118,7 @@ def feedback_outcome(code: int, flag_outcome: Any) -> tuple[str, str]:
 #: Fields of :data:`FallbackWorkspace`, in the order of its compiled constructor.
 FALLBACK_FIELDS = (
     "policy", "ns", "H", "f", "A", "high", "low", "sense", "z", "lam", "regularization",
-    "codes", "socp", "policy_socp",
+    "codes", "socp", "policy_socp", "snapshot", "snapshot_int",
 )  # fmt: skip
 
 FallbackWorkspace = workspace_type(
@@ -133,7 +138,9 @@ FallbackWorkspace = workspace_type(
     (:func:`cone_policy_feedback`): ``socp`` and ``policy_socp``, the
     :data:`~ltv_lstm_mpc.solvers.socp_sqp.SocpWorkspace` of the general path's sessions of
     the nominal problem and of the policy's (placeholders otherwise:
-    :func:`placeholder_socp`).
+    :func:`placeholder_socp`), and ``snapshot``, ``snapshot_int``: where the nominal SQP
+    fails, the copy of ``socp`` that its status is read from
+    (:func:`~ltv_lstm_mpc.solvers.socp_sqp.snapshot_into`; empty otherwise).
     """,
     __name__,
 )
@@ -160,11 +167,12 @@ def placeholder_socp() -> Any:
 @njit(cache=True)
 def _new_fallback_workspace(  # type: ignore[no-untyped-def]
     policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes, socp, policy_socp,
+    snapshot, snapshot_int,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return FallbackWorkspace(
         policy, ns, H, f, A, high, low, sense, z, lam, regularization, codes, socp,
-        policy_socp,
+        policy_socp, snapshot, snapshot_int,
     )  # fmt: skip
 
 
@@ -689,9 +697,10 @@ def cone_policy_feedback(
 
     Returns as :func:`policy_feedback`. A failed nominal solve is recorded with the status
     code :data:`STATUS_CONE_FAILURE` and its exit flag and SQP iterations in
-    ``fallback.codes`` (:data:`FAILURE_FLAG`, :data:`FAILURE_SQP`): its status and reason
-    come from the certificate checks, which the caller runs on a copy of
-    ``fallback.socp``'s arrays when the step's record is read. Code 0 (the general path
+    ``fallback.codes`` (:data:`FAILURE_FLAG`, :data:`FAILURE_SQP`), and ``fallback.socp``'s
+    arrays copied into ``fallback.snapshot`` and ``fallback.snapshot_int``: its status and
+    reason come from the certificate checks, which the caller runs on a copy of those when
+    the step's record is read. Code 0 (the general path
     runs): a point within a margin of a test, or a solve that ran out of SQP iterations (its
     status names the cones it stalled at).
     """
@@ -722,6 +731,7 @@ def cone_policy_feedback(
             return flag, iterations, step, seconds
         status = STATUS_CONE_FAILURE  # (socp is the session's workspace: not solved again)
         codes[FAILURE_FLAG], codes[FAILURE_SQP] = flag, sqp
+        snapshot_into(socp, fallback.snapshot, fallback.snapshot_int)  # (its record's copy)
     policy = fallback.policy
     linear = False
     step = 0.0

@@ -108,6 +108,10 @@ class OneCallParts:
         :func:`~ltv_lstm_mpc.mpc.native_feedback.cone_policy_feedback`), and the status
         and reason of that failed solve from a copy of them
         (``TranscriptionBase.failure_outcome``).
+    failure_snapshot : tuple or None
+        With ``socp``: the flat arrays the one-call feedback copies a failed solve's
+        ``socp_arrays`` into, in the step
+        (:func:`~ltv_lstm_mpc.solvers.socp_sqp.snapshot_into`).
     tolerance : float
         The acceptance tolerance of the cone feedback.
     backward : bool
@@ -126,6 +130,7 @@ class OneCallParts:
     flag_outcome: Any = None
     socp_arrays: Any = None
     failure_outcome: Any = None
+    failure_snapshot: Any = None
 
 
 class RobustMPC(DeferredState):
@@ -321,6 +326,7 @@ class RobustMPC(DeferredState):
                 backward=bool(getattr(problem, "backward_condensing", False)),
                 fallback=problem.fallback_workspace, flag_outcome=problem.flag_outcome,
                 socp_arrays=problem.socp_arrays, failure_outcome=problem.failure_outcome,
+                failure_snapshot=problem.failure_snapshot,
             )  # fmt: skip
         self.prepare_time = self.feedback_time = self.solver_time = 0.0
         self.qp_iterations = 0

@@ -116,6 +116,10 @@ class TranscriptionBase(abc.ABC):
     failure_outcome: Any = None
     #: With ``socp_workspace``: its arrays by name.
     socp_arrays: Any = None
+    #: With ``socp_workspace``: the flat arrays ``(real, integer)`` that the one-call
+    #: feedback copies a failed solve's ``socp_arrays`` into
+    #: (:func:`~ltv_lstm_mpc.solvers.socp_sqp.snapshot_into`).
+    failure_snapshot: Any = None
     #: With ``socp_workspace``: the exact-cone workspace of the infeasibility policy (None
     #: for ``"shift"``).
     policy_socp_workspace: Any = None

@@ -565,14 +565,12 @@ class OneCallEngine(DeferredState):
         """The run warnings of compiled step k (:mod:`ltv_lstm_mpc.loop.diagnostics`; its
         measurement ``y_phi``), and the reference calculator's count of its damped Newton
         (bit 3)."""
-        if warnings & 32:  # the failed cone solve's arrays, for its status and reason
-            from ltv_lstm_mpc.solvers.daqp_socp import FAILURE_FIELDS
-
+        if warnings & 32:  # the failed cone solve's arrays, for its status and reason: the
+            # step copied them into the flat snapshot (socp_sqp.snapshot_into), kept here
             parts = self.mpc.one_call_parts()
             assert parts is not None  # (the one-call engine runs on them)
-            arrays = parts.socp_arrays
-            copies = {name: arrays[name].copy() for name in FAILURE_FIELDS}
-            self.controller.records.extras[k] = copies
+            real, integer = parts.failure_snapshot
+            self.controller.records.extras[k] = (real.copy(), integer.copy())
         if warnings & 16:
             flag_implausible(self.controller, rows.y[k], y_phi)
         if warnings & 8:
