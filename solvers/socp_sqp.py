@@ -73,8 +73,13 @@ Unbounded and infeasible subproblems: the first subproblem of a solve knows no
 cone curvature (:math:`\mu = 0`, :math:`W_1 = H`), so where the curvature of a variable is
 all in a cone (an epigraph variable with a linear cost, the form qpsolvers hands a QP to
 ECOS in) it is unbounded; DAQP's "unbounded" (exit flag -3) is a verdict on that
-subproblem, not on the problem. Such a subproblem (and one DAQP calls infeasible, exit flag
--1, which on a singular :math:`W_k` need not be so) is solved again with the proximal term
+subproblem, not on the problem. A subproblem DAQP calls infeasible (exit flag -1) ends the
+solve where :math:`W_k` is safely positive definite (its Cholesky pivots at least
+:data:`DEFINITE_PIVOT` times its largest diagonal entry, factored then: DAQP's verdict on a
+strictly convex QP's feasibility holds; the MPC's problems, whose :math:`H` is positive
+definite, take this path and skip the second proof, a third of a failed solve's DAQP
+iterations). Such an unbounded subproblem (and an infeasible one on another
+:math:`W_k`, where the verdict need not hold) is solved again with the proximal term
 :math:`\tfrac\rho2 \|x - z_k\|^2` (:math:`\rho` = :data:`PROXIMAL` times ``1 +`` the
 largest diagonal entry of :math:`W_k`: strictly convex, so bounded, and DAQP's verdict on
 feasibility reliable), and the SQP goes on with its multipliers, which bring the cones'
@@ -108,6 +113,7 @@ __all__ = [
     "ARMIJO",
     "BACKTRACKS",
     "CONE_TOLERANCE",
+    "DEFINITE_PIVOT",
     "FAILURE_FIELDS",
     "FULL_STEPS",
     "MAX_ITERATIONS",
@@ -158,6 +164,11 @@ PROXIMAL = 1.0
 #: numerically singular Hessian).
 PROXIMAL_DECREASE = 0.1
 PROXIMAL_FLOOR = 1e-8
+#: DAQP's "infeasible" (exit flag -1) on a subproblem without the proximal term is its
+#: verdict where :math:`W_k` is positive definite with every Cholesky pivot at least this
+#: times its largest diagonal entry (:func:`_definite`); on another :math:`W_k` the
+#: subproblem is solved again with the proximal term (module docstring).
+DEFINITE_PIVOT = 1e-8
 #: Sufficient decrease of the line search (Armijo) and its most halvings.
 ARMIJO = 1e-4
 BACKTRACKS = 30
@@ -657,6 +668,34 @@ def _add_violated_rows(ws: Any) -> bool:
 
 
 @njit(cache=True)
+def _definite(ws: Any) -> bool:
+    """Whether :math:`W_k` (``ws.hessian``, both triangles) is positive definite with every
+    Cholesky pivot (the squared diagonal of its factor) at least :data:`DEFINITE_PIVOT`
+    times its largest diagonal entry; the factor goes into ``ws.reduced_hessian`` (scratch,
+    row by row)."""
+    hessian, factor = ws.hessian, ws.reduced_hessian
+    n = hessian.shape[0]
+    largest = 0.0
+    for a in range(n):
+        largest = max(largest, hessian[a, a])
+    if not largest > 0.0:
+        return False
+    floor = DEFINITE_PIVOT * largest
+    for a in range(n):
+        for b in range(a + 1):
+            acc = hessian[a, b]
+            for c in range(b):
+                acc -= factor[a * n + c] * factor[b * n + c]
+            if a == b:
+                if not acc >= floor:  # (a NaN too)
+                    return False
+                factor[a * n + a] = np.sqrt(acc)
+            else:
+                factor[a * n + b] = acc / factor[b * n + b]
+    return True
+
+
+@njit(cache=True)
 def _merit_parts(ws: Any, point: Any) -> tuple[float, float]:
     r"""The two parts of the l1 merit function :math:`\tfrac12 z^\top H z + f^\top z + w
     \sum_j \max(c_j(z), 0)` at ``point``: the cost and the smoothed cones' violations
@@ -856,6 +895,10 @@ def socp_solve(
                 )  # fmt: skip
                 total += iterations
                 seconds += solver_seconds(ws.result)
+            if flag == -1 and rho == 0.0 and _definite(ws):
+                # infeasible by DAQP on a safely positive definite W_k: the subproblem's
+                # verdict stands (no second proof with the proximal term)
+                return flag, iteration, total, np.inf, seconds
             if (flag == -3 or flag == -1) and rho == 0.0:
                 # unbounded subproblem (the cones' curvature is not known yet, e.g. the
                 # first one, with mu = 0), or infeasible by DAQP on a singular W_k: solve

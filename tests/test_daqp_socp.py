@@ -603,3 +603,77 @@ def test_a_failed_solve_snapshot_holds_the_workspace_arrays() -> None:
         assert failure_outcome(views, flag, sqp, 1e-8, {}) == failure_outcome(
             copies, flag, sqp, 1e-8, {}
         )
+
+
+# ---------------------------------------------------------------- infeasible subproblems
+def _definite_of(W: np.ndarray) -> tuple[bool, np.ndarray]:
+    """socp_sqp._definite on W_k = W: (verdict, the factor it left, lower triangle)."""
+    from ltv_lstm_mpc.solvers.socp_sqp import _definite
+
+    n = W.shape[0]
+    arrays, ws = _workspace(
+        np.eye(n), np.zeros(n), np.zeros((0, n)), np.zeros(0), np.zeros(0), np.full(n, -1.0),
+        np.ones(n), [],
+    )  # fmt: skip
+    arrays["hessian"][...] = W
+    verdict = bool(_definite(ws))
+    return verdict, np.tril(arrays["reduced_hessian"].reshape(n, n))
+
+
+def test_the_definiteness_test_is_choleskys_with_a_relative_pivot_floor() -> None:
+    """_definite (whether DAQP's "infeasible" on W_k is the subproblem's verdict) says yes
+    to positive definite matrices, with numpy's Cholesky factor, and no to singular,
+    indefinite, NaN and zero ones and to one whose smallest pivot is below DEFINITE_PIVOT
+    times the largest diagonal entry (1e-9 against 1e-8), yes just above it."""
+    from ltv_lstm_mpc.solvers.socp_sqp import DEFINITE_PIVOT
+
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 5, 12):
+        B = rng.standard_normal((n, n))
+        W = B @ B.T + 0.1 * np.eye(n)
+        verdict, factor = _definite_of(W)
+        assert verdict, n
+        np.testing.assert_allclose(factor, np.linalg.cholesky(W), rtol=1e-12, atol=1e-12)
+        v = rng.standard_normal(n)
+        assert not _definite_of(np.outer(v, v) if n > 1 else np.zeros((1, 1)))[0], n
+        indefinite = W - 2.0 * np.linalg.eigvalsh(W).max() * np.outer(v, v) / (v @ v)
+        assert not _definite_of(indefinite)[0], n
+        W_nan = W.copy()
+        W_nan[n - 1, n - 1] = np.nan
+        assert not _definite_of(W_nan)[0], n
+    assert DEFINITE_PIVOT == 1e-8
+    assert not _definite_of(np.diag([1.0, 1e-9]))[0]
+    assert _definite_of(np.diag([1.0, 2e-8]))[0]
+    assert not _definite_of(np.zeros((3, 3)))[0]
+
+
+def test_an_infeasible_subproblem_on_a_definite_hessian_ends_the_solve() -> None:
+    """Infeasible SOCPs of the controller's shape (H positive definite, so every W_k is):
+    the solve ends where DAQP first calls a subproblem infeasible, without solving it again
+    with the proximal term: W_k is left as it was (the re-solve would add the proximal
+    weight to its diagonal) and its Cholesky factor, from the definiteness test, is in the
+    scratch; the status and certificate are those of the general backend, INFEASIBLE."""
+    from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.testing import controller_socp
+
+    infeasible = 0
+    for seed in range(6):
+        qp = controller_socp(seed, "infeasible", bool(seed % 2))
+        if np.linalg.eigvalsh(0.5 * (qp.H + qp.H.T)).min() <= 1e-6:
+            continue
+        backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+        backend.setup(qp)
+        flag, sqp, *_ = socp_solve(backend._ws, False, MAX_ITERATIONS)
+        if flag != -1:
+            continue
+        arrays = backend._arrays
+        W = arrays["hessian"]
+        n = W.shape[0]
+        L = np.tril(arrays["reduced_hessian"].reshape(n, n))
+        np.testing.assert_allclose(L @ L.T, W, rtol=1e-12, atol=1e-12 * np.abs(W).max())
+        status, _z, _iterations, info = backend.solve_point()
+        assert status is SolverStatus.INFEASIBLE, (seed, info)
+        assert info.startswith(f"exitflag -1 at SQP iteration {sqp};"), info
+        infeasible += 1
+    assert infeasible >= 3

@@ -732,6 +732,7 @@ def _mpc_fields(
                 ("FULL_STEPS", socp_sqp.FULL_STEPS), ("PROXIMAL", socp_sqp.PROXIMAL),
                 ("PROXIMAL_DECREASE", socp_sqp.PROXIMAL_DECREASE),
                 ("PROXIMAL_FLOOR", socp_sqp.PROXIMAL_FLOOR), ("ARMIJO", socp_sqp.ARMIJO),
+                ("DEFINITE_PIVOT", socp_sqp.DEFINITE_PIVOT),
                 ("BACKTRACKS", socp_sqp.BACKTRACKS),
                 ("SCREENING_MARGIN", socp_sqp.SCREENING_MARGIN),
             )
