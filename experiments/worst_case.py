@@ -25,6 +25,11 @@ prints per run:
   say what set the max (a set-point step whose warm chord fails runs the damped Newton
   in the reference calculator; an infeasible step the policy in the MPC).
 
+Per solver and horizon it also prints the first steps: the first step after the
+controller's construction and the one after it, then the same after a ``reset()`` (the
+median of 5 resets), and which engine ran them (the first step has run in the one call
+since the worst-case work; before, on the reference engine).
+
 The first 10 steps aside, the targets of the worst-case work are p99 / median <= 1.5 and
 max / median <= 3 on a run where at least 5 % of the steps fall back, and a fallback step
 within 2x the nominal median. The machine's own jitter is in every tail: read it against
@@ -101,6 +106,35 @@ def closed_loop(scenario: Any, model: Any, solver: str, N: int, steps: int) -> t
     finally:
         gc.enable()
     return times[SKIP:], controller.records[SKIP:]
+
+
+def first_steps(scenario: Any, model: Any, solver: str, N: int, resets: int = 5) -> str:
+    """The first two steps' times (us) after construction and after a reset (median of
+    ``resets``), with the engines that ran them: one line of the output."""
+    config = replace(scenario.config, solver=solver, N=N)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit
+    )
+    times = []
+    for run in range(resets + 1):
+        if run:
+            controller.reset()
+        plant = scenario.make_plant(model)
+        y = plant.output()
+        pair = []
+        for k in range(2):
+            start = time.perf_counter()
+            u = controller.step(y, scenario.setpoints[k])
+            pair.append(time.perf_counter() - start)
+            y = plant.step(u, None)
+        times.append(pair)
+    us = np.array(times) * 1e6
+    engines = "/".join(record.engine for record in list(controller.records)[:2])
+    return (
+        f"{solver} N={N} first steps (us): after construction {us[0, 0]:.1f}, then "
+        f"{us[0, 1]:.1f}; after a reset (median of {resets}) {np.median(us[1:, 0]):.1f}, then "
+        f"{np.median(us[1:, 1]):.1f}; engines {engines}"
+    )
 
 
 def denser(scenario: Any, period: int) -> Any:
@@ -181,6 +215,7 @@ def main() -> None:
     )
     for solver in args.solvers:
         for N in args.N:
+            print(first_steps(scenario3, model, solver, N))
             for name, scenario, steps in runs:
                 steps = min(steps, scenario.steps)
                 pooled = [

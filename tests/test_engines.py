@@ -119,15 +119,15 @@ def test_the_engine_is_chosen_once_and_named(model) -> None:  # type: ignore[no-
 
 
 def test_the_records_say_which_engine_ran_each_step(model) -> None:  # type: ignore[no-untyped-def]
-    """The first step and every step of a refused configuration: the reference engine; the
-    steps after the first of a one-call controller: the one-call engine."""
-    for one_call_step, later in ((True, "one-call"), (False, "reference")):
+    """Every step of a refused configuration: the reference engine; every step of a
+    one-call controller, the first one included: the one-call engine."""
+    for one_call_step, engine in ((True, "one-call"), (False, "reference")):
         controller = OffsetFreeController(
             model, MPCConfig(solver="daqp", N=5), kernels="compiled", one_call_step=one_call_step
         )
         for _ in range(4):
             controller.step(7.0, 7.1)
-        assert [r.engine for r in controller.records] == ["reference"] + [later] * 3
+        assert [r.engine for r in controller.records] == [engine] * 4
 
 
 # ---------------------------------------------------------------- the layout

@@ -404,18 +404,21 @@ def newton_restarts(
 ) -> tuple[float, int, bool, bool]:
     r"""The restart loop of ``ReferenceCalculator.solve_arrays`` after the warm path: the
     damped Newton (:func:`_newton_from`) from ``folded`` (a MIMO warm-path solution that
-    jumped: another branch of a fold? empty: none), the last solution ``previous``, and the
-    grid equilibria closest in output to ``target`` (one for SISO, ``restart.restarts`` for
-    MIMO models); the best start by the calculator's rank (admissible, then closest to
-    ``previous``, then converged, then the smallest residual), stopping at an admissible
-    solution from ``previous`` where nothing folded. The best point goes into ``z_out``;
+    jumped: another branch of a fold? empty: none), the last solution ``previous`` (empty:
+    none, the calculator's cold solve after a reset), and the grid equilibria closest in
+    output to ``target`` (one for SISO, ``restart.restarts`` for MIMO models); the best
+    start by the calculator's rank (admissible, then closest to ``previous``, then
+    converged, then the smallest residual), stopping at an admissible solution from
+    ``previous`` where nothing folded (without ``previous``: at the first admissible
+    solution). The best point goes into ``z_out``;
     returns (residual, Newton iterations of all starts, converged, :math:`\bar u \in
     \mathcal U`)."""
     grid_x, grid_u, grid_y = restart.grid_x, restart.grid_u, restart.grid_y
     z, best, distance = restart.z, restart.best, restart.distance
-    size = previous.shape[0]
     n2 = grid_x.shape[1]
-    m = size - n2
+    m = grid_u.shape[1]
+    size = n2 + m
+    warm = 1 if previous.shape[0] else 0  # the last solution is a start
     limit = restart.u_max * (1.0 + U_MARGIN)
     for g in range(grid_y.shape[0]):
         largest = 0.0
@@ -425,7 +428,7 @@ def newton_restarts(
     order = np.argsort(distance, kind="mergesort")  # stable, as the reference's
     n_grid = 1 if m == 1 else min(restart.restarts, grid_y.shape[0])
     first = 1 if folded.shape[0] else 0
-    starts = first + 1 + n_grid
+    starts = first + warm + n_grid
     total = 0
     have_best = False
     best_admissible, best_closeness, best_converged, best_norm = False, -np.inf, False, -np.inf
@@ -435,11 +438,11 @@ def newton_restarts(
         if number < first:
             for a in range(size):
                 start[a] = folded[a]
-        elif number == first:
+        elif warm and number == first:
             for a in range(size):
                 start[a] = previous[a]
         else:
-            g = order[number - first - 1]
+            g = order[number - first - warm]
             for q in range(n2):
                 start[q] = grid_x[g, q]
             for a in range(m):
@@ -453,8 +456,9 @@ def newton_restarts(
         closeness = -np.inf
         if admissible:
             closeness = 0.0
-            for a in range(size):
-                closeness = max(closeness, abs(z[a] - previous[a]))
+            if warm:
+                for a in range(size):
+                    closeness = max(closeness, abs(z[a] - previous[a]))
             closeness = -closeness
         better = not have_best
         if have_best:  # the rank tuple (admissible, closeness, converged, -norm), compared
@@ -473,8 +477,8 @@ def newton_restarts(
             norm_out, converged_out = norm, converged
             for a in range(size):
                 best[a] = z[a]
-        if admissible and first == 0 and number == 0:
-            break  # from the previous solution itself: take it
+        if admissible and first == 0 and (number == 0 or not warm):
+            break  # from the previous solution itself (or none): take it
     largest_u = 0.0
     for a in range(size):
         z_out[a] = best[a]

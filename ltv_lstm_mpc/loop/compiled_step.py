@@ -36,6 +36,9 @@ them with :math:`y_{k-1}`). :func:`prepare_step` runs them alone, between sample
 (:meth:`~ltv_lstm_mpc.OffsetFreeController.prepare_next`), and :func:`feedback_step` runs
 stage 6 when the measurement arrives, so that a sample costs only the feedback and the
 observer update; :func:`controller_step` runs both in one call.
+:func:`controller_first_step` runs the first step after construction or a reset: the
+observer's start at the equilibrium whose output is the measurement, then the same stages
+without a last reference solution or a previous plan.
 
 Everything the step computed goes into row ``k`` of :data:`RecordArrays` (the updated
 estimates into row ``k + 1``): the controller's records are built from those rows when
@@ -88,6 +91,7 @@ from ltv_lstm_mpc.loop.statuses import UNREACHABLE_STALE
 from ltv_lstm_mpc.mpc.compiled_prepare import (
     CANDIDATE_GIVEN,
     CANDIDATE_SHIFT,
+    CANDIDATE_U_BAR,
     prepare_condensed,
 )
 from ltv_lstm_mpc.mpc.native_feedback import (
@@ -425,7 +429,11 @@ def prepare_step(
     :data:`STEP_DONE`, :data:`STEP_GENERAL` (a set-point that is not finite) or
     :data:`STEP_REFERENCE`. The chord's inverse Jacobian as it was before is kept in
     ``step.jinv_backup`` (a caller that discards this preparation puts it back). Arguments
-    as for :func:`controller_step`.
+    as for :func:`controller_step`; the first step after a reset
+    (:func:`controller_first_step`) passes ``last_z`` and ``previous_u`` empty: the
+    reference then comes from the calculator's cold solve (the damped Newton from the grid
+    equilibria, no warm chord), the candidate is :math:`\bar u` repeated, and the
+    linearization starts from :math:`\hat x_k` (no plan to shift).
     """
     clock = step.clock
     t0 = _now(clock)
@@ -463,8 +471,16 @@ def prepare_step(
         target_step[j] = target[j] - last_target[j] if last_target.shape[0] else 0.0
     chord.state[CHORD_JINV_VALID] = jinv_valid
     z = records.z[k]
-    residual = chord_newton(chord, last_z, target, target_step, step.tol, step.max_iter, z)
+    cold = last_z.shape[0] == 0  # no last solution (a reset): the cold solve, no chord
     state = chord.state
+    if cold:
+        state[CHORD_ITERATIONS] = 0
+        state[CHORD_FACTORIZATIONS] = 0
+        state[CHORD_CONVERGED] = 0
+        state[CHORD_JINV_VALID] = 0
+        residual = np.inf
+    else:
+        residual = chord_newton(chord, last_z, target, target_step, step.tol, step.max_iter, z)
     integer[REFERENCE_ITERATIONS] = state[CHORD_ITERATIONS]
     integer[FACTORIZATIONS] = state[CHORD_FACTORIZATIONS]
     integer[CHORD_OK] = state[CHORD_CONVERGED]
@@ -502,7 +518,8 @@ def prepare_step(
             for j in range(p):
                 target[j] = last_target[j]
         state[CHORD_JINV_VALID] = 0  # the chord refactorizes at the next step
-        integer[REFERENCE_FALLBACK] = 1
+        integer[REFERENCE_FALLBACK] = 0 if cold else 1  # (the calculator counts fallbacks
+        # from its warm path only)
         integer[STALE_REFERENCE] = 1 if stale else 0
         integer[REFERENCE_ITERATIONS] = iterations
         integer[JINV_VALID] = 0
@@ -556,18 +573,21 @@ def prepare_step(
     for a in range(m):
         if not -u_max <= u_bar[a] <= u_max:
             projected = True
-    candidate = CANDIDATE_SHIFT
+    planned = previous_u.shape[0] > 0  # else the first step: u_bar repeated, no shift
+    candidate = CANDIDATE_SHIFT if planned else CANDIDATE_U_BAR
     if projected:  # an inadmissible equilibrium within the tolerance: append its projection
-        for i in range(N - 1):
+        shifted = N - 1 if planned else 0
+        for i in range(shifted):
             for a in range(m):
                 cand[i, a] = previous_u[i + 1, a]
-        for a in range(m):
-            cand[N - 1, a] = min(max(u_bar[a], -u_max), u_max)
+        for i in range(shifted, N):
+            for a in range(m):
+                cand[i, a] = min(max(u_bar[a], -u_max), u_max)
         candidate = CANDIDATE_GIVEN
     integer[U_BAR_PROJECTED] = 1 if projected else 0
     scale, _ = prepare_condensed(
-        trajectories, condensing, cand, previous_u, candidate, x_hat, step.reuse_tol, x_bar,
-        u_bar, lower, upper, alpha, step.backward,
+        trajectories, condensing, cand, previous_u, candidate, x_hat,
+        step.reuse_tol if planned else -1.0, x_bar, u_bar, lower, upper, alpha, step.backward,
     )  # fmt: skip
     real[SCALE] = scale
     t3 = _now(clock)
@@ -732,6 +752,53 @@ def controller_step(
     code, inverse_valid, factorizations = prepare_step(
         step, records, k, y0_phi, y0_previous, x_hat, d_hat, last_z, last_target, jinv_valid,
         previous_u, e_hat, rate_limit,
+    )  # fmt: skip
+    if code != STEP_DONE:
+        return code, 0, inverse_valid, factorizations, 0.0
+    code, warnings, e_hat_next = _feedback_and_update(
+        step, records, k, x_hat, d_hat, e_hat, normalization
+    )
+    return code, warnings, inverse_valid, factorizations, e_hat_next
+
+
+@njit(cache=True)
+def controller_first_step(
+    step: Any, records: Any, k: int, y_phi: Any, y0_phi: Any, e_hat: float, rate_limit: float
+) -> tuple[int, int, int, int, float]:
+    r""":func:`controller_step` for the first step after construction or a reset
+    (``ReferenceEngine._start``): the observer starts at the LSTM equilibrium whose output
+    is the measurement, with :math:`\hat d_0 = 0` (paper notes 2.10b), found by the
+    reference calculator's cold solve (the damped Newton from the grid equilibria closest
+    in output: :func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts` without a last
+    solution); the limiter starts from the measurement; then the step, with no last
+    reference solution and no previous plan (:func:`prepare_step`). Returns as
+    :func:`controller_step`; :data:`STEP_GENERAL` (nothing kept: the reference engine runs
+    the whole first step, with its errors and warnings) where the measurement is not
+    finite or beyond the plausible range (refused as a first one), or no admissible
+    equilibrium has its output (the reference engine starts at the closest and warns).
+    """
+    t0 = _now(step.clock)
+    if not _normalize_measurement(step, records, k, y_phi):
+        return STEP_GENERAL, 0, 0, 0, 0.0
+    if records.integer[k, MEASUREMENT_STATUS] == 2:  # (check_first_measurement refuses it)
+        return STEP_GENERAL, 0, 0, 0, 0.0
+    y = records.y[k]
+    p = y.shape[0]
+    n2 = records.x_hat.shape[1]
+    m = step.u_min.shape[0]
+    start = np.empty(n2 + m)
+    nothing = np.empty(0)
+    _residual, _iterations, converged, inside = newton_restarts(
+        step.chord, step.restart, nothing, nothing, y, step.tol, step.max_iter, start
+    )
+    if not (converged and inside):
+        return STEP_GENERAL, 0, 0, 0, 0.0
+    x_hat = start[:n2]
+    d_hat = np.zeros(p)
+    normalization = _now(step.clock) - t0
+    code, inverse_valid, factorizations = prepare_step(
+        step, records, k, y0_phi, y, x_hat, d_hat, nothing, nothing, 0,
+        np.empty((0, m)), e_hat, rate_limit,
     )  # fmt: skip
     if code != STEP_DONE:
         return code, 0, inverse_valid, factorizations, 0.0

@@ -80,7 +80,8 @@ _ENVIRONMENT = "LTV_LSTM_MPC_KERNEL"
 def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> list[Any]:
     """The numba-compiled functions an ``OffsetFreeController`` with ``config`` calls on a
     compiled kernel: the MPC's (:func:`~ltv_lstm_mpc.mpc.kernels.compiled_kernels`), the
-    observer update and the reference calculator's chord Newton, with the constructors of
+    observer update and the reference calculator's chord Newton and damped Newton with
+    restarts, with the constructors of
     their workspaces; and the one-call step (:mod:`ltv_lstm_mpc.loop.compiled_step`) where
     the one-call feedback runs."""
     from ltv_lstm_mpc.loop import compiled_observer, compiled_reference
@@ -89,7 +90,8 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
     kernels = [
         *compiled_kernels(config, native_feedback=native_feedback),
         compiled_observer.observer_update, *compiled_observer.CONSTRUCTORS,
-        compiled_reference.chord_newton, *compiled_reference.CONSTRUCTORS,
+        compiled_reference.chord_newton, compiled_reference.newton_restarts,
+        *compiled_reference.CONSTRUCTORS,
     ]  # fmt: skip
     names = {getattr(kernel, "__name__", "") for kernel in kernels}
     if names & {"nominal_feedback", "cone_feedback"}:
@@ -99,6 +101,7 @@ def controller_kernels(config: MPCConfig, *, native_feedback: bool = True) -> li
 
         kernels += [
             compiled_step.controller_step, compiled_step.controller_step_from_rows,
+            compiled_step.controller_first_step,
             compiled_step.prepare_step, compiled_step.prepare_step_from_rows,
             compiled_step.feedback_step, compiled_step.feedback_step_from_rows,
             *compiled_step.CONSTRUCTORS,

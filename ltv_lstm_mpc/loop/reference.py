@@ -35,6 +35,7 @@ from ltv_lstm_mpc.loop.compiled_reference import (
     chord_newton,
     new_chord_workspace,
     new_restart_workspace,
+    newton_restarts,
 )
 from ltv_lstm_mpc.lstm.model import LSTMModel, require_model
 from ltv_lstm_mpc.validation import (
@@ -522,6 +523,15 @@ class ReferenceCalculator(DeferredState):
         elif self._last_z is not None:
             starts.append(self._last_z.copy())
         previous = starts[0] if starts else None
+        if self._chord_parts is not None:  # the compiled twin of the loop below, whose
+            # numbers the one-call step engine's (and the first step's) are
+            z, norm, total_iterations, converged = self._restarts_compiled(
+                previous, None if folded is None else folded[0], target
+            )
+            _F, A, B = self._residual(z, target)
+            return self._cold_solution(
+                y0_arr, d_arr, target, z, norm, total_iterations, converged, A, B
+            )
         # Grid equilibria closest in output to the target (several for MIMO models, where
         # the equilibrium map can fold and distinct starts reach distinct equilibria).
         distance = np.max(np.abs(self._grid_y - target), axis=1)
@@ -547,6 +557,43 @@ class ReferenceCalculator(DeferredState):
                 break  # from the previous solution itself (or no previous one): take it
         assert best is not None
         z, norm, converged, A, B = best
+        return self._cold_solution(
+            y0_arr, d_arr, target, z, norm, total_iterations, converged, A, B
+        )
+
+    def _restarts_compiled(
+        self, previous: FloatArray | None, folded: FloatArray | None, target: FloatArray
+    ) -> tuple[FloatArray, float, int, bool]:
+        """The restart loop of :meth:`solve_arrays` by its compiled twin
+        (:func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts`): (z, residual,
+        Newton iterations of all starts, converged)."""
+        parts = self._chord_parts
+        assert parts is not None
+        none = np.zeros(0)
+        z = np.empty(self._jacobian.shape[0])
+        norm, iterations, converged, _inside = newton_restarts(
+            parts.workspace, parts.restart, none if previous is None else previous,
+            none if folded is None else np.ascontiguousarray(folded), target, float(self.tol),
+            int(self.max_iter), z,
+        )  # fmt: skip
+        return z, float(norm), int(iterations), bool(converged)
+
+    def _cold_solution(
+        self,
+        y0_arr: FloatArray,
+        d_arr: FloatArray,
+        target: FloatArray,
+        z: FloatArray,
+        norm: float,
+        total_iterations: int,
+        converged: bool,
+        A: FloatArray,
+        B: FloatArray,
+    ) -> ReferenceSolution:
+        """The solution of the damped Newton with restarts (its best point ``z`` with the
+        Jacobians ``A``, ``B`` there), kept as the next warm start where admissible;
+        raises in strict mode where it is not (:meth:`solve_arrays`)."""
+        n2 = 2 * self.model.n
         x_bar, u_bar = z[:n2].copy(), z[n2:].copy()
         J = self._jacobian.copy()
         J[:n2, :n2] = A - self._eye

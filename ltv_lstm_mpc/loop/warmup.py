@@ -49,13 +49,18 @@ def warm_up(model: LSTMModel, config: MPCConfig, *, steps: int = 3) -> float:
     controller = OffsetFreeController(twin, config, kernels="compiled")
     x_bar = twin.equilibrium(np.zeros(twin.m))
     y = np.asarray(twin.denormalize_y(twin.output(x_bar)), dtype=np.float64)
-    for _ in range(steps):  # the first step general, then one-call steps
+    for _ in range(steps):  # the first step (compiled too where it can be), then the others
         controller.step(y, y)
     controller.reset()
     controller.step(y, y)
-    for _ in range(2):  # prepared steps: after a general step, then after a one-call one
+    for _ in range(2):  # prepared steps: after a first step, then after a one-call one
         controller.prepare_next()
         controller.step(y, y)
+    # the general path's compiled feedback, which a one-call step hands over to (and the
+    # reference engine's first step where the one-call one declines)
+    general = OffsetFreeController(twin, config, kernels="compiled", one_call_step=False)
+    for _ in range(2):
+        general.step(y, y)
     from ltv_lstm_mpc.mpc.rti import NLP_SOLVERS
     from ltv_lstm_mpc.solvers import compiled_form
 

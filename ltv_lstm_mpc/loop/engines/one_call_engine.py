@@ -483,7 +483,42 @@ class OneCallEngine(DeferredState):
             if not isinstance(answer, Handover):
                 return answer
             handover = answer
+        else:
+            first = self._first_step(y_phi, y0_phi)
+            if first is not None:
+                return first
         return self.general.step(y_phi, y0_phi, handover)
+
+    def _first_step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray | None:
+        """The first step after construction or a reset as one compiled call
+        (:func:`~ltv_lstm_mpc.loop.compiled_step.controller_first_step`: the observer's
+        start at the equilibrium whose output is the measurement, then the step); None
+        where it does not accept (the reference engine then runs the whole first step,
+        ``ReferenceEngine._start`` included, with its errors and warnings)."""
+        controller = self.controller
+        self.settle()
+        self._check_settings()
+        records = controller.records
+        k = len(records)
+        y_arr, y0_arr = self._signals(y_phi, y0_phi)
+        if k + 2 > records.capacity:
+            records.reserve(k + 2)
+        rate_limit = controller.setpoint_rate_limit
+        e_hat = float(controller.e_hat)
+        code, warnings, inverse_valid, factorizations, e_hat_next = self._compiled(
+            "controller_first_step", True,
+            (self.workspace, records.compiled, k, y_arr, y0_arr, e_hat,
+             _NO_LIMIT if rate_limit is None else float(rate_limit)),
+        )  # fmt: skip
+        if code != one_call.STEP_DONE:
+            return None
+        controller.initialized = True
+        self.mpc.plan_valid = True  # the plan the call left in row k (settled from there)
+        answer = self._finish(
+            k, code, warnings, inverse_valid, factorizations, e_hat_next, y0_arr, y_phi
+        )
+        assert not isinstance(answer, Handover)
+        return answer
 
     def _step_one_call(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray | Handover:
         """:meth:`step` as one compiled call; returns the physical input, or what ran for
