@@ -276,21 +276,24 @@ class OneCallEngine(DeferredState):
         self._ready()
 
     def _ready(self) -> None:
-        """The record rows of the first steps, and the entry point of the common step
-        (``controller_step_from_rows``, from the versions the controller loaded from
-        numba's cache at construction), now rather than in the first steps after the
-        first: those then take the time of any other step (``experiments/cold_start.py``)."""
+        """The record rows of the first steps, and the entry points of the first step and
+        of the common step (``controller_first_step``, ``controller_step_from_rows``, from
+        the versions the controller loaded from numba's cache at construction), now rather
+        than in the first steps: those then take the time of any other step
+        (``experiments/cold_start.py``)."""
         records = self.controller.records
         records.reserve(2)  # (the first rows: 64)
-        name = "controller_step_from_rows"
-        if self.entries.get(name):
-            return
-        arguments = (
-            self.workspace, records.compiled, 1, self.y_buffer, self.y0_buffer, 0, 0.0, _NO_LIMIT,
-        )  # fmt: skip
-        entry = entry_point(getattr(one_call, name), arguments)
-        if entry is not None:
-            self.entries[name] = entry
+        y, y0 = self.y_buffer, self.y0_buffer
+        for name, arguments in (
+            ("controller_first_step", (self.workspace, records.compiled, 0, y, y0, 0.0, _NO_LIMIT)),
+            ("controller_step_from_rows",
+             (self.workspace, records.compiled, 1, y, y0, 0, 0.0, _NO_LIMIT)),
+        ):  # fmt: skip
+            if self.entries.get(name):
+                continue
+            entry = entry_point(getattr(one_call, name), arguments)
+            if entry is not None:
+                self.entries[name] = entry
 
     def _step_state(self) -> StepState | None:
         """The state arguments of the compiled step, or None where it cannot run now (no
