@@ -195,3 +195,41 @@ def test_the_chord_refreshes_its_inverse_only_after_a_slow_contraction() -> None
             at += 1
     assert calculator.counts["factorizations"] <= 0.05 * steps
     assert slow_iterations <= 0.05 * steps
+
+
+def test_the_compiled_restart_loop_equals_the_numpy_one_and_checks_its_start() -> None:
+    """On a compiled model the damped Newton with restarts runs its compiled twin: the same
+    solution as the numpy loop (a calculator on the numpy kernel) from no warm start and
+    from a given one, to 1e-12; a warm start of the wrong length is refused; with
+    ``restarts`` assigned after construction the numpy loop runs (the compiled workspace
+    holds the old value), with the same answer."""
+    import copy
+
+    from ltv_lstm_mpc.lstm.kernel import LSTMKernel
+
+    model = load_model("ph_lstm_n5.npz")
+    compiled = copy.copy(model)
+    compiled.kernel = LSTMKernel(compiled, compiled=True)
+    slow = copy.copy(model)
+    slow.kernel = LSTMKernel(slow, compiled=False)
+    fast_calc = ReferenceCalculator(compiled, u_max=1.0, strict=False)
+    slow_calc = ReferenceCalculator(slow, u_max=1.0, strict=False)
+    assert fast_calc._chord_parts is not None and slow_calc._chord_parts is None
+    for y0 in (-0.5, 0.2, 0.9):
+        fast = fast_calc.solve([y0], [0.0])
+        slow_solution = slow_calc.solve([y0], [0.0])
+        np.testing.assert_allclose(fast.x_bar, slow_solution.x_bar, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast.u_bar, slow_solution.u_bar, rtol=0, atol=1e-12)
+        assert fast.converged == slow_solution.converged
+        warm = (fast.x_bar + 0.01, fast.u_bar)
+        again = fast_calc.solve([y0 + 0.1], [0.0], warm=warm)
+        slow_again = slow_calc.solve([y0 + 0.1], [0.0], warm=warm)
+        np.testing.assert_allclose(again.x_bar, slow_again.x_bar, rtol=0, atol=1e-12)
+        fast_calc.reset()
+        slow_calc.reset()
+    with pytest.raises(DimensionError, match="warm x_bar"):
+        fast_calc.solve([0.1], [0.0], warm=(fast.x_bar[:3], fast.u_bar))
+    fast_calc.restarts = 3
+    assert fast_calc._restart_settings != (fast_calc.restarts, fast_calc.u_max)
+    moved = fast_calc.solve([0.3], [0.0])
+    np.testing.assert_allclose(moved.x_bar, slow_calc.solve([0.3], [0.0]).x_bar, atol=1e-12)

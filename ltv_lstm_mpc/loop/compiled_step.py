@@ -117,6 +117,7 @@ __all__ = [
     "STEP_REFERENCE",
     "RecordArrays",
     "StepWorkspace",
+    "controller_first_step",
     "controller_step",
     "controller_step_from_rows",
     "feedback_step",

@@ -94,7 +94,7 @@ class OffsetFreeController(DeferredState):
         whose rate bound covers your set-point range (``y0_operating_range`` of
         :class:`~ltv_lstm_mpc.CertificationSettings`) when the limiter uses that bound.
     one_call_step : bool
-        Allow the one-call engine (default True): each step after the first as one
+        Allow the one-call engine (default True): each step, the first one included, as one
         compiled call where the configuration allows it (the condensed transcription with
         DAQP bound natively, compiled kernels, one SQP iteration, no ``mpc`` given:
         :mod:`ltv_lstm_mpc.loop.engines.one_call_engine`), handing any step that call does
@@ -227,7 +227,7 @@ class OffsetFreeController(DeferredState):
 
     @property
     def one_call(self) -> bool:
-        """Whether steps after the first run as one compiled call (the one-call engine)."""
+        """Whether the steps run as one compiled call each (the one-call engine)."""
         return self.engine.name == "one-call"
 
     @property

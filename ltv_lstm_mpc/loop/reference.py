@@ -268,6 +268,9 @@ class ReferenceCalculator(DeferredState):
         """The compiled twin's buffers of the damped Newton with restarts (its grid, its
         scratch): :func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts`."""
         size = self._jacobian.shape[0]
+        #: (restarts, u_max) the compiled restart loop runs with (``solve_arrays`` takes the
+        #: numpy loop where either was assigned since).
+        self._restart_settings = (self.restarts, self.u_max)
         return new_restart_workspace(
             grid_x=np.ascontiguousarray(self._grid_x), grid_u=np.ascontiguousarray(self._grid_u),
             grid_y=np.ascontiguousarray(self._grid_y), restarts=int(self.restarts),
@@ -474,8 +477,15 @@ class ReferenceCalculator(DeferredState):
         ------
         UnreachableSetpointError
             In strict mode, when no admissible equilibrium is found.
+        DimensionError
+            When ``warm``'s parts are not of 2n and m values.
         """
         p = self.model.p
+        if warm is not None:
+            warm = (
+                real_vector("warm x_bar", warm[0], 2 * self.model.n),
+                real_vector("warm u_bar", warm[1], self.model.m),
+            )
         return self.solve_arrays(real_vector("y0", y0, p), real_vector("d_hat", d_hat, p), warm)
 
     def solve_arrays(
@@ -523,8 +533,11 @@ class ReferenceCalculator(DeferredState):
         elif self._last_z is not None:
             starts.append(self._last_z.copy())
         previous = starts[0] if starts else None
-        if self._chord_parts is not None:  # the compiled twin of the loop below, whose
-            # numbers the one-call step engine's (and the first step's) are
+        if self._chord_parts is not None and self._restart_settings == (
+            self.restarts,
+            self.u_max,
+        ):  # the compiled twin of the loop below (whose numbers the one-call engine's
+            # are), while its workspace holds the calculator's restarts and u_max
             z, norm, total_iterations, converged = self._restarts_compiled(
                 previous, None if folded is None else folded[0], target
             )

@@ -1,4 +1,4 @@
-r"""The one-call step engine: each step after the first as one compiled call.
+r"""The one-call step engine: each step as one compiled call, the first one included.
 
 On the condensed transcription with DAQP bound natively (QP, or exact cones by SQP on
 DAQP), compiled kernels, one SQP iteration and the controller's own MPC, a step runs as
@@ -7,11 +7,15 @@ DAQP), compiled kernels, one SQP iteration and the controller's own MPC, a step 
 formulas and compiled kernels, in one call. It writes everything into the preallocated
 record rows; the records are built from them when read
 (:mod:`ltv_lstm_mpc.loop.step_record`), and the state the next step starts from stays in
-the rows (:mod:`ltv_lstm_mpc.deferred_state`) until something reads it.
+the rows (:mod:`ltv_lstm_mpc.deferred_state`) until something reads it. The first step
+after construction or a reset runs as
+:func:`~ltv_lstm_mpc.loop.compiled_step.controller_first_step` (the observer's start at an
+equilibrium, then the same stages).
 
-A step the compiled call does not accept (the first step, a measurement the checks flag,
-a warm chord that does not give an admissible equilibrium, a point the one-call feedback
-declines) is handed to the reference engine with what already ran
+A step the compiled call does not accept (a measurement the checks flag, a first step
+the reference engine would raise or warn on, a warm chord that does not give an
+admissible equilibrium, a point the one-call feedback declines) is handed to the
+reference engine with what already ran
 (:class:`~ltv_lstm_mpc.loop.engines.reference_engine.Handover`): the same numbers to 1e-12
 (``tests/test_one_call_step.py``). :meth:`OneCallEngine.prepare` runs the stages that do
 not use the measurement between samples (``OffsetFreeController.prepare_next``).
@@ -146,7 +150,7 @@ class Preparation:
 
 
 class OneCallEngine(DeferredState):
-    """Each step after the first as one compiled call (module docstring).
+    """Each step as one compiled call, the first one included (module docstring).
 
     Parameters
     ----------
@@ -488,16 +492,19 @@ class OneCallEngine(DeferredState):
             handover = answer
         else:
             first = self._first_step(y_phi, y0_phi)
-            if first is not None:
+            if not isinstance(first, Handover):
                 return first
+            handover = first
         return self.general.step(y_phi, y0_phi, handover)
 
-    def _first_step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray | None:
+    def _first_step(self, y_phi: ArrayLike, y0_phi: ArrayLike) -> FloatArray | Handover:
         """The first step after construction or a reset as one compiled call
         (:func:`~ltv_lstm_mpc.loop.compiled_step.controller_first_step`: the observer's
-        start at the equilibrium whose output is the measurement, then the step); None
-        where it does not accept (the reference engine then runs the whole first step,
-        ``ReferenceEngine._start`` included, with its errors and warnings)."""
+        start at the equilibrium whose output is the measurement, then the step); where it
+        does not accept, what the reference engine needs to run the whole first step
+        (``ReferenceEngine._start`` included, with its errors and warnings): no chord
+        (the reference is solved again, cold), and whether the one-call feedback already
+        declined this step's subproblem (then not run again)."""
         controller = self.controller
         self.settle()
         self._check_settings()
@@ -514,7 +521,7 @@ class OneCallEngine(DeferredState):
              _NO_LIMIT if rate_limit is None else float(rate_limit)),
         )  # fmt: skip
         if code != one_call.STEP_DONE:
-            return None
+            return Handover(None, code == one_call.STEP_FEEDBACK)
         controller.initialized = True
         self.mpc.plan_valid = True  # the plan the call left in row k (settled from there)
         answer = self._finish(
