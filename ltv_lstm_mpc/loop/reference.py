@@ -241,6 +241,9 @@ class ReferenceCalculator(DeferredState):
         self._b_y = np.ascontiguousarray(model.b_y)
         self._chord_workspace: Any = None  # the compiled warm path's buffers
         self._chord_parts: ChordState | None = None  # (chord_state)
+        #: (restarts, u_max) the compiled restart loop's workspace holds (``solve_arrays``
+        #: takes the numpy loop where either was assigned since); None without it.
+        self._restart_settings: tuple[int, float] | None = None
         if self._compiled:
             self._chord = self._chord_compiled
             traj, kernel = self._traj, model.kernel
@@ -261,6 +264,7 @@ class ReferenceCalculator(DeferredState):
             self._chord_parts = ChordState(
                 self._chord_workspace, self._Jinv_buffer, self._restart_workspace()
             )
+            self._restart_settings = (self.restarts, self.u_max)
         #: Chord-Jacobian factorizations / fallbacks from the warm path to damped Newton.
         self.counts = {"factorizations": 0, "fallbacks": 0}
 
@@ -268,9 +272,6 @@ class ReferenceCalculator(DeferredState):
         """The compiled twin's buffers of the damped Newton with restarts (its grid, its
         scratch): :func:`~ltv_lstm_mpc.loop.compiled_reference.newton_restarts`."""
         size = self._jacobian.shape[0]
-        #: (restarts, u_max) the compiled restart loop runs with (``solve_arrays`` takes the
-        #: numpy loop where either was assigned since).
-        self._restart_settings = (self.restarts, self.u_max)
         return new_restart_workspace(
             grid_x=np.ascontiguousarray(self._grid_x), grid_u=np.ascontiguousarray(self._grid_u),
             grid_y=np.ascontiguousarray(self._grid_y), restarts=int(self.restarts),
@@ -533,16 +534,14 @@ class ReferenceCalculator(DeferredState):
         elif self._last_z is not None:
             starts.append(self._last_z.copy())
         previous = starts[0] if starts else None
-        if self._chord_parts is not None and self._restart_settings == (
-            self.restarts,
-            self.u_max,
-        ):  # the compiled twin of the loop below (whose numbers the one-call engine's
-            # are), while its workspace holds the calculator's restarts and u_max
+        if self._restart_settings == (self.restarts, self.u_max):
+            # the compiled twin of the loop below (whose numbers the one-call engine's are),
+            # while its workspace holds the calculator's restarts and u_max
             z, norm, total_iterations, converged = self._restarts_compiled(
                 previous, None if folded is None else folded[0], target
             )
             _F, A, B = self._residual(z, target)
-            return self._cold_solution(
+            return self._restart_solution(
                 y0_arr, d_arr, target, z, norm, total_iterations, converged, A, B
             )
         # Grid equilibria closest in output to the target (several for MIMO models, where
@@ -570,7 +569,7 @@ class ReferenceCalculator(DeferredState):
                 break  # from the previous solution itself (or no previous one): take it
         assert best is not None
         z, norm, converged, A, B = best
-        return self._cold_solution(
+        return self._restart_solution(
             y0_arr, d_arr, target, z, norm, total_iterations, converged, A, B
         )
 
@@ -591,7 +590,7 @@ class ReferenceCalculator(DeferredState):
         )  # fmt: skip
         return z, float(norm), int(iterations), bool(converged)
 
-    def _cold_solution(
+    def _restart_solution(
         self,
         y0_arr: FloatArray,
         d_arr: FloatArray,
@@ -603,9 +602,10 @@ class ReferenceCalculator(DeferredState):
         A: FloatArray,
         B: FloatArray,
     ) -> ReferenceSolution:
-        """The solution of the damped Newton with restarts (its best point ``z`` with the
-        Jacobians ``A``, ``B`` there), kept as the next warm start where admissible;
-        raises in strict mode where it is not (:meth:`solve_arrays`)."""
+        """The solution of the damped Newton with restarts, after a reset or where the warm
+        path failed (its best point ``z`` with the Jacobians ``A``, ``B`` there), kept as
+        the next warm start where admissible; raises in strict mode where it is not
+        (:meth:`solve_arrays`)."""
         n2 = 2 * self.model.n
         x_bar, u_bar = z[:n2].copy(), z[n2:].copy()
         J = self._jacobian.copy()
