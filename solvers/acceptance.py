@@ -69,6 +69,7 @@ __all__ = [
     "accept",
     "check_infeasibility_certificate",
     "check_unbounded_direction",
+    "qpbenchmark_residuals",
     "residuals",
 ]
 
@@ -366,6 +367,62 @@ def _residuals(
     stationarity = max(float((np.abs(gradient) / (1.0 + scale)).max(initial=0.0)), outside)
     complementarity = gap / (1.0 + gap_scale)
     return Residuals(primal, stationarity, complementarity)
+
+
+def qpbenchmark_residuals(
+    view: ProblemView, z: FloatArray, duals: Mapping[str, FloatArray] | None
+) -> tuple[float, float, float]:
+    r"""qpbenchmark's metrics of the point ``z`` with the multipliers ``duals``: the
+    absolute primal residual, dual residual and duality gap of qpsolvers' ``Solution``
+    (``primal_residual``, ``dual_residual``, ``duality_gap``), read on the rows and bounds
+    of ``view`` in this layer's sign convention (module docstring).
+
+    With :math:`lo \le M z \le up` for every row block (equalities ``lo = up``, bounds
+    :math:`M = I`) and :math:`y^+ = \max(y, 0)`, :math:`y^- = \min(y, 0)`:
+
+    .. math::
+
+        r_p = \max(0, \max_i (M_i z - up_i), \max_i (lo_i - M_i z)), \quad
+        r_d = \|P z + q + \textstyle\sum M^\top y\|_\infty, \quad
+        r_g = |z^\top P z + q^\top z + \textstyle\sum_i up_i y_i^+ + lo_i y_i^-|
+
+    over the finite sides (what qpsolvers computes on ``G x <= h``, ``A x = b``,
+    ``lb <= x <= ub`` with its own multipliers :math:`z \ge 0`, :math:`y`,
+    :math:`z_{box}`: the same numbers, since each two-sided row is its two one-sided
+    rows and :math:`G^\top z = M^\top y`). Multipliers of the wrong sign for an infinite
+    side count as 0. ``inf`` where a multiplier the residuals need is missing; a problem
+    with cones is refused (qpbenchmark is QP-only).
+
+    Raises
+    ------
+    ValueError
+        ``view`` has cones.
+    """
+    if view.cones:
+        raise ValueError("qpbenchmark's residuals are defined for QPs; this problem has cones")
+    z = np.asarray(z, dtype=np.float64)
+    stacked = _Stacked.at(view, z)
+    r, lower, upper = stacked.r, stacked.lower, stacked.upper
+    fin_up, fin_lo = stacked.finite_upper, stacked.finite_lower
+    primal = 0.0
+    if r.size:
+        over = np.where(fin_up, r - np.where(fin_up, upper, 0.0), -np.inf)
+        under = np.where(fin_lo, np.where(fin_lo, lower, 0.0) - r, -np.inf)
+        primal = max(0.0, float(over.max()), float(under.max()))
+    Pz = np.asarray(view.P @ z, dtype=np.float64)
+    gradient = Pz + view.q
+    gap = float(z @ Pz) + float(view.q @ z)
+    for k, block in enumerate(view.rows):
+        y, _ = _dual_vector(duals, block.key, block.size)
+        if y is None:
+            return primal, math.inf, math.inf
+        part = slice(stacked.offsets[k], stacked.offsets[k + 1])
+        y_up = np.where(fin_up[part], np.maximum(y, 0.0), 0.0)
+        y_lo = np.where(fin_lo[part], np.minimum(y, 0.0), 0.0)
+        gradient += block.transpose_product(y_up + y_lo)
+        gap += float(y_up @ np.where(fin_up[part], upper[part], 0.0))
+        gap += float(y_lo @ np.where(fin_lo[part], lower[part], 0.0))
+    return primal, _inf_norm(gradient), abs(gap)
 
 
 def check_infeasibility_certificate(

@@ -765,6 +765,27 @@ def _parser_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--save-subproblems", metavar="DIR", default=None, help="also save replayable subproblems"
     )
+    parser.add_argument(
+        "--export-qpbenchmark",
+        metavar="DIR",
+        default=None,
+        help="write the subproblems solved along the closed loops as a qpbenchmark test set "
+        "(and the exact-cone ones as CBF) into DIR, for the horizons of --N, instead of the "
+        "bench table",
+    )
+    parser.add_argument(
+        "--qpbenchmark-set",
+        metavar="DIR",
+        default=None,
+        help="solve the test set exported into DIR with this library's backends and report "
+        "qpbenchmark's metrics (beside qpbenchmark's own results where DIR/results has them)",
+    )
+    parser.add_argument(
+        "--per-kind",
+        type=positive_int,
+        default=3,
+        help="with --export-qpbenchmark: problems of each kind per scenario, horizon and form",
+    )
     parser.add_argument("--quiet", action="store_true", help="no per-run log lines")
     parser.add_argument(
         "--numpy-kernel",
@@ -808,10 +829,43 @@ def resolve_backends(backends: Sequence[str] | None) -> list[str]:
     return chosen
 
 
+def _main_qpbenchmark(args: argparse.Namespace) -> int:
+    """``bench --export-qpbenchmark DIR`` / ``bench --qpbenchmark-set DIR``."""
+    from ltv_lstm_mpc.solver_comparison import qpbenchmark_set as qpb
+
+    log = None if args.quiet else (lambda line: print(line, flush=True))
+    if args.export_qpbenchmark:
+        modules = qpb.export_test_set(
+            Path(args.export_qpbenchmark),
+            horizons=args.N,
+            per_kind=args.per_kind,
+            steps=args.steps,
+            log=log,
+        )
+        print(f"wrote {', '.join(str(m) for m in modules)} (see its README.md)")
+    if args.qpbenchmark_set:
+        import importlib.util
+
+        if importlib.util.find_spec("qpbenchmark") is None:
+            raise UsageError('--qpbenchmark-set needs qpbenchmark: pip install -e ".[bench]"')
+        folder = Path(args.qpbenchmark_set)
+        if not (folder / "problems.csv").is_file():
+            raise UsageError(
+                f"{folder} holds no exported test set (no problems.csv); write one with "
+                f"`ltv-lstm-mpc bench --export-qpbenchmark {folder}`"
+            )
+        rows = qpb.qpbenchmark_metrics(folder, log=log)
+        paths = qpb.write_metrics(folder, rows)
+        print(f"wrote {', '.join(str(p) for p in paths.values())}")
+    return 0
+
+
 def main_bench(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc bench``."""
     from ltv_lstm_mpc.lstm.shipped import load_model, model_path
 
+    if args.export_qpbenchmark or args.qpbenchmark_set:
+        return _main_qpbenchmark(args)
     try:  # usage errors first, before any work
         resolve_backends(args.backends)
     except InvalidValueError as error:
