@@ -378,20 +378,25 @@ def qpbenchmark_residuals(
     of ``view`` in this layer's sign convention (module docstring).
 
     With :math:`lo \le M z \le up` for every row block (equalities ``lo = up``, bounds
-    :math:`M = I`) and :math:`y^+ = \max(y, 0)`, :math:`y^- = \min(y, 0)`:
+    :math:`M = I`):
 
     .. math::
 
         r_p = \max(0, \max_i (M_i z - up_i), \max_i (lo_i - M_i z)), \quad
         r_d = \|P z + q + \textstyle\sum M^\top y\|_\infty, \quad
-        r_g = |z^\top P z + q^\top z + \textstyle\sum_i up_i y_i^+ + lo_i y_i^-|
+        r_g = |z^\top P z + q^\top z + \textstyle\sum_i g_i|
 
-    over the finite sides (what qpsolvers computes on ``G x <= h``, ``A x = b``,
-    ``lb <= x <= ub`` with its own multipliers :math:`z \ge 0`, :math:`y`,
-    :math:`z_{box}`: the same numbers, since each two-sided row is its two one-sided
-    rows and :math:`G^\top z = M^\top y`). Multipliers of the wrong sign for an infinite
-    side count as 0. ``inf`` where a multiplier the residuals need is missing; a problem
-    with cones is refused (qpbenchmark is QP-only).
+    over the finite sides, with the multipliers as the solver gave them (no clipping) and
+    :math:`g_i` qpsolvers' term of row ``i``: :math:`up_i y_i` for a row with only an upper
+    side (its ``G x <= h`` row), :math:`lo_i y_i` for one with only a lower side, and
+    :math:`up_i y_i^+ + lo_i y_i^-` for the variable bounds and two-sided rows (the finite
+    sides of ``lb``, ``ub`` in qpsolvers: :math:`y^+ = \max(y, 0)`, :math:`y^- = \min(y,
+    0)`). On a problem whose rows are one-sided (``G x <= h``, ``A x = b``) and whose bounds
+    are finite, as qpbenchmark's, these are qpsolvers' numbers for the same point and
+    multipliers; on a two-sided row this layer holds one multiplier where qpsolvers' split
+    form holds two, so a solver that returns both sides nonzero (interior-point methods, by
+    tiny amounts) gets a slightly different gap. ``inf`` where a multiplier the residuals
+    need is missing; a problem with cones is refused (qpbenchmark is QP-only).
 
     Raises
     ------
@@ -417,11 +422,17 @@ def qpbenchmark_residuals(
         if y is None:
             return primal, math.inf, math.inf
         part = slice(stacked.offsets[k], stacked.offsets[k + 1])
-        y_up = np.where(fin_up[part], np.maximum(y, 0.0), 0.0)
-        y_lo = np.where(fin_lo[part], np.minimum(y, 0.0), 0.0)
-        gradient += block.transpose_product(y_up + y_lo)
-        gap += float(y_up @ np.where(fin_up[part], upper[part], 0.0))
-        gap += float(y_lo @ np.where(fin_lo[part], lower[part], 0.0))
+        up, lo = fin_up[part], fin_lo[part]
+        gradient += block.transpose_product(y)
+        u = np.where(up, upper[part], 0.0)
+        lw = np.where(lo, lower[part], 0.0)
+        split = (up & lo) | (block.key == "bounds")  # both sides in one multiplier
+        term = np.where(
+            split,
+            u * np.maximum(y, 0.0) + lw * np.minimum(y, 0.0),
+            np.where(up, u * y, lw * y),
+        )
+        gap += float(np.sum(term))
     return primal, _inf_norm(gradient), abs(gap)
 
 

@@ -11,6 +11,12 @@ equalities ``A_eq x = b``, the others ``lo <= A x <= up`` the finite rows of
 ``A x <= up`` and ``-A x <= -lo``; it stores the values at ``update`` and calls
 qpsolvers at ``solve``.
 
+The setting ``tolerance_options=False`` passes the other settings as given, without this
+layer's tolerance options (:func:`~ltv_lstm_mpc.solvers.tolerances.solver_options`): the
+solver's own defaults wherever they set none, as benchmark harnesses such as qpbenchmark
+call it (``ltv-lstm-mpc bench --qpbenchmark-set``); the session's ``tolerance`` still sets
+the acceptance check.
+
 qpsolvers builds a new solver object at every call, so a session cannot update
 in place: each :meth:`Session.update` is a fresh setup (recorded), and a warm
 start is passed as ``initvals`` (qpsolvers warns when a solver ignores it; the
@@ -33,6 +39,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 import scipy.sparse as sp
+
+from ltv_lstm_mpc.exceptions import InvalidValueError
 
 from . import daqp_, osqp_, piqp_, proxqp_
 from ._base import (
@@ -117,10 +125,20 @@ class _QpsolversCore:
     def _init_core(
         self, solver: str, tolerance: float, settings: Mapping[str, Any]
     ) -> dict[str, Any]:
+        settings = dict(settings)
+        own = settings.pop("tolerance_options", True)
+        if not isinstance(own, bool):
+            raise InvalidValueError(
+                f"tolerance_options must be True or False, got {own!r} (False: the solver's "
+                "own tolerance defaults, the other settings as given)"
+            )
         known = known_settings(solver)
         if known is not None:
             known = (*known, *_INTERFACE_SETTINGS.get(solver, ()))
         check_settings(solver, settings, known)
+        if not own:
+            solver_options(solver, tolerance, {})  # (checks the tolerance)
+            return settings
         return solver_options(solver, tolerance, settings)
 
     def _build(
@@ -230,16 +248,18 @@ class _QpsolversCore:
         if status.has_solution and sol.x is not None:
             z = np.array(sol.x, dtype=np.float64)
             duals = self._duals(sol)
+        # the solver's own solve time where qpsolvers reports it; the rest of the call
+        # (qpsolvers' conversions, the solver's build) is setup: the two add up to the call
         solve_time = getattr(sol, "solve_time", None)
-        build_time = getattr(sol, "build_time", None)
+        solve = wall if solve_time is None else min(float(solve_time), wall)
         return RawResult(
             status=status,
             native_status=native,
             z=z,
             duals=duals,
-            solve_time=wall if solve_time is None else float(solve_time),
+            solve_time=solve,
             iterations=None,
-            extra_setup_time=0.0 if build_time is None else float(build_time),
+            extra_setup_time=wall - solve,
             notes=tuple(notes),
         )
 

@@ -20,18 +20,20 @@ qpsolvers = pytest.importorskip("qpsolvers")
 
 
 def _random_qp(seed: int, *, equalities: bool = True) -> ConvexProblem:
+    """A QP whose solution has active upper and lower rows and bounds (a cost pulling far
+    outside the feasible set)."""
     rng = np.random.default_rng(seed)
     n, m = 6, 4
     M = rng.standard_normal((n, n))
     G = rng.standard_normal((m, n))
-    lo = np.array([-1.0, -np.inf, -2.0, -0.5])
-    up = np.array([1.0, 0.5, np.inf, 0.5])
-    lb = np.full(n, -1.0)
-    ub = np.full(n, 1.0)
+    lo = np.array([-0.2, -np.inf, -0.1, -0.3])
+    up = np.array([0.2, 0.1, np.inf, 0.3])
+    lb = np.full(n, -0.5)
+    ub = np.full(n, 0.5)
     lb[0] = -np.inf  # a partly infinite box: its finite entries become rows
     return ConvexProblem(
         P=M @ M.T + np.eye(n),
-        q=rng.standard_normal(n),
+        q=20.0 * rng.standard_normal(n),
         A_eq=rng.standard_normal((1, n)) if equalities else None,
         b_eq=np.array([0.1]) if equalities else None,
         G=G,
@@ -42,34 +44,66 @@ def _random_qp(seed: int, *, equalities: bool = True) -> ConvexProblem:
     )
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_residuals_equal_qpsolvers_own(seed: int) -> None:
-    """qpbenchmark_residuals of this layer's answer (its view, its multipliers) = qpsolvers'
-    Solution metrics of the same solver on the exported form, to the solver's accuracy;
-    and the primal residual at any point is the largest violation of a finite side."""
-    problem = _random_qp(seed)
-    arrays = qpb.qpsolvers_arrays(problem, dense=True)
-    qp = qpsolvers.Problem(**arrays)
-    solution = qpsolvers.solve_problem(qp, "clarabel")
-    assert solution.found
-    from ltv_lstm_mpc.solvers import solve
+def _ours_from_qpsolvers(solution, arrays) -> dict:
+    """qpsolvers' multipliers of the exported form in this layer's convention (the rows
+    G x <= h one-sided: y = z; A x = b: y; the bounds: z_box)."""
+    duals = {"ineq": np.asarray(solution.z, dtype=float)}
+    if arrays["A"] is not None:
+        duals["eq"] = np.asarray(solution.y, dtype=float)
+    if arrays["lb"] is not None:
+        duals["bounds"] = np.asarray(solution.z_box, dtype=float)
+    return duals
 
-    mine = solve(problem, "qpsolvers:clarabel")
-    view = ProblemView.of_convex(problem)
-    primal, dual, gap = qpbenchmark_residuals(view, mine.z, mine.duals)
-    assert primal == pytest.approx(solution.primal_residual(), abs=1e-7)
-    assert dual == pytest.approx(solution.dual_residual(), abs=1e-6)
-    assert gap == pytest.approx(solution.duality_gap(), abs=1e-6)
-    # a perturbed point: the primal residual is the largest violation of a finite side
-    z = mine.z + 0.3
-    primal_z, _, _ = qpbenchmark_residuals(view, z, mine.duals)
-    x = np.asarray(z)
-    expected = max(
-        0.0,
-        float(np.max(arrays["G"] @ x - arrays["h"])),
-        float(np.max(np.abs(arrays["A"] @ x - arrays["b"]))),
-    )
-    assert primal_z == pytest.approx(expected, rel=1e-12)
+
+@pytest.mark.parametrize("solver", ["clarabel", "daqp", "proxqp", "osqp"])
+@pytest.mark.parametrize("seed", range(3))
+def test_residuals_are_qpsolvers_own(seed: int, solver: str) -> None:
+    """On the exported form (one-sided rows, finite bounds), qpbenchmark_residuals of a
+    point and its multipliers are qpsolvers' Solution metrics of the same point and
+    multipliers, to rounding; low accuracy, so that residuals are not all zero."""
+    if solver not in qpsolvers.available_solvers:
+        pytest.skip(f"{solver} not installed")
+    base = _random_qp(seed)
+    arrays = qpb.qpsolvers_arrays(base, dense=True)
+    options = {"eps_abs": 1e-3, "eps_rel": 0.0} if solver in ("osqp", "proxqp") else {}
+    for with_box in (False, True):
+        parts = dict(arrays)
+        if with_box:  # the finite box as lb/ub (every entry finite)
+            parts["lb"], parts["ub"] = np.full(6, -0.5), np.full(6, 0.5)
+        solution = qpsolvers.solve_problem(qpsolvers.Problem(**parts), solver, **options)
+        assert solution.found
+        active = np.abs(parts["G"] @ solution.x - parts["h"]) < 1e-2
+        assert active.sum() >= 2  # some rows bind
+        problem = qpb._convex_from_arrays(parts)
+        view = ProblemView.of_convex(problem)
+        primal, dual, gap = qpbenchmark_residuals(
+            view, solution.x, _ours_from_qpsolvers(solution, parts)
+        )
+        assert primal == pytest.approx(solution.primal_residual(), rel=1e-9, abs=1e-14)
+        assert dual == pytest.approx(solution.dual_residual(), rel=1e-9, abs=1e-13)
+        assert gap == pytest.approx(solution.duality_gap(), rel=1e-9, abs=1e-12)
+
+
+def test_residuals_of_a_wrong_answer() -> None:
+    """A point off the optimum and multipliers of the wrong sign give the residuals of
+    qpsolvers' formulas, written out."""
+    problem = _random_qp(4)
+    arrays = qpb.qpsolvers_arrays(problem, dense=True)
+    parts = dict(arrays)
+    parts["lb"], parts["ub"] = np.full(6, -0.5), np.full(6, 0.5)
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal(6)
+    z = rng.standard_normal(parts["G"].shape[0])  # both signs
+    y = rng.standard_normal(1)
+    z_box = rng.standard_normal(6)
+    solution = qpsolvers.Solution(qpsolvers.Problem(**parts))
+    solution.found, solution.x, solution.z, solution.y, solution.z_box = True, x, z, y, z_box
+    view = ProblemView.of_convex(qpb._convex_from_arrays(parts))
+    duals = {"ineq": z, "eq": y, "bounds": z_box}
+    primal, dual, gap = qpbenchmark_residuals(view, x, duals)
+    assert primal == pytest.approx(solution.primal_residual(), rel=1e-12)
+    assert dual == pytest.approx(solution.dual_residual(), rel=1e-12)
+    assert gap == pytest.approx(solution.duality_gap(), rel=1e-12)
 
 
 def test_residuals_need_multipliers_and_refuse_cones() -> None:
@@ -100,24 +134,42 @@ def test_qpsolvers_arrays_round_trip(tmp_path: Path) -> None:
 
 
 def test_selection_rule() -> None:
+    """near_infeasible: the solved nominal problems with the smallest margins; the other
+    kinds evenly spaced; a problem is chosen once."""
     steps = [
-        (0, "nominal"), (5, "nominal"), (7, "infeasible"), (7, "fallback"),
-        (8, "nominal"), (9, "nominal"), (10, "nominal"), (20, "nominal"),
+        (0, "nominal", 0.5), (5, "nominal", 0.01), (7, "infeasible", -1.0),
+        (7, "fallback", 1.0), (8, "nominal", 0.002), (9, "nominal", 0.3),
+        (10, "nominal", 0.001), (20, "nominal", 0.2),
     ]  # fmt: skip
     captured = [
-        qpb.Captured(f"s_N5_condensed_{k}_k{i:04d}", "s", 5, "condensed", k, i, "x", None)
-        for i, k in steps
+        qpb.Captured(f"s_N5_condensed_{k}_k{i:04d}", "s", 5, "condensed", k, i, "x", None, m)
+        for i, k, m in steps
     ]
     chosen = qpb.select(captured, per_kind=2)
-    kinds = {c.step: c.kind for c in chosen if c.kind != "fallback"}
-    assert qpb.NEAR_STEPS == 2
-    assert kinds[7] == "infeasible"
-    # within NEAR_STEPS = 2 of step 7: 5, 8, 9; two of them, evenly spaced: 5 and 9
-    assert [c.step for c in chosen if c.kind == "near_infeasible"] == [5, 9]
-    assert [c.step for c in chosen if c.kind == "nominal"] == [0, 20]  # of 0, 10, 20
+    assert [c.step for c in chosen if c.kind == "near_infeasible"] == [8, 10]
     assert all("_near_" in c.name for c in chosen if c.kind == "near_infeasible")
+    assert [c.step for c in chosen if c.kind == "nominal"] == [0, 20]  # of 0, 5, 9, 20
+    assert [c.step for c in chosen if c.kind == "infeasible"] == [7]
     with pytest.raises(InvalidValueError, match="per_kind"):
         qpb.select(captured, per_kind=0)
+
+
+def test_feasibility_margin() -> None:
+    """The margin of a box is its half-width in the units of z, negative where the rows
+    cannot all hold; an equality (lo = up) is kept, not tightened."""
+    box = ConvexProblem(P=np.eye(2), q=np.zeros(2), lb=np.array([-0.3, -1.0]), ub=np.ones(2))
+    assert qpb.feasibility_margin(box) == pytest.approx(0.65, abs=1e-7)
+    rows = ConvexProblem(
+        P=np.eye(2), q=np.zeros(2), G=np.array([[1.0, 1.0], [1.0, 1.0]]),
+        l=np.array([-np.inf, 2.0]), u=np.array([1.0, np.inf]),
+    )  # fmt: skip  # x1 + x2 <= 1 and >= 2: half the gap over the rows' norm sqrt(2)
+    assert qpb.feasibility_margin(rows) == pytest.approx(-0.5 / np.sqrt(2.0), abs=1e-7)
+    fixed = ConvexProblem(P=np.eye(2), q=np.zeros(2), lb=np.array([0.2, -1.0]),
+                          ub=np.array([0.2, 1.0]))  # fmt: skip
+    assert qpb.feasibility_margin(fixed) == pytest.approx(1.0, abs=1e-7)
+    cone = SecondOrderCone(F=np.eye(2), g=np.zeros(2), e=np.zeros(2), f=0.5)
+    ball = ConvexProblem(P=np.eye(2), q=np.zeros(2), cones=(cone,))
+    assert qpb.feasibility_margin(ball) == pytest.approx(0.5, abs=1e-6)
 
 
 def _read_cbf(path: Path) -> dict:
@@ -210,7 +262,27 @@ def test_cbf_has_the_problems_solution(tmp_path: Path) -> None:
     solution = solver.solve()
     assert str(solution.status) == "Solved"
     assert solution.obj_val == pytest.approx(reference.objective, rel=1e-6, abs=1e-7)
-    np.testing.assert_allclose(np.asarray(solution.x)[:6], reference.z, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(solution.x)[:6], reference.z, atol=1e-4)
+
+
+def test_cbf_read_by_mosek(tmp_path: Path) -> None:
+    """MOSEK (where installed: reading needs no license) parses the file into the same
+    variables and cones: the format as a conic benchmark's tool reads it."""
+    mosek = pytest.importorskip("mosek")
+    base = _random_qp(3)
+    cone = SecondOrderCone(F=np.eye(2, 6), g=np.zeros(2), e=np.eye(6)[5], f=0.5)
+    problem = ConvexProblem(
+        P=base.P, q=base.q, A_eq=base.A_eq, b_eq=base.b_eq, G=base.G, l=base.l, u=base.u,
+        lb=base.lb, ub=base.ub, cones=(cone,),
+    )  # fmt: skip
+    path = qpb.write_cbf(problem, tmp_path / "p.cbf")
+    with mosek.Env() as env, env.Task() as task:
+        task.readdata(str(path))
+        assert task.getnumvar() == 7
+        domains = [task.getdomaintype(task.getaccdomain(i)) for i in range(task.getnumacc())]
+        assert domains.count(mosek.domaintype.quadratic_cone) == 1
+        assert domains.count(mosek.domaintype.rquadratic_cone) == 1
+        assert domains.count(mosek.domaintype.rzero) == 1  # the equality row
 
 
 @pytest.fixture(scope="module")
@@ -232,7 +304,16 @@ def test_export_files(exported: Path) -> None:
         folder, suffix = ("socp", "cbf") if r["form"] == "cone" else ("problems", "npz")
         assert (exported / folder / f"{r['name']}.{suffix}").is_file()
         solved = r["kind"] in ("nominal", "near_infeasible")
-        assert r["status"] == ("optimal" if solved else "infeasible")
+        assert r["nominal_status"] == ("optimal" if solved else "infeasible")
+        margin = float(r["margin"])
+        assert margin < 0 if r["kind"] == "infeasible" else margin > -1e-7, r
+    for form in ("condensed", "sparse", "cone"):
+        mine = [r for r in rows if r["form"] == form]
+        near = [float(r["margin"]) for r in mine if r["kind"] == "near_infeasible"]
+        others = [float(r["margin"]) for r in mine if r["kind"] == "nominal"]
+        assert max(near) <= min(others)
+    with pytest.raises(InvalidValueError, match="not empty"):
+        qpb.export_test_set(exported, sources=qpb.SOURCES[:1], horizons=(5,), steps=2)
     readme = (exported / "README.md").read_text()
     assert "near_infeasible" in readme and "qpbenchmark ltv_lstm_mpc_dense.py" in readme
     # the infeasible problem is infeasible for another solver too
@@ -250,12 +331,11 @@ def test_qpbenchmark_runs_and_agrees(exported: Path) -> None:
     for form, module in qpb.MODULES.items():
         done = subprocess.run(
             [
-                sys.executable, "-m", "qpbenchmark.benchmark", str(exported / f"{module}.py"),
-                "--results-path", str(results / f"{module}.csv"),
-                "run", "--author", "test",
+                sys.executable, "-c", "from qpbenchmark.benchmark import main; main()",
+                str(exported / f"{module}.py"), "run", "--author", "test",
             ],
             capture_output=True, text=True, timeout=600, check=False,
-        )  # fmt: skip
+        )  # fmt: skip  # the console script's call; no --results-path: results/ next to it
         assert done.returncode == 0, done.stderr[-3000:]
         assert (results / f"{module}.md").is_file()
         with open(results / f"{module}.csv", newline="") as handle:
@@ -264,19 +344,22 @@ def test_qpbenchmark_runs_and_agrees(exported: Path) -> None:
             assert len(solvers) >= 6, solvers
     rows = qpb.qpbenchmark_metrics(exported)
     paths = qpb.write_metrics(exported, rows)
-    for form, module in qpb.MODULES.items():
-        table, differences = qpb.compare_results(
-            [r for r in rows if r["form"] == form], results / f"{module}.csv"
-        )
-        assert table
-        for d in differences:
-            assert d["reason"], d
-        # the library's settings group passes both the same options: the same verdicts
-        # but for a stated exception (matrix types: module docstring)
-        same = [t for t in table if t["settings"] == qpb.LIBRARY_SETTINGS]
-        equal = [t for t in same if t["success_ours"] == t["success_qpbenchmark"]]
-        assert len(equal) >= len(same) - 1, same
     assert "comparison_condensed" in paths and "comparison_sparse" in paths
+    explained = (
+        "acceptance layer refused",
+        "the matrix type",
+        "within a factor 100",
+        "stopped inaccurate",
+    )
+    for form, module in qpb.MODULES.items():
+        mine = [r for r in rows if r["form"] == form]
+        table, differences = qpb.compare_results(mine, results / f"{module}.csv", exported)
+        assert len(table) >= (6 if form == "condensed" else 4)
+        # the same call under the same options: the same verdict on all but a few
+        # (problem, solver, settings), each with a diagnosed cause
+        assert len(differences) <= 0.05 * len(mine), differences
+        for d in differences:
+            assert any(cause in d["reason"] for cause in explained), d
 
 
 def test_metrics_summary() -> None:
@@ -295,10 +378,17 @@ def test_metrics_summary() -> None:
 
 
 def test_cli_usage_errors(tmp_path: Path) -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "ltv_lstm_mpc.cli.main", "bench", "--qpbenchmark-set",
-         str(tmp_path)],
-        capture_output=True, text=True, check=False,
-    )  # fmt: skip
-    assert done.returncode == 2
-    assert "--export-qpbenchmark" in done.stderr
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "ltv_lstm_mpc.cli.main", "bench", *args],
+            capture_output=True, text=True, check=False,
+        )  # fmt: skip
+
+    done = run("--qpbenchmark-set", str(tmp_path))
+    assert done.returncode == 2 and "--export-qpbenchmark" in done.stderr
+    done = run("--export-qpbenchmark", str(tmp_path / "new"), "--backends", "daqp")
+    assert done.returncode == 2 and "--backends" in done.stderr
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("")
+    done = run("--export-qpbenchmark", str(tmp_path / "full"))
+    assert done.returncode == 2 and "not empty" in done.stderr

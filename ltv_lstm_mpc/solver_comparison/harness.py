@@ -750,7 +750,10 @@ def _parser_args(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--scenarios", nargs="+", default=None, help="scenario names (patterns)")
     parser.add_argument(
-        "--steps", type=positive_int, default=None, help="samples per run (default: 200)"
+        "--steps",
+        type=positive_int,
+        default=None,
+        help="samples per run (default: 200; with --export-qpbenchmark: each scenario's)",
     )
     parser.add_argument(
         "--slow-steps", type=positive_int, default=60, help="cap for N>=20 via cvxpy/qpsolvers"
@@ -833,10 +836,37 @@ def _main_qpbenchmark(args: argparse.Namespace) -> int:
     """``bench --export-qpbenchmark DIR`` / ``bench --qpbenchmark-set DIR``."""
     from ltv_lstm_mpc.solver_comparison import qpbenchmark_set as qpb
 
+    ignored = [
+        flag
+        for flag, given in (
+            ("--backends", args.backends is not None),
+            ("--scenarios", args.scenarios is not None),
+            ("--smoke", args.smoke),
+            ("--all-scenarios", args.all_scenarios),
+            ("--numpy-kernel", args.numpy_kernel),
+            ("--save-subproblems", args.save_subproblems is not None),
+        )
+        if given
+    ]
+    if ignored:
+        raise UsageError(
+            f"{', '.join(ignored)} do(es) not apply to --export-qpbenchmark / "
+            "--qpbenchmark-set (the set's sources and solvers are qpbenchmark's; see "
+            "docs/benchmarks.md); leave them out"
+        )
     log = None if args.quiet else (lambda line: print(line, flush=True))
     if args.export_qpbenchmark:
+        try:
+            folder = Path(args.export_qpbenchmark)
+            if folder.exists() and any(folder.iterdir()):
+                raise InvalidValueError(
+                    f"--export-qpbenchmark {folder}: the folder is not empty; name a new one "
+                    "(qpbenchmark skips problems its results file already has)"
+                )
+        except InvalidValueError as error:
+            raise UsageError(str(error)) from None
         modules = qpb.export_test_set(
-            Path(args.export_qpbenchmark),
+            folder,
             horizons=args.N,
             per_kind=args.per_kind,
             steps=args.steps,

@@ -15,34 +15,37 @@ states and inputs, with the model's equality rows), and keeps a stated selection
 was solved (:func:`select`):
 
 ``nominal``
-    the nominal FHOCP of a step whose solve succeeded, at least
-    :data:`NEAR_STEPS` samples away from an infeasible one;
+    the nominal FHOCP of a step whose solve succeeded;
 ``near_infeasible``
-    a nominal FHOCP that was solved, within :data:`NEAR_STEPS` samples of one that
-    was not (the edge of the feasible set along the loop);
+    the solved nominal FHOCPs with the smallest feasibility margin (:func:`feasibility_margin`:
+    how far every row could be tightened, in units of its norm, before the problem
+    became infeasible; written to ``problems.csv`` for every problem);
 ``infeasible``
     a nominal FHOCP the solver declared infeasible;
 ``fallback``
     the infeasibility policy's subproblem at such a step (``"paper"``: no output rows
     and no terminal set).
 
-The terminal set is in its QP form (the conservative box of a QP-only backend,
-:mod:`~ltv_lstm_mpc.mpc.terminal`); the same steps with the exact terminal cones
-(solver ``daqp:socp``, condensed) are written as SOCPs in the Conic Benchmark Format
-(CBF, version 3: CBLIB's format, read by MOSEK and by CBLIB's tools), where the quadratic
-cost :math:`\tfrac12 z^\top P z` becomes an epigraph variable :math:`s` with the rotated
-cone :math:`2 s \cdot 1 \ge \|L^\top z\|^2` (:math:`P = L L^\top`).
+The terminal set of the QPs is in its QP form (the conservative box of a QP-only backend,
+:mod:`~ltv_lstm_mpc.mpc.terminal`). The subproblems with the exact terminal cones come from
+a closed loop of the same scenario with ``daqp:socp`` (condensed; its own trajectory) and
+are written as SOCPs in the Conic Benchmark Format (CBF, version 1: CBLIB's format, read
+by MOSEK and by CBLIB's tools), where the quadratic cost :math:`\tfrac12 z^\top P z`
+becomes an epigraph variable :math:`s` with the rotated cone :math:`2 s \cdot 1 \ge
+\|L^\top z\|^2` (:math:`P = L L^\top`).
 
 :func:`qpbenchmark_metrics` (``ltv-lstm-mpc bench --qpbenchmark-set DIR``) solves the
-exported QPs with this library's ``qpsolvers:<solver>`` backends under the test set's
-settings and computes qpbenchmark's metrics from each answer with
+exported QPs with this library's ``qpsolvers:<solver>`` backends under each settings group
+of the test set, with exactly the options qpbenchmark passes (``tolerance_options=False``)
+and the group's tolerance as this library's acceptance tolerance, and computes qpbenchmark's
+metrics from each answer with
 :func:`~ltv_lstm_mpc.solvers.acceptance.qpbenchmark_residuals` (qpsolvers' absolute
-residuals, read on the problem as the solver layer stores it): success rate (found, and
-each residual below the settings' tolerance), shifted geometric mean of runtime (shift
-10 s, a failure counted at the time limit, relative to the best solver), and of the
-residuals (shift 10, floored at the tolerance). :func:`compare_results` puts them beside
-qpbenchmark's own results file for the same set and states, per problem, why a success
-differs.
+residuals): success rate (found, and each residual below the settings' tolerance), shifted
+geometric mean of runtime (shift 10 s, a failure counted at the time limit, relative to the
+best solver), and of the residuals (shift 10, floored at the tolerance).
+:func:`compare_results` puts them beside qpbenchmark's own results file for the same set
+and states, per problem, why a verdict differs (from the acceptance layer's message, or a
+re-solve that isolates the cause).
 """
 
 from __future__ import annotations
@@ -67,8 +70,8 @@ __all__ = [
     "FORMS",
     "KINDS",
     "LIBRARY_SETTINGS",
+    "MARGIN_RANGE",
     "MODULES",
-    "NEAR_STEPS",
     "QPBENCHMARK_SOLVERS",
     "QPBENCHMARK_TOLERANCES",
     "SHIFT",
@@ -79,6 +82,7 @@ __all__ = [
     "compare_results",
     "default_sources",
     "export_test_set",
+    "feasibility_margin",
     "format_comparison",
     "library_options",
     "load_problem",
@@ -103,8 +107,6 @@ DATA_FOLDER = "problems"
 FORMS = ("condensed", "sparse")
 #: The classes of the selection, in order (module docstring).
 KINDS = ("nominal", "near_infeasible", "infeasible", "fallback")
-#: A solved nominal FHOCP this close (samples) to an unsolved one is ``near_infeasible``.
-NEAR_STEPS = 2
 #: qpbenchmark's shift of the shifted geometric mean (its ``report.py``: 10).
 SHIFT = 10.0
 #: The settings group the test set adds to qpbenchmark's four: the options this library's
@@ -202,9 +204,12 @@ class Captured:
     source, form, kind : str
     N, step : int
     status : str
-        The controller's status of the nominal solve at that step.
+        The controller's status of the nominal solve at that step (for a ``fallback``
+        problem: why the controller fell back).
     problem : ConvexProblem
         As the backend got it (QP form; ``form == "cone"``: with the terminal cones).
+    margin : float
+        :func:`feasibility_margin` (NaN until :func:`select` computes it).
     """
 
     name: str
@@ -215,6 +220,7 @@ class Captured:
     step: int
     status: str
     problem: Any
+    margin: float = math.nan
 
 
 def capture(
@@ -258,9 +264,12 @@ def capture(
     out: list[Captured] = []
     for k in range(steps):
         u = controller.step(y, scenario.setpoints[k])
-        record = controller.records[-1]
-        solution = record.mpc
-        kinds = [("nominal", "nominal" if solution.feasible else "infeasible")]
+        solution = controller.records[-1].mpc
+        kinds = []
+        if solution.feasible:
+            kinds.append(("nominal", "nominal"))
+        elif solution.status == "infeasible":  # declared infeasible by the solver (not a
+            kinds.append(("nominal", "infeasible"))  # pre-check, a stall or an error)
         if solution.policy in ("paper", "soft"):
             kinds.append((solution.policy, "fallback"))
         for which, kind in kinds:
@@ -299,26 +308,119 @@ def _qp_form(mpc: Any, kind: str, problem: Any, form: str) -> Any:
     return problem
 
 
+#: The range of :func:`feasibility_margin` (a margin beyond it is reported at its end).
+MARGIN_RANGE = (-1e3, 1.0)
+
+
+def feasibility_margin(problem: Any) -> float:
+    r"""How far ``problem``'s constraints could all be tightened before it became
+    infeasible: the largest :math:`t` with
+
+    .. math::
+
+        A_{eq} z = b_{eq}, \quad G_i z + t \|G_i\|_2 \le u_i, \quad
+        l_i \le G_i z - t \|G_i\|_2, \quad lb + t \le z \le ub - t, \quad
+        \|F_j z + g_j\| + t \le e_j^\top z + f_j
+
+    over the finite sides (each row's distance to its bound in the units of ``z``; a row
+    or bound with equal sides stays an equality),
+    within :data:`MARGIN_RANGE`: negative for an infeasible problem (how far they would
+    have to be relaxed). One LP or SOCP, solved by Clarabel's own interface; NaN where it
+    does not solve.
+    """
+    import clarabel
+
+    n = problem.n_variables
+    blocks: list[Any] = []  # (A, b, cone kind, size): A [z t] + s = b, s in the cone
+    eq = problem.A_eq is not None and problem.A_eq.shape[0] > 0
+    if eq:
+        A_eq = sp.csr_matrix(problem.A_eq)
+        zero = sp.csr_matrix((A_eq.shape[0], 1))
+        blocks.append((sp.hstack([A_eq, zero]), problem.b_eq, "zero"))
+    rows: list[Any] = []
+    rhs: list[Any] = []
+    eye = sp.identity(n, format="csr")
+    for M, lo, up in ((problem.G, problem.l, problem.u), (eye, problem.lb, problem.ub)):
+        if M is None or lo is None or up is None or M.shape[0] == 0:
+            continue
+        M = sp.csr_matrix(M)
+        norms = np.sqrt(np.asarray(M.multiply(M).sum(axis=1)).ravel())
+        fu, fl = np.isfinite(up), np.isfinite(lo)
+        fixed = fu & fl & (np.where(fu & fl, up - lo, np.inf) <= 1e-12 * (1.0 + np.abs(up)))
+        if fixed.any():  # lo = up: an equality (a fixed initial state), not tightened
+            blocks.append(
+                (sp.hstack([M[fixed], sp.csr_matrix((int(fixed.sum()), 1))]), up[fixed], "zero")
+            )
+            fu, fl = fu & ~fixed, fl & ~fixed
+        rows += [
+            sp.hstack([M[fu], sp.csr_matrix(norms[fu][:, None])]),
+            sp.hstack([-M[fl], sp.csr_matrix(norms[fl][:, None])]),
+        ]
+        rhs += [up[fu], -lo[fl]]
+    low, high = MARGIN_RANGE
+    rows.append(sp.csr_matrix(np.r_[np.zeros(n), 1.0][None, :]))  # t <= high
+    rows.append(sp.csr_matrix(np.r_[np.zeros(n), -1.0][None, :]))  # -t <= -low
+    rhs += [np.array([high]), np.array([-low])]
+    blocks.append((sp.vstack(rows), np.concatenate(rhs), "nonnegative"))
+    for cone in problem.cones:  # (e'z + f - t, F z + g) in the second-order cone
+        head = sp.csr_matrix(np.r_[-np.asarray(cone.e), 1.0][None, :])
+        body = sp.hstack([-sp.csr_matrix(cone.F), sp.csr_matrix((cone.F.shape[0], 1))])
+        blocks.append((sp.vstack([head, body]), np.r_[cone.f, cone.g], "soc"))
+    A = sp.csc_matrix(sp.vstack([b[0] for b in blocks]))
+    b = np.concatenate([np.asarray(b[1], dtype=np.float64) for b in blocks])
+    kinds = {
+        "zero": clarabel.ZeroConeT,
+        "nonnegative": clarabel.NonnegativeConeT,
+        "soc": clarabel.SecondOrderConeT,
+    }
+    cones = [kinds[kind](int(M.shape[0])) for M, _, kind in blocks]
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    c = np.zeros(n + 1)
+    c[n] = -1.0
+    solver = clarabel.DefaultSolver(sp.csc_matrix((n + 1, n + 1)), c, A, b, cones, settings)
+    solution = solver.solve()
+    if str(solution.status) not in ("Solved", "AlmostSolved"):
+        return math.nan
+    return float(solution.x[n])
+
+
 def select(captured: Sequence[Captured], per_kind: int) -> list[Captured]:
-    """The selection of the module docstring: nominal solves within :data:`NEAR_STEPS`
-    samples of an infeasible one become ``near_infeasible``; then up to ``per_kind``
-    problems of each kind, evenly spaced along the loop."""
+    """The selection of the module docstring: up to ``per_kind`` problems of each kind;
+    ``near_infeasible``: the solved nominal ones with the smallest
+    :func:`feasibility_margin`; the others evenly spaced along the loop (a nominal problem
+    chosen as near-infeasible is not chosen again). Each chosen problem's margin is set."""
     expect = int(per_kind)
     if expect < 1:
         raise InvalidValueError(f"per_kind must be at least 1, got {per_kind!r}")
-    bad = sorted({c.step for c in captured if c.kind == "infeasible"})
-    relabelled = []
-    for c in captured:
-        if c.kind == "nominal" and any(abs(c.step - b) <= NEAR_STEPS for b in bad):
-            c = replace(c, kind="near_infeasible", name=c.name.replace("_nominal_", "_near_"))
-        relabelled.append(c)
+    solved = [c for c in captured if c.kind == "nominal"]
+    for c in solved:
+        if math.isnan(c.margin):
+            c.margin = feasibility_margin(c.problem)
+    ranked = sorted((c for c in solved if not math.isnan(c.margin)), key=lambda c: c.margin)
+    near = [
+        replace(c, kind="near_infeasible", name=c.name.replace("_nominal_", "_near_"))
+        for c in ranked[:expect]
+    ]
+    near_steps = {c.step for c in near}
+    groups = {
+        "nominal": [c for c in solved if c.step not in near_steps],
+        "infeasible": [c for c in captured if c.kind == "infeasible"],
+        "fallback": [c for c in captured if c.kind == "fallback"],
+    }
     chosen: list[Captured] = []
     for kind in KINDS:
-        group = [c for c in relabelled if c.kind == kind]
+        if kind == "near_infeasible":
+            chosen += sorted(near, key=lambda c: c.step)
+            continue
+        group = groups[kind]
         if not group:
             continue
         picks = np.unique(np.linspace(0, len(group) - 1, min(expect, len(group))).astype(int))
         chosen += [group[i] for i in picks]
+    for c in chosen:
+        if math.isnan(c.margin):
+            c.margin = feasibility_margin(c.problem)
     return chosen
 
 
@@ -337,8 +439,8 @@ def qpsolvers_arrays(problem: Any, *, dense: bool) -> dict[str, Any]:
         )
     n = problem.n_variables
 
-    def mat(m: Any) -> Any:
-        return np.asarray(m.toarray(), dtype=np.float64) if dense else sp.csc_matrix(m)
+    def mat(m: Any) -> Any:  # writeable copies (some bindings reject read-only arrays)
+        return np.array(m.toarray(), dtype=np.float64) if dense else sp.csc_matrix(m, copy=True)
 
     blocks: list[Any] = []
     h: list[Any] = []
@@ -427,7 +529,7 @@ def _convex_from_arrays(arrays: dict[str, Any]) -> Any:
 
 def write_cbf(problem: Any, path: str | Path) -> Path:
     r"""Write ``problem`` (a :class:`~ltv_lstm_mpc.solvers.ConvexProblem`, cones allowed) in
-    the Conic Benchmark Format, version 3.
+    the Conic Benchmark Format, version 1 (CBLIB's; every later version reads it).
 
     Variables ``z`` (the problem's), then ``s``; objective :math:`\min s + q^\top z`
     (``OBJACOORD``); the constraints :math:`A x + b \in K` (``ACOORD``, ``BCOORD``) in
@@ -476,7 +578,7 @@ def write_cbf(problem: Any, path: str | Path) -> Path:
     )
     A = sp.vstack([b[1] for b in blocks]).tocoo()
     b = np.concatenate([b[2] for b in blocks])
-    lines = ["VER", "3", "", "OBJSENSE", "MIN", "", "VAR", f"{n + 1} 1", f"F {n + 1}", ""]
+    lines = ["VER", "1", "", "OBJSENSE", "MIN", "", "VAR", f"{n + 1} 1", f"F {n + 1}", ""]
     lines += ["CON", f"{A.shape[0]} {len(blocks)}"]
     lines += [f"{cone} {M.shape[0]}" for cone, M, _ in blocks]
     objective = [(j, float(v)) for j, v in enumerate(problem.q) if v != 0.0] + [(s_index, 1.0)]
@@ -499,16 +601,20 @@ _MODULE = '''"""The subproblems of ltv_lstm_mpc's LSTM MPC as a qpbenchmark test
 Generated by ltv_lstm_mpc {version} (`ltv-lstm-mpc bench --export-qpbenchmark`); where each
 problem comes from: README.md and problems.csv next to this file.
 
-Run: qpbenchmark {module}.py --results-path results/{module}.csv run --author NAME
- (or: python {module}.py run --author NAME)
+Run: qpbenchmark {module}.py run --author NAME
+ (or: python {module}.py run --author NAME); the results and qpbenchmark's report go to
+results/{module}.csv and .md next to this file, unless --results-path names another file.
 """
 
 import csv
 import os
+import sys
 
 import numpy as np
 import scipy.sparse as spa
+import qpbenchmark.benchmark
 import qpbenchmark.report
+import qpbenchmark.results
 from qpbenchmark import Problem, TestSet
 from qpbenchmark.tolerance import Tolerance
 
@@ -530,11 +636,28 @@ def _gpu_info_or_none():
     device's name, which a CPU build of torch answers with an AssertionError."""
     try:
         return _gpu_info_summary()
-    except (AssertionError, RuntimeError):
+    except Exception:
         return ""
 
 
 qpbenchmark.report.get_gpu_info_summary = _gpu_info_or_none
+
+
+class _ResultsNextToTheSet(qpbenchmark.benchmark.Results):
+    """qpbenchmark's Results, writing to results/{module}.csv next to this file where the
+    command line names no --results-path (qpbenchmark 2.7 would save nowhere)."""
+
+    def __init__(self, file_path, test_set):
+        if file_path is None and type(test_set).__name__ == "{class_name}":
+            file_path = os.path.join(HERE, "results", "{module}.csv")
+            os.makedirs(os.path.dirname(file_path), exist_ok=True)
+        super().__init__(file_path, test_set)
+
+
+qpbenchmark.benchmark.Results = _ResultsNextToTheSet
+_main = sys.modules.get("__main__")  # `python -m qpbenchmark.benchmark`: its own copy
+if getattr(_main, "Results", None) is qpbenchmark.results.Results:
+    _main.Results = _ResultsNextToTheSet
 
 
 def _matrix(data, key):
@@ -582,6 +705,7 @@ class {class_name}(TestSet):
         for solver, options in LIBRARY_OPTIONS.items():
             for name, value in options.items():
                 library.set_param(solver, name, value)
+        library.set_time_limit(self.tolerances[LIBRARY_SETTINGS].runtime)
         self.solver_settings[LIBRARY_SETTINGS] = library
 
     def __iter__(self):
@@ -618,7 +742,8 @@ _PROBLEM_COLUMNS = (
     "form",
     "kind",
     "step",
-    "status",
+    "nominal_status",
+    "margin",
     "variables",
     "rows",
     "equalities",
@@ -690,6 +815,11 @@ def export_test_set(
         if form not in FORMS:
             raise InvalidValueError(f"form {form!r}: choose from {', '.join(FORMS)}")
     out = Path(directory)
+    if out.exists() and any(out.iterdir()):
+        raise InvalidValueError(
+            f"{out} is not empty; export into a new folder (qpbenchmark skips the problems "
+            "its results file already has, so old results would stand for new problems)"
+        )
     data = out / DATA_FOLDER
     data.mkdir(parents=True, exist_ok=True)
     (out / "results").mkdir(exist_ok=True)  # qpbenchmark writes there, but does not create it
@@ -711,7 +841,8 @@ def export_test_set(
                         "form": c.form,
                         "kind": c.kind,
                         "step": c.step,
-                        "status": c.status,
+                        "nominal_status": c.status,
+                        "margin": c.margin,
                         "variables": p.n_variables,
                         "rows": p.n_ineq,
                         "equalities": p.n_eq,
@@ -773,12 +904,11 @@ def _readme(
         "shifted candidate) of the robust offset-free MPC of Schimperna and Magni, as the",
         "controller solved it in closed loop. Run with qpbenchmark:",
         "",
-        f"    qpbenchmark {MODULES['condensed']}.py --results-path "
-        f"results/{MODULES['condensed']}.csv run --author NAME",
-        f"    qpbenchmark {MODULES['sparse']}.py --results-path "
-        f"results/{MODULES['sparse']}.csv run --author NAME",
+        f"    qpbenchmark {MODULES['condensed']}.py run --author NAME",
+        f"    qpbenchmark {MODULES['sparse']}.py run --author NAME",
         "",
-        "(the second set is run by the solvers with a sparse API only, as qpbenchmark's",
+        "(results and qpbenchmark's report in `results/`; the second set is run by the",
+        "solvers with a sparse API only, as qpbenchmark's",
         "sparse Maros-Meszaros set). Each module also adds the settings group",
         f"`{LIBRARY_SETTINGS}`: the options ltv_lstm_mpc's solver layer passes each solver.",
         "",
@@ -798,8 +928,9 @@ def _readme(
         "the loop):",
         "",
         "- `nominal`: the nominal FHOCP of a step that was solved;",
-        f"- `near_infeasible`: a solved nominal FHOCP within {NEAR_STEPS} samples of an",
-        "  infeasible one;",
+        "- `near_infeasible`: the solved nominal FHOCPs with the smallest feasibility margin",
+        "  (column `margin`: how far every row could be tightened, in units of its norm,",
+        "  before the problem became infeasible; negative: infeasible);",
         "- `infeasible`: a nominal FHOCP the solver declared infeasible (a correct answer is",
         '  "not found": qpbenchmark\'s correct rate, not its success rate);',
         "- `fallback`: the infeasibility policy's subproblem at such a step.",
@@ -830,10 +961,26 @@ def shifted_geometric_mean(values: Sequence[float], shift: float = SHIFT) -> flo
 
 
 def _test_set(directory: Path, form: str) -> Any:
-    """The generated test set of ``form`` (loaded as qpbenchmark loads it)."""
+    """The generated test set of ``form``, loaded as qpbenchmark loads it (afresh: another
+    folder's module of the same name may have been imported before)."""
+    import sys
+
     from qpbenchmark.benchmark import load_test_set
 
-    return load_test_set(str((directory / f"{MODULES[form]}.py").resolve()))
+    sys.modules.pop(MODULES[form], None)
+    path = str((directory / f"{MODULES[form]}.py").resolve())
+    try:
+        return load_test_set(path)
+    finally:
+        sys.modules.pop(MODULES[form], None)
+        if str(directory.resolve()) in sys.path:
+            sys.path.remove(str(directory.resolve()))
+
+
+def _acceptance_tolerance(group: str) -> float:
+    """This library's acceptance tolerance under a settings group: the group's validation
+    tolerance (qpbenchmark's absolute one), this library's own for its group."""
+    return _LIBRARY_TOLERANCE if group == LIBRARY_SETTINGS else QPBENCHMARK_TOLERANCES[group]
 
 
 def qpbenchmark_metrics(
@@ -844,21 +991,29 @@ def qpbenchmark_metrics(
     log: Callable[[str], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Solve the exported QPs of ``directory`` with this library's ``qpsolvers:<solver>``
-    backends under each test set's settings; one row per (problem, solver, settings) in
-    qpbenchmark's results columns, then ``form``, ``status`` and ``options`` (the options
-    passed). ``runtime`` (s) is the whole :func:`~ltv_lstm_mpc.solvers.solve` call; the
-    residuals come from :func:`~ltv_lstm_mpc.solvers.acceptance.qpbenchmark_residuals`.
+    backends under each test set's settings groups; one row per (problem, solver,
+    settings) in qpbenchmark's results columns, then ``form``, ``status`` (this library's),
+    ``info`` (its message: the acceptance layer's verdict where it refused a point) and
+    ``options``.
 
-    The solvers of each set are qpbenchmark's (the sparse set: those with a sparse API).
-    ``found`` is this library's verdict: a status with a point (its acceptance layer may
-    refuse a solver's point; qpbenchmark counts what the solver calls found). The options
-    are the group's (what qpbenchmark passes the solver) over this library's tolerance
-    options at 1e-8 (:func:`~ltv_lstm_mpc.solvers.tolerances.solver_options`: they differ
-    where a group leaves one of those unset); a time limit is left out.
+    The options are exactly the group's (what qpbenchmark passes the solver; the backend's
+    ``tolerance_options=False``), without the time limit; the acceptance tolerance is the
+    group's (``ltv_lstm_mpc``: 1e-8, the library's default). ``runtime`` (s) is the
+    backend's ``solve_time``: the wall time of its :func:`qpsolvers.solve_problem` call, the
+    call qpbenchmark times. The residuals come from
+    :func:`~ltv_lstm_mpc.solvers.acceptance.qpbenchmark_residuals`; ``found`` is this
+    library's verdict (a status with a point: its acceptance layer may refuse a point the
+    solver calls found). The solvers of each set are qpbenchmark's (the sparse set: those
+    with a sparse API).
+
+    Raises
+    ------
+    InvalidValueError
+        A solver not installed through qpsolvers, a settings group the set lacks, or
+        validation tolerances that differ from qpbenchmark's (another qpbenchmark version).
     """
-    from ltv_lstm_mpc.solvers import available_solvers, solve
+    from ltv_lstm_mpc.solvers import Session, available_solvers
     from ltv_lstm_mpc.solvers.acceptance import ProblemView, qpbenchmark_residuals
-    from ltv_lstm_mpc.solvers.tolerances import solver_options
 
     directory = Path(directory)
     installed = {s.split(":", 1)[1] for s in available_solvers() if s.startswith("qpsolvers:")}
@@ -875,6 +1030,14 @@ def qpbenchmark_metrics(
         if not (directory / f"{MODULES[form]}.py").is_file():
             continue
         test_set = _test_set(directory, form)
+        for group, tolerance in test_set.tolerances.items():
+            expected = QPBENCHMARK_TOLERANCES.get(group)
+            if expected is None or tolerance.primal != expected:
+                raise InvalidValueError(
+                    f"the test set's {group!r} tolerance is {tolerance.primal}, this library "
+                    f"expects {expected} (qpbenchmark 2.7's); export the set again with this "
+                    "qpbenchmark"
+                )
         groups = list(settings or test_set.solver_settings)
         unknown = [g for g in groups if g not in test_set.solver_settings]
         if unknown:
@@ -897,22 +1060,28 @@ def qpbenchmark_metrics(
                         for k, v in test_set.solver_settings[group][solver].items()
                         if k not in ("time_limit", "TimeLimit")
                     }
-                    passed = solver_options(solver, _LIBRARY_TOLERANCE, options)
-                    start = time.perf_counter()
+                    runtime = math.nan
                     try:
-                        sol = solve(
-                            problem, f"qpsolvers:{solver}", tolerance=_LIBRARY_TOLERANCE, **options
+                        session = Session(
+                            f"qpsolvers:{solver}",
+                            tolerance=_acceptance_tolerance(group),
+                            tolerance_options=False,
+                            **options,
                         )
+                        start = time.perf_counter()
+                        session.setup(problem)  # (the conversion: qpbenchmark's is done)
+                        conversion = time.perf_counter() - start
+                        sol = session.solve()
+                        # the qpsolvers call, as qpbenchmark times it
+                        runtime = max(sol.setup_time - conversion, 0.0) + sol.solve_time
                         error = ""
                     except Exception as exc:  # a backend failure is a result
                         sol, error = None, f"{type(exc).__name__}: {exc}"
-                    runtime = time.perf_counter() - start
                     found = sol is not None and sol.status.has_solution and sol.z is not None
                     if found:
                         primal, dual, gap = qpbenchmark_residuals(view, sol.z, sol.duals)
                     else:
                         primal = dual = gap = math.inf
-                    status = sol.status.name.lower() if sol is not None else error
                     rows.append(
                         {
                             "problem": name,
@@ -924,8 +1093,9 @@ def qpbenchmark_metrics(
                             "dual_residual": dual,
                             "duality_gap": gap,
                             "form": form,
-                            "status": status,
-                            "options": json.dumps(passed, sort_keys=True, default=str),
+                            "status": sol.status.name.lower() if sol is not None else "error",
+                            "info": error or (sol.info if sol is not None else ""),
+                            "options": json.dumps(options, sort_keys=True, default=str),
                         }
                     )
             if log is not None and (index + 1) % 10 == 0:
@@ -942,7 +1112,7 @@ def summarize(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str], dict[str,
     groups = sorted({r["settings"] for r in rows})
     solvers = sorted({r["solver"] for r in rows})
     for group in groups:
-        tol = QPBENCHMARK_TOLERANCES.get(group, _LIBRARY_VALIDATION)
+        tol = QPBENCHMARK_TOLERANCES[group]
         raw: dict[str, dict[str, float]] = {}
         for solver in solvers:
             mine = [r for r in rows if r["solver"] == solver and r["settings"] == group]
@@ -990,15 +1160,24 @@ def write_rows(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
     return path
 
 
+_RESIDUALS = ("primal_residual", "dual_residual", "duality_gap")
+
+
 def compare_results(
-    ours: Sequence[dict[str, Any]], theirs_csv: str | Path
+    ours: Sequence[dict[str, Any]],
+    theirs_csv: str | Path,
+    directory: str | Path | None = None,
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """This library's metrics (:func:`qpbenchmark_metrics`' rows) beside qpbenchmark's
     results file of the same set.
 
-    Returns ``(table, differences)``: per (solver, settings) both success rates and
-    runtime means over the problems both solved; per (problem, solver, settings) whose
-    success differs, both verdicts with the numbers and the reason (:func:`_reason`)."""
+    Returns ``(table, differences)``. ``table``: per (solver, settings) both success rates,
+    both shifted geometric means of runtime (qpbenchmark's: a failure at the time limit) and
+    the median ratio of the runtimes where both found a point. ``differences``: per
+    (problem, solver, settings) whose success differs, both verdicts with their residuals
+    and the reason (:func:`_reason`; with ``directory``, the folder of the exported set,
+    a verdict that differs at the same options is re-solved to isolate the cause).
+    """
     with open(theirs_csv, newline="") as handle:
         theirs = list(csv.DictReader(handle))
     index = {(r["problem"], r["solver"], r["settings"]): r for r in theirs}
@@ -1008,21 +1187,28 @@ def compare_results(
     table = []
     for key in sorted(ours_summary):
         a, b = ours_summary[key], their_summary.get(key, {})
+        mine = [r for r in shared if (r["solver"], r["settings"]) == key]
+        ratios = [
+            float(r["runtime"]) / float(index[(r["problem"], *key)]["runtime"])
+            for r in mine
+            if _found(r) and _found(index[(r["problem"], *key)])
+        ]
         table.append(
             {
                 "solver": key[0],
                 "settings": key[1],
-                "problems": sum(1 for r in shared if (r["solver"], r["settings"]) == key),
+                "problems": len(mine),
                 "success_ours": a["success_rate"],
                 "success_qpbenchmark": b.get("success_rate", math.nan),
                 "runtime_ours_s": a["runtime"],
                 "runtime_qpbenchmark_s": b.get("runtime", math.nan),
+                "runtime_ratio_found": float(np.median(ratios)) if ratios else math.nan,
             }
         )
     differences = []
     for r in shared:
         t = index[(r["problem"], r["solver"], r["settings"])]
-        tol = QPBENCHMARK_TOLERANCES.get(r["settings"], _LIBRARY_VALIDATION)
+        tol = QPBENCHMARK_TOLERANCES[r["settings"]]
         if _success(r, tol) != _success(t, tol):
             differences.append(
                 {
@@ -1031,7 +1217,7 @@ def compare_results(
                     "settings": r["settings"],
                     "ours": _verdict(r, tol),
                     "qpbenchmark": _verdict(t, tol),
-                    "reason": _reason(r, t, tol),
+                    "reason": _reason(r, t, tol, directory),
                 }
             )
     return table, differences
@@ -1040,73 +1226,85 @@ def compare_results(
 def _verdict(row: dict[str, Any], tol: float) -> str:
     if not _found(row):
         return "not found" + (f" ({row['status']})" if row.get("status") else "")
-    worst = max(float(row[k]) for k in ("primal_residual", "dual_residual", "duality_gap"))
-    return ("success" if worst < tol else "found, residual above tolerance") + f" (max {worst:.1e})"
+    values = ", ".join(f"{k.split('_')[0]} {float(row[k]):.1e}" for k in _RESIDUALS)
+    worst = max(float(row[k]) for k in _RESIDUALS)
+    return ("success" if worst < tol else "found, above tolerance") + f" ({values})"
 
 
-def _reason(ours: dict[str, Any], theirs: dict[str, Any], tol: float) -> str:
-    """Why the two verdicts on one problem differ, from what each run passed and returned."""
+def _reason(
+    ours: dict[str, Any], theirs: dict[str, Any], tol: float, directory: str | Path | None
+) -> str:
+    """Why the two verdicts on one problem differ, from what this library reported and,
+    where both found a point, from re-solving the problem as each side called the solver."""
+    if _found(theirs) and not _found(ours):
+        info = str(ours.get("info", ""))
+        if "acceptance" in info:
+            return (
+                "this library's acceptance layer refused the point the solver called found: "
+                + info.split("acceptance", 1)[1].strip(" :")[:160]
+            )
+        return f"the solver answered {ours.get('status')} to this library ({info[:120]})"
+    if _found(ours) and not _found(theirs):
+        if ours.get("status") == "optimal_inaccurate":
+            native = str(ours.get("info", "")).split(";")[-1].strip()
+            return (
+                f"the solver stopped inaccurate ({native[:100]}): qpsolvers reports no "
+                "solution for that status, this library an inaccurate one whose point its "
+                "acceptance layer checked"
+            )
+        return "the solver reported no solution to qpbenchmark, one to this library"
+    if directory is not None:
+        cause = _matrix_type_cause(ours, Path(directory), tol)
+        if cause:
+            return cause
+    near = [
+        k.replace("_", " ")
+        for k in _RESIDUALS
+        if 0.01 * tol <= max(float(ours[k]), float(theirs[k])) <= 100 * tol
+    ]
+    if near:
+        return (
+            f"{', '.join(near)} within a factor 100 of the tolerance {tol:g} on both sides: "
+            "two solves of the same call that stop on either side of it"
+        )
+    return "the two solves returned different points"
+
+
+def _matrix_type_cause(row: dict[str, Any], directory: Path, tol: float) -> str:
+    """The re-solve of one problem with qpsolvers as qpbenchmark calls it (the set's
+    matrices) and as this library's backend does (CSC for a solver with a sparse API):
+    a cause where the two calls' verdicts split as the two runs' did."""
     import qpsolvers
 
-    solver, group = ours["solver"], ours["settings"]
-    reasons = []
-    if group != LIBRARY_SETTINGS:
-        passed = json.loads(ours.get("options") or "{}")
-        own = set(library_options([solver])[solver])
-        extra = sorted(k for k in own if k in passed and k not in _group_keys(ours))
-        if extra:
-            reasons.append(
-                f"this library also set {', '.join(extra)} (its tolerance options, 1e-8) where "
-                f"the {group} settings leave the solver's defaults"
+    solver = row["solver"]
+    if row.get("form") != "condensed" or solver not in qpsolvers.sparse_solvers:
+        return ""
+    arrays = load_problem(directory / DATA_FOLDER / f"{row['problem']}.npz")
+    options = {"verbose": False, **json.loads(row.get("options") or "{}")}
+    verdicts = []
+    for as_csc in (False, True):
+        parts = {
+            k: (sp.csc_matrix(v) if as_csc and k in ("P", "G", "A") and v is not None else v)
+            for k, v in arrays.items()
+        }
+        solution = qpsolvers.solve_problem(qpsolvers.Problem(**parts), solver, **options)
+        ok = bool(solution.found) and all(
+            value < tol
+            for value in (
+                solution.primal_residual(),
+                solution.dual_residual(),
+                solution.duality_gap(),
             )
-    dense_problem = ours.get("form") == "condensed"
-    if dense_problem and solver in qpsolvers.sparse_solvers and solver in qpsolvers.dense_solvers:
-        reasons.append(
-            f"this library hands {solver} CSC matrices (qpsolvers then runs its sparse "
-            "interface), qpbenchmark the set's dense arrays"
         )
-    if _found(theirs) and not _found(ours):
-        if ours.get("status") == "failed":
-            reasons.append(
-                "this library's acceptance layer refused the solver's point (its relative "
-                "residuals above its tolerance); qpbenchmark takes the solver's found flag"
-            )
-        else:
-            reasons.append(f"the solver answered {ours.get('status')} to this library")
-    elif _found(ours) and not _found(theirs):
-        reasons.append("the solver reported no solution to qpbenchmark, one to this library")
-    else:
-        names = ("primal_residual", "dual_residual", "duality_gap")
-        near = [
-            k for k in names if 0.01 * tol <= max(float(ours[k]), float(theirs[k])) <= 100 * tol
-        ]
-        if near:
-            reasons.append(
-                f"{', '.join(near)} within a factor 100 of the tolerance {tol:g}: the two "
-                "solves stop at points that differ in the last digits"
-            )
-    return "; ".join(reasons) or "the two solves returned different points"
-
-
-def _group_keys(row: dict[str, Any]) -> set[str]:
-    """The option names qpbenchmark's settings group of ``row`` sets for its solver."""
-    from qpbenchmark.test_set import TestSet
-
-    class _Probe(TestSet):  # qpbenchmark's own groups, without a test set's problems
-        description = title = ""
-        sparse_only = False
-
-        def __iter__(self) -> Any:
-            return iter(())
-
-    probe = _PROBE.get("set")
-    if probe is None:
-        probe = _PROBE["set"] = _Probe()
-    group = probe.solver_settings.get(row["settings"])
-    return set() if group is None else set(group[row["solver"]])
-
-
-_PROBE: dict[str, Any] = {}
+        verdicts.append(ok)
+    if verdicts[0] != verdicts[1] and verdicts[1] == _success(row, tol):
+        return (
+            f"the matrix type: this library hands {solver} CSC matrices (qpsolvers then runs "
+            "its sparse interface), qpbenchmark the set's dense arrays (its dense one); "
+            f"re-solved both ways, {solver} succeeds with the "
+            f"{'dense' if verdicts[0] else 'CSC'} call only"
+        )
+    return ""
 
 
 def format_comparison(
@@ -1115,14 +1313,15 @@ def format_comparison(
     """Markdown of :func:`compare_results`."""
     lines = [
         "| solver | settings | problems | success % (ltv_lstm_mpc) | success % (qpbenchmark) "
-        "| runtime shgeom s (ltv_lstm_mpc) | runtime shgeom s (qpbenchmark) |",
-        "|---|---|---|---|---|---|---|",
+        "| runtime shgeom s (ltv_lstm_mpc) | runtime shgeom s (qpbenchmark) "
+        "| runtime ratio where both found (median) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in table:
         lines.append(
             f"| {r['solver']} | {r['settings']} | {r['problems']} | {r['success_ours']:.1f} | "
             f"{r['success_qpbenchmark']:.1f} | {r['runtime_ours_s']:.2e} | "
-            f"{r['runtime_qpbenchmark_s']:.2e} |"
+            f"{r['runtime_qpbenchmark_s']:.2e} | {r['runtime_ratio_found']:.2f} |"
         )
     lines += ["", f"Problems whose success differs: {len(differences)}", ""]
     if differences:
@@ -1166,7 +1365,7 @@ def write_metrics(directory: str | Path, rows: Sequence[dict[str, Any]]) -> dict
         lines.append("")
         theirs = results / f"{MODULES[form]}.csv"
         if theirs.is_file():
-            table, differences = compare_results(mine, theirs)
+            table, differences = compare_results(mine, theirs, directory)
             paths[f"comparison_{form}"] = results / f"comparison_{form}.md"
             paths[f"comparison_{form}"].write_text(format_comparison(table, differences))
     paths["summary"] = results / "ltv_lstm_mpc.md"
