@@ -586,7 +586,11 @@ class Solution:
     setup_time : float
         Seconds spent building or updating the solver's data in this call
         (our wall clock around the backend's setup/update, plus cvxpy's problem
-        construction); 0 when a session re-solves unchanged data.
+        construction; for a ``qpsolvers:`` backend, also the part of the
+        :func:`qpsolvers.solve_problem` call that is not the solver's reported solve time:
+        qpsolvers' conversions and the solver's build, so that ``setup_time +
+        solve_time`` of a re-solve is that call's wall time); 0 when a session re-solves
+        unchanged data with another backend.
     solve_time : float
         The solver's own reported solve time in seconds (wall clock around the
         solver call where it reports none).

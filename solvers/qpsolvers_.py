@@ -221,9 +221,9 @@ class _QpsolversCore:
             z0 = np.array(z0, dtype=np.float64)  # writeable copy for the bindings
         options = {"verbose": False, **self.options}
         notes: list[str] = []
-        start = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
+            start = time.perf_counter()  # the qpsolvers call alone
             try:
                 sol = qpsolvers.solve_problem(self._qp, self.solver, initvals=z0, **options)
             except (qpsolvers.QPError, ValueError, ArithmeticError) as exc:
@@ -235,7 +235,7 @@ class _QpsolversCore:
                     solve_time=time.perf_counter() - start,
                     iterations=None,
                 )
-        wall = time.perf_counter() - start
+            wall = time.perf_counter() - start
         notes.extend(
             str(w.message)
             for w in caught

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -173,7 +174,7 @@ def test_feasibility_margin() -> None:
 
 
 def _read_cbf(path: Path) -> dict:
-    """A reader of what write_cbf writes (CBF v3: VAR, CON, OBJACOORD, ACOORD, BCOORD),
+    """A reader of what write_cbf writes (CBF: VAR, CON, OBJACOORD, ACOORD, BCOORD),
     written from the format's description, not from the writer."""
     lines = [line.strip() for line in path.read_text().splitlines()]
     out: dict = {"cones": [], "obj": {}, "A": [], "b": {}}
@@ -360,6 +361,42 @@ def test_qpbenchmark_runs_and_agrees(exported: Path) -> None:
         assert len(differences) <= 0.05 * len(mine), differences
         for d in differences:
             assert any(cause in d["reason"] for cause in explained), d
+
+
+def test_the_modules_other_invocations(exported: Path, tmp_path: Path) -> None:
+    """`python <module>.py run --results-path X` writes X; `python -m qpbenchmark.benchmark
+    <module> run` (qpbenchmark's module run as a script) writes results/ next to it; a
+    set is loaded from its own folder even where another one's module is importable."""
+    pytest.importorskip("qpbenchmark")
+    module = exported / f"{qpb.MODULES['condensed']}.py"
+    target = tmp_path / "mine.csv"
+    for argv, written in (
+        ([str(module), "--results-path", str(target)], target),
+        (["-m", "qpbenchmark.benchmark", str(module)], None),
+    ):
+        copy = tmp_path / ("copy" if written is None else "first")
+        shutil.copytree(exported, copy, ignore=shutil.ignore_patterns("results"))
+        if written is None:
+            argv = ["-m", "qpbenchmark.benchmark", str(copy / module.name)]
+            written = copy / "results" / f"{qpb.MODULES['condensed']}.csv"
+        done = subprocess.run(
+            [sys.executable, *argv, "run", "--author", "test", "--solver", "daqp"],
+            capture_output=True, text=True, timeout=600, check=False,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+        assert written.is_file()
+    # another set's module of the same name first on sys.path: the folder's own is loaded
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / module.name).write_text(
+        "class LtvLstmMpcDense:\n    solver_settings = {}\n    description = 'other'\n"
+    )
+    sys.path.insert(0, str(other))
+    try:
+        loaded = qpb._test_set(exported, "condensed")
+    finally:
+        sys.path.remove(str(other))
+    assert "horizons 5" in loaded.description
 
 
 def test_metrics_summary() -> None:

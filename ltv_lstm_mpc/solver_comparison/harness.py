@@ -836,6 +836,7 @@ def _main_qpbenchmark(args: argparse.Namespace) -> int:
     """``bench --export-qpbenchmark DIR`` / ``bench --qpbenchmark-set DIR``."""
     from ltv_lstm_mpc.solver_comparison import qpbenchmark_set as qpb
 
+    exporting = args.export_qpbenchmark is not None
     ignored = [
         flag
         for flag, given in (
@@ -845,14 +846,21 @@ def _main_qpbenchmark(args: argparse.Namespace) -> int:
             ("--all-scenarios", args.all_scenarios),
             ("--numpy-kernel", args.numpy_kernel),
             ("--save-subproblems", args.save_subproblems is not None),
+            ("--model", args.model != "ph_lstm_n5.npz"),
+            ("--time-cap", args.time_cap != 60.0),
+            ("--slow-steps", args.slow_steps != 60),
+            ("--out", str(args.out) != "bench_results"),
+            ("--N", not exporting and list(args.N) != [5, 20, 50]),
+            ("--steps", not exporting and args.steps is not None),
+            ("--per-kind", not exporting and args.per_kind != 3),
         )
         if given
     ]
     if ignored:
         raise UsageError(
-            f"{', '.join(ignored)} do(es) not apply to --export-qpbenchmark / "
-            "--qpbenchmark-set (the set's sources and solvers are qpbenchmark's; see "
-            "docs/benchmarks.md); leave them out"
+            f"{', '.join(ignored)}: not used by --export-qpbenchmark / --qpbenchmark-set "
+            "(the set's sources are the paper's scenarios and the quadruple tank, its solvers "
+            "qpbenchmark's; --N, --steps and --per-kind shape an export); leave them out"
         )
     log = None if args.quiet else (lambda line: print(line, flush=True))
     if args.export_qpbenchmark:

@@ -322,11 +322,12 @@ def feasibility_margin(problem: Any) -> float:
         l_i \le G_i z - t \|G_i\|_2, \quad lb + t \le z \le ub - t, \quad
         \|F_j z + g_j\| + t \le e_j^\top z + f_j
 
-    over the finite sides (each row's distance to its bound in the units of ``z``; a row
-    or bound with equal sides stays an equality),
+    over the finite sides (each row's distance to its bound in the units of ``z``, each
+    cone's in those of its value; a row or bound with equal sides stays an equality),
     within :data:`MARGIN_RANGE`: negative for an infeasible problem (how far they would
-    have to be relaxed). One LP or SOCP, solved by Clarabel's own interface; NaN where it
-    does not solve.
+    have to be relaxed). One LP or SOCP, solved by Clarabel's own interface to 1e-10 where
+    it gets there, else to its default 1e-8 or "almost" (a margin within about that of 0
+    has no reliable sign); NaN where it does not solve.
     """
     import clarabel
 
@@ -374,15 +375,20 @@ def feasibility_margin(problem: Any) -> float:
         "soc": clarabel.SecondOrderConeT,
     }
     cones = [kinds[kind](int(M.shape[0])) for M, _, kind in blocks]
-    settings = clarabel.DefaultSettings()
-    settings.verbose = False
     c = np.zeros(n + 1)
     c[n] = -1.0
-    solver = clarabel.DefaultSolver(sp.csc_matrix((n + 1, n + 1)), c, A, b, cones, settings)
-    solution = solver.solve()
-    if str(solution.status) not in ("Solved", "AlmostSolved"):
-        return math.nan
-    return float(solution.x[n])
+    for tolerance in (1e-10, None):  # tight first; else Clarabel's defaults (1e-8)
+        settings = clarabel.DefaultSettings()
+        settings.verbose = False
+        if tolerance is not None:
+            settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = tolerance
+        P = sp.csc_matrix((n + 1, n + 1))
+        solution = clarabel.DefaultSolver(P, c, A, b, cones, settings).solve()
+        if str(solution.status) == "Solved" or (
+            tolerance is None and str(solution.status) == "AlmostSolved"
+        ):
+            return float(solution.x[n])
+    return math.nan
 
 
 def select(captured: Sequence[Captured], per_kind: int) -> list[Captured]:
@@ -724,14 +730,8 @@ class {class_name}(TestSet):
             )
 
 
-if __name__ == "__main__":
-    from qpbenchmark.benchmark import main
-
-    os.makedirs(os.path.join(HERE, "results"), exist_ok=True)
-    main(
-        test_set_path=os.path.abspath(__file__),
-        results_path=os.path.join(HERE, "results", "{module}.csv"),
-    )
+if __name__ == "__main__":  # --results-path as given, else results/ (above)
+    qpbenchmark.benchmark.main(test_set_path=os.path.abspath(__file__))
 '''
 
 _PROBLEM_COLUMNS = (
@@ -921,7 +921,7 @@ def _readme(
         f"Horizons N = {', '.join(str(N) for N in horizons)}. Forms: `condensed` (dense QP over",
         "the input increments: what DAQP solves in the controller), `sparse` (states and inputs,",
         "the LSTM's linearization as equality rows), `cone` (condensed, with the exact terminal",
-        "cones: `socp/*.cbf`, Conic Benchmark Format v3; not part of the QP test set).",
+        "cones: `socp/*.cbf`, Conic Benchmark Format version 1; not part of the QP test set).",
         "The terminal set of the QPs is the conservative box of a QP-only backend.",
         "",
         f"Kinds (up to {per_kind} of each per source, horizon and form, evenly spaced along",
@@ -961,20 +961,18 @@ def shifted_geometric_mean(values: Sequence[float], shift: float = SHIFT) -> flo
 
 
 def _test_set(directory: Path, form: str) -> Any:
-    """The generated test set of ``form``, loaded as qpbenchmark loads it (afresh: another
-    folder's module of the same name may have been imported before)."""
-    import sys
+    """The generated test set of ``form`` in ``directory``: its module loaded from that
+    file under a name of its own (qpbenchmark's loader appends the folder to ``sys.path``,
+    where a module of the same name elsewhere would win), and its class instantiated."""
+    import importlib.util
 
-    from qpbenchmark.benchmark import load_test_set
-
-    sys.modules.pop(MODULES[form], None)
-    path = str((directory / f"{MODULES[form]}.py").resolve())
-    try:
-        return load_test_set(path)
-    finally:
-        sys.modules.pop(MODULES[form], None)
-        if str(directory.resolve()) in sys.path:
-            sys.path.remove(str(directory.resolve()))
+    path = (directory / f"{MODULES[form]}.py").resolve()
+    spec = importlib.util.spec_from_file_location(f"_ltv_lstm_mpc_set_{form}_{id(path)}", path)
+    if spec is None or spec.loader is None:
+        raise InvalidValueError(f"cannot load the test set module {path}")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return getattr(module, _class_name(MODULES[form]))()
 
 
 def _acceptance_tolerance(group: str) -> float:
@@ -997,7 +995,9 @@ def qpbenchmark_metrics(
     ``options``.
 
     The options are exactly the group's (what qpbenchmark passes the solver; the backend's
-    ``tolerance_options=False``), without the time limit; the acceptance tolerance is the
+    ``tolerance_options=False``), without the time limits (``time_limit``,
+    ``time_limit_secs``); ECOS gets the variable bounds as rows (this library's backend:
+    ECOS rejects infinite bounds); the acceptance tolerance is the
     group's (``ltv_lstm_mpc``: 1e-8, the library's default). ``runtime`` (s) is the
     backend's ``solve_time``: the wall time of its :func:`qpsolvers.solve_problem` call, the
     call qpbenchmark times. The residuals come from
@@ -1058,7 +1058,7 @@ def qpbenchmark_metrics(
                     options = {
                         k: v
                         for k, v in test_set.solver_settings[group][solver].items()
-                        if k not in ("time_limit", "TimeLimit")
+                        if "time_limit" not in k.lower() and k != "TimeLimit"
                     }
                     runtime = math.nan
                     try:
@@ -1257,6 +1257,11 @@ def _reason(
         cause = _matrix_type_cause(ours, Path(directory), tol)
         if cause:
             return cause
+    if ours["solver"] == "ecos":
+        return (
+            "the calls differ: this library passes ECOS the variable bounds as rows (ECOS "
+            "rejects infinite bounds), qpbenchmark as lb/ub"
+        )
     near = [
         k.replace("_", " ")
         for k in _RESIDUALS
@@ -1264,10 +1269,11 @@ def _reason(
     ]
     if near:
         return (
-            f"{', '.join(near)} within a factor 100 of the tolerance {tol:g} on both sides: "
-            "two solves of the same call that stop on either side of it"
+            f"{', '.join(near)} within a factor 100 of the tolerance {tol:g} on both sides, "
+            "from calls with the same options and matrices: points that differ in the last "
+            "digits fall on either side of it"
         )
-    return "the two solves returned different points"
+    return "the two solves returned different points (cause not isolated)"
 
 
 def _matrix_type_cause(row: dict[str, Any], directory: Path, tol: float) -> str:
@@ -1277,10 +1283,11 @@ def _matrix_type_cause(row: dict[str, Any], directory: Path, tol: float) -> str:
     import qpsolvers
 
     solver = row["solver"]
-    if row.get("form") != "condensed" or solver not in qpsolvers.sparse_solvers:
-        return ""
+    both = solver in qpsolvers.sparse_solvers and solver in qpsolvers.dense_solvers
+    if row.get("form") != "condensed" or not both:  # (qpbenchmark hands a sparse-only
+        return ""  # solver CSC matrices too)
     arrays = load_problem(directory / DATA_FOLDER / f"{row['problem']}.npz")
-    options = {"verbose": False, **json.loads(row.get("options") or "{}")}
+    options = {"verbose": False, **json.loads(row.get("options") or "{}")}  # the same both ways
     verdicts = []
     for as_csc in (False, True):
         parts = {
