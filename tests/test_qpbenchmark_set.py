@@ -429,3 +429,14 @@ def test_cli_usage_errors(tmp_path: Path) -> None:
     (tmp_path / "full" / "x").write_text("")
     done = run("--export-qpbenchmark", str(tmp_path / "full"))
     assert done.returncode == 2 and "not empty" in done.stderr
+
+
+def test_export_names_the_missing_extra(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "clarabel" else real(name, *a)
+    )
+    with pytest.raises(InvalidValueError, match=r"\.\[bench\]"):
+        qpb.export_test_set(tmp_path / "set", horizons=(5,), steps=2)

@@ -873,6 +873,13 @@ def _main_qpbenchmark(args: argparse.Namespace) -> int:
                 )
         except InvalidValueError as error:
             raise UsageError(str(error)) from None
+        import importlib.util
+
+        if importlib.util.find_spec("clarabel") is None:
+            raise UsageError(
+                "--export-qpbenchmark measures feasibility margins with Clarabel: "
+                'pip install -e ".[bench]"'
+            )
         modules = qpb.export_test_set(
             folder,
             horizons=args.N,

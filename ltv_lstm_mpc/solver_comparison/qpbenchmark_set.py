@@ -808,9 +808,16 @@ def export_test_set(
     steps : int, optional
         Closed-loop samples per run (default: each scenario's).
     """
+    import importlib.util
+
     from ltv_lstm_mpc import __version__
     from ltv_lstm_mpc.lstm.shipped import load_model
 
+    if importlib.util.find_spec("clarabel") is None:
+        raise InvalidValueError(
+            "the export measures each problem's feasibility margin with Clarabel, which is "
+            'not installed: pip install -e ".[bench]"'
+        )
     for form in forms:
         if form not in FORMS:
             raise InvalidValueError(f"form {form!r}: choose from {', '.join(FORMS)}")
