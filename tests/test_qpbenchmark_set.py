@@ -400,6 +400,7 @@ def test_the_modules_other_invocations(exported: Path, tmp_path: Path) -> None:
 
 
 def test_metrics_summary() -> None:
+    pytest.importorskip("qpbenchmark")
     rows = [
         {"problem": "a", "solver": "s", "settings": "default", "runtime": 0.001, "found": True,
          "primal_residual": 1e-9, "dual_residual": 1e-9, "duality_gap": 1e-9},

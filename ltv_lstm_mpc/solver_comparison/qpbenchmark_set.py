@@ -312,6 +312,15 @@ def _qp_form(mpc: Any, kind: str, problem: Any, form: str) -> Any:
 MARGIN_RANGE = (-1e3, 1.0)
 
 
+def _upper_rows(M: Any, lo: Any, up: Any) -> tuple[sp.csr_matrix, np.ndarray]:
+    """The finite sides of ``lo <= M z <= up`` as rows ``A z <= h``: the upper sides, then
+    the lower ones negated (the form of qpsolvers' ``G x <= h``, of CBF's ``L+`` and of
+    :func:`feasibility_margin`'s tightened rows)."""
+    M = sp.csr_matrix(M)
+    fu, fl = np.isfinite(up), np.isfinite(lo)
+    return sp.csr_matrix(sp.vstack([M[fu], -M[fl]])), np.concatenate([up[fu], -lo[fl]])
+
+
 def feasibility_margin(problem: Any) -> float:
     r"""How far ``problem``'s constraints could all be tightened before it became
     infeasible: the largest :math:`t` with
@@ -345,19 +354,17 @@ def feasibility_margin(problem: Any) -> float:
         if M is None or lo is None or up is None or M.shape[0] == 0:
             continue
         M = sp.csr_matrix(M)
-        norms = np.sqrt(np.asarray(M.multiply(M).sum(axis=1)).ravel())
-        fu, fl = np.isfinite(up), np.isfinite(lo)
-        fixed = fu & fl & (np.where(fu & fl, up - lo, np.inf) <= 1e-12 * (1.0 + np.abs(up)))
+        both = np.isfinite(up) & np.isfinite(lo)
+        fixed = both & (np.where(both, up - lo, np.inf) <= 1e-12 * (1.0 + np.abs(up)))
         if fixed.any():  # lo = up: an equality (a fixed initial state), not tightened
             blocks.append(
                 (sp.hstack([M[fixed], sp.csr_matrix((int(fixed.sum()), 1))]), up[fixed], "zero")
             )
-            fu, fl = fu & ~fixed, fl & ~fixed
-        rows += [
-            sp.hstack([M[fu], sp.csr_matrix(norms[fu][:, None])]),
-            sp.hstack([-M[fl], sp.csr_matrix(norms[fl][:, None])]),
-        ]
-        rhs += [up[fu], -lo[fl]]
+            lo, up = np.where(fixed, -np.inf, lo), np.where(fixed, np.inf, up)
+        A, h = _upper_rows(M, lo, up)
+        norms = np.sqrt(np.asarray(A.multiply(A).sum(axis=1)).ravel())
+        rows.append(sp.hstack([A, sp.csr_matrix(norms[:, None])]))
+        rhs.append(h)
     low, high = MARGIN_RANGE
     rows.append(sp.csr_matrix(np.r_[np.zeros(n), 1.0][None, :]))  # t <= high
     rows.append(sp.csr_matrix(np.r_[np.zeros(n), -1.0][None, :]))  # -t <= -low
@@ -451,16 +458,14 @@ def qpsolvers_arrays(problem: Any, *, dense: bool) -> dict[str, Any]:
     blocks: list[Any] = []
     h: list[Any] = []
     if problem.G is not None and problem.G.shape[0]:
-        G = sp.csr_matrix(problem.G)
-        up, lo = np.isfinite(problem.u), np.isfinite(problem.l)
-        blocks += [G[up], -G[lo]]
-        h += [problem.u[up], -problem.l[lo]]
+        A, upper = _upper_rows(problem.G, problem.l, problem.u)
+        blocks.append(A)
+        h.append(upper)
     lb, ub = problem.lb, problem.ub
     if lb is not None and ub is not None and not (np.isfinite(lb).all() and np.isfinite(ub).all()):
-        eye = sp.identity(n, format="csr")
-        up, lo = np.isfinite(ub), np.isfinite(lb)
-        blocks += [eye[up], -eye[lo]]
-        h += [ub[up], -lb[lo]]
+        A, upper = _upper_rows(sp.identity(n, format="csr"), lb, ub)
+        blocks.append(A)
+        h.append(upper)
         lb = ub = None
     rows = sum(b.shape[0] for b in blocks)
     out: dict[str, Any] = {
@@ -540,7 +545,7 @@ def write_cbf(problem: Any, path: str | Path) -> Path:
     Variables ``z`` (the problem's), then ``s``; objective :math:`\min s + q^\top z`
     (``OBJACOORD``); the constraints :math:`A x + b \in K` (``ACOORD``, ``BCOORD``) in
     this order: the equality rows (``L=``), the finite sides of the rows and of the
-    variable bounds as ``u - G z >= 0``, ``G z - l >= 0`` (``L+``), each cone
+    variable bounds as ``u - G z >= 0``, ``G z - l >= 0`` (one ``L+`` block each), each cone
     :math:`(e^\top z + f, F z + g)` (``Q``), and :math:`(s, 1, L^\top z)` (``QR``:
     :math:`2 s \ge \|L^\top z\|^2`, :math:`P = L L^\top` from the eigenvalues of ``P``
     above :math:`10^{-12}` times the largest).
@@ -562,12 +567,9 @@ def write_cbf(problem: Any, path: str | Path) -> Path:
     for M, lo, up in ((problem.G, problem.l, problem.u), (eye, problem.lb, problem.ub)):
         if M is None or lo is None or up is None or M.shape[0] == 0:
             continue
-        M = sp.csr_matrix(M)
-        fu, fl = np.isfinite(up), np.isfinite(lo)
-        if fu.any():
-            add("L+", pad(-M[fu]), up[fu])
-        if fl.any():
-            add("L+", pad(M[fl]), -lo[fl])
+        A, h = _upper_rows(M, lo, up)
+        if A.shape[0]:
+            add("L+", pad(-A), h)  # h - A z >= 0
     for cone in problem.cones:
         head = sp.csr_matrix(np.append(cone.e, 0.0)[None, :])
         add("Q", sp.vstack([head, pad(cone.F)]), np.concatenate([[cone.f], cone.g]))
@@ -960,11 +962,14 @@ def _readme(
 
 # ---------------------------------------------------------------------------- metrics
 def shifted_geometric_mean(values: Sequence[float], shift: float = SHIFT) -> float:
-    """:math:`\\exp(\\frac1n \\sum \\log(v_i + sh)) - sh` (qpbenchmark's ``shgeom``)."""
+    """:math:`\\exp(\\frac1n \\sum \\log(v_i + sh)) - sh`: qpbenchmark's own ``shgeom``
+    (the one its report uses), with this library's error for values it cannot average."""
+    from qpbenchmark.shgeom import shgeom
+
     v = np.asarray(values, dtype=np.float64)
     if v.size == 0 or (v < 0).any():
         raise InvalidValueError("the shifted geometric mean needs nonnegative values")
-    return float(np.exp(np.mean(np.log(v + shift))) - shift)
+    return float(shgeom(v, shift))
 
 
 def _test_set(directory: Path, form: str) -> Any:
