@@ -72,6 +72,9 @@ def failure_status(
     reason."""
     a = arrays
     where = f"exitflag {flag} at SQP iteration {sqp}"
+    kept = int(a["cut_state"][2]) if "cut_state" in a else 0
+    if kept:
+        where += f" (its subproblem with the cutting planes of {kept} earlier iterate(s))"
     if flag == -1:  # a subproblem is infeasible: certify the SOCP's infeasibility
         certificate, numbers = infeasibility_certificate(a, view)
         if certificate is None and sqp > 1:
@@ -235,12 +238,14 @@ def multiplier_certificate(
     return None, f"{why}; from the multipliers: {numbers}"
 
 
-def _cone_parts(arrays: Mapping[str, Any], j: int) -> tuple[FloatArray, FloatArray, float]:
-    """Cone j's :math:`v = F_j z + g_j` at the iterate, its rows of ``F`` and the smoothed
-    :math:`r_j = \\sqrt{\\|v\\|^2 + s^2}`."""
+def _cone_parts(
+    arrays: Mapping[str, Any], j: int, point: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray, float]:
+    """Cone j's :math:`v = F_j z + g_j` at the iterate (or at ``point``), its rows of ``F``
+    and the smoothed :math:`r_j = \\sqrt{\\|v\\|^2 + s^2}`."""
     start, stop = int(arrays["cone_rows"][j]), int(arrays["cone_rows"][j + 1])
     F = arrays["F"][start:stop]
-    v = F @ arrays["z"] + arrays["g"][start:stop]
+    v = F @ (arrays["z"] if point is None else point) + arrays["g"][start:stop]
     return v, F, float(np.sqrt(v @ v + SMOOTHING**2))
 
 
@@ -275,7 +280,9 @@ def infeasibility_certificate(
 
     The subproblem's rows are the problem's rows and bounds and each cone's linearization
     at the iterate :math:`z_k`, :math:`a_j^\top x \le b_j` with :math:`a_j = F_j^\top
-    v_j / r_j - e_j` (an outer cutting plane of the smoothed cone). Stacked as
+    v_j / r_j - e_j` (an outer cutting plane of the smoothed cone); where the SQP's
+    infeasibility check ended the solve (``cut_state[2]`` > 0), also each cone's
+    linearizations at the earlier iterates it kept (``cut_points``). Stacked as
     :math:`l \le C x \le u`, the vector :math:`y = y^+ - y^-` of the least-norm problem
 
     .. math::
@@ -285,29 +292,34 @@ def infeasibility_certificate(
 
     (the dual of the least squared violation; solved by DAQP) has a negative support value
     :math:`u^\top y^+ - l^\top y^- = -\|y\|^2` where the subproblem is infeasible. A
-    cut's multiplier :math:`\mu_j` is the cone multiplier :math:`(\lambda_0, \lambda_1)
-    = \mu_j (1, -v_j / r_j)` (in the cone: :math:`\|v_j\| \le r_j`), so :math:`y` is
-    a certificate of the SOCP itself, checked on it by
-    :func:`~ltv_lstm_mpc.solvers.acceptance.check_infeasibility_certificate` (its support
-    value exceeds the subproblem's by :math:`\mu_j s^2 / r_j`, the smoothing).
+    cut's multiplier :math:`\mu` is the cone multiplier :math:`(\lambda_0, \lambda_1)
+    = \mu (1, -v / r)` (in the cone: :math:`\|v\| \le r`), and the sum of a cone's
+    over its cuts is in the cone too, so :math:`y` is a certificate of the SOCP itself,
+    checked on it by :func:`~ltv_lstm_mpc.solvers.acceptance.check_infeasibility_certificate`
+    (its support value exceeds the subproblem's by :math:`\mu s^2 / r` per cut, the
+    smoothing).
     """
     import daqp
 
     H, A = arrays["H"], arrays["A"]
     n, m = H.shape[0], A.shape[0]
     cones = arrays["offsets"].shape[0]
-    cuts = np.zeros((cones, n))
-    cut_bounds = np.zeros(cones)
-    parts = []
-    for j in range(cones):
-        v, F, r = _cone_parts(arrays, j)
-        cuts[j] = F.T @ v / r - arrays["e"][j]
-        value = r - float(arrays["e"][j] @ arrays["z"]) - float(arrays["offsets"][j])
-        cut_bounds[j] = float(cuts[j] @ arrays["z"]) - value
-        parts.append((v, r))
+    kept = int(arrays["cut_state"][2]) if "cut_state" in arrays else 0
+    points = [arrays["z"], *arrays["cut_points"][:kept]]
+    cuts = np.zeros((cones * len(points), n))
+    cut_bounds = np.zeros(cones * len(points))
+    parts: list[tuple[int, FloatArray, float]] = []
+    for point in points:
+        for j in range(cones):
+            v, F, r = _cone_parts(arrays, j, point)
+            row = len(parts)
+            cuts[row] = F.T @ v / r - arrays["e"][j]
+            value = r - float(arrays["e"][j] @ point) - float(arrays["offsets"][j])
+            cut_bounds[row] = float(cuts[row] @ point) - value
+            parts.append((j, v, r))
     C = np.vstack([A, np.eye(n), cuts])
     upper = np.concatenate([arrays["up"], arrays["ub"], cut_bounds])
-    lower = np.concatenate([arrays["lo"], arrays["lb"], np.full(cones, -np.inf)])
+    lower = np.concatenate([arrays["lo"], arrays["lb"], np.full(cut_bounds.shape[0], -np.inf)])
     p = C.shape[0]
     upper_w = np.where(np.isfinite(upper), np.inf, 0.0)  # y+ only at a finite upper bound
     lower_w = np.where(np.isfinite(lower), np.inf, 0.0)
@@ -322,9 +334,11 @@ def infeasibility_certificate(
     if flag not in (1, 2):
         return None, f"the certificate's QP ended with DAQP exit flag {flag}"
     y = w[:p] - w[p:]
-    lam = np.concatenate(
-        [np.concatenate([[y[m + n + j]], -y[m + n + j] * v / r]) for j, (v, r) in enumerate(parts)]
-    ) if cones else np.zeros(0)  # fmt: skip
+    pieces = [np.zeros(1 + v.shape[0]) for (_j, v, _r) in parts[:cones]]
+    for row, (j, v, r) in enumerate(parts):  # each cone's cuts' multipliers, summed
+        pieces[j][0] += y[m + n + row]
+        pieces[j][1:] -= y[m + n + row] * v / r
+    lam = np.concatenate(pieces) if cones else np.zeros(0)
     certificate = {"ineq": y[:m], "bounds": y[m : m + n], "cones": lam}
     valid, numbers = check_infeasibility_certificate(view, certificate, CERTIFICATE_TOLERANCE)
     if not valid:

@@ -91,6 +91,26 @@ solve proves (the multipliers in the layer's convention, certificates of infeasi
 unboundedness) is read by :mod:`~ltv_lstm_mpc.solvers.socp_certificates`; the backend
 ``daqp:socp`` (:mod:`~ltv_lstm_mpc.solvers.daqp_socp`) maps it to the layer's statuses.
 
+Infeasibility check: each cone's linearized row at an iterate is an outer cutting plane
+of the (smoothed) cone, valid at every iterate, not only the one it was taken at. On an
+infeasible problem the SQP's subproblems can stay feasible for many iterations (each
+holds the planes of one iterate only) while the cone multipliers grow without bound (the
+MPC's infeasible steps: 6 SQP iterations in the median, up to 21, on the paper's scenario 3
+at N = 5). The planes of the last :data:`CUT_ROUNDS` iterates are therefore kept
+(``cuts``, ``cut_bounds``, the iterates in ``cut_points``); from iteration
+:data:`CUT_FROM` on, at an iteration whose largest cone multiplier grew more than
+:data:`CUT_GROWTH` times (the symptom; the MPC's feasible problems seldom show it, so the
+check costs them almost nothing) and whose solution violates a kept plane, the subproblem
+is solved again with every kept plane added (DAQP warm-started at its solution). Where
+DAQP calls that infeasible on a safely positive definite :math:`W_k`, the problem is
+infeasible (the planes' intersection contains it) and the solve ends there
+(``cut_state[2]``: the iterates whose planes were kept); otherwise the SQP goes on from
+the subproblem's own solution, so a solve the check does not end takes the same iterates,
+bit for bit (``cut_check=False`` gives the reference the tests compare with). Its
+certificate sums each cone's multipliers over its planes (a sum of cone elements is in
+the cone): :func:`~ltv_lstm_mpc.solvers.socp_certificates.infeasibility_certificate`.
+On the scenario above, 71 of the 74 failures then end at SQP iteration 2 or 3.
+
 This module is the algorithm: the compiled kernels (:func:`socp_solve` and its callees),
 the workspace (:data:`SocpWorkspace`, :func:`socp_arrays`, :func:`new_socp_workspace`) and
 the constants above. It needs DAQP's C entry point bound natively
@@ -113,6 +133,10 @@ __all__ = [
     "ARMIJO",
     "BACKTRACKS",
     "CONE_TOLERANCE",
+    "CUT_FROM",
+    "CUT_GROWTH",
+    "CUT_ROUNDS",
+    "CUT_TOLERANCE",
     "DEFINITE_PIVOT",
     "FAILURE_FIELDS",
     "FULL_STEPS",
@@ -179,6 +203,17 @@ BACKTRACKS = 30
 #: it: a row left out that the subproblem's solution violates is added and the subproblem
 #: solved again.
 SCREENING_MARGIN = 2.0
+#: The infeasibility check (module docstring): the cones' cutting planes of up to this many
+#: earlier iterates are kept, ...
+CUT_ROUNDS = 4
+#: ... and checked from this SQP iteration on ...
+CUT_FROM = 2
+#: ... at an iteration whose largest cone multiplier grew more than this factor (the
+#: symptom of an infeasible problem: the multipliers grow without bound) ...
+CUT_GROWTH = 1.5
+#: ... where the subproblem's solution violates one by more than this, relative to
+#: ``1 +`` its right side.
+CUT_TOLERANCE = 1e-9
 #: Largest number of entries of the cones' :math:`F_j^\top F_j` a workspace stores (formed
 #: once per solve rather than once per SQP iteration; the same numbers either way).
 STORED_PRODUCTS = 1 << 22
@@ -192,8 +227,8 @@ SOCP_FIELDS = (
     "gradient_bounds", "cone_products", "formed", "kept", "lam_k", "row_values", "row_norms",
     "epigraph", "eliminated", "first_active", "reduced_index", "tau", "tau_offset", "coupled",
     "reduced_hessian", "reduced_linear", "reduced_rows", "reduced_upper", "reduced_lower",
-    "reduced_sense", "reduced_x", "reduced_lam", "direction", "regularized", "problem",
-    "result", "settings",
+    "reduced_sense", "reduced_x", "reduced_lam", "direction", "regularized", "cuts",
+    "cut_bounds", "cut_points", "cut_state", "saved_x", "problem", "result", "settings",
 )  # fmt: skip
 
 SocpWorkspace = workspace_type(
@@ -238,7 +273,8 @@ def _new_socp_workspace(  # type: ignore[no-untyped-def]
     sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed, kept, lam_k,
     row_values, row_norms, epigraph, eliminated, first_active, reduced_index, tau, tau_offset,
     coupled, reduced_hessian, reduced_linear, reduced_rows, reduced_upper, reduced_lower,
-    reduced_sense, reduced_x, reduced_lam, direction, regularized, problem, result, settings,
+    reduced_sense, reduced_x, reduced_lam, direction, regularized, cuts, cut_bounds,
+    cut_points, cut_state, saved_x, problem, result, settings,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return SocpWorkspace(
@@ -246,7 +282,8 @@ def _new_socp_workspace(  # type: ignore[no-untyped-def]
         sense, x, lam, v, w, linear, gradients, gradient_bounds, cone_products, formed, kept, lam_k,
         row_values, row_norms, epigraph, eliminated, first_active, reduced_index, tau, tau_offset,
         coupled, reduced_hessian, reduced_linear, reduced_rows, reduced_upper, reduced_lower,
-        reduced_sense, reduced_x, reduced_lam, direction, regularized, problem, result, settings,
+        reduced_sense, reduced_x, reduced_lam, direction, regularized, cuts, cut_bounds,
+        cut_points, cut_state, saved_x, problem, result, settings,
     )  # fmt: skip
 
 
@@ -670,6 +707,79 @@ def _add_violated_rows(ws: Any) -> bool:
 
 
 @njit(cache=True)
+def _store_cuts(ws: Any) -> None:
+    """Keep the cones' linearized rows at the iterate ``ws.z`` (``ws.gradients``,
+    ``ws.gradient_bounds``) and the iterate itself in the next slot of the ring ``ws.cuts``,
+    ``ws.cut_bounds``, ``ws.cut_points`` (:data:`CUT_ROUNDS` slots; ``ws.cut_state``: the
+    slots filled, the next slot)."""
+    state, points = ws.cut_state, ws.cut_points
+    rounds = points.shape[0]
+    if rounds == 0:
+        return
+    slot = state[1]
+    cones = ws.offsets.shape[0]
+    z = ws.z
+    for j in range(cones):
+        row = slot * cones + j
+        for b in range(z.shape[0]):
+            ws.cuts[row, b] = ws.gradients[j, b]
+        ws.cut_bounds[row] = ws.gradient_bounds[j]
+    for b in range(z.shape[0]):
+        points[slot, b] = z[b]
+    state[1] = (slot + 1) % rounds
+    state[0] = min(state[0] + 1, rounds)
+
+
+@njit(cache=True)
+def _cut_proof(ws: Any) -> tuple[bool, int, float]:
+    """The infeasibility check (module docstring): where the subproblem's solution ``ws.x``
+    violates a kept cutting plane of an earlier iterate, the subproblem just solved (its
+    rows, from the multipliers ``ws.lam``: DAQP warm-started at its solution) is solved
+    again with every kept plane added. Returns ``(proved, DAQP iterations, DAQP's time)``:
+    proved where DAQP calls it infeasible on a safely positive definite :math:`W_k`
+    (``ws.cut_state[2]``: the iterates whose planes it held); ``ws.x`` is left as it was."""
+    state = ws.cut_state
+    cones = ws.offsets.shape[0]
+    stored = state[0] * cones
+    x, cuts, bounds = ws.x, ws.cuts, ws.cut_bounds
+    n = x.shape[0]
+    violated = False
+    for i in range(stored):
+        acc = 0.0
+        for b in range(n):
+            acc += cuts[i, b] * x[b]
+        if acc - bounds[i] > CUT_TOLERANCE * (1.0 + abs(bounds[i])):
+            violated = True
+            break
+    if not violated:
+        return False, 0, 0.0
+    saved = ws.saved_x
+    for b in range(n):
+        saved[b] = x[b]
+    rows = _subproblem(ws)
+    A_k, bupper, blower, sense = ws.A_k, ws.bupper, ws.blower, ws.sense
+    for i in range(stored):
+        for b in range(n):
+            A_k[rows + i, b] = cuts[i, b]
+        bupper[n + rows + i] = bounds[i]
+        blower[n + rows + i] = -_BIG
+        sense[n + rows + i] = 0
+    rows += stored
+    used = n + rows
+    flag, iterations = quadprog(
+        ws.hessian, ws.linear, A_k[:rows], bupper[:used], blower[:used], sense[:used], x,
+        ws.lam_k[:used], ws.problem, ws.result, ws.settings,
+    )  # fmt: skip
+    seconds = solver_seconds(ws.result)
+    proved = flag == -1 and _definite(ws)
+    for b in range(n):
+        x[b] = saved[b]
+    if proved:
+        state[2] = state[0]
+    return proved, iterations, seconds
+
+
+@njit(cache=True)
 def _definite(ws: Any) -> bool:
     """Whether :math:`W_k` (``ws.hessian``, both triangles) is positive definite with every
     Cholesky pivot (the squared diagonal of its factor) at least :data:`DEFINITE_PIVOT`
@@ -746,18 +856,25 @@ def _line_search(ws: Any, weight: float) -> float:
 
 @njit(cache=True)
 def socp_solve(
-    ws: Any, warm: bool, max_iterations: int, screen_rows: bool = True, eliminate: bool = True
+    ws: Any,
+    warm: bool,
+    max_iterations: int,
+    screen_rows: bool = True,
+    eliminate: bool = True,
+    cut_check: bool = True,
 ) -> tuple[int, int, int, float, float]:
     """The SQP of the module docstring on the workspace ``ws``.
 
     ``warm``: start from ``ws.z``, ``ws.mu`` (else zeros). ``screen_rows``: give each
     subproblem only the rows the row screening keeps (else all). ``eliminate``: solve a
     subproblem whose epigraph cones are all predicted active without their variables
-    first (epigraph elimination; else always the whole subproblem). Returns ``(DAQP exit flag
-    of the last subproblem, SQP iterations, DAQP iterations in all, cone violation, DAQP's
-    own time in all (s))``: flag 1 or 2 with at most ``max_iterations`` SQP iterations is
-    converged; a negative flag is DAQP's verdict on a subproblem (-1: infeasible); ``z``,
-    ``mu``, ``lam`` hold the last iterate.
+    first (epigraph elimination; else always the whole subproblem). ``cut_check``: the
+    infeasibility check with the earlier iterates' cutting planes (else none). Returns
+    ``(DAQP exit flag of the last subproblem, SQP iterations, DAQP iterations in all, cone
+    violation, DAQP's own time in all (s))``: flag 1 or 2 with at most ``max_iterations``
+    SQP iterations is converged; a negative flag is DAQP's verdict on a subproblem (-1:
+    infeasible; where the infeasibility check ended the solve, ``cut_state[2]`` > 0);
+    ``z``, ``mu``, ``lam`` hold the last iterate.
     """
     H, f, z, mu = ws.H, ws.f, ws.z, ws.mu
     hessian, A_k, bupper, blower, sense = ws.hessian, ws.A_k, ws.bupper, ws.blower, ws.sense
@@ -803,6 +920,8 @@ def socp_solve(
     first_weight = 0.0  # the first of a run of regularized iterations
     counts[0] = 0
     counts[1] = 0
+    cut_state = ws.cut_state
+    cut_state[0] = cut_state[1] = cut_state[2] = 0
     for iteration in range(1, max_iterations + 1):
         rho = 0.0  # the proximal weight of this iteration's subproblem (0: none)
         for a in range(n):  # W_k on the upper triangle (mirrored below), from H's
@@ -926,10 +1045,25 @@ def socp_solve(
                 return flag, iteration, total, np.inf, seconds
             if not _add_violated_rows(ws):
                 break
-        largest = 0.0
+        largest, last_largest = 0.0, 0.0
         for j in range(cones):
+            last_largest = max(last_largest, mu[j])
             mu[j] = max(lam[n + ws.A.shape[0] + j], 0.0)
             largest = max(largest, mu[j])
+        if (
+            cut_check
+            and iteration >= CUT_FROM
+            and rho == 0.0
+            and largest > CUT_GROWTH * last_largest
+        ):
+            # the subproblem with the earlier iterates' cutting planes (module docstring)
+            proved, iterations, spent = _cut_proof(ws)
+            total += iterations
+            seconds += spent
+            if proved:
+                return -1, iteration, total, np.inf, seconds
+        _store_cuts(ws)  # this iterate's planes, for the next check
+        for j in range(cones):
             if iteration == 1 and ws.epigraph[j] >= 0:
                 ws.first_active[j] = 1 if mu[j] > 0.0 else 0
         step = 0.0
@@ -968,14 +1102,14 @@ def max_abs(values: Any) -> float:
 
 #: The arrays of a :data:`SocpWorkspace` that a failed solve's status is read from (the
 #: problem, the last iterate, and the epigraph prediction its certificate's rerun starts
-#: from), in the order :func:`snapshot_into` lays them out: the float64 ones one after the
-#: other in one flat array, the int64 ones (``cone_rows``, ``regularized``,
-#: ``first_active``) in another.
+#: from, and the infeasibility check's kept iterates), in the order :func:`snapshot_into`
+#: lays them out: the float64 ones one after the other in one flat array, the int64 ones
+#: (``cone_rows``, ``regularized``, ``first_active``, ``cut_state``) in another.
 FAILURE_FIELDS = (
     "H", "f", "A", "lb", "ub", "lo", "up", "F", "g", "cone_rows", "e", "offsets", "z", "mu",
-    "lam", "regularized", "direction", "first_active",
+    "lam", "regularized", "direction", "first_active", "cut_points", "cut_state",
 )  # fmt: skip
-_INTEGER_FIELDS = ("cone_rows", "regularized", "first_active")
+_INTEGER_FIELDS = ("cone_rows", "regularized", "first_active", "cut_state")
 
 
 @njit(cache=True)
@@ -1014,10 +1148,12 @@ def snapshot_into(ws: Any, real: Any, integer: Any) -> None:
     at = _put_vector(real, at, ws.z)
     at = _put_vector(real, at, ws.mu)
     at = _put_vector(real, at, ws.lam)
-    _put_vector(real, at, ws.direction)
+    at = _put_vector(real, at, ws.direction)
+    _put_matrix(real, at, ws.cut_points)
     at = _put_vector(integer, 0, ws.cone_rows)
     at = _put_vector(integer, at, ws.regularized)
-    _put_vector(integer, at, ws.first_active)
+    at = _put_vector(integer, at, ws.first_active)
+    _put_vector(integer, at, ws.cut_state)
 
 
 def snapshot_sizes(arrays: dict[str, Any]) -> tuple[int, int]:
@@ -1061,21 +1197,23 @@ def socp_arrays(n: int, m: int, sizes: list[int], buffers: Any) -> dict[str, Any
     (:class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative`)."""
     cones = len(sizes)
     rows = int(sum(sizes))
+    extra = CUT_ROUNDS * cones  # the stored cutting planes of the infeasibility check
     return {
         "H": np.zeros((n, n)), "f": np.zeros(n), "A": np.zeros((m, n)),
         "lb": np.zeros(n), "ub": np.zeros(n), "lo": np.zeros(m), "up": np.zeros(m),
         "F": np.zeros((rows, n)), "g": np.zeros(rows),
         "cone_rows": np.cumsum([0, *sizes]).astype(np.int64),
         "e": np.zeros((cones, n)), "offsets": np.zeros(cones), "z": np.zeros(n),
-        "mu": np.zeros(cones), "hessian": np.zeros((n, n)), "A_k": np.zeros((m + cones, n)),
-        "bupper": np.zeros(n + m + cones), "blower": np.zeros(n + m + cones),
-        "sense": np.zeros(n + m + cones, dtype=np.intc), "x": np.zeros(n),
+        "mu": np.zeros(cones), "hessian": np.zeros((n, n)),
+        "A_k": np.zeros((m + cones + extra, n)), "bupper": np.zeros(n + m + cones + extra),
+        "blower": np.zeros(n + m + cones + extra),
+        "sense": np.zeros(n + m + cones + extra, dtype=np.intc), "x": np.zeros(n),
         "lam": np.zeros(n + m + cones), "v": np.zeros(rows), "w": np.zeros(n),
         "linear": np.zeros(n), "gradients": np.zeros((cones, n)),
         "gradient_bounds": np.zeros(cones),
         "cone_products": np.zeros((cones if cones * n * n <= STORED_PRODUCTS else 0, n, n)),
         "formed": np.zeros(cones, dtype=np.int64), "kept": np.zeros(m, dtype=np.int64),
-        "lam_k": np.zeros(n + m + cones),
+        "lam_k": np.zeros(n + m + cones + extra),
         "row_values": np.zeros(m), "row_norms": np.zeros(m),
         "epigraph": np.zeros(cones, dtype=np.int64),
         "eliminated": np.zeros(cones, dtype=np.int64),
@@ -1088,5 +1226,8 @@ def socp_arrays(n: int, m: int, sizes: list[int], buffers: Any) -> dict[str, Any
         "reduced_sense": np.zeros(n + m + cones, dtype=np.intc), "reduced_x": np.zeros(n),
         "reduced_lam": np.zeros(n + m + cones),
         "direction": np.zeros(n), "regularized": np.zeros(2, dtype=np.int64),
+        "cuts": np.zeros((CUT_ROUNDS * cones, n)), "cut_bounds": np.zeros(CUT_ROUNDS * cones),
+        "cut_points": np.zeros((CUT_ROUNDS, n)), "cut_state": np.zeros(3, dtype=np.int64),
+        "saved_x": np.zeros(n),
         "problem": buffers.problem, "result": buffers.result, "settings": buffers.settings,
     }  # fmt: skip

@@ -677,3 +677,95 @@ def test_an_infeasible_subproblem_on_a_definite_hessian_ends_the_solve() -> None
         assert info.startswith(f"exitflag -1 at SQP iteration {sqp};"), info
         infeasible += 1
     assert infeasible >= 3
+
+
+# ---------------------------------------------------------------- infeasibility check
+def _with_and_without_check(qp):
+    """socp_solve of the DenseQP ``qp`` with and without the infeasibility check, each on a
+    fresh workspace: ((result, z, mu, lam, cut_state) of each)."""
+    from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
+
+    out = []
+    for check in (False, True):
+        backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+        backend.setup(qp)
+        a = backend._arrays
+        result = socp_solve(backend._ws, False, MAX_ITERATIONS, True, True, check)
+        out.append((result, a["z"].copy(), a["mu"].copy(), a["lam"].copy(), a["cut_state"].copy()))
+    return out
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    kind=st.sampled_from(["feasible", "infeasible"]),
+    linear_t=st.booleans(),
+)
+def test_the_infeasibility_check_changes_no_solve_it_does_not_end(
+    seed: int, kind: str, linear_t: bool
+) -> None:
+    """Random SOCPs of the controller's shape: where the check proves nothing, the SQP takes
+    the same iterates with and without it (exit flag, SQP iterations, point, multipliers,
+    bit for bit: the check's solve leaves the subproblem's solution as it was); where it
+    ends the solve, it does so with DAQP's "infeasible" no later than the SQP without it,
+    on a problem that SQP did not solve either (a proof: the planes are outer
+    approximations of the cones)."""
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS
+    from ltv_lstm_mpc.solvers.testing import controller_socp
+
+    qp = controller_socp(seed, kind, linear_t)
+    (plain, z0, mu0, lam0, _), (checked, z, mu, lam, state) = _with_and_without_check(qp)
+    if state[2] == 0:
+        assert checked[:2] == plain[:2]
+        assert checked[3] == plain[3] or (np.isinf(checked[3]) and np.isinf(plain[3]))
+        np.testing.assert_array_equal(z, z0)
+        np.testing.assert_array_equal(mu, mu0)
+        np.testing.assert_array_equal(lam, lam0)
+    else:
+        assert checked[0] == -1
+        assert checked[1] <= plain[1]
+        assert plain[0] not in (1, 2) or plain[1] > MAX_ITERATIONS
+        assert kind == "infeasible"
+
+
+def test_the_mpcs_infeasible_steps_end_at_the_check() -> None:
+    """The paper's scenario 3 at N = 5 on the one-call step (its steps 590-618 are
+    infeasible; the SQP without the check circles on most of them, its subproblems
+    feasible while the multipliers grow): every nominal subproblem that fails is
+    INFEASIBLE with a checked certificate, built from the kept planes where the check
+    ended the solve (its reason says so); re-solved, the check ends it no later than the
+    SQP without it, and sooner on most of them."""
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
+
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    config = replace(scenario.config, N=5, solver="daqp:socp")
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+    )
+    problem = controller.mpc._problem
+    ws = problem.socp_workspace
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    sooner = failed = 0
+    for k in range(620):
+        u = controller.step(y, scenario.setpoints[k])
+        record = controller.records[-1]
+        if not record.mpc.feasible:
+            failed += 1
+            assert record.mpc.status == SolverStatus.INFEASIBLE.value, (k, record.mpc.reason)
+            checked = socp_solve(ws, False, MAX_ITERATIONS)
+            ended_by_check = problem.socp_arrays["cut_state"][2] > 0
+            plain = socp_solve(ws, False, MAX_ITERATIONS, True, True, False)
+            assert checked[0] == plain[0] == -1
+            assert checked[1] <= plain[1]
+            sooner += checked[1] < plain[1]
+            assert ("cutting planes" in record.mpc.reason) == ended_by_check, record.mpc.reason
+            assert "infeasibility certificate" in record.mpc.reason
+        d = scenario.disturbances[k]
+        y = plant.step(u, None if np.isnan(d) else d)
+    assert failed >= 25
+    assert sooner >= failed // 2

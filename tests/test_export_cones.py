@@ -158,3 +158,60 @@ def test_the_c_sqp_equals_the_librarys_on_random_socps(c_sqp: Any) -> None:
     assert differing <= 0.1 * 2 * len(CASES), (differing, seen)
     for label in ("converged", "flag -1", "flag -4", "max_iter", "proximal", "line search"):
         assert seen.get(label, 0) > 0, (label, seen)
+
+
+def test_the_c_sqp_ends_the_mpcs_infeasible_problems_where_the_library_does(c_sqp: Any) -> None:
+    """The infeasibility check with the earlier iterates' cutting planes: the nominal
+    problems of the paper's scenario 3 at N = 5 that fail (steps 590-618; the SQP circles
+    on most of them without the check), solved by the C SQP and the library's: the same
+    exit flag, SQP iteration and kept iterates (``cut_state``), and the same kept points,
+    the check ending at least half of them."""
+    from dataclasses import replace
+    from itertools import pairwise
+
+    from ltv_lstm_mpc.solvers import DenseCone, DenseQP
+
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+    c, solve, buffers = c_sqp
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    config = replace(scenario.config, N=5, solver="daqp:socp")
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+    )
+    arrays = controller.mpc._problem.socp_arrays
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    failed = by_check = 0
+    for k in range(620):
+        u = controller.step(y, scenario.setpoints[k])
+        if not controller.records[-1].mpc.feasible:
+            rows = arrays["cone_rows"]
+            cones = tuple(
+                DenseCone(arrays["F"][a:b].copy(), arrays["g"][a:b].copy(),
+                          arrays["e"][j].copy(), float(arrays["offsets"][j]))
+                for j, (a, b) in enumerate(pairwise(rows))
+            )  # fmt: skip
+            qp = DenseQP(
+                H=arrays["H"].copy(), f=arrays["f"].copy(), A=arrays["A"].copy(),
+                lo=arrays["lo"].copy(), up=arrays["up"].copy(), lb=arrays["lb"].copy(),
+                ub=arrays["ub"].copy(), cones=cones,
+            )  # fmt: skip
+            pointer = write_c(c, qp)
+            ws, library = library_workspace(qp, buffers)
+            flag, sqp, *_ = socp_solve(ws, False, MAX_ITERATIONS)
+            c_flag, c_sqp_iterations, *_ = c_solve(solve, c, pointer)
+            s = pointer.contents
+            state = list(s.cut_state)
+            assert (c_flag, c_sqp_iterations) == (flag, sqp) == (-1, sqp), k
+            assert state == list(library["cut_state"]), k
+            n = qp.H.shape[0]
+            points = np.ctypeslib.as_array(s.cut_points)[: state[0] * n].reshape(state[0], n)
+            np.testing.assert_allclose(points, library["cut_points"][: state[0]], atol=1e-9)
+            failed += 1
+            by_check += state[2] > 0
+        d = scenario.disturbances[k]
+        y = plant.step(u, None if np.isnan(d) else d)
+    assert failed >= 25
+    assert by_check >= failed // 2

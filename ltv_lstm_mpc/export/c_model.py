@@ -56,6 +56,7 @@ import numpy as np
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.export.socp_struct import (
     SOCP_PROBLEMS,
+    SOCP_SIZE_KEYS,
     SOCP_STRUCT,
     socp_declaration,
     socp_length,
@@ -571,11 +572,11 @@ def export_model_c(
 
 
 def _exported_socp_sizes(mpc: Any, model: LSTMModel) -> tuple[int, ...]:
-    """:attr:`ExportedC.socp_sizes` of an export of ``mpc`` (n, m, f, c, k)."""
+    """:attr:`ExportedC.socp_sizes` of an export of ``mpc`` (:data:`SOCP_SIZE_KEYS`)."""
     if mpc is None or not mpc._problem.exact_cones:
         return ()
     sizes = socp_sizes(int(mpc.N), model.n, model.m, model.p, mpc.config.infeasibility_policy)
-    return tuple(sizes[key] for key in ("n", "m", "f", "c", "k"))
+    return tuple(sizes[key] for key in SOCP_SIZE_KEYS)
 
 
 #: The DAQP release whose C sources are vendored in ``export/vendor/daqp``.
@@ -665,8 +666,8 @@ def _mpc_fields(
     sizes = socp_sizes(N, n, m, p, policy) if cones else {}
     if cones:  # DAQP's buffers also hold the SQP's subproblems
         qp_n = max(qp_n, sizes["n"])
-        qp_rows = max(qp_rows, sizes["m"] + sizes["c"])
-        qp_m = max(qp_m, sizes["k"])
+        qp_rows = max(qp_rows, sizes["m"] + sizes["c"] + sizes["r"])
+        qp_m = max(qp_m, sizes["k"] + sizes["r"])
     Qs = problem.stage_weights()[1]
     diagonal_weights = all(np.array_equal(W, np.diag(np.diag(W))) for W in Qs)
     # the library's form of H and g0 (its Gram matrix for full weights at short horizons is
@@ -735,6 +736,8 @@ def _mpc_fields(
                 ("DEFINITE_PIVOT", socp_sqp.DEFINITE_PIVOT),
                 ("BACKTRACKS", socp_sqp.BACKTRACKS),
                 ("SCREENING_MARGIN", socp_sqp.SCREENING_MARGIN),
+                ("CUT_ROUNDS", socp_sqp.CUT_ROUNDS), ("CUT_FROM", socp_sqp.CUT_FROM),
+                ("CUT_GROWTH", socp_sqp.CUT_GROWTH), ("CUT_TOLERANCE", socp_sqp.CUT_TOLERANCE),
             )
         }  # fmt: skip
         values.update(constants)

@@ -173,9 +173,9 @@ def _record_type(n: int, m: int, p: int, precision: str = "double") -> type[ctyp
 def socp_type(sizes: tuple[int, ...], precision: str = "double") -> type[ctypes.Structure]:
     """``<prefix>_socp`` of an export whose ``ExportedC.socp_sizes`` are ``sizes`` (from
     :data:`~ltv_lstm_mpc.export.socp_struct.SOCP_STRUCT`, as the C declaration)."""
-    from ltv_lstm_mpc.export.socp_struct import SOCP_STRUCT, socp_length
+    from ltv_lstm_mpc.export.socp_struct import SOCP_SIZE_KEYS, SOCP_STRUCT, socp_length
 
-    named = dict(zip(("n", "m", "f", "c", "k"), sizes, strict=True))
+    named = dict(zip(SOCP_SIZE_KEYS, sizes, strict=True))
     fields = []
     for name, kind, length in SOCP_STRUCT:
         ctype = _real(precision) if kind == "real" else ctypes.c_int
@@ -270,6 +270,8 @@ class CController:
         read). Only for an export with the exact cones."""
         if self._socp is None:
             raise InvalidValueError("this export has no exact cones (solver='daqp:socp')")
+        from ltv_lstm_mpc.solvers.socp_sqp import CUT_ROUNDS
+
         s = self._socp(self.state_buffer, which).contents
         n, m, cones = int(s.n), int(s.m), int(s.cones)
         rows = list(s.cone_rows)[: cones + 1]
@@ -289,6 +291,7 @@ class CController:
             "offsets": take("offsets", cones), "z": take("z", n), "mu": take("mu", cones),
             "lam": take("lam", k), "regularized": take("regularized", 2),
             "direction": take("direction", n), "first_active": take("first_active", cones),
+            "cut_points": take("cut_points", CUT_ROUNDS, n), "cut_state": take("cut_state", 3),
         }  # fmt: skip
 
     def cone_outcome(self, feedback: Any, config: Any) -> tuple[str, str]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 __all__ = [
     "SOCP_PROBLEMS",
+    "SOCP_SIZE_KEYS",
     "SOCP_STRUCT",
     "socp_declaration",
     "socp_length",
@@ -17,7 +18,8 @@ __all__ = [
 
 #: The fields of ``<prefix>_socp`` (the exact cones' SQP buffers, ``socp.c.in``) in order:
 #: (name, C type, length), the length in the sizes of :func:`socp_sizes` ("n", "m", "f",
-#: "c", "k": the largest problem's variables, rows, cone rows, cones, and n + m + c). The
+#: "c", "k", "r", "R": the largest problem's variables, rows, cone rows, cones, n + m + c,
+#: the infeasibility check's kept cutting planes and the iterates they are kept of). The
 #: C declaration (:func:`socp_declaration`) and the ctypes mirror of the SIL
 #: (:func:`ltv_lstm_mpc.export.sil.socp_type`) are both made from it.
 SOCP_STRUCT = (
@@ -26,10 +28,10 @@ SOCP_STRUCT = (
     ("ub", "real", "n"), ("lo", "real", "m"), ("up", "real", "m"), ("F", "real", "f*n"),
     ("g", "real", "f"), ("e", "real", "c*n"), ("offsets", "real", "c"), ("z", "real", "n"),
     ("mu", "real", "c"), ("lam", "real", "k"), ("hessian", "real", "n*n"),
-    ("A_k", "real", "(m+c)*n"), ("bupper", "real", "k"), ("blower", "real", "k"),
-    ("sense", "int", "k"), ("x", "real", "n"), ("v", "real", "f"), ("w", "real", "n"),
+    ("A_k", "real", "(m+c+r)*n"), ("bupper", "real", "k+r"), ("blower", "real", "k+r"),
+    ("sense", "int", "k+r"), ("x", "real", "n"), ("v", "real", "f"), ("w", "real", "n"),
     ("linear", "real", "n"), ("gradients", "real", "c*n"), ("gradient_bounds", "real", "c"),
-    ("kept", "int", "m"), ("lam_k", "real", "k"), ("row_values", "real", "m"),
+    ("kept", "int", "m"), ("lam_k", "real", "k+r"), ("row_values", "real", "m"),
     ("row_norms", "real", "m"), ("epigraph", "int", "c"), ("eliminated", "int", "c"),
     ("first_active", "int", "c"), ("reduced_index", "int", "n"), ("tau", "real", "c*n"),
     ("tau_offset", "real", "c"), ("coupled", "real", "c*n"),
@@ -37,7 +39,11 @@ SOCP_STRUCT = (
     ("reduced_rows", "real", "(m+c)*n"), ("reduced_upper", "real", "k"),
     ("reduced_lower", "real", "k"), ("reduced_sense", "int", "k"), ("reduced_x", "real", "n"),
     ("reduced_lam", "real", "k"), ("direction", "real", "n"), ("regularized", "int", "2"),
+    ("cuts", "real", "r*n"), ("cut_bounds", "real", "r"), ("cut_points", "real", "R*n"),
+    ("cut_state", "int", "3"), ("saved_x", "real", "n"),
 )  # fmt: skip
+#: The names of :func:`socp_sizes`, in the order of ``ExportedC.socp_sizes``.
+SOCP_SIZE_KEYS = ("n", "m", "f", "c", "k", "r", "R")
 #: The exact-cone problems a cone export holds, in the order of ``<prefix>_mpc_workspace``'s
 #: ``socp`` array: the nominal one (solved once a step; a failed solve's status is read
 #: from it), the infeasibility policy's.
@@ -49,7 +55,9 @@ def socp_sizes(N: int, n: int, m: int, p: int, policy: str) -> dict[str, int]:
     ``m`` inputs, ``p`` outputs and the infeasibility ``policy``: the largest of the
     exact-cone problems' variables ``n`` (``[du, t_c, t_h]``, with ``"soft"`` the output
     slacks and ``s_T``), rows ``m`` (the outputs i = 1..N-1, twice with ``"soft"``; at
-    least 4), cone rows ``f`` (2n + 2) and cones ``c`` (3); ``k`` = n + m + c."""
+    least 4), cone rows ``f`` (2n + 2) and cones ``c`` (3); ``k`` = n + m + c; ``R``
+    (:data:`~ltv_lstm_mpc.solvers.socp_sqp.CUT_ROUNDS`) iterates' cutting planes kept,
+    ``r`` = R c of them."""
     n_out = (N - 1) * p
     variables = N * m + 2 + (n_out + 1 if policy == "soft" else 0)
     # (at least 4: gcc's -Warray-bounds reads the four-row pass of sqp_row_values at
@@ -57,6 +65,10 @@ def socp_sizes(N: int, n: int, m: int, p: int, policy: str) -> dict[str, int]:
     rows = max(n_out * (2 if policy == "soft" else 1), 4)
     sizes = {"n": variables, "m": rows, "f": 2 * n + 2, "c": 3}
     sizes["k"] = variables + rows + 3
+    from ltv_lstm_mpc.solvers.socp_sqp import CUT_ROUNDS
+
+    sizes["R"] = CUT_ROUNDS
+    sizes["r"] = CUT_ROUNDS * 3
     return sizes
 
 
