@@ -78,7 +78,10 @@ def failure_status(
     if flag == -1:  # a subproblem is infeasible: certify the SOCP's infeasibility
         certificate, numbers = infeasibility_certificate(a, view)
         if certificate is None and sqp > 1:
-            certificate, numbers = multiplier_certificate(a, ws, start, sqp - 1, view, numbers)
+            # the last subproblem solved: the check's own at iteration sqp (the rerun ends
+            # there again), else the one before the infeasible one
+            rerun = sqp if kept else sqp - 1
+            certificate, numbers = multiplier_certificate(a, ws, start, rerun, view, numbers)
         if certificate is not None:
             return SolverStatus.INFEASIBLE, f"{where}; {numbers}", certificate
         why = (
@@ -282,7 +285,9 @@ def infeasibility_certificate(
     at the iterate :math:`z_k`, :math:`a_j^\top x \le b_j` with :math:`a_j = F_j^\top
     v_j / r_j - e_j` (an outer cutting plane of the smoothed cone); where the SQP's
     infeasibility check ended the solve (``cut_state[2]`` > 0), also each cone's
-    linearizations at the earlier iterates it kept (``cut_points``). Stacked as
+    linearizations at the earlier iterates it kept (``cut_points``), all of them then as
+    the check has them: planes of the unsmoothed cones (each bound relaxed by
+    :math:`s^2 / r`, :mod:`~ltv_lstm_mpc.solvers.socp_sqp`'s infeasibility check). Stacked as
     :math:`l \le C x \le u`, the vector :math:`y = y^+ - y^-` of the least-norm problem
 
     .. math::
@@ -296,8 +301,7 @@ def infeasibility_certificate(
     = \mu (1, -v / r)` (in the cone: :math:`\|v\| \le r`), and the sum of a cone's
     over its cuts is in the cone too, so :math:`y` is a certificate of the SOCP itself,
     checked on it by :func:`~ltv_lstm_mpc.solvers.acceptance.check_infeasibility_certificate`
-    (its support value exceeds the subproblem's by :math:`\mu s^2 / r` per cut, the
-    smoothing).
+    (its support value exceeds the subproblem's by :math:`\mu s^2 / r` per smoothed cut).
     """
     import daqp
 
@@ -315,7 +319,9 @@ def infeasibility_certificate(
             row = len(parts)
             cuts[row] = F.T @ v / r - arrays["e"][j]
             value = r - float(arrays["e"][j] @ point) - float(arrays["offsets"][j])
-            cut_bounds[row] = float(cuts[row] @ point) - value
+            # the check's planes are the unsmoothed cones' (shifted by s^2 / r)
+            slack = SMOOTHING**2 / r if kept else 0.0
+            cut_bounds[row] = float(cuts[row] @ point) - value + slack
             parts.append((j, v, r))
     C = np.vstack([A, np.eye(n), cuts])
     upper = np.concatenate([arrays["up"], arrays["ub"], cut_bounds])

@@ -91,27 +91,32 @@ solve proves (the multipliers in the layer's convention, certificates of infeasi
 unboundedness) is read by :mod:`~ltv_lstm_mpc.solvers.socp_certificates`; the backend
 ``daqp:socp`` (:mod:`~ltv_lstm_mpc.solvers.daqp_socp`) maps it to the layer's statuses.
 
-Infeasibility check: each cone's linearized row at an iterate is an outer cutting plane
-of the (smoothed) cone, valid at every iterate, not only the one it was taken at. On an
-infeasible problem the SQP's subproblems can stay feasible for many iterations (each
-holds the planes of one iterate only) while the cone multipliers grow without bound (the
-MPC's infeasible steps: 6 SQP iterations in the median, up to 21, on the paper's scenario 3
-at N = 5). The planes of the last :data:`CUT_ROUNDS` iterates are therefore kept
-(``cuts``, ``cut_bounds``, the iterates in ``cut_points``); from iteration
-:data:`CUT_FROM` on, at an iteration whose largest cone multiplier grew more than
-:data:`CUT_GROWTH` times (the symptom; the MPC's feasible problems seldom show it, so the
-check costs them almost nothing) and whose solution violates a kept plane, the subproblem
-is solved again with every kept plane added (DAQP warm-started at its solution). Where
-DAQP calls that infeasible on a safely positive definite :math:`W_k`, the problem is
-infeasible (the planes' intersection contains it) and the solve ends there
-(``cut_state[2]``: the iterates whose planes were kept); otherwise the SQP goes on from
-the subproblem's own solution, so a solve the check does not end takes the same iterates,
-bit for bit (``cut_check=False`` gives the reference the tests compare with). Its
-certificate sums each cone's multipliers over its planes (a sum of cone elements is in
-the cone): :func:`~ltv_lstm_mpc.solvers.socp_certificates.infeasibility_certificate`.
-On the scenario above, 60 of the 74 failures then end at SQP iteration 2 or 3 (19
-did before), and the fallback steps' median fell from 2.8 to 2.0 times the nominal
-one (``experiments/worst_case.py``).
+Infeasibility check: each cone's linearized row at an iterate :math:`z_i`, shifted by
+:math:`s^2 / r_j(z_i)`, is a plane of the cone itself (not only of the smoothed one:
+:math:`\|v\| \ge (v_i / r_i)^\top v` as :math:`\|v_i\| < r_i`), valid for every
+point of the cone, not only near the iterate it was taken at. On an infeasible problem
+the SQP's subproblems can stay feasible for many iterations (each holds the planes of one
+iterate only) while the cone multipliers grow without bound (the MPC's infeasible steps:
+up to 21 SQP iterations on the paper's scenario 3 at N = 5). The planes of the last
+:data:`CUT_ROUNDS` iterates are therefore kept (``cuts``, ``cut_bounds``, the iterates in
+``cut_points``; ``plane_slack``: each cone's :math:`s^2 / r_j` at the iterate); from
+iteration :data:`CUT_FROM` on, at an iteration whose largest cone multiplier grew more
+than :data:`CUT_GROWTH` times (the symptom; the MPC's feasible problems seldom show it,
+so the check costs them almost nothing) and whose solution violates a kept plane, the
+subproblem is solved again with its cones' rows as such planes and every kept plane
+added (DAQP warm-started from its working set). Where DAQP calls that infeasible on a
+safely positive definite :math:`W_k`, every point of the problem would satisfy it, so
+the problem is infeasible (up to DAQP's arithmetic: the status still needs a checked
+certificate) and the solve ends there (``cut_state[2]``: the iterates whose planes were
+kept); otherwise the SQP goes on from the subproblem's own solution, so a solve the
+check does not end takes the same iterates, bit for bit (``cut_check=False`` gives the
+reference the tests compare with). Its certificate sums each cone's multipliers over its
+planes (a sum of cone elements is in the cone):
+:func:`~ltv_lstm_mpc.solvers.socp_certificates.infeasibility_certificate`. On the
+scenario above (``python experiments/worst_case.py --solvers daqp:socp --N 5``, 74
+fallback steps after the first 10) 60 of the 74 failed nominal solves then end at SQP
+iteration 2 or 3 (19 did before; the median was 6, now 2), and the fallback steps'
+median fell from 2.8 to 2.0 times the nominal one.
 
 This module is the algorithm: the compiled kernels (:func:`socp_solve` and its callees),
 the workspace (:data:`SocpWorkspace`, :func:`socp_arrays`, :func:`new_socp_workspace`) and
@@ -232,7 +237,8 @@ SOCP_FIELDS = (
     "epigraph", "eliminated", "first_active", "reduced_index", "tau", "tau_offset", "coupled",
     "reduced_hessian", "reduced_linear", "reduced_rows", "reduced_upper", "reduced_lower",
     "reduced_sense", "reduced_x", "reduced_lam", "direction", "regularized", "cuts",
-    "cut_bounds", "cut_points", "cut_state", "saved_x", "problem", "result", "settings",
+    "cut_bounds", "cut_points", "cut_state", "saved_x", "plane_slack", "problem", "result",
+    "settings",
 )  # fmt: skip
 
 SocpWorkspace = workspace_type(
@@ -264,7 +270,13 @@ SocpWorkspace = workspace_type(
     ``reduced_x``, ``reduced_lam``); for the proximal steps (module docstring,
     unbounded subproblems): ``direction`` (the last regularized step) and ``regularized``
     (the number of regularized iterations of the last solve, and 1 where its last
-    iteration was one); ``problem``, ``result``, ``settings``: DAQP's C structs.
+    iteration was one); for the infeasibility check (module docstring): ``cuts``,
+    ``cut_bounds`` (the kept planes, :data:`CUT_ROUNDS` slots of one row per cone),
+    ``cut_points`` (the iterates they were taken at), ``cut_state`` (the slots filled,
+    the next slot, and the iterates whose planes ended the last solve: 0 where the check
+    did not), ``plane_slack`` (each cone's :math:`s^2 / r_j` at the iterate), ``saved_x``
+    (the subproblem's solution while the check runs); ``problem``, ``result``,
+    ``settings``: DAQP's C structs.
     """,
     __name__,
 )
@@ -278,7 +290,7 @@ def _new_socp_workspace(  # type: ignore[no-untyped-def]
     row_values, row_norms, epigraph, eliminated, first_active, reduced_index, tau, tau_offset,
     coupled, reduced_hessian, reduced_linear, reduced_rows, reduced_upper, reduced_lower,
     reduced_sense, reduced_x, reduced_lam, direction, regularized, cuts, cut_bounds,
-    cut_points, cut_state, saved_x, problem, result, settings,
+    cut_points, cut_state, saved_x, plane_slack, problem, result, settings,
 ):  # fmt: skip
     """The compiled constructor (no constructor compile at run time; cached)."""
     return SocpWorkspace(
@@ -287,7 +299,7 @@ def _new_socp_workspace(  # type: ignore[no-untyped-def]
         row_values, row_norms, epigraph, eliminated, first_active, reduced_index, tau, tau_offset,
         coupled, reduced_hessian, reduced_linear, reduced_rows, reduced_upper, reduced_lower,
         reduced_sense, reduced_x, reduced_lam, direction, regularized, cuts, cut_bounds,
-        cut_points, cut_state, saved_x, problem, result, settings,
+        cut_points, cut_state, saved_x, plane_slack, problem, result, settings,
     )  # fmt: skip
 
 
@@ -727,7 +739,7 @@ def _store_cuts(ws: Any) -> None:
         row = slot * cones + j
         for b in range(z.shape[0]):
             ws.cuts[row, b] = ws.gradients[j, b]
-        ws.cut_bounds[row] = ws.gradient_bounds[j]
+        ws.cut_bounds[row] = ws.gradient_bounds[j] + ws.plane_slack[j]
     for b in range(z.shape[0]):
         points[slot, b] = z[b]
     state[1] = (slot + 1) % rounds
@@ -762,6 +774,8 @@ def _cut_proof(ws: Any) -> tuple[bool, int, float]:
         saved[b] = x[b]
     rows = _subproblem(ws)
     A_k, bupper, blower, sense = ws.A_k, ws.bupper, ws.blower, ws.sense
+    for j in range(cones):  # this iterate's rows as the unsmoothed cones' planes
+        bupper[n + rows - cones + j] += ws.plane_slack[j]
     for i in range(stored):
         for b in range(n):
             A_k[rows + i, b] = cuts[i, b]
@@ -990,6 +1004,7 @@ def socp_solve(
                 ws.gradients[j, b] = gradient
                 bound += gradient * z[b]
             ws.gradient_bounds[j] = bound
+            ws.plane_slack[j] = SMOOTHING * SMOOTHING / r  # (the unsmoothed cone's plane)
         for a in range(n):
             for b in range(a + 1, n):
                 hessian[b, a] = hessian[a, b]
@@ -1232,6 +1247,6 @@ def socp_arrays(n: int, m: int, sizes: list[int], buffers: Any) -> dict[str, Any
         "direction": np.zeros(n), "regularized": np.zeros(2, dtype=np.int64),
         "cuts": np.zeros((CUT_ROUNDS * cones, n)), "cut_bounds": np.zeros(CUT_ROUNDS * cones),
         "cut_points": np.zeros((CUT_ROUNDS, n)), "cut_state": np.zeros(3, dtype=np.int64),
-        "saved_x": np.zeros(n),
+        "saved_x": np.zeros(n), "plane_slack": np.zeros(cones),
         "problem": buffers.problem, "result": buffers.result, "settings": buffers.settings,
     }  # fmt: skip

@@ -709,8 +709,9 @@ def test_the_infeasibility_check_changes_no_solve_it_does_not_end(
     the same iterates with and without it (exit flag, SQP iterations, point, multipliers,
     bit for bit: the check's solve leaves the subproblem's solution as it was); where it
     ends the solve, it does so with DAQP's "infeasible" no later than the SQP without it,
-    on a problem that SQP did not solve either (a proof: the planes are outer
-    approximations of the cones)."""
+    on a problem that SQP did not solve either, INFEASIBLE with a checked certificate (the
+    planes hold at every point of the cones). The check seldom runs on these: the fixed
+    cases below make sure it does."""
     from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS
     from ltv_lstm_mpc.solvers.testing import controller_socp
 
@@ -727,6 +728,98 @@ def test_the_infeasibility_check_changes_no_solve_it_does_not_end(
         assert checked[1] <= plain[1]
         assert plain[0] not in (1, 2) or plain[1] > MAX_ITERATIONS
         assert kind == "infeasible"
+        _assert_infeasible_by_the_check(qp)
+
+
+def _assert_infeasible_by_the_check(qp) -> None:
+    """The backend's status of ``qp``: INFEASIBLE with a checked certificate, the solve
+    ended by the infeasibility check (its reason says so)."""
+    from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense
+
+    backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+    backend.setup(qp)
+    status, _z, _iterations, info = backend.solve_point()
+    assert status is SolverStatus.INFEASIBLE, info
+    assert "cutting planes" in info and "infeasibility certificate" in info, info
+
+
+#: Problems of controller_socp on which the check runs (its DAQP solves add iterations)
+#: without ending the solve: (seed, kind, linear_t).
+CHECKED_NOT_ENDED = [
+    (6, "feasible", False), (43, "feasible", False), (84, "feasible", False),
+    (93, "feasible", False), (138, "feasible", False), (34, "infeasible", True),
+    (171, "infeasible", True),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("seed", "kind", "linear_t"), CHECKED_NOT_ENDED)
+def test_a_check_that_proves_nothing_leaves_the_iterates(
+    seed: int, kind: str, linear_t: bool
+) -> None:
+    """Where the check runs (more DAQP iterations) and proves nothing, the solve is the one
+    without it, bit for bit: exit flag, SQP iterations, point, multipliers."""
+    from ltv_lstm_mpc.solvers.testing import controller_socp
+
+    qp = controller_socp(seed, kind, linear_t)
+    (plain, z0, mu0, lam0, _), (checked, z, mu, lam, state) = _with_and_without_check(qp)
+    assert checked[2] > plain[2]  # the check's DAQP solves
+    assert state[2] == 0
+    assert checked[:2] == plain[:2]
+    np.testing.assert_array_equal(z, z0)
+    np.testing.assert_array_equal(mu, mu0)
+    np.testing.assert_array_equal(lam, lam0)
+
+
+def test_the_check_ends_an_infeasible_solve_with_a_certificate() -> None:
+    """controller_socp(94, "infeasible", False): without the check DAQP finds a subproblem
+    infeasible at SQP iteration 7; the check ends the solve at iteration 3 with the planes
+    of 2 earlier iterates, INFEASIBLE with a certificate built from them."""
+    from ltv_lstm_mpc.solvers.testing import controller_socp
+
+    qp = controller_socp(94, "infeasible", False)
+    (plain, *_), (checked, *_rest, state) = _with_and_without_check(qp)
+    assert (plain[0], plain[1]) == (-1, 7)
+    assert (checked[0], checked[1]) == (-1, 3)
+    assert state[2] == 2
+    _assert_infeasible_by_the_check(qp)
+
+
+def test_the_check_keeps_a_feasible_problem_at_a_cones_apex_feasible() -> None:
+    """min c'x + t s.t. ||x - a|| <= t <= 0 with |c| < 1: feasible only at the cone's apex
+    x = a, t = 0, where the smoothed cone (the SQP's) is empty. Planes of the smoothed cone
+    would prove the problem infeasible (the check ended this solve at SQP iteration 19,
+    FAILED, before its planes were shifted by s^2 / r onto the cone itself); the SQP
+    converges as without the check, to the apex."""
+    from ltv_lstm_mpc.solvers import DenseCone, DenseQP
+    from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense
+
+    rng = np.random.default_rng(18)
+    p = int(rng.integers(1, 5))
+    n = p + 1
+    a = rng.standard_normal(p)
+    c = rng.standard_normal(p)
+    c *= rng.uniform(0.1, 0.99) / np.linalg.norm(c)
+    H = np.zeros((n, n))
+    H[:p, :p] = np.eye(p) * rng.choice([0.0, 1e-3, 1.0])
+    if rng.random() < 0.5:
+        H[p, p] = rng.uniform(0, 1)
+    e = np.zeros(n)
+    e[p] = 1.0
+    qp = DenseQP(
+        H=H, f=np.concatenate([c, [1.0]]), A=np.zeros((0, n)), lo=np.zeros(0), up=np.zeros(0),
+        lb=np.concatenate([np.full(p, -5.0), [-np.inf]]),
+        ub=np.concatenate([np.full(p, 5.0), [0.0]]),
+        cones=(DenseCone(np.hstack([np.eye(p), np.zeros((p, 1))]), -a, e, 0.0),),
+    )  # fmt: skip
+    (plain, z0, *_), (checked, z, *_rest, state) = _with_and_without_check(qp)
+    assert plain[0] == 1 and plain[1] <= 50
+    assert checked[:2] == plain[:2] and state[2] == 0
+    np.testing.assert_array_equal(z, z0)
+    np.testing.assert_allclose(z[:p], a, atol=1e-6)
+    backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+    backend.setup(qp)
+    status, *_ = backend.solve_point()
+    assert status is SolverStatus.OPTIMAL
 
 
 def test_the_mpcs_infeasible_steps_end_at_the_check() -> None:

@@ -215,3 +215,32 @@ def test_the_c_sqp_ends_the_mpcs_infeasible_problems_where_the_library_does(c_sq
         y = plant.step(u, None if np.isnan(d) else d)
     assert failed >= 25
     assert by_check >= failed // 2
+
+
+@pytest.mark.parametrize(
+    ("seed", "kind", "linear"),
+    [(6, "feasible", 0), (43, "feasible", 0), (84, "feasible", 0), (93, "feasible", 0),
+     (138, "feasible", 0), (34, "infeasible", 1), (171, "infeasible", 1),
+     (94, "infeasible", 0)],
+)  # fmt: skip
+def test_the_c_sqp_runs_the_check_as_the_library(
+    c_sqp: Any, seed: int, kind: str, linear: int
+) -> None:
+    """The random SOCPs on which the library's infeasibility check runs without ending the
+    solve (tests/test_daqp_socp.py's CHECKED_NOT_ENDED), and one it ends (94): the C SQP
+    takes the same exit flag, SQP iterations, DAQP iterations (the check's solves among
+    them) and kept iterates, the same point to 1e-9 where it converges (1e-6 relative
+    where it fails, as the random SOCPs above)."""
+    c, solve, buffers = c_sqp
+    qp = controller_socp(seed, kind, bool(linear))
+    pointer = write_c(c, qp)
+    ws, arrays = library_workspace(qp, buffers)
+    flag, sqp, total, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
+    c_flag, c_iterations, c_total, _c_violation = c_solve(solve, c, pointer)
+    s = pointer.contents
+    assert (c_flag, c_iterations, c_total) == (flag, sqp, total)
+    assert list(s.cut_state) == list(arrays["cut_state"])
+    n = qp.H.shape[0]
+    z = np.ctypeslib.as_array(s.z)[:n]
+    tolerance = 1e-9 if flag in (1, 2) else 1e-6  # (a failed solve's last iterate: 1e-6)
+    np.testing.assert_allclose(z, arrays["z"], rtol=0, atol=tolerance * (1 + np.abs(z).max()))

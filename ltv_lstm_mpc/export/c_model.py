@@ -664,6 +664,11 @@ def _mpc_fields(
     qp_rows = max(rows, soft_rows if soft else 0)
     qp_m = max(nu + rows, soft_n + soft_rows if soft else 0)
     sizes = socp_sizes(N, n, m, p, policy) if cones else {}
+    if cones and sizes["R"] < 1:  # (the C ring's modulus; numba's has a guard)
+        raise InvalidValueError(
+            f"socp_sqp.CUT_ROUNDS is {sizes['R']}; the C export needs at least 1 (the "
+            "infeasibility check's kept iterates)"
+        )
     if cones:  # DAQP's buffers also hold the SQP's subproblems
         qp_n = max(qp_n, sizes["n"])
         qp_rows = max(qp_rows, sizes["m"] + sizes["c"] + sizes["r"])

@@ -225,6 +225,7 @@ class CController:
         self.N, self.nx = exported.horizon, 2 * exported.n
         self.library = lib
         self._socp: Any = None
+        self._cut_rounds = int(exported.socp_sizes[-1]) if exported.socp_sizes else 0
         if exported.socp_sizes:
             Socp = socp_type(exported.socp_sizes, precision)
             self._socp = getattr(lib, f"{prefix}_controller_socp")
@@ -270,8 +271,6 @@ class CController:
         read). Only for an export with the exact cones."""
         if self._socp is None:
             raise InvalidValueError("this export has no exact cones (solver='daqp:socp')")
-        from ltv_lstm_mpc.solvers.socp_sqp import CUT_ROUNDS
-
         s = self._socp(self.state_buffer, which).contents
         n, m, cones = int(s.n), int(s.m), int(s.cones)
         rows = list(s.cone_rows)[: cones + 1]
@@ -291,7 +290,8 @@ class CController:
             "offsets": take("offsets", cones), "z": take("z", n), "mu": take("mu", cones),
             "lam": take("lam", k), "regularized": take("regularized", 2),
             "direction": take("direction", n), "first_active": take("first_active", cones),
-            "cut_points": take("cut_points", CUT_ROUNDS, n), "cut_state": take("cut_state", 3),
+            "cut_points": take("cut_points", self._cut_rounds, n),
+            "cut_state": take("cut_state", 3),
         }  # fmt: skip
 
     def cone_outcome(self, feedback: Any, config: Any) -> tuple[str, str]:

@@ -40,7 +40,7 @@ SOCP_STRUCT = (
     ("reduced_lower", "real", "k"), ("reduced_sense", "int", "k"), ("reduced_x", "real", "n"),
     ("reduced_lam", "real", "k"), ("direction", "real", "n"), ("regularized", "int", "2"),
     ("cuts", "real", "r*n"), ("cut_bounds", "real", "r"), ("cut_points", "real", "R*n"),
-    ("cut_state", "int", "3"), ("saved_x", "real", "n"),
+    ("cut_state", "int", "3"), ("saved_x", "real", "n"), ("plane_slack", "real", "c"),
 )  # fmt: skip
 #: The names of :func:`socp_sizes`, in the order of ``ExportedC.socp_sizes``.
 SOCP_SIZE_KEYS = ("n", "m", "f", "c", "k", "r", "R")
@@ -68,7 +68,7 @@ def socp_sizes(N: int, n: int, m: int, p: int, policy: str) -> dict[str, int]:
     from ltv_lstm_mpc.solvers.socp_sqp import CUT_ROUNDS
 
     sizes["R"] = CUT_ROUNDS
-    sizes["r"] = CUT_ROUNDS * 3
+    sizes["r"] = CUT_ROUNDS * sizes["c"]
     return sizes
 
 
