@@ -93,30 +93,30 @@ unboundedness) is read by :mod:`~ltv_lstm_mpc.solvers.socp_certificates`; the ba
 
 Infeasibility check: each cone's linearized row at an iterate :math:`z_i`, shifted by
 :math:`s^2 / r_j(z_i)`, is a plane of the cone itself (not only of the smoothed one:
-:math:`\|v\| \ge (v_i / r_i)^\top v` as :math:`\|v_i\| < r_i`), valid for every
-point of the cone, not only near the iterate it was taken at. On an infeasible problem
-the SQP's subproblems can stay feasible for many iterations (each holds the planes of one
-iterate only) while the cone multipliers grow without bound (the MPC's infeasible steps:
-up to 21 SQP iterations on the paper's scenario 3 at N = 5). The planes of the last
+:math:`\|v\| \ge (v_i / r_i)^\top v` as :math:`\|v_i\| < r_i`), valid for every point of the
+cone, not only near the iterate it was taken at. On an infeasible problem the SQP's
+subproblems can stay feasible for many iterations (each holds the planes of one iterate
+only) while the cone multipliers grow without bound (the MPC's infeasible steps: up to 21
+SQP iterations on the paper's scenario 3 at N = 5). The planes of the last
 :data:`CUT_ROUNDS` iterates are therefore kept (``cuts``, ``cut_bounds``, the iterates in
 ``cut_points``; ``plane_slack``: each cone's :math:`s^2 / r_j` at the iterate); from
-iteration :data:`CUT_FROM` on, at an iteration whose largest cone multiplier grew more
-than :data:`CUT_GROWTH` times (the symptom; the MPC's feasible problems seldom show it,
-so the check costs them almost nothing) and whose solution violates a kept plane, the
-subproblem is solved again with its cones' rows as such planes and every kept plane
-added (DAQP warm-started from its working set). Where DAQP calls that infeasible on a
-safely positive definite :math:`W_k`, every point of the problem would satisfy it, so
-the problem is infeasible (up to DAQP's arithmetic: the status still needs a checked
-certificate) and the solve ends there (``cut_state[2]``: the iterates whose planes were
-kept); otherwise the SQP goes on from the subproblem's own solution, so a solve the
-check does not end takes the same iterates, bit for bit (``cut_check=False`` gives the
+iteration :data:`CUT_FROM` on, at an iteration whose largest cone multiplier grew more than
+:data:`CUT_GROWTH` times (from 0 too; the symptom; the MPC's feasible problems seldom show
+it, so the check costs them almost nothing) and whose solution violates a kept plane, the
+subproblem is solved again with its cones' rows as such planes and every kept plane added,
+each loosened by :data:`CUT_MARGIN` (DAQP warm-started from its working set). Where DAQP
+calls that infeasible on a safely positive definite :math:`W_k`, every point of the problem
+would satisfy it, so the problem is infeasible (up to DAQP's arithmetic: the status still
+needs a checked certificate) and the solve ends there (``cut_state[2]``: the iterates whose
+planes were kept); otherwise the SQP goes on from the subproblem's own solution, so a solve
+the check does not end takes the same iterates, bit for bit (``cut_check=False`` gives the
 reference the tests compare with). Its certificate sums each cone's multipliers over its
 planes (a sum of cone elements is in the cone):
-:func:`~ltv_lstm_mpc.solvers.socp_certificates.infeasibility_certificate`. On the
-scenario above (``python experiments/worst_case.py --solvers daqp:socp --N 5``, 74
-fallback steps after the first 10) 60 of the 74 failed nominal solves then end at SQP
-iteration 2 or 3 (19 did before; the median was 6, now 2), and the fallback steps'
-median fell from 2.8 to 2.0 times the nominal one.
+:func:`~ltv_lstm_mpc.solvers.socp_certificates.infeasibility_certificate`. On the scenario
+above (``python experiments/worst_case.py --solvers daqp:socp --N 5``, 74 fallback steps
+after the first 10) 60 of the 74 failed nominal solves then end at SQP iteration 2 or 3 (19
+did before; the median was 6, now 2), and the fallback steps' median fell from 2.78 to
+1.94 times the nominal one.
 
 This module is the algorithm: the compiled kernels (:func:`socp_solve` and its callees),
 the workspace (:data:`SocpWorkspace`, :func:`socp_arrays`, :func:`new_socp_workspace`) and
@@ -142,6 +142,7 @@ __all__ = [
     "CONE_TOLERANCE",
     "CUT_FROM",
     "CUT_GROWTH",
+    "CUT_MARGIN",
     "CUT_ROUNDS",
     "CUT_TOLERANCE",
     "DEFINITE_PIVOT",
@@ -221,8 +222,12 @@ CUT_FROM = 2
 #: median step, at 4 not) ...
 CUT_GROWTH = 4.0
 #: ... where the subproblem's solution violates one by more than this, relative to
-#: ``1 +`` its right side.
+#: ``1 +`` its right side; the check's planes (the kept ones and the iterate's) are then
+#: loosened by :data:`CUT_MARGIN` relative to ``1 +`` their right side: DAQP's verdict on
+#: planes that only just touch the problem (a feasible problem whose only points are at a
+#: cone's apex) is not reliable, and a proof on looser planes is still a proof.
 CUT_TOLERANCE = 1e-9
+CUT_MARGIN = 1e-6
 #: Largest number of entries of the cones' :math:`F_j^\top F_j` a workspace stores (formed
 #: once per solve rather than once per SQP iteration; the same numbers either way).
 STORED_PRODUCTS = 1 << 22
@@ -774,12 +779,13 @@ def _cut_proof(ws: Any) -> tuple[bool, int, float]:
         saved[b] = x[b]
     rows = _subproblem(ws)
     A_k, bupper, blower, sense = ws.A_k, ws.bupper, ws.blower, ws.sense
-    for j in range(cones):  # this iterate's rows as the unsmoothed cones' planes
-        bupper[n + rows - cones + j] += ws.plane_slack[j]
+    for j in range(cones):  # this iterate's rows as the unsmoothed cones' planes, loosened
+        bound = bupper[n + rows - cones + j] + ws.plane_slack[j]
+        bupper[n + rows - cones + j] = bound + CUT_MARGIN * (1.0 + abs(bound))
     for i in range(stored):
         for b in range(n):
             A_k[rows + i, b] = cuts[i, b]
-        bupper[n + rows + i] = bounds[i]
+        bupper[n + rows + i] = bounds[i] + CUT_MARGIN * (1.0 + abs(bounds[i]))
         blower[n + rows + i] = -_BIG
         sense[n + rows + i] = 0
     rows += stored

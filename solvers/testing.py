@@ -30,6 +30,7 @@ __all__ = [
     "FAULTS",
     "SOCP_KINDS",
     "MpcLayout",
+    "apex_socp",
     "controller_socp",
     "epigraph_socp",
     "faulty",
@@ -403,6 +404,32 @@ def random_dense_qp(
 #: The kinds of :func:`controller_socp`.
 SOCP_KINDS = ("feasible", "infeasible", "unbounded")
 _P_F = np.array([[2.0, 0.5], [0.5, 1.0]])  # a terminal weight: >= 0 entrywise, definite
+
+
+def apex_socp(seed: int) -> DenseQP:
+    r"""A feasible SOCP whose only points are at its cone's apex: :math:`\min c^\top x + t`
+    s.t. :math:`\|x - a\| \le t \le 0`, :math:`|x_i| \le 5`, with :math:`\|c\| < 1`
+    (random ``a``, ``c``, a Hessian of 0, 1e-3 or 1 on ``x`` and sometimes on ``t``). Its
+    solution is :math:`x = a`, :math:`t = 0`, where the smoothed cone of ``daqp:socp``'s
+    SQP is empty: the case that planes of the smoothed cone would call infeasible."""
+    rng = np.random.default_rng(seed)
+    p = int(rng.integers(1, 5))
+    n = p + 1
+    a = rng.standard_normal(p)
+    c = rng.standard_normal(p)
+    c *= rng.uniform(0.1, 0.99) / np.linalg.norm(c)
+    H = np.zeros((n, n))
+    H[:p, :p] = np.eye(p) * rng.choice([0.0, 1e-3, 1.0])
+    if rng.random() < 0.5:
+        H[p, p] = rng.uniform(0, 1)
+    e = np.zeros(n)
+    e[p] = 1.0
+    return DenseQP(
+        H=H, f=np.concatenate([c, [1.0]]), A=np.zeros((0, n)), lo=np.zeros(0), up=np.zeros(0),
+        lb=np.concatenate([np.full(p, -5.0), [-np.inf]]),
+        ub=np.concatenate([np.full(p, 5.0), [0.0]]),
+        cones=(DenseCone(np.hstack([np.eye(p), np.zeros((p, 1))]), -a, e, 0.0),),
+    )  # fmt: skip
 
 
 def controller_socp(seed: int, kind: str, linear_t: bool) -> DenseQP:

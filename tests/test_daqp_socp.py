@@ -784,42 +784,62 @@ def test_the_check_ends_an_infeasible_solve_with_a_certificate() -> None:
     _assert_infeasible_by_the_check(qp)
 
 
-def test_the_check_keeps_a_feasible_problem_at_a_cones_apex_feasible() -> None:
-    """min c'x + t s.t. ||x - a|| <= t <= 0 with |c| < 1: feasible only at the cone's apex
-    x = a, t = 0, where the smoothed cone (the SQP's) is empty. Planes of the smoothed cone
-    would prove the problem infeasible (the check ended this solve at SQP iteration 19,
-    FAILED, before its planes were shifted by s^2 / r onto the cone itself); the SQP
-    converges as without the check, to the apex."""
-    from ltv_lstm_mpc.solvers import DenseCone, DenseQP
+@pytest.mark.parametrize("seed", [18, 59])
+def test_the_check_keeps_a_feasible_problem_at_a_cones_apex_feasible(seed: int) -> None:
+    """apex_socp: feasible only at the cone's apex, where the smoothed cone (the SQP's) is
+    empty. Planes of the smoothed cone ended seed 18 at SQP iteration 19, FAILED where the
+    SQP without the check converges; with the planes shifted onto the cone itself but not
+    loosened by CUT_MARGIN, DAQP still called seed 59's check infeasible at iteration 31
+    (the apex on every plane within 3e-18). Now the SQP converges as without the check, to
+    the apex."""
     from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense
+    from ltv_lstm_mpc.solvers.testing import apex_socp
 
-    rng = np.random.default_rng(18)
-    p = int(rng.integers(1, 5))
-    n = p + 1
-    a = rng.standard_normal(p)
-    c = rng.standard_normal(p)
-    c *= rng.uniform(0.1, 0.99) / np.linalg.norm(c)
-    H = np.zeros((n, n))
-    H[:p, :p] = np.eye(p) * rng.choice([0.0, 1e-3, 1.0])
-    if rng.random() < 0.5:
-        H[p, p] = rng.uniform(0, 1)
-    e = np.zeros(n)
-    e[p] = 1.0
-    qp = DenseQP(
-        H=H, f=np.concatenate([c, [1.0]]), A=np.zeros((0, n)), lo=np.zeros(0), up=np.zeros(0),
-        lb=np.concatenate([np.full(p, -5.0), [-np.inf]]),
-        ub=np.concatenate([np.full(p, 5.0), [0.0]]),
-        cones=(DenseCone(np.hstack([np.eye(p), np.zeros((p, 1))]), -a, e, 0.0),),
-    )  # fmt: skip
+    qp = apex_socp(seed)
+    p = qp.H.shape[0] - 1
     (plain, z0, *_), (checked, z, *_rest, state) = _with_and_without_check(qp)
     assert plain[0] == 1 and plain[1] <= 50
     assert checked[:2] == plain[:2] and state[2] == 0
     np.testing.assert_array_equal(z, z0)
-    np.testing.assert_allclose(z[:p], a, atol=1e-6)
+    np.testing.assert_allclose(z[:p], -qp.cones[0].g, atol=1e-6)
     backend = DaqpSocpDense("daqp:socp", 1e-8, {})
     backend.setup(qp)
     status, *_ = backend.solve_point()
     assert status is SolverStatus.OPTIMAL
+
+
+@pytest.mark.parametrize("seed", range(0, 300, 7))
+def test_the_check_never_ends_a_solve_at_a_cones_apex(seed: int) -> None:
+    """apex_socp over many seeds: the check never ends the solve (the problems are
+    feasible)."""
+    from ltv_lstm_mpc.solvers.testing import apex_socp
+
+    (_plain, *_), (checked, *_rest, state) = _with_and_without_check(apex_socp(seed))
+    assert state[2] == 0, (seed, checked)
+
+
+def test_the_multiplier_certificate_reruns_to_the_checks_own_subproblem() -> None:
+    """controller_socp(94, "infeasible", False), ended by the check at SQP iteration 3:
+    the Farkas vector from the multipliers of the subproblem of that iteration (the rerun
+    ends at the check again) checks on the problem."""
+    from ltv_lstm_mpc.solvers.acceptance import ProblemView
+    from ltv_lstm_mpc.solvers.daqp_socp import DaqpSocpDense
+    from ltv_lstm_mpc.solvers.socp_certificates import multiplier_certificate
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.testing import controller_socp
+
+    qp = controller_socp(94, "infeasible", False)
+    backend = DaqpSocpDense("daqp:socp", 1e-8, {})
+    backend.setup(qp)
+    a = backend._arrays
+    start = (False, np.zeros(qp.H.shape[0]), np.zeros(len(qp.cones)))
+    flag, sqp, *_ = socp_solve(backend._ws, False, MAX_ITERATIONS)
+    assert (flag, sqp, a["cut_state"][2]) == (-1, 3, 2)
+    certificate, why = multiplier_certificate(
+        a, backend._ws, start, sqp, ProblemView.of_dense(qp), ""
+    )
+    assert certificate is not None, why
+    assert a["cut_state"][2] == 2  # the rerun ended at the check again
 
 
 def test_the_mpcs_infeasible_steps_end_at_the_check() -> None:

@@ -244,3 +244,24 @@ def test_the_c_sqp_runs_the_check_as_the_library(
     z = np.ctypeslib.as_array(s.z)[:n]
     tolerance = 1e-9 if flag in (1, 2) else 1e-6  # (a failed solve's last iterate: 1e-6)
     np.testing.assert_allclose(z, arrays["z"], rtol=0, atol=tolerance * (1 + np.abs(z).max()))
+
+
+@pytest.mark.parametrize("seed", [18, 59])
+def test_the_c_check_keeps_a_feasible_problem_at_a_cones_apex_feasible(
+    c_sqp: Any, seed: int
+) -> None:
+    """apex_socp (tests/test_daqp_socp.py): the C check shifts and loosens its planes as
+    the library's, so it ends no solve there (cut_state[2] = 0; without the shift it ended
+    seed 18 at SQP iteration 19). (Its exit flag and last iterates may differ from the
+    library's on this problem, which stalls at the apex: the two DAQP builds' ulps, with
+    or without the check.)"""
+    from ltv_lstm_mpc.solvers.testing import apex_socp
+
+    c, solve, buffers = c_sqp
+    qp = apex_socp(seed)
+    pointer = write_c(c, qp)
+    ws, arrays = library_workspace(qp, buffers)
+    socp_solve(ws, False, MAX_ITERATIONS)
+    c_solve(solve, c, pointer)
+    s = pointer.contents
+    assert s.cut_state[2] == 0 and arrays["cut_state"][2] == 0

@@ -743,6 +743,7 @@ def _mpc_fields(
                 ("SCREENING_MARGIN", socp_sqp.SCREENING_MARGIN),
                 ("CUT_ROUNDS", socp_sqp.CUT_ROUNDS), ("CUT_FROM", socp_sqp.CUT_FROM),
                 ("CUT_GROWTH", socp_sqp.CUT_GROWTH), ("CUT_TOLERANCE", socp_sqp.CUT_TOLERANCE),
+                ("CUT_MARGIN", socp_sqp.CUT_MARGIN),
             )
         }  # fmt: skip
         values.update(constants)
