@@ -116,7 +116,7 @@ planes (a sum of cone elements is in the cone):
 above (``python experiments/worst_case.py --solvers daqp:socp --N 5``, 74 fallback steps
 after the first 10) 60 of the 74 failed nominal solves then end at SQP iteration 2 or 3 (19
 did before; the median was 6, now 2), and the fallback steps' median fell from 2.78 to
-1.94 times the nominal one.
+1.94-1.97 times the nominal one (docs/benchmarks.md, "The worst case").
 
 This module is the algorithm: the compiled kernels (:func:`socp_solve` and its callees),
 the workspace (:data:`SocpWorkspace`, :func:`socp_arrays`, :func:`new_socp_workspace`) and
@@ -755,8 +755,9 @@ def _store_cuts(ws: Any) -> None:
 def _cut_proof(ws: Any) -> tuple[bool, int, float]:
     """The infeasibility check (module docstring): where the subproblem's solution ``ws.x``
     violates a kept cutting plane of an earlier iterate, the subproblem just solved (its
-    rows, from the multipliers ``ws.lam``: DAQP warm-started at its solution) is solved
-    again with every kept plane added. Returns ``(proved, DAQP iterations, DAQP's time)``:
+    rows, DAQP warm-started from its working set, read from the multipliers ``ws.lam``)
+    is solved again with its cones' rows shifted onto the cones and every kept plane
+    added, all loosened by :data:`CUT_MARGIN`. Returns ``(proved, DAQP iterations, DAQP's time)``:
     proved where DAQP calls it infeasible on a safely positive definite :math:`W_k`
     (``ws.cut_state[2]``: the iterates whose planes it held); ``ws.x`` is left as it was."""
     state = ws.cut_state
