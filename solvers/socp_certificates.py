@@ -72,7 +72,7 @@ def failure_status(
     reason."""
     a = arrays
     where = f"exitflag {flag} at SQP iteration {sqp}"
-    kept = int(a["cut_state"][2]) if "cut_state" in a else 0
+    kept = int(a["cut_state"][2])
     if kept:
         where += f" (its subproblem with the cutting planes of {kept} earlier iterate(s))"
     if flag == -1:  # a subproblem is infeasible: certify the SOCP's infeasibility
@@ -308,7 +308,7 @@ def infeasibility_certificate(
     H, A = arrays["H"], arrays["A"]
     n, m = H.shape[0], A.shape[0]
     cones = arrays["offsets"].shape[0]
-    kept = int(arrays["cut_state"][2]) if "cut_state" in arrays else 0
+    kept = int(arrays["cut_state"][2])
     points = [arrays["z"], *arrays["cut_points"][:kept]]
     cuts = np.zeros((cones * len(points), n))
     cut_bounds = np.zeros(cones * len(points))

@@ -13,6 +13,7 @@ import pytest
 import scipy.sparse as sp
 from ltv_lstm_mpc.solvers import ConvexProblem, SecondOrderCone
 from ltv_lstm_mpc.solvers.acceptance import ProblemView, qpbenchmark_residuals
+from optional_extras import require_solver
 
 from ltv_lstm_mpc.exceptions import InvalidValueError
 from ltv_lstm_mpc.solver_comparison import qpbenchmark_set as qpb
@@ -62,8 +63,7 @@ def test_residuals_are_qpsolvers_own(seed: int, solver: str) -> None:
     """On the exported form (one-sided rows, finite bounds), qpbenchmark_residuals of a
     point and its multipliers are qpsolvers' Solution metrics of the same point and
     multipliers, to rounding; low accuracy, so that residuals are not all zero."""
-    if solver not in qpsolvers.available_solvers:
-        pytest.skip(f"{solver} not installed")
+    require_solver(f"qpsolvers:{solver}")
     base = _random_qp(seed)
     arrays = qpb.qpsolvers_arrays(base, dense=True)
     options = {"eps_abs": 1e-3, "eps_rel": 0.0} if solver in ("osqp", "proxqp") else {}

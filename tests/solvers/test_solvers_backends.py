@@ -175,13 +175,9 @@ def test_session_resolve_without_update_reports_no_setup(solver: str) -> None:
 def test_qpsolvers_backend_without_its_tolerance_options() -> None:
     """``tolerance_options=False``: the solver gets exactly the settings given (its own
     defaults elsewhere), the acceptance check keeps the session's tolerance."""
-    pytest.importorskip("qpsolvers")
-    from ltv_lstm_mpc.solvers import Session, available_solvers
+    require_solver("qpsolvers:osqp")
+    from ltv_lstm_mpc.solvers import Session
 
-    from ltv_lstm_mpc.exceptions import InvalidValueError
-
-    if "qpsolvers:osqp" not in available_solvers():
-        pytest.skip("qpsolvers:osqp not installed")
     default = Session("qpsolvers:osqp", tolerance=1e-7)._backend.options
     assert default["eps_abs"] == 1e-7 and default["eps_rel"] == 1e-7
     exact = Session(
