@@ -37,6 +37,7 @@ __all__ = [
     "infeasible_dense_qp",
     "infeasible_problem",
     "perturb",
+    "predicted_epigraph_socp",
     "random_dense_qp",
     "random_mpc_problem",
     "random_qp",
@@ -429,6 +430,35 @@ def apex_socp(seed: int) -> DenseQP:
         lb=np.concatenate([np.full(p, -5.0), [-np.inf]]),
         ub=np.concatenate([np.full(p, 5.0), [0.0]]),
         cones=(DenseCone(np.hstack([np.eye(p), np.zeros((p, 1))]), -a, e, 0.0),),
+    )  # fmt: skip
+
+
+def predicted_epigraph_socp(feasible: bool) -> DenseQP:
+    r"""A two-variable SOCP, ``(x, t)``, for ``daqp:socp``'s epigraph elimination with
+    the cone :math:`|x| \le t` (cone 0) predicted active (``first_active[0] = 1``, as a
+    solve on which it binds leaves it): :math:`\min \tfrac12 (x - 2)^2 + \tfrac12 t^2`,
+    :math:`|x| \le 10`, and
+
+    - ``feasible=False``: the row :math:`x \ge 3` and the cone :math:`|t| \le 1` (the
+      MPC's terminal set on its epigraph variables has this form), infeasible: the
+      subproblem without ``t`` is infeasible at SQP iteration 2, and that proves the whole
+      subproblem infeasible (no other row keeps ``t`` from its cone's row);
+    - ``feasible=True``: the cone :math:`|x - 1| \le t` instead, :math:`x \ge -3`, the
+      row :math:`t \ge 5`; feasible (:math:`x = 2`, :math:`t = 5`, the cone inactive): the
+      subproblem without ``t`` (:math:`t = 1 - x` at the cold start) is infeasible there
+      (:math:`x \le -4`), a verdict on nothing (the row :math:`t \ge 5` keeps ``t`` from
+      its cone's row)."""
+    e_t = np.array([0.0, 1.0])
+    if feasible:
+        cones: tuple[DenseCone, ...] = (DenseCone(np.array([[1.0, 0.0]]), -np.ones(1), e_t, 0.0),)
+        A, lo, x_low = np.array([[0.0, 1.0]]), np.array([5.0]), -3.0
+    else:
+        x_cone = DenseCone(np.array([[1.0, 0.0]]), np.zeros(1), e_t, 0.0)
+        t_cone = DenseCone(np.array([[0.0, 1.0]]), np.zeros(1), np.zeros(2), 1.0)
+        A, lo, x_low, cones = np.array([[1.0, 0.0]]), np.array([3.0]), -10.0, (x_cone, t_cone)
+    return DenseQP(
+        H=np.eye(2), f=np.array([-2.0, 0.0]), A=A, lo=lo, up=np.array([np.inf]),
+        lb=np.array([x_low, -np.inf]), ub=np.array([10.0, np.inf]), cones=cones,
     )  # fmt: skip
 
 

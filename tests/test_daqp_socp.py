@@ -418,6 +418,59 @@ def test_a_wrongly_predicted_cone_falls_back_to_the_whole_subproblem() -> None:
     np.testing.assert_allclose(arrays["lam"], lam, rtol=0, atol=1e-12)
 
 
+def _predicted(qp):
+    """``qp`` in a workspace whose cone 0 is predicted active (``first_active``)."""
+    arrays, ws = _workspace(qp.H, qp.f, qp.A, qp.lo, qp.up, qp.lb, qp.ub,
+                            [(c.F, c.g, c.e, c.f) for c in qp.cones])  # fmt: skip
+    arrays["first_active"][0] = 1
+    return arrays, ws
+
+
+def test_an_infeasible_reduced_subproblem_ends_the_solve_where_it_proves_the_whole() -> None:
+    """predicted_epigraph_socp(False): |x| <= t, |t| <= 1, x >= 3, with the first cone
+    predicted active. Its subproblem without t is infeasible at SQP iteration 2 and no
+    other row keeps t from its cone's row, so the solve ends there: the flag and SQP
+    iteration of the whole subproblem's verdict (the SQP without the elimination), fewer
+    DAQP iterations, and the same checked certificate."""
+    from ltv_lstm_mpc.solvers.acceptance import ProblemView
+    from ltv_lstm_mpc.solvers.socp_certificates import infeasibility_certificate
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.testing import predicted_epigraph_socp
+
+    qp = predicted_epigraph_socp(feasible=False)
+    arrays, ws = _predicted(qp)
+    result = socp_solve(ws, False, MAX_ITERATIONS)
+    reference_arrays, reference_ws = _predicted(qp)
+    reference = socp_solve(reference_ws, False, MAX_ITERATIONS, True, False)
+    assert result[:2] == reference[:2] == (-1, 2), (result, reference)
+    assert arrays["eliminated"][0] == 1 and result[2] < reference[2], (result, reference)
+    view = ProblemView.of_dense(qp)
+    certificate, why = infeasibility_certificate(arrays, view)
+    reference_certificate, _ = infeasibility_certificate(reference_arrays, view)
+    assert certificate is not None and reference_certificate is not None, why
+    for key, value in certificate.items():
+        np.testing.assert_array_equal(value, reference_certificate[key])
+
+
+def test_an_infeasible_reduced_subproblem_of_a_feasible_one_does_not_end_the_solve() -> None:
+    """predicted_epigraph_socp(True): |x| <= t, t >= 5, feasible (x = 2, t = 5), with the
+    cone predicted active. The subproblem without t is infeasible at the cold start, but
+    the row t >= 5 keeps t from its cone's row, so that is no verdict on the whole
+    subproblem: it is solved, and the SQP converges as without the elimination."""
+    from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS, socp_solve
+    from ltv_lstm_mpc.solvers.testing import predicted_epigraph_socp
+
+    qp = predicted_epigraph_socp(feasible=True)
+    arrays, ws = _predicted(qp)
+    result = socp_solve(ws, False, MAX_ITERATIONS)
+    assert result[0] > 0 and result[1] <= 50, result
+    np.testing.assert_allclose(arrays["z"], [2.0, 5.0], atol=1e-9)
+    reference_arrays, reference_ws = _predicted(qp)
+    reference = socp_solve(reference_ws, False, MAX_ITERATIONS, True, False)
+    assert reference[:2] == result[:2]
+    np.testing.assert_allclose(arrays["z"], reference_arrays["z"], rtol=0, atol=1e-12)
+
+
 def test_no_elimination_where_a_cone_holds_another_ones_variable() -> None:
     """Two epigraph cones whose first holds the second's variable: neither is eliminated
     (the substitution would couple them), and the solve is the whole-subproblem one."""
