@@ -28,6 +28,7 @@ from .problem import ConvexProblem, SecondOrderCone, SolverStatus
 
 __all__ = [
     "FAULTS",
+    "PREDICTED_EPIGRAPH_KINDS",
     "SOCP_KINDS",
     "MpcLayout",
     "apex_socp",
@@ -433,31 +434,47 @@ def apex_socp(seed: int) -> DenseQP:
     )  # fmt: skip
 
 
-def predicted_epigraph_socp(feasible: bool) -> DenseQP:
-    r"""A two-variable SOCP, ``(x, t)``, for ``daqp:socp``'s epigraph elimination with
-    the cone :math:`|x| \le t` (cone 0) predicted active (``first_active[0] = 1``, as a
-    solve on which it binds leaves it): :math:`\min \tfrac12 (x - 2)^2 + \tfrac12 t^2`,
-    :math:`|x| \le 10`, and
+#: The kinds of :func:`predicted_epigraph_socp`: an infeasible problem, and feasible ones
+#: whose reduced subproblem is infeasible, each blocked by another row on ``t``.
+PREDICTED_EPIGRAPH_KINDS = ("infeasible", "lower_row", "upper_row", "cone")
 
-    - ``feasible=False``: the row :math:`x \ge 3` and the cone :math:`|t| \le 1` (the
-      MPC's terminal set on its epigraph variables has this form), infeasible: the
-      subproblem without ``t`` is infeasible at SQP iteration 2, and that proves the whole
-      subproblem infeasible (no other row keeps ``t`` from its cone's row);
-    - ``feasible=True``: the cone :math:`|x - 1| \le t` instead, :math:`x \ge -3`, the
-      row :math:`t \ge 5`; feasible (:math:`x = 2`, :math:`t = 5`, the cone inactive): the
-      subproblem without ``t`` (:math:`t = 1 - x` at the cold start) is infeasible there
-      (:math:`x \le -4`), a verdict on nothing (the row :math:`t \ge 5` keeps ``t`` from
-      its cone's row)."""
+
+def predicted_epigraph_socp(kind: str) -> DenseQP:
+    r"""A two-variable SOCP, ``(x, t)``, for ``daqp:socp``'s epigraph elimination with its
+    cone 0 (:math:`|x| \le t` or :math:`|x - 1| \le t`) predicted active (``first_active[0]
+    = 1``, as a solve on which it binds leaves it): :math:`\min \tfrac12 (x - 2)^2 +
+    \tfrac12 t^2`, :math:`x \le 10`, and, by ``kind`` (:data:`PREDICTED_EPIGRAPH_KINDS`):
+
+    - ``"infeasible"``: :math:`|x| \le t`, :math:`x \ge -10`, the row :math:`x \ge 3` and
+      the cone :math:`|t| \le 1` (the MPC's terminal set on its epigraph variables has
+      this form): the subproblem without ``t`` is infeasible at SQP iteration 2, and that
+      proves the whole subproblem infeasible (no other row keeps ``t`` from its cone's
+      row);
+    - the others: :math:`|x - 1| \le t`, :math:`x \ge -3`, feasible, the cone inactive at
+      the solution; the subproblem without ``t`` (:math:`t = 1 - x` at the cold start) is
+      infeasible there, a verdict on nothing, for another row keeps ``t`` from its cone's
+      row: ``"lower_row"``, the row :math:`t \ge 5` (:math:`x = 2`, :math:`t = 5`);
+      ``"upper_row"``, the row :math:`-t \le -5` (the same); ``"cone"``, the cone
+      :math:`|t - 5| \le 0.5` (:math:`x = 2`, :math:`t = 4.5`)."""
     e_t = np.array([0.0, 1.0])
-    if feasible:
-        cones: tuple[DenseCone, ...] = (DenseCone(np.array([[1.0, 0.0]]), -np.ones(1), e_t, 0.0),)
-        A, lo, x_low = np.array([[0.0, 1.0]]), np.array([5.0]), -3.0
-    else:
+    A, lo, up = np.zeros((1, 2)), np.full(1, -np.inf), np.full(1, np.inf)
+    x_low = -3.0
+    cones: tuple[DenseCone, ...] = (DenseCone(np.array([[1.0, 0.0]]), -np.ones(1), e_t, 0.0),)
+    if kind == "infeasible":
         x_cone = DenseCone(np.array([[1.0, 0.0]]), np.zeros(1), e_t, 0.0)
         t_cone = DenseCone(np.array([[0.0, 1.0]]), np.zeros(1), np.zeros(2), 1.0)
-        A, lo, x_low, cones = np.array([[1.0, 0.0]]), np.array([3.0]), -10.0, (x_cone, t_cone)
+        A[0, 0], lo[0], x_low, cones = 1.0, 3.0, -10.0, (x_cone, t_cone)
+    elif kind == "lower_row":
+        A[0, 1], lo[0] = 1.0, 5.0
+    elif kind == "upper_row":
+        A[0, 1], up[0] = -1.0, -5.0
+    elif kind == "cone":
+        A, lo, up = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+        cones += (DenseCone(np.array([[0.0, 1.0]]), -np.full(1, 5.0), np.zeros(2), 0.5),)
+    else:
+        raise ValueError(f"kind {kind!r}: one of {PREDICTED_EPIGRAPH_KINDS}")
     return DenseQP(
-        H=np.eye(2), f=np.array([-2.0, 0.0]), A=A, lo=lo, up=np.array([np.inf]),
+        H=np.eye(2), f=np.array([-2.0, 0.0]), A=A, lo=lo, up=up,
         lb=np.array([x_low, -np.inf]), ub=np.array([10.0, np.inf]), cones=cones,
     )  # fmt: skip
 

@@ -23,7 +23,11 @@ from ltv_lstm_mpc.solvers.socp_sqp import (
     socp_arrays,
     socp_solve,
 )
-from ltv_lstm_mpc.solvers.testing import SOCP_KINDS, controller_socp
+from ltv_lstm_mpc.solvers.testing import (
+    PREDICTED_EPIGRAPH_KINDS,
+    SOCP_KINDS,
+    controller_socp,
+)
 from ltv_lstm_mpc.solvers.tolerances import solver_options
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController
@@ -267,18 +271,18 @@ def test_the_c_check_keeps_a_feasible_problem_at_a_cones_apex_feasible(
     assert s.cut_state[2] == 0 and arrays["cut_state"][2] == 0
 
 
-@pytest.mark.parametrize("feasible", [False, True])
+@pytest.mark.parametrize("kind", PREDICTED_EPIGRAPH_KINDS)
 def test_the_c_sqp_ends_on_a_reduced_subproblems_verdict_as_the_library(
-    c_sqp: Any, feasible: bool
+    c_sqp: Any, kind: str
 ) -> None:
-    """predicted_epigraph_socp (tests/test_daqp_socp.py), its first cone predicted active:
-    the C SQP ends the infeasible one on its reduced subproblem's verdict, and solves the
-    feasible one's whole subproblem, as the library: the same exit flag, SQP and DAQP
-    iterations, and point where it converges."""
+    """solvers.testing.predicted_epigraph_socp, its first cone predicted active: the C SQP
+    ends the infeasible one on its reduced subproblem's verdict, and solves the feasible
+    ones' whole subproblems, as the library: the same exit flag, SQP and DAQP iterations,
+    and point where it converges."""
     from ltv_lstm_mpc.solvers.testing import predicted_epigraph_socp
 
     c, solve, buffers = c_sqp
-    qp = predicted_epigraph_socp(feasible)
+    qp = predicted_epigraph_socp(kind)
     pointer = write_c(c, qp)
     pointer.contents.first_active[0] = 1
     ws, arrays = library_workspace(qp, buffers)
@@ -286,6 +290,7 @@ def test_the_c_sqp_ends_on_a_reduced_subproblems_verdict_as_the_library(
     flag, sqp, total, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
     c_flag, c_iterations, c_total, _c_violation = c_solve(solve, c, pointer)
     assert (c_flag, c_iterations, c_total) == (flag, sqp, total)
+    feasible = kind != "infeasible"
     assert (flag > 0) == feasible and (feasible or sqp == 2)
     if feasible:
         z = np.ctypeslib.as_array(pointer.contents.z)[:2]

@@ -744,6 +744,7 @@ def _mpc_fields(
                 ("CUT_ROUNDS", socp_sqp.CUT_ROUNDS), ("CUT_FROM", socp_sqp.CUT_FROM),
                 ("CUT_GROWTH", socp_sqp.CUT_GROWTH), ("CUT_TOLERANCE", socp_sqp.CUT_TOLERANCE),
                 ("CUT_MARGIN", socp_sqp.CUT_MARGIN),
+                ("REDUCTION_SCALE", socp_sqp.REDUCTION_SCALE),
             )
         }  # fmt: skip
         values.update(constants)
