@@ -71,16 +71,20 @@ without leaving another row (:func:`_reduction_proves`: no other row bounds it o
 side; on the MPC's problems the terminal set's linearized row has only an upper bound,
 with coefficients :math:`(P_f t)_j / \|P_f^{1/2} t\| \ge 0` on :math:`t` where
 :math:`P_f t \ge 0`), and where the substitution keeps the reduced QP's scale
-(:data:`REDUCTION_SCALE`): the solve then ends as the whole subproblem's verdict would end
-it (on a safely positive definite :math:`W_k`, below), which the SQP would otherwise have
-solved from its start. That halves a failed solve's DAQP iterations at N = 50 (149
-against 76 on the dense schedule of ``experiments/worst_case.py``, 78 without the
-elimination: the failed solve now costs what it costs without it). In exact arithmetic
+(:data:`REDUCTION_SCALE`, :data:`REDUCED_HESSIAN_LIMIT`): the solve then ends as the
+whole subproblem's verdict would end it (on a safely positive definite :math:`W_k`,
+below), which the SQP would otherwise have solved from its start. That halves a failed
+solve's DAQP iterations at N = 50 (149 against 76 on the dense schedule of
+``experiments/worst_case.py``, 78 without the elimination: the failed solve now costs
+what it costs without it). In exact arithmetic
 the solve ends at the same SQP iteration, with the same certificate (built from the
-iterate); in floating point it rests on DAQP's verdict on the reduced QP (20,000 random
-problems with epigraph cones predicted active, from a review's generator: none ends infeasible
-where the SQP without the elimination converges; one ends -1 where it ended -2, DAQP's
-cycling, before). The prediction changes only the time otherwise: the SQP takes the same
+iterate); in floating point it rests on DAQP's verdict on the reduced QP, which two
+reviews found wrong on badly scaled problems (now declined by the scale guards). Over
+20,000 random problems with epigraph cones predicted active (the first review's
+generator), none ends infeasible where the SQP without the elimination converges, and
+one ends -1 where it ended -2 (DAQP's cycling) before; over 3,000 each of the second
+review's (a cost of 1e4 or 1e6 on the epigraph variables), no outcome differs from
+before. The prediction changes only the time otherwise: the SQP takes the same
 iterates, to rounding (``eliminate=False`` gives the reference the tests compare with).
 Where one such cone's :math:`F_j` holds another's epigraph variable, none is eliminated.
 
@@ -167,6 +171,7 @@ __all__ = [
     "PROXIMAL",
     "PROXIMAL_DECREASE",
     "PROXIMAL_FLOOR",
+    "REDUCED_HESSIAN_LIMIT",
     "REDUCTION_SCALE",
     "SCREENING_MARGIN",
     "SMOOTHING",
@@ -244,15 +249,26 @@ CUT_GROWTH = 4.0
 #: cone's apex) is not reliable, and a proof on looser planes is still a proof.
 CUT_TOLERANCE = 1e-9
 CUT_MARGIN = 1e-6
-#: The reduced subproblem's verdict (epigraph elimination) ends a solve only where no entry
-#: of an eliminated cone's linearized row exceeds this times its epigraph variable's
-#: coefficient (:func:`_reduction_proves`): the substitution :math:`t_j = \ldots + \tau_j^\top
-#: y` then scales the reduced QP by at most about its square against the whole one. On a
+#: The reduced subproblem's verdict (epigraph elimination) ends a solve only where the
+#: substitution :math:`t_j = \ldots + \tau_j^\top y` keeps the QP's scale
+#: (:func:`_reduction_proves`): no entry of an eliminated cone's linearized row beyond this
+#: times its epigraph variable's coefficient (:math:`|\tau_j| \le` this), and no diagonal
+#: entry of the reduced Hessian :math:`T^\top W_k T` beyond this times :math:`W_k`'s
+#: largest. Reviews found feasible problems whose reduced QPs DAQP called infeasible: a
 #: cone :math:`\|F z + g\| \le 10^{-4} t` with :math:`F` of order 1e2 (:math:`\tau` about
-#: 1e6, a reduced Hessian of 1e12 against 1) DAQP called a feasible reduced subproblem
-#: infeasible; the whole subproblem is solved there instead. On the MPC's problems
-#: :math:`\tau` holds the terminal states' sensitivities (order 1).
+#: 1e6, a reduced Hessian of 1e12 against 1), and cones :math:`\|F z + g\| \le 0.1 t`
+#: with a cost of 1e6 on :math:`t` (:math:`|\tau|` about 300-500, the reduced Hessian 1e5
+#: times :math:`W_k`'s largest entry); the whole subproblem is solved there instead. On the
+#: MPC's problems :math:`\tau` holds the terminal states' sensitivities (order 1).
 REDUCTION_SCALE = 1e3
+#: ... nor where a diagonal entry of the reduced Hessian exceeds this: DAQP's tests are
+#: absolute (its ``zero_tol``, 1e-11, against squared norms of rows times the inverse
+#: factor, about 1 / that entry for a variable's bound). The second review's problem
+#: (``solvers.testing.badly_scaled_epigraph_socp(1)``) had 1.7e12, 100 times
+#: :math:`W_k`'s largest, at the SQP iteration where DAQP called its feasible reduced QP
+#: infeasible; the MPC's failed solves reach 361 (the paper's scenario 3 with its dense
+#: schedule, N = 5 and 50).
+REDUCED_HESSIAN_LIMIT = 1e6
 #: Largest number of entries of the cones' :math:`F_j^\top F_j` a workspace stores (formed
 #: once per solve rather than once per SQP iteration; the same numbers either way).
 STORED_PRODUCTS = 1 << 22
@@ -733,15 +749,35 @@ def _reduction_proves(ws: Any, rows: int) -> bool:
     bound where :math:`c` and :math:`\gamma_j` have the same sign and no finite lower
     bound where they differ (the variable itself is unbounded). A point of the whole
     subproblem then gives one of the reduced (module docstring, epigraph elimination).
-    DAQP's verdict on the reduced subproblem is taken only where the substitution keeps
-    its scale: no entry of an eliminated cone's row beyond :data:`REDUCTION_SCALE` times
-    :math:`|\gamma_j|`. Read only on the rare path where DAQP calls the reduced
-    subproblem infeasible."""
+    DAQP's verdict on the reduced subproblem is taken only where the substitution
+    :math:`t_j = \ldots + \tau_j^\top y` keeps its scale (:data:`REDUCTION_SCALE`): no
+    entry of an eliminated cone's row beyond that times :math:`|\gamma_j|`, and no
+    diagonal entry of the reduced Hessian :math:`T^\top W_k T` beyond that times
+    :math:`W_k`'s largest, nor beyond :data:`REDUCED_HESSIAN_LIMIT`. Read only on the rare
+    path where DAQP calls the reduced subproblem infeasible."""
     A_k, bupper, blower = ws.A_k, ws.bupper, ws.blower
+    W, tau, index = ws.hessian, ws.tau, ws.reduced_index
     epigraph, eliminated = ws.epigraph, ws.eliminated
     n = A_k.shape[1]
     cones = epigraph.shape[0]
     first_cone = rows - cones
+    largest = 0.0
+    reduced = n
+    for a in range(n):
+        largest = max(largest, W[a, a])
+    for j in range(cones):
+        reduced -= eliminated[j]
+    for p in range(reduced):  # the diagonal of T' W_k T (as _reduced_solve forms it)
+        a = index[p]
+        entry = W[a, a]
+        for j in range(cones):
+            if eliminated[j]:
+                entry += 2.0 * tau[j, p] * W[a, epigraph[j]]
+                for i in range(cones):
+                    if eliminated[i]:
+                        entry += tau[i, p] * tau[j, p] * W[epigraph[i], epigraph[j]]
+        if entry > REDUCTION_SCALE * largest or entry > REDUCED_HESSIAN_LIMIT:
+            return False
     for j in range(cones):
         if not eliminated[j]:
             continue

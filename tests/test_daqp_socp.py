@@ -478,81 +478,26 @@ def test_an_infeasible_reduced_subproblem_of_a_feasible_one_does_not_end_the_sol
     np.testing.assert_allclose(arrays["z"], reference_arrays["z"], rtol=0, atol=1e-12)
 
 
-def _badly_scaled_epigraph_problem():
-    """A feasible SOCP (7 variables, 4 cones; a review's random problem) with epigraph
-    cones ||F_j z + g_j|| <= 1e-4 t_j (and 1e-3) whose F_j has entries of order 1e2: the
-    substitution t_j = ... + tau_j' y has |tau_j| up to about 1e6."""
-    H = np.array([
-        [4.341275886412793, -0.3863839346431118, -1.0791870356921582, 1.9361512976893152,
-         -0.6010177796352326, -0.508560049805802, 1.0228527388583981],
-        [-0.38638393464311177, 4.062590013964517, -0.24196789464743218, 1.4986233927143198,
-         -0.14050985718891013, 1.775870222743376, -1.0827602521422257],
-        [-1.079187035692158, -0.24196789464743215, 3.131969241290833, -0.604825292336469,
-         0.2127257794359858, 0.3944918875257008, 1.3215677728618576],
-        [1.936151297689315, 1.4986233927143195, -0.604825292336469, 4.196124339821665,
-         -0.0230503619628195, 0.8380788260824943, -0.22801462614556542],
-        [-0.6010177796352325, -0.1405098571889101, 0.21272577943598583, -0.02305036196281963,
-         2.142638332708427, 0.143286002959758, -0.09866247513608296],
-        [-0.5085600498058018, 1.775870222743376, 0.3944918875257007, 0.8380788260824943,
-         0.14328600295975802, 3.9840145325333127, -0.9499910980762512],
-        [1.0228527388583983, -1.082760252142226, 1.3215677728618576, -0.22801462614556528,
-         -0.09866247513608296, -0.9499910980762512, 4.325166625545158],
-    ])  # fmt: skip
-    f = np.array([2.0255382683575904, 0.20596736558341466, -6.881399321422857,
-                  6.7493152088987385, -6.401302641532486, -1.3374454321089264,
-                  -9.111481263091212])  # fmt: skip
-    A = np.array([[-1.0925546789095177, 0.0, -1.1135275305321823, 0.0, 1.8850671944283999,
-                   0.0, 0.5628777777878765]])  # fmt: skip
-    lb = np.array([-1.8257114204100409, -np.inf, -1.799788578650805, -np.inf,
-                   -0.9852983300242022, -np.inf, -0.6979253303948014])  # fmt: skip
-    ub = np.array([2.018435002261157, np.inf, 1.421816922015957, np.inf, 1.4490010249439587,
-                   np.inf, 2.0013893861713736])  # fmt: skip
-    e = np.eye(7)
-    cones = [
-        (np.array([[-11.203296972322335, 0.0, 22.499204177953366, 0.0, -76.21589548633601,
-                    0.0, 23.827531382937636]]),
-         np.array([-3.903854425637048]), 1e-4 * e[1], 0.4809573423051501),
-        (np.array([[-0.02046192456205767, 0.0, -0.00831507610123121, 0.0,
-                    -0.00092568568989453, 0.0, 0.01161675406034457],
-                   [-0.00355621901887392, 0.0, 0.01112702979594248, 0.0,
-                    -0.01629665060876534, 0.0, -0.00289604837787744]]),
-         np.array([-0.08705872180555504, -0.5580490571757452]), -1e-3 * e[3],
-         0.19436789634886534),
-        (np.array([[0.00975864434479713, 0.0, -0.02144943083983143, 0.0, 0.01609957162896283,
-                    0.0, 0.01915481348896006],
-                   [0.02234234408637831, 0.0, -0.0005968210216508, 0.0,
-                    -0.00704120540257469, 0.0, 0.00608226259483285]]),
-         np.array([0.48111284502947893, 3.0081225166294683]), 1e-3 * e[5],
-         -0.112244111796927),
-        (np.array([[0.18486394906231593, -0.9744610660177727, -0.24930538593634577,
-                    -0.8823820711082597, 0.10351597987261561, -0.6733700512714766,
-                    -0.3520813189902169],
-                   [0.32976646050136565, 0.5566169808116159, 0.21795725524487428,
-                    -0.06864205484407415, -0.08050220242914514, 0.24005779911181097,
-                    0.05947743431150355]]),
-         np.zeros(2), np.zeros(7), 1.3851250669448494),
-    ]  # fmt: skip
-    return H, f, A, np.array([-np.inf]), np.array([3.600068287731903]), lb, ub, cones
-
-
-def test_a_badly_scaled_reduced_subproblems_verdict_does_not_end_the_solve() -> None:
-    """_badly_scaled_epigraph_problem: DAQP called its feasible reduced subproblems (a
-    Hessian of order 1e12 against 1) infeasible, which ended the solve FAILED at SQP
-    iteration 22 where the SQP without the elimination converges; beyond
+@pytest.mark.parametrize("which", [0, 1])
+def test_a_badly_scaled_reduced_subproblems_verdict_does_not_end_the_solve(which: int) -> None:
+    """solvers.testing.badly_scaled_epigraph_socp: DAQP called their feasible reduced
+    subproblems infeasible (a reduced Hessian of order 1e12 against 1, from |tau| about
+    1e6; 1e5 times W_k's largest entry, from |tau| about 300-500 on a cost of 1e6 on t),
+    which ended the solve FAILED where the SQP without the elimination converges; beyond
     REDUCTION_SCALE the whole subproblem is solved instead, and the solve converges as
     without the elimination, to a point that holds the rows, bounds and cones."""
     from ltv_lstm_mpc.solvers.socp_sqp import MAX_ITERATIONS
+    from ltv_lstm_mpc.solvers.testing import badly_scaled_epigraph_socp
 
-    problem = _badly_scaled_epigraph_problem()
+    qp = badly_scaled_epigraph_socp(which)
+    problem = (qp.H, qp.f, qp.A, qp.lo, qp.up, qp.lb, qp.ub,
+               [(c.F, c.g, c.e, c.f) for c in qp.cones])  # fmt: skip
     result, z, _lam, _arrays = _solve(problem, True)
     reference, z_reference, _, _ = _solve(problem, False)
     assert reference[0] > 0 and reference[1] <= MAX_ITERATIONS
     assert result[0] > 0 and result[1] <= MAX_ITERATIONS, result
     np.testing.assert_allclose(z, z_reference, rtol=0, atol=1e-6)
-    _H, _f, A, _lo, up, lb, ub, cones = problem
-    assert np.all(A @ z <= up + 1e-9) and np.all((lb - 1e-9 <= z) & (z <= ub + 1e-9))
-    for F, g, e, offset in cones:
-        assert np.linalg.norm(F @ z + g) <= e @ z + offset + 1e-9
+    assert qp.max_violation(z) <= 1e-9
 
 
 def test_no_elimination_where_a_cone_holds_another_ones_variable() -> None:

@@ -295,3 +295,25 @@ def test_the_c_sqp_ends_on_a_reduced_subproblems_verdict_as_the_library(
     if feasible:
         z = np.ctypeslib.as_array(pointer.contents.z)[:2]
         np.testing.assert_allclose(z, arrays["z"], rtol=0, atol=1e-12)
+
+
+def test_the_c_sqp_solves_badly_scaled_reduced_subproblems_whole(c_sqp: Any) -> None:
+    """solvers.testing.badly_scaled_epigraph_socp(1) (the other has more cones than this
+    controller's buffers): the C SQP declines its reduced subproblems' verdicts beyond
+    SQP_REDUCTION_SCALE and SQP_REDUCED_HESSIAN_LIMIT as the library does, and converges
+    with it: the same exit flag and SQP iterations, the point within 1e-6 (relative; DAQP's
+    iterations on such a problem differ between the daqp package's build the library calls
+    and the C's)."""
+    from ltv_lstm_mpc.solvers.testing import badly_scaled_epigraph_socp
+
+    c, solve, buffers = c_sqp
+    qp = badly_scaled_epigraph_socp(1)
+    pointer = write_c(c, qp)
+    ws, arrays = library_workspace(qp, buffers)
+    flag, sqp, _total, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
+    c_flag, c_iterations, _c_total, _c_violation = c_solve(solve, c, pointer)
+    assert (c_flag, c_iterations) == (flag, sqp)
+    assert flag > 0 and sqp <= MAX_ITERATIONS
+    n = qp.H.shape[0]
+    z = np.ctypeslib.as_array(pointer.contents.z)[:n]
+    np.testing.assert_allclose(z, arrays["z"], rtol=0, atol=1e-6 * (1 + np.abs(z).max()))

@@ -745,6 +745,7 @@ def _mpc_fields(
                 ("CUT_GROWTH", socp_sqp.CUT_GROWTH), ("CUT_TOLERANCE", socp_sqp.CUT_TOLERANCE),
                 ("CUT_MARGIN", socp_sqp.CUT_MARGIN),
                 ("REDUCTION_SCALE", socp_sqp.REDUCTION_SCALE),
+                ("REDUCED_HESSIAN_LIMIT", socp_sqp.REDUCED_HESSIAN_LIMIT),
             )
         }  # fmt: skip
         values.update(constants)
