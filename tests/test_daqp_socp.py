@@ -418,10 +418,15 @@ def test_a_wrongly_predicted_cone_falls_back_to_the_whole_subproblem() -> None:
     np.testing.assert_allclose(arrays["lam"], lam, rtol=0, atol=1e-12)
 
 
+def _parts(qp):
+    """A DenseQP as the (H, f, A, lo, up, lb, ub, cones) of :func:`_workspace`."""
+    cones = [(c.F, c.g, c.e, c.f) for c in qp.cones]
+    return qp.H, qp.f, qp.A, qp.lo, qp.up, qp.lb, qp.ub, cones
+
+
 def _predicted(qp):
     """``qp`` in a workspace whose cone 0 is predicted active (``first_active``)."""
-    arrays, ws = _workspace(qp.H, qp.f, qp.A, qp.lo, qp.up, qp.lb, qp.ub,
-                            [(c.F, c.g, c.e, c.f) for c in qp.cones])  # fmt: skip
+    arrays, ws = _workspace(*_parts(qp))
     arrays["first_active"][0] = 1
     return arrays, ws
 
@@ -490,8 +495,7 @@ def test_a_badly_scaled_reduced_subproblems_verdict_does_not_end_the_solve(which
     from ltv_lstm_mpc.solvers.testing import badly_scaled_epigraph_socp
 
     qp = badly_scaled_epigraph_socp(which)
-    problem = (qp.H, qp.f, qp.A, qp.lo, qp.up, qp.lb, qp.ub,
-               [(c.F, c.g, c.e, c.f) for c in qp.cones])  # fmt: skip
+    problem = _parts(qp)
     result, z, _lam, _arrays = _solve(problem, True)
     reference, z_reference, _, _ = _solve(problem, False)
     assert reference[0] > 0 and reference[1] <= MAX_ITERATIONS
