@@ -70,6 +70,7 @@ _ACTIVE = 1
 _LOWER = 2
 _EQUALITY = 5
 _ACTIVE_TOL = 1e-9
+_DEFAULT_PRIMAL_TOL = 1e-6  # DAQP's default primal_tol (daqp.Model().settings)
 #: DAQP sense of a multiplier sign -1, 0, +1: active at the lower bound, free, active at the upper.
 _SENSE_OF_SIGN = np.array([_ACTIVE | _LOWER, 0, _ACTIVE], dtype=np.intc)
 
@@ -273,6 +274,28 @@ class DaqpDense(DenseBackend):
         self._H = np.ascontiguousarray(qp.H)
         self._f = qp.f
         self._A = np.ascontiguousarray(qp.A)
+        self._floor = float(qp.hessian_floor)
+
+    def _objective_bound(self, native: Any) -> float:
+        """DAQP's ``fval_bound`` for this QP (:func:`objective_bound`, compiled where DAQP is
+        bound natively: ``native``), or the settings' own where the QP states no
+        ``hessian_floor`` or the settings name one (a caller that sets ``fval_bound``
+        states none: the compiled callers then leave the settings' value)."""
+        options = self.options
+        if not self._floor > 0.0 or "fval_bound" in options:  # the settings' own
+            return float(options.get("fval_bound", self._daqp_native.NO_BOUND))
+        if float(options.get("eps_prox", 0.0)) > 0.0:  # proximal iterations: another objective
+            return self._daqp_native.NO_BOUND
+        n = self._n
+        tolerance = float(options.get("primal_tol", _DEFAULT_PRIMAL_TOL))
+        lower, upper = self._bl[:n], self._bu[:n]
+        if native is not None:
+            return float(
+                self._daqp_native.objective_bound(
+                    self._H, self._f, lower, upper, self._floor, tolerance
+                )
+            )
+        return objective_bound(self._H, self._f, lower, upper, self._floor, tolerance)
 
     def _warm_sense(self, warm_start: WarmStart) -> Any:
         n = self._n
@@ -305,7 +328,13 @@ class DaqpDense(DenseBackend):
         """One ``daqp.solve`` call from the cold or warm working set."""
         sense = self._cold if warm_start is None else self._warm_sense(warm_start)
         x, fval, exitflag, info = self._daqp_solve(
-            self._H, self._f, self._A, self._bu, self._bl, sense, **self.options
+            self._H,
+            self._f,
+            self._A,
+            self._bu,
+            self._bl,
+            sense,
+            **{**self.options, "fval_bound": self._objective_bound(None)},
         )
         flag = int(exitflag)
         status, notes = dense_status(flag)
@@ -331,18 +360,86 @@ class DaqpDense(DenseBackend):
         """One cold solve (DAQP's C entry point where bound, else ``daqp.solve``); the status
         mapped as in :meth:`solve`."""
         native = self._native
+        bound = self._objective_bound(native)
         if native is not None:
+            self._daqp_native.write_setting(native.settings, "fval_bound", bound)
             x, _lam, flag, iterations = native.solve(
                 self._H, self._f, self._A, self._bu, self._bl, self._cold
             )
         else:
             x, _fval, exitflag, info = self._daqp_solve(
-                self._H, self._f, self._A, self._bu, self._bl, self._cold, **self.options
+                self._H,
+                self._f,
+                self._A,
+                self._bu,
+                self._bl,
+                self._cold,
+                **{**self.options, "fval_bound": bound},
             )
             flag, iterations = int(exitflag), int(info["iterations"])
         status, info = point_outcome(flag)
         z = x if status.has_solution else None
         return status, z, iterations, info
+
+
+def objective_bound(
+    H: FloatArray,
+    f: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    hessian_floor: float,
+    tolerance: float,
+) -> float:
+    r"""DAQP's ``fval_bound`` for :math:`\min \tfrac12 x^\top H x + f^\top x` with every
+    variable bounded, :math:`l \le x \le u`: past it DAQP declares the QP infeasible.
+
+    A dual active-set method such as DAQP passes through points whose objective, the dual
+    objective of a dual feasible working set, never exceeds the optimum of a feasible QP
+    (weak duality) and grows without bound on an infeasible one. DAQP stops with exit flag
+    -1 (infeasible) where its internal objective :math:`\|R x + v\|^2` (:math:`R^\top R =
+    H`, :math:`v = R^{-\top} f`) exceeds twice ``fval_bound``. Every point of the box,
+    widened by ``tolerance`` (DAQP's ``primal_tol``: the box a point it returns can reach),
+    with :math:`r_i = \max(|l_i|, |u_i|) + \text{tolerance}`, has
+
+    .. math::
+
+        \tfrac12 \|R x + v\|^2 = \tfrac12 x^\top H x + f^\top x + \tfrac12 f^\top H^{-1} f
+        \le \tfrac12 \operatorname{tr}(H) \|r\|^2 + |f|^\top r
+        + \frac{\|f\|^2}{2 \lambda},
+
+    with :math:`\lambda` = ``hessian_floor`` a lower bound on the smallest eigenvalue of
+    :math:`H` (:math:`\lambda_{\max} \le \operatorname{tr} H` for :math:`H \succeq 0`). The
+    bound returned is twice that, a margin no rounding reaches. So it never ends a solve
+    that finds a point (its objective stays below the bound on the way there: the
+    iterates, the point and the exit flag are the same as without it), and it ends an
+    infeasible one as soon as the growing objective passes it: at N = 50 on the MPC's
+    infeasible steps after 4 DAQP iterations instead of 52 (docs/benchmarks.md, "The
+    worst case").
+
+    Returns :data:`~ltv_lstm_mpc.solvers.daqp_native.NO_BOUND` (DAQP's default, no bound)
+    where ``hessian_floor`` is not positive, a bound is infinite or NaN, or
+    :math:`\operatorname{tr} H < 0`. The compiled twin is
+    :func:`ltv_lstm_mpc.solvers.daqp_native.objective_bound` (the same sums in the same
+    order, to rounding: the backend calls it where DAQP is bound natively); the C export
+    renders a third (``qp_objective_bound``).
+    """
+    from .daqp_native import NO_BOUND
+
+    if not hessian_floor > 0.0:
+        return NO_BOUND
+    radius = np.maximum(np.abs(lower), np.abs(upper))
+    if not np.all(radius < np.inf):
+        return NO_BOUND
+    radius = radius + tolerance
+    trace = float(np.trace(H))
+    bound = 2.0 * (
+        0.5 * trace * float(radius @ radius)
+        + float(np.abs(f) @ radius)
+        + 0.5 * float(f @ f) / hessian_floor
+    )
+    if not (trace >= 0.0 and bound < NO_BOUND):
+        return NO_BOUND
+    return float(bound)
 
 
 def dense_status(flag: int) -> tuple[SolverStatus, tuple[str, ...]]:
@@ -385,7 +482,11 @@ def compiled_form(name: str) -> CompiledForm:
     bound = daqp_native.bound()
     return CompiledForm(
         name=name,
-        kernels=(daqp_native.quadprog, bounds_rows_violation) if bound else (),
+        kernels=(
+            (daqp_native.quadprog, daqp_native.objective_bound, bounds_rows_violation)
+            if bound
+            else ()
+        ),
         bound=bound,
         quadprog=daqp_native.quadprog,
         solver_seconds=daqp_native.solver_seconds,

@@ -45,11 +45,14 @@ FloatArray = NDArray[np.float64]
 
 __all__ = [
     "BOUND_VERSIONS",
+    "NO_BOUND",
     "DaqpNative",
     "bound",
     "native",
+    "objective_bound",
     "quadprog",
     "ready",
+    "set_objective_bound",
     "solver_seconds",
     "unavailable_reason",
 ]
@@ -138,6 +141,11 @@ _P_NH, _P_TYPE = _slot(_Problem, "nh", 4), _slot(_Problem, "problem_type", 4)
 _R_X, _R_LAM = _slot(_Result, "x", 8), _slot(_Result, "lam", 8)
 _R_FLAG, _R_ITER = _slot(_Result, "exitflag", 4), _slot(_Result, "iter", 4)
 _R_SOLVE, _R_SETUP = _slot(_Result, "solve_time", 8), _slot(_Result, "setup_time", 8)
+_S_PRIMAL, _S_FVAL = _slot(_Settings, "primal_tol", 8), _slot(_Settings, "fval_bound", 8)
+_S_PROX = _slot(_Settings, "eps_prox", 8)
+
+#: DAQP's "no bound" (``DAQP_INF`` of its headers): the ``fval_bound`` of its default settings.
+NO_BOUND = 1e30
 
 unavailable_reason = ""
 _LOADED = False
@@ -206,6 +214,55 @@ def quadprog(
     _daqp_quadprog(result.ctypes.data, problem.ctypes.data, settings.ctypes.data)
     r32 = result.view(np.int32)
     return int(r32[_R_FLAG]), int(r32[_R_ITER])
+
+
+@njit(cache=True)
+def objective_bound(
+    H: Any, f: Any, lower: Any, upper: Any, hessian_floor: float, tolerance: float
+) -> float:
+    """The compiled twin of :func:`ltv_lstm_mpc.solvers.daqp_.objective_bound` (the same
+    terms, summed in order): DAQP's ``fval_bound`` for a QP with bounds ``lower`` /
+    ``upper`` on its variables, or :data:`NO_BOUND`."""
+    n = f.shape[0]
+    if not hessian_floor > 0.0:
+        return NO_BOUND
+    trace, radius, linear, gradient = 0.0, 0.0, 0.0, 0.0
+    for i in range(n):
+        r = max(abs(lower[i]), abs(upper[i]))
+        if not r < np.inf:  # an infinite bound (or NaN): no bound
+            return NO_BOUND
+        r += tolerance
+        trace += H[i, i]
+        radius += r * r
+        linear += abs(f[i]) * r
+        gradient += f[i] * f[i]
+    bound = 2.0 * (0.5 * trace * radius + linear + 0.5 * gradient / hessian_floor)
+    if not (trace >= 0.0 and bound < NO_BOUND):
+        return NO_BOUND
+    return bound
+
+
+@njit(cache=True)
+def set_objective_bound(
+    settings: Any, H: Any, f: Any, lower: Any, upper: Any, hessian_floor: float
+) -> None:
+    """Write :func:`objective_bound` (with the settings' own ``primal_tol``) into the
+    ``fval_bound`` of DAQP's settings buffer ``settings`` for the next :func:`quadprog`
+    (:data:`NO_BOUND` where the settings ask for proximal iterations, ``eps_prox`` > 0).
+    Where ``hessian_floor`` is not positive it writes nothing: the settings' own value
+    stays (as :class:`~ltv_lstm_mpc.solvers.daqp_.DaqpDense` keeps it)."""
+    if not hessian_floor > 0.0:
+        return
+    s = settings.view(np.float64)
+    if s[_S_PROX] > 0.0:
+        s[_S_FVAL] = NO_BOUND
+    else:
+        s[_S_FVAL] = objective_bound(H, f, lower, upper, hessian_floor, s[_S_PRIMAL])
+
+
+def write_setting(settings: NDArray[np.uint8], name: str, value: float) -> None:
+    """Write the float setting ``name`` (a :class:`_Settings` field) into a settings buffer."""
+    settings.view(np.float64)[_slot(_Settings, name, 8)] = value
 
 
 @njit(cache=True)

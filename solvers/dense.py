@@ -187,6 +187,13 @@ class DenseQP:
         Variable bounds, ``-inf`` / ``+inf`` allowed.
     cones : tuple of DenseCone
         Second-order cones (default none: a QP). Only cone-capable backends accept them.
+    hessian_floor : float
+        A lower bound on the smallest eigenvalue of ``H`` that the caller knows (default 0:
+        none), such as the MPC's input weight (the condensed ``H`` is a Gram matrix plus
+        :math:`I_N \otimes R`). Where every variable has finite bounds, DAQP takes from it a
+        bound on the objective that proves an infeasible QP infeasible sooner and changes no
+        solve that finds a point (:func:`~ltv_lstm_mpc.solvers.daqp_.objective_bound`); other
+        backends ignore it.
     """
 
     H: FloatArray
@@ -197,6 +204,7 @@ class DenseQP:
     lb: FloatArray
     ub: FloatArray
     cones: tuple[DenseCone, ...] = ()
+    hessian_floor: float = 0.0
 
     def __post_init__(self) -> None:
         for name in _FIELDS:
@@ -232,7 +240,8 @@ class DenseQP:
         InvalidValueError
             If ``H``, ``f`` or ``A`` has non-finite entries, ``H`` is not
             symmetric, a bound is NaN, ``lo``/``lb`` has ``+inf``, ``up``/``ub``
-            has ``-inf``, or ``lo > up`` / ``lb > ub`` somewhere.
+            has ``-inf``, ``lo > up`` / ``lb > ub`` somewhere, or ``hessian_floor`` is
+            negative or not finite.
         """
         f = np.asarray(self.f)
         if f.ndim != 1 or f.shape[0] == 0:
@@ -268,6 +277,12 @@ class DenseQP:
                 )
         _check_bounds("lo", self.lo, "up", self.up)
         _check_bounds("lb", self.lb, "ub", self.ub)
+        floor = self.hessian_floor
+        if not (isinstance(floor, (int, float, np.floating)) and 0.0 <= floor < np.inf):
+            raise InvalidValueError(
+                f"hessian_floor must be a finite number >= 0 (a lower bound on the smallest "
+                f"eigenvalue of H; 0 for none), got {floor!r}"
+            )
         for index, cone in enumerate(self.cones):
             if not isinstance(cone, DenseCone):
                 raise InvalidValueError(
@@ -347,7 +362,17 @@ class DenseQP:
     def copy(self) -> DenseQP:
         """Deep copy (new arrays)."""
         H, f, A, lo, up, lb, ub = (np.array(getattr(self, name)) for name in _FIELDS)
-        return DenseQP(H, f, A, lo, up, lb, ub, cones=tuple(c.copy() for c in self.cones))
+        return DenseQP(
+            H,
+            f,
+            A,
+            lo,
+            up,
+            lb,
+            ub,
+            cones=tuple(c.copy() for c in self.cones),
+            hessian_floor=self.hessian_floor,
+        )
 
     # ----------------------------------------------------------------------------------
     def save(self, path: str | PathLike[str]) -> Path:
@@ -356,6 +381,7 @@ class DenseQP:
         if p.suffix != ".npz":
             p = p.with_name(p.name + ".npz")
         arrays = {name: np.asarray(getattr(self, name)) for name in _FIELDS}
+        arrays["hessian_floor"] = np.asarray(float(self.hessian_floor))
         for i, cone in enumerate(self.cones):
             arrays |= {
                 f"cone{i}_F": cone.F,
@@ -398,7 +424,8 @@ class DenseQP:
                 )
             )
         H, f, A, lo, up, lb, ub = (store[name] for name in _FIELDS)
-        qp = cls(H, f, A, lo, up, lb, ub, cones=tuple(cones))
+        floor = float(store["hessian_floor"]) if "hessian_floor" in store else 0.0
+        qp = cls(H, f, A, lo, up, lb, ub, cones=tuple(cones), hessian_floor=floor)
         qp.check()
         return qp
 

@@ -173,6 +173,7 @@ def compare(cmpc: CMPC, rows: list[dict[str, Any]]) -> dict[str, Any]:
         assert name == solution.status, (k, name, solution.status, solution.reason)
         assert POLICIES[result.policy] == solution.policy, (k, result.policy, solution.policy)
         assert result.iterations == solution.iterations, k
+        assert result.qp_iterations == solution.solver_iterations, k  # (DAQP's, all QPs)
         scale = max(1.0, float(np.abs(solution.u).max()))
         worst_u = max(worst_u, float(np.abs(u - solution.u).max()) / scale)
         worst_cost = max(worst_cost, abs(result.cost - solution.cost) / max(1.0, solution.cost))

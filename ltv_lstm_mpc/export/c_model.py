@@ -714,6 +714,7 @@ def _mpc_fields(
             _precision_value("tolerance", feasibility_tolerance("daqp", config.tolerance), single)
         ),
         precheck_tol=_literal(_precision_value("precheck_tol", PRECHECK_TOL, single)),
+        hessian_floor=_literal(problem.hessian_floor),
         huge_entry=_literal(_precision_value("huge_entry", HUGE_ENTRY, single)),
         slack_regularization=_literal(problem.slack_regularization),
         soft_penalty=_literal(config.soft_penalty),

@@ -160,6 +160,16 @@ class CondensedTranscription(TranscriptionBase):
             self._Lt = np.tile(Lt, (N, 1, 1))
             self._Lt[N - 1] = np.diag(np.sqrt(term))
         self._Rblk = np.kron(np.eye(N), R)
+        #: A lower bound on the smallest eigenvalue of the condensed H (a Gram matrix plus
+        #: I_N (x) R): half R's, a margin for the Gram matrix's rounding; the QPs'
+        #: ``hessian_floor``, from which DAQP bounds the objective and proves an infeasible
+        #: QP infeasible sooner (``solvers.daqp_.objective_bound``). 0 where the solver
+        #: settings name their own ``fval_bound``.
+        self.hessian_floor = (
+            0.0
+            if "fval_bound" in config.solver_settings
+            else 0.5 * float(np.linalg.eigvalsh(R).min())
+        )
         nu = N * m
         cols = n2 + nu
         self._n_out = n_out = (N - 1) * p
@@ -241,6 +251,7 @@ class CondensedTranscription(TranscriptionBase):
                 result=native.result,
                 settings=native.settings,
                 tolerance=self.tolerance,
+                hessian_floor=self.hessian_floor,
             )
             self.fallback_workspace = self._new_fallback_workspace(config)
             daqp_form = compiled_form(config.solver)
@@ -288,6 +299,7 @@ class CondensedTranscription(TranscriptionBase):
                 up=empty,
                 lb=self._lb,
                 ub=self._ub,
+                hessian_floor=self.hessian_floor,
             )
             for kind in kinds
         }
@@ -679,6 +691,7 @@ class CondensedTranscription(TranscriptionBase):
             ]
         )
         qp.H, qp.f, qp.A = Hs, fs, np.ascontiguousarray(As)
+        qp.hessian_floor = min(self.hessian_floor, reg)  # (its slacks are unbounded above)
         qp.lo = np.concatenate([lo[:ns], -inf_out, lo[ns:], -inf_T])
         qp.up = np.concatenate([inf_out, up[:ns], inf_T, up[ns:]])
         qp.lb = np.concatenate([self._lb, np.zeros(ns + 1)])

@@ -42,7 +42,7 @@ from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
 # compiled code binds its callees when it compiles: the public entry points that the
 # solver layer's compiled forms of daqp and daqp:socp hold (solvers.compiled_form)
-from ltv_lstm_mpc.solvers.daqp_native import quadprog, solver_seconds
+from ltv_lstm_mpc.solvers.daqp_native import quadprog, set_objective_bound, solver_seconds
 from ltv_lstm_mpc.solvers.dense import bounds_rows_violation, cone_violation
 from ltv_lstm_mpc.solvers.socp_sqp import (
     MAX_ITERATIONS,
@@ -181,7 +181,7 @@ new_fallback_workspace_kernel = _new_fallback_workspace
 
 
 #: Fields of :data:`DaqpWorkspace`, in the order of its compiled constructor.
-DAQP_FIELDS = ("sense", "z", "lam", "problem", "result", "settings", "tolerance")
+DAQP_FIELDS = ("sense", "z", "lam", "problem", "result", "settings", "tolerance", "hessian_floor")
 
 DaqpWorkspace = workspace_type(
     "DaqpWorkspace",
@@ -191,7 +191,10 @@ DaqpWorkspace = workspace_type(
     ``sense`` (int32): the working set (cold: zeros); ``z``, ``lam``: the point and the
     multipliers; ``problem``, ``result``, ``settings``: the C structs of
     :class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative`; ``tolerance``: the acceptance
-    tolerance of the point (:func:`~ltv_lstm_mpc.solvers.feasibility_tolerance`).
+    tolerance of the point (:func:`~ltv_lstm_mpc.solvers.feasibility_tolerance`);
+    ``hessian_floor``: the QPs' (``CondensedTranscription.hessian_floor``), from which each
+    DAQP call's objective bound is written into ``settings``
+    (:func:`~ltv_lstm_mpc.solvers.daqp_native.set_objective_bound`).
     """,
     __name__,
 )
@@ -204,9 +207,9 @@ def new_daqp_workspace(**fields: Any) -> Any:
 
 
 @njit(cache=True)
-def _new_daqp_workspace(sense, z, lam, problem, result, settings, tolerance):  # type: ignore[no-untyped-def]
+def _new_daqp_workspace(sense, z, lam, problem, result, settings, tolerance, hessian_floor):  # type: ignore[no-untyped-def]
     """The compiled constructor (no constructor compile at run time; cached)."""
-    return DaqpWorkspace(sense, z, lam, problem, result, settings, tolerance)
+    return DaqpWorkspace(sense, z, lam, problem, result, settings, tolerance, hessian_floor)
 
 
 @njit(cache=True)
@@ -352,6 +355,11 @@ def nominal_feedback(
 @njit(cache=True)
 def _solve_nominal(condensing: Any, daqp: Any) -> tuple[int, int, float]:
     """DAQP on the nominal condensed QP (state inserted), cold: (flag, iterations, s)."""
+    nu = condensing.H.shape[0]
+    set_objective_bound(
+        daqp.settings, condensing.H, condensing.f, condensing.low[:nu], condensing.high[:nu],
+        daqp.hessian_floor,
+    )  # fmt: skip
     flag, iterations = quadprog(
         condensing.H, condensing.f, condensing.A, condensing.high, condensing.low, daqp.sense,
         daqp.z, daqp.lam, daqp.problem, daqp.result, daqp.settings,
@@ -489,6 +497,10 @@ def policy_feedback(
     if policy == POLICY_PAPER or policy == POLICY_SOFT:
         z = fallback.z
         if policy == POLICY_PAPER:  # no output and terminal rows (paper, Fig. 5)
+            set_objective_bound(
+                daqp.settings, condensing.H, condensing.f, condensing.low[:nu],
+                condensing.high[:nu], daqp.hessian_floor,
+            )  # fmt: skip
             flag, more = quadprog(
                 condensing.H, condensing.f, condensing.A[:0], condensing.high[:nu],
                 condensing.low[:nu], fallback.sense[:nu], z[:nu], fallback.lam[:nu],
@@ -496,6 +508,11 @@ def policy_feedback(
             )  # fmt: skip
         else:
             _write_soft_qp(condensing, fallback)
+            nz = fallback.H.shape[0]
+            set_objective_bound(  # (NO_BOUND: its slacks are unbounded above)
+                daqp.settings, fallback.H, fallback.f, fallback.low[:nz], fallback.high[:nz],
+                daqp.hessian_floor,
+            )  # fmt: skip
             flag, more = quadprog(
                 fallback.H, fallback.f, fallback.A, fallback.high, fallback.low,
                 fallback.sense, z, fallback.lam, daqp.problem, daqp.result, daqp.settings,

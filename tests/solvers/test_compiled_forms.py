@@ -56,7 +56,8 @@ def test_the_daqp_form_holds_daqps_entry_point() -> None:
     assert form.solver_seconds is daqp_native.solver_seconds
     from ltv_lstm_mpc.solvers.dense import bounds_rows_violation
 
-    assert form.kernels == ((daqp_native.quadprog, bounds_rows_violation) if form.bound else ())
+    kernels = (daqp_native.quadprog, daqp_native.objective_bound, bounds_rows_violation)
+    assert form.kernels == (kernels if form.bound else ())
     assert form.violation is bounds_rows_violation
     status, info = form.flag_outcome(-1)
     assert (status.name, info) == ("INFEASIBLE", "exitflag -1")

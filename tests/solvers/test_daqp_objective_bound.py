@@ -1,0 +1,191 @@
+"""DAQP's objective bound (``solvers.daqp_.objective_bound`` and its compiled twin): the
+inequality it rests on, solves that find a point unchanged, infeasible ones ended sooner,
+and the MPC's ``hessian_floor``."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from ltv_lstm_mpc.solvers import DenseQP, DenseSession, available_solvers
+
+from ltv_lstm_mpc import OffsetFreeController, load_model
+from ltv_lstm_mpc.exceptions import InvalidValueError
+
+pytestmark = pytest.mark.skipif("daqp" not in available_solvers(), reason="needs daqp")
+
+daqp_ = pytest.importorskip("ltv_lstm_mpc.solvers.daqp_")
+daqp_native = pytest.importorskip("ltv_lstm_mpc.solvers.daqp_native")
+needs_binding = pytest.mark.skipif(
+    daqp_native.native({}) is None, reason=f"DAQP not bound: {daqp_native.unavailable_reason}"
+)
+NO_BOUND = daqp_native.NO_BOUND
+
+
+def box_qp(seed: int, n: int = 8, rows: int = 6, infeasible: bool = False) -> DenseQP:
+    """H = G'G + R (R = r I, r known: the floor), a box on every variable, rows; where
+    ``infeasible``, one row asks for more than the box can give."""
+    rng = np.random.default_rng(seed)
+    r = 10.0 ** rng.uniform(-3, 1)
+    G = rng.normal(size=(n + 2, n)) * 10.0 ** rng.uniform(-1, 2)
+    H = G.T @ G + r * np.eye(n)
+    f = rng.normal(size=n) * 10.0 ** rng.uniform(-1, 3)
+    A = rng.normal(size=(rows, n))
+    width = rng.uniform(0.2, 2.0, n)
+    lb, ub = -width, width
+    lo, up = -rng.uniform(0.1, 1.0, rows), rng.uniform(0.1, 1.0, rows)
+    if infeasible:  # row 0 beyond its largest value over the box
+        reach = float(np.abs(A[0]) @ width)
+        lo[0], up[0] = reach * rng.uniform(1.01, 3.0), np.inf
+    return DenseQP(H=H, f=f, A=A, lo=lo, up=up, lb=lb, ub=ub, hessian_floor=0.5 * r)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), tolerance=st.sampled_from([0.0, 1e-8, 1e-6]))
+def test_the_bound_exceeds_daqps_objective_at_every_point_of_the_box(
+    seed: int, tolerance: float
+) -> None:
+    """Half the bound is above 1/2 |R x + v|^2 = J(x) + 1/2 f'H^-1 f at every point of the
+    box widened by the tolerance (its vertices, where the convex J is largest, included)."""
+    qp = box_qp(seed)
+    bound = daqp_.objective_bound(qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, tolerance)
+    assert bound < NO_BOUND
+    rng = np.random.default_rng(seed)
+    offset = 0.5 * float(qp.f @ np.linalg.solve(qp.H, qp.f))
+    wide_lb, wide_ub = qp.lb - tolerance, qp.ub + tolerance
+    points = [rng.uniform(wide_lb, wide_ub) for _ in range(50)]
+    points += [np.where(rng.random(qp.f.shape[0]) < 0.5, wide_lb, wide_ub) for _ in range(50)]
+    largest = max(qp.objective(x) + offset for x in points)
+    assert largest <= 0.5 * bound, (largest, bound)
+
+
+@needs_binding
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_the_compiled_twin_gives_the_same_bound(seed: int) -> None:
+    qp = box_qp(seed)
+    for floor in (qp.hessian_floor, 0.0):
+        for lb in (qp.lb, np.where(np.arange(qp.lb.shape[0]) == 2, -np.inf, qp.lb)):
+            expected = daqp_.objective_bound(qp.H, qp.f, lb, qp.ub, floor, 1e-8)
+            found = daqp_native.objective_bound(qp.H, qp.f, lb, qp.ub, floor, 1e-8)
+            assert found == pytest.approx(expected, rel=1e-13), (floor, lb)
+
+
+def test_no_bound_where_a_bound_is_infinite_the_floor_zero_or_h_not_semidefinite() -> None:
+    qp = box_qp(1)
+    args = (qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, 1e-8)
+    assert daqp_.objective_bound(*args) < NO_BOUND
+    unbounded = qp.ub.copy()
+    unbounded[3] = np.inf
+    assert daqp_.objective_bound(qp.H, qp.f, qp.lb, unbounded, qp.hessian_floor, 1e-8) == NO_BOUND
+    assert daqp_.objective_bound(qp.H, qp.f, qp.lb, qp.ub, 0.0, 1e-8) == NO_BOUND
+    assert daqp_.objective_bound(-qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, 1e-8) == NO_BOUND
+    huge = qp.ub * 1e20
+    assert daqp_.objective_bound(qp.H, qp.f, -huge, huge, qp.hessian_floor, 1e-8) == NO_BOUND
+
+
+def solve(qp: DenseQP, backend: str = "daqp") -> tuple[str, np.ndarray | None, int, str]:
+    session = DenseSession(backend, tolerance=1e-8)
+    status, z, iterations, info = session.solve_point(qp)
+    return status.value, z, iterations, info
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_a_solve_that_finds_a_point_is_unchanged(seed: int) -> None:
+    """The same status, point (bit for bit) and DAQP iterations as without the floor."""
+    qp = box_qp(seed)
+    with_floor = solve(qp)
+    without = solve(dataclasses.replace(qp, hessian_floor=0.0))
+    assert with_floor[0] == without[0] == "optimal"
+    np.testing.assert_array_equal(with_floor[1], without[1])
+    assert with_floor[2] == without[2]
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_an_infeasible_qp_ends_infeasible_and_never_later(seed: int) -> None:
+    qp = box_qp(seed, n=30, rows=4, infeasible=True)
+    with_floor = solve(qp)
+    without = solve(dataclasses.replace(qp, hessian_floor=0.0))
+    assert with_floor[0] == without[0] == "infeasible", (with_floor, without)
+    assert with_floor[2] <= without[2]
+
+
+def test_an_infeasible_qp_ends_sooner_on_the_bound() -> None:
+    """A row ten times beyond what the box can give: DAQP adds bound after bound (its
+    proof) where the bound ends it at the first points. (Just beyond the box, the bound,
+    loose by a trace and a factor 2, ends nothing sooner: 1.01 n gives 42 and 42.)"""
+    n = 40
+    H = np.eye(n) + 0.1 * np.ones((n, n))
+    A = np.ones((1, n))
+    qp = DenseQP(
+        H=H, f=np.zeros(n), A=A, lo=np.array([10.0 * n]), up=np.array([np.inf]),
+        lb=-np.ones(n), ub=np.ones(n), hessian_floor=0.5,
+    )  # fmt: skip
+    with_floor = solve(qp)
+    without = solve(dataclasses.replace(qp, hessian_floor=0.0))
+    assert with_floor[0] == without[0] == "infeasible"
+    assert with_floor[2] <= 5 < n <= without[2], (with_floor[2], without[2])
+
+
+def test_settings_that_name_their_own_bound_keep_it() -> None:
+    qp = box_qp(3)
+    backend = daqp_.DaqpDense("daqp", 1e-8, {"fval_bound": 123.0})
+    backend.setup(qp)
+    assert backend._objective_bound(backend.native) == 123.0
+    backend = daqp_.DaqpDense("daqp", 1e-8, {"eps_prox": 1e-6})
+    backend.setup(qp)
+    assert backend._objective_bound(backend.native) == NO_BOUND
+    backend = daqp_.DaqpDense("daqp", 1e-8, {})
+    backend.setup(qp)
+    assert backend._objective_bound(None) < NO_BOUND
+
+
+@pytest.mark.parametrize("floor", [-1.0, np.inf, np.nan])
+def test_a_bad_floor_is_refused_with_its_value(floor: float) -> None:
+    qp = dataclasses.replace(box_qp(0), hessian_floor=floor)
+    with pytest.raises(InvalidValueError, match="hessian_floor must be a finite number >= 0"):
+        qp.check()
+
+
+def test_the_floor_survives_copy_save_and_load(tmp_path) -> None:
+    qp = box_qp(2)
+    assert qp.copy().hessian_floor == qp.hessian_floor
+    assert DenseQP.load(qp.save(tmp_path / "qp.npz")).hessian_floor == qp.hessian_floor
+
+
+@pytest.mark.parametrize("N", [5, 20])
+def test_the_mpcs_floor_is_below_the_condensed_hessians_eigenvalues(N: int) -> None:
+    """CondensedTranscription.hessian_floor (half R's smallest eigenvalue) is a floor of
+    the condensed H of every QP it solves, over 150 steps of the paper's scenario 3."""
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2]
+    config = dataclasses.replace(scenario.config, solver="daqp", N=N, R=0.3)
+    controller = OffsetFreeController(
+        model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, engine="reference"
+    )
+    problem = controller.mpc._problem
+    assert problem.hessian_floor == pytest.approx(0.15)
+    ratios, kinds = [], set()
+    original = problem.solve
+
+    def watch(kind: str, x_hat: np.ndarray):  # type: ignore[no-untyped-def]
+        result = original(kind, x_hat)
+        qp = problem._last[kind]
+        kinds.add(kind)
+        assert 0.0 < qp.hessian_floor <= problem.hessian_floor
+        ratios.append(float(np.linalg.eigvalsh(qp.H).min()) / qp.hessian_floor)
+        return result
+
+    problem.solve = watch
+    plant = scenario.make_plant(model)
+    y = plant.output()
+    for k in range(150):
+        u = controller.step(y, scenario.setpoints[k])
+        y = plant.step(u)
+    assert kinds == {"nominal", "paper"}, kinds  # (the policy's QP too)
+    assert min(ratios) >= 2.0, min(ratios)  # (half R's, and H >= I (x) R)
