@@ -71,6 +71,8 @@ _LOWER = 2
 _EQUALITY = 5
 _ACTIVE_TOL = 1e-9
 _DEFAULT_PRIMAL_TOL = 1e-6  # DAQP's default primal_tol (daqp.Model().settings)
+#: DAQP's default ``zero_tol`` (``daqp.Model().settings``).
+DAQP_ZERO_TOL = 1e-11
 #: DAQP sense of a multiplier sign -1, 0, +1: active at the lower bound, free, active at the upper.
 _SENSE_OF_SIGN = np.array([_ACTIVE | _LOWER, 0, _ACTIVE], dtype=np.intc)
 
@@ -277,25 +279,27 @@ class DaqpDense(DenseBackend):
         self._floor = float(qp.hessian_floor)
 
     def _objective_bound(self, native: Any) -> float:
-        """DAQP's ``fval_bound`` for this QP (:func:`objective_bound`, compiled where DAQP is
-        bound natively: ``native``), or the settings' own where the QP states no
-        ``hessian_floor`` or the settings name one (a caller that sets ``fval_bound``
-        states none: the compiled callers then leave the settings' value)."""
+        """DAQP's ``fval_bound`` for this QP: the smaller of the settings' own (DAQP's
+        :data:`~ltv_lstm_mpc.solvers.daqp_native.NO_BOUND` unless they name one) and
+        :func:`objective_bound` (compiled where DAQP is bound natively: ``native``); the
+        settings' own where they ask for proximal iterations (``eps_prox`` > 0)."""
         options = self.options
-        if not self._floor > 0.0 or "fval_bound" in options:  # the settings' own
-            return float(options.get("fval_bound", self._daqp_native.NO_BOUND))
+        own = float(options.get("fval_bound", self._daqp_native.NO_BOUND))
         if float(options.get("eps_prox", 0.0)) > 0.0:  # proximal iterations: another objective
-            return self._daqp_native.NO_BOUND
+            return own
         n = self._n
         tolerance = float(options.get("primal_tol", _DEFAULT_PRIMAL_TOL))
+        zero_tol = float(options.get("zero_tol", DAQP_ZERO_TOL))
         lower, upper = self._bl[:n], self._bu[:n]
         if native is not None:
-            return float(
-                self._daqp_native.objective_bound(
-                    self._H, self._f, lower, upper, self._floor, tolerance
-                )
+            bound = self._daqp_native.objective_bound(
+                self._H, self._f, lower, upper, self._floor, tolerance, zero_tol
             )
-        return objective_bound(self._H, self._f, lower, upper, self._floor, tolerance)
+        else:
+            bound = objective_bound(
+                self._H, self._f, lower, upper, self._floor, tolerance, zero_tol
+            )
+        return min(own, float(bound))
 
     def _warm_sense(self, warm_start: WarmStart) -> Any:
         n = self._n
@@ -389,6 +393,7 @@ def objective_bound(
     upper: FloatArray,
     hessian_floor: float,
     tolerance: float,
+    zero_tol: float = DAQP_ZERO_TOL,
 ) -> float:
     r"""DAQP's ``fval_bound`` for :math:`\min \tfrac12 x^\top H x + f^\top x` with every
     variable bounded, :math:`l \le x \le u`: past it DAQP declares the QP infeasible.
@@ -413,17 +418,31 @@ def objective_bound(
     that finds a point (its objective stays below the bound on the way there: the
     iterates, the point and the exit flag are the same as without it), and it ends an
     infeasible one as soon as the growing objective passes it: at N = 50 on the MPC's
-    infeasible steps after 4 DAQP iterations instead of 52 (docs/benchmarks.md, "The
-    worst case").
+    infeasible steps after 4 DAQP iterations instead of 52 (docs/benchmarks.md, "DAQP's
+    objective bound").
+
+    That holds for DAQP's objective of :math:`H` itself, not for its proximal mode, where
+    it works on :math:`H + \epsilon I` and a moving linear term (a review found feasible QPs
+    it then called infeasible): so the bound is given only where DAQP provably factors
+    :math:`H` as it is (its checks in ``utils.c``, with :math:`\lambda_{\min} \ge \lambda`
+    and :math:`\max H_{ii} \le \operatorname{tr} H`): :math:`\lambda` above ``zero_tol``
+    (DAQP's absolute pivot test) and above ``zero_tol`` times :math:`\operatorname{tr} H`
+    (its relative pivot and diagonal tests), :math:`n \epsilon_{mach}
+    \operatorname{tr} H \le` :data:`~ltv_lstm_mpc.solvers.daqp_native.ROUNDING_MARGIN`
+    :math:`\lambda` (its condition test, with a margin) and :math:`\operatorname{tr} H \le`
+    :data:`~ltv_lstm_mpc.solvers.daqp_native.CONDITION_LIMIT` :math:`\lambda` (its
+    condition limit with equality elimination). The MPC's condensed QPs (trace over floor
+    of order 1e3-1e5) pass them.
 
     Returns :data:`~ltv_lstm_mpc.solvers.daqp_native.NO_BOUND` (DAQP's default, no bound)
-    where ``hessian_floor`` is not positive, a bound is infinite or NaN, or
-    :math:`\operatorname{tr} H < 0`. The compiled twin is
-    :func:`ltv_lstm_mpc.solvers.daqp_native.objective_bound` (the same sums in the same
-    order, to rounding: the backend calls it where DAQP is bound natively); the C export
-    renders a third (``qp_objective_bound``).
+    where ``hessian_floor`` is not positive, a bound is infinite or NaN,
+    :math:`\operatorname{tr} H < 0`, or a test above fails. The compiled twin is
+    :func:`ltv_lstm_mpc.solvers.daqp_native.objective_bound` (the same terms, summed in
+    order: the same to rounding; the backend calls it where DAQP is bound natively); the C
+    export renders a third (``qp_objective_bound``). Callers give DAQP the smaller of this
+    and the settings' own ``fval_bound``.
     """
-    from .daqp_native import NO_BOUND
+    from .daqp_native import CONDITION_LIMIT, NO_BOUND, ROUNDING_MARGIN
 
     if not hessian_floor > 0.0:
         return NO_BOUND
@@ -432,12 +451,21 @@ def objective_bound(
         return NO_BOUND
     radius = radius + tolerance
     trace = float(np.trace(H))
+    epsilon = float(np.finfo(np.float64).eps)
+    if not (
+        trace >= 0.0
+        and hessian_floor > zero_tol
+        and hessian_floor > zero_tol * trace
+        and f.shape[0] * epsilon * trace <= ROUNDING_MARGIN * hessian_floor
+        and trace <= CONDITION_LIMIT * hessian_floor
+    ):  # (DAQP could regularize H: its proximal mode, whose objective this does not bound)
+        return NO_BOUND
     bound = 2.0 * (
         0.5 * trace * float(radius @ radius)
         + float(np.abs(f) @ radius)
         + 0.5 * float(f @ f) / hessian_floor
     )
-    if not (trace >= 0.0 and bound < NO_BOUND):
+    if not bound < NO_BOUND:
         return NO_BOUND
     return float(bound)
 

@@ -45,7 +45,9 @@ FloatArray = NDArray[np.float64]
 
 __all__ = [
     "BOUND_VERSIONS",
+    "CONDITION_LIMIT",
     "NO_BOUND",
+    "ROUNDING_MARGIN",
     "DaqpNative",
     "bound",
     "native",
@@ -142,7 +144,15 @@ _R_X, _R_LAM = _slot(_Result, "x", 8), _slot(_Result, "lam", 8)
 _R_FLAG, _R_ITER = _slot(_Result, "exitflag", 4), _slot(_Result, "iter", 4)
 _R_SOLVE, _R_SETUP = _slot(_Result, "solve_time", 8), _slot(_Result, "setup_time", 8)
 _S_PRIMAL, _S_FVAL = _slot(_Settings, "primal_tol", 8), _slot(_Settings, "fval_bound", 8)
-_S_PROX = _slot(_Settings, "eps_prox", 8)
+_S_PROX, _S_ZERO = _slot(_Settings, "eps_prox", 8), _slot(_Settings, "zero_tol", 8)
+_EPSILON = float(np.finfo(np.float64).eps)
+#: :func:`objective_bound` is given only where DAQP provably factors H as it is (no
+#: proximal regularization): n eps tr(H) at most this times the floor (DAQP regularizes
+#: where n eps cond(H) > 0.1, ``DAQP_HESSIAN_COND_EPS``; a margin of 100)...
+ROUNDING_MARGIN = 1e-3
+#: ... and tr(H) at most this times the floor (``DAQP_HESSIAN_COND_MAX``: its limit with
+#: equality elimination).
+CONDITION_LIMIT = 1e8
 
 #: DAQP's "no bound" (``DAQP_INF`` of its headers): the ``fval_bound`` of its default settings.
 NO_BOUND = 1e30
@@ -218,7 +228,13 @@ def quadprog(
 
 @njit(cache=True)
 def objective_bound(
-    H: Any, f: Any, lower: Any, upper: Any, hessian_floor: float, tolerance: float
+    H: Any,
+    f: Any,
+    lower: Any,
+    upper: Any,
+    hessian_floor: float,
+    tolerance: float,
+    zero_tol: float,
 ) -> float:
     """The compiled twin of :func:`ltv_lstm_mpc.solvers.daqp_.objective_bound` (the same
     terms, summed in order): DAQP's ``fval_bound`` for a QP with bounds ``lower`` /
@@ -236,28 +252,35 @@ def objective_bound(
         radius += r * r
         linear += abs(f[i]) * r
         gradient += f[i] * f[i]
+    if not (
+        trace >= 0.0
+        and hessian_floor > zero_tol
+        and hessian_floor > zero_tol * trace
+        and n * _EPSILON * trace <= ROUNDING_MARGIN * hessian_floor
+        and trace <= CONDITION_LIMIT * hessian_floor
+    ):  # (DAQP could regularize H: its proximal mode, whose objective this does not bound)
+        return NO_BOUND
     bound = 2.0 * (0.5 * trace * radius + linear + 0.5 * gradient / hessian_floor)
-    if not (trace >= 0.0 and bound < NO_BOUND):
+    if not bound < NO_BOUND:
         return NO_BOUND
     return bound
 
 
 @njit(cache=True)
 def set_objective_bound(
-    settings: Any, H: Any, f: Any, lower: Any, upper: Any, hessian_floor: float
+    settings: Any, H: Any, f: Any, lower: Any, upper: Any, hessian_floor: float, own: float
 ) -> None:
-    """Write :func:`objective_bound` (with the settings' own ``primal_tol``) into the
-    ``fval_bound`` of DAQP's settings buffer ``settings`` for the next :func:`quadprog`
-    (:data:`NO_BOUND` where the settings ask for proximal iterations, ``eps_prox`` > 0).
-    Where ``hessian_floor`` is not positive it writes nothing: the settings' own value
-    stays (as :class:`~ltv_lstm_mpc.solvers.daqp_.DaqpDense` keeps it)."""
-    if not hessian_floor > 0.0:
-        return
+    """Write the smaller of ``own`` (the settings' own ``fval_bound``: :data:`NO_BOUND`
+    unless they name one) and :func:`objective_bound` (with the settings' ``primal_tol``
+    and ``zero_tol``) into the ``fval_bound`` of DAQP's settings buffer ``settings`` for
+    the next :func:`quadprog`; ``own`` where the settings ask for proximal iterations
+    (``eps_prox`` > 0). Every call writes: no bound of another QP stays behind."""
     s = settings.view(np.float64)
     if s[_S_PROX] > 0.0:
-        s[_S_FVAL] = NO_BOUND
+        s[_S_FVAL] = own
     else:
-        s[_S_FVAL] = objective_bound(H, f, lower, upper, hessian_floor, s[_S_PRIMAL])
+        bound = objective_bound(H, f, lower, upper, hessian_floor, s[_S_PRIMAL], s[_S_ZERO])
+        s[_S_FVAL] = min(own, bound)
 
 
 def write_setting(settings: NDArray[np.uint8], name: str, value: float) -> None:
@@ -354,10 +377,15 @@ def bound() -> bool:
 
 def ready() -> bool:
     """:func:`native` would return without compiling: the library is bound and the compiled
-    :func:`quadprog` exists in this process or in numba's on-disk cache."""
+    :func:`quadprog` and :func:`objective_bound` (which the dense backend calls beside it)
+    exist in this process or in numba's on-disk cache."""
     from ltv_lstm_mpc.numba_support import ready as compiled_ready
 
-    return _LOADED and (_CHECKED is not None or compiled_ready([quadprog]))
+    return (
+        _LOADED
+        and (_CHECKED is not None or compiled_ready([quadprog]))
+        and compiled_ready([objective_bound])
+    )
 
 
 def native(options: Mapping[str, Any]) -> DaqpNative | None:

@@ -278,7 +278,11 @@ class DenseQP:
         _check_bounds("lo", self.lo, "up", self.up)
         _check_bounds("lb", self.lb, "ub", self.ub)
         floor = self.hessian_floor
-        if not (isinstance(floor, (int, float, np.floating)) and 0.0 <= floor < np.inf):
+        if not (
+            isinstance(floor, (int, float, np.integer, np.floating))
+            and not isinstance(floor, bool)
+            and 0.0 <= floor < np.inf
+        ):
             raise InvalidValueError(
                 f"hessian_floor must be a finite number >= 0 (a lower bound on the smallest "
                 f"eigenvalue of H; 0 for none), got {floor!r}"

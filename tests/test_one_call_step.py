@@ -692,3 +692,21 @@ def test_a_first_step_whose_feedback_declines_is_not_solved_twice(
     assert records[0].mpc.policy != "nominal"
     worst, where = _worst(records[:1], records[1:])
     assert worst <= TOLERANCE, where
+
+
+@pytest.mark.parametrize("own", [None, 50.0])
+def test_the_objective_bound_is_the_same_on_both_engines(own: float | None) -> None:
+    """Bench's scenario 3 (infeasible steps) with daqp at N = 20: DAQP's objective bound
+    (solvers.daqp_.objective_bound), the smaller of it and the settings' own fval_bound
+    where they name one, gives both engines the same records (DAQP's iterations included)."""
+    from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = bench_scenarios(model)[2]
+    settings = {} if own is None else {"fval_bound": own}
+    config = replace(scenario.config, solver="daqp", N=20, solver_settings=settings)
+    fast = _loop(model, config, scenario, True, 200)
+    general = _loop(model, config, scenario, False, 200)
+    worst, where = _worst(fast.records, general.records)
+    assert worst <= TOLERANCE, where
+    assert any(not r.mpc.feasible for r in fast.records)

@@ -640,6 +640,7 @@ def _mpc_fields(
     """The template fields of ``mpc.h.in`` and ``mpc.c.in`` and the workspace's size bound."""
     from ltv_lstm_mpc.mpc.fhocp import PRECHECK_TOL
     from ltv_lstm_mpc.mpc.native_feedback import HUGE_ENTRY
+    from ltv_lstm_mpc.solvers import daqp_native
     from ltv_lstm_mpc.solvers.tolerances import feasibility_tolerance
 
     config = mpc.config
@@ -715,6 +716,8 @@ def _mpc_fields(
         ),
         precheck_tol=_literal(_precision_value("precheck_tol", PRECHECK_TOL, single)),
         hessian_floor=_literal(problem.hessian_floor),
+        rounding_margin=_literal(daqp_native.ROUNDING_MARGIN),
+        condition_limit=_literal(daqp_native.CONDITION_LIMIT),
         huge_entry=_literal(_precision_value("huge_entry", HUGE_ENTRY, single)),
         slack_regularization=_literal(problem.slack_regularization),
         soft_penalty=_literal(config.soft_penalty),

@@ -273,6 +273,7 @@ def placeholder_daqp() -> Any:
     return new_daqp_workspace(
         sense=np.zeros(1, dtype=np.intc), z=np.zeros(1), lam=np.zeros(1), problem=empty,
         result=empty.copy(), settings=empty.copy(), tolerance=0.0, hessian_floor=0.0,
+        fval_bound=0.0,
     )  # fmt: skip
 
 

@@ -163,13 +163,8 @@ class CondensedTranscription(TranscriptionBase):
         #: A lower bound on the smallest eigenvalue of the condensed H (a Gram matrix plus
         #: I_N (x) R): half R's, a margin for the Gram matrix's rounding; the QPs'
         #: ``hessian_floor``, from which DAQP bounds the objective and proves an infeasible
-        #: QP infeasible sooner (``solvers.daqp_.objective_bound``). 0 where the solver
-        #: settings name their own ``fval_bound``.
-        self.hessian_floor = (
-            0.0
-            if "fval_bound" in config.solver_settings
-            else 0.5 * float(np.linalg.eigvalsh(R).min())
-        )
+        #: QP infeasible sooner (``solvers.daqp_.objective_bound``).
+        self.hessian_floor = 0.5 * float(np.linalg.eigvalsh(R).min())
         nu = N * m
         cols = n2 + nu
         self._n_out = n_out = (N - 1) * p
@@ -242,6 +237,7 @@ class CondensedTranscription(TranscriptionBase):
         )
         if native is not None:
             from ltv_lstm_mpc.mpc.native_feedback import new_daqp_workspace
+            from ltv_lstm_mpc.solvers.daqp_native import NO_BOUND
 
             self._daqp_workspace = new_daqp_workspace(
                 sense=np.zeros(nu + self._mA, dtype=np.intc),  # cold working set
@@ -252,6 +248,7 @@ class CondensedTranscription(TranscriptionBase):
                 settings=native.settings,
                 tolerance=self.tolerance,
                 hessian_floor=self.hessian_floor,
+                fval_bound=float(settings.get("fval_bound", NO_BOUND)),  # (the settings' own)
             )
             self.fallback_workspace = self._new_fallback_workspace(config)
             daqp_form = compiled_form(config.solver)

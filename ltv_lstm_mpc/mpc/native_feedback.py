@@ -181,7 +181,10 @@ new_fallback_workspace_kernel = _new_fallback_workspace
 
 
 #: Fields of :data:`DaqpWorkspace`, in the order of its compiled constructor.
-DAQP_FIELDS = ("sense", "z", "lam", "problem", "result", "settings", "tolerance", "hessian_floor")
+DAQP_FIELDS = (
+    "sense", "z", "lam", "problem", "result", "settings", "tolerance", "hessian_floor",
+    "fval_bound",
+)  # fmt: skip
 
 DaqpWorkspace = workspace_type(
     "DaqpWorkspace",
@@ -194,7 +197,8 @@ DaqpWorkspace = workspace_type(
     tolerance of the point (:func:`~ltv_lstm_mpc.solvers.feasibility_tolerance`);
     ``hessian_floor``: the QPs' (``CondensedTranscription.hessian_floor``), from which each
     DAQP call's objective bound is written into ``settings``
-    (:func:`~ltv_lstm_mpc.solvers.daqp_native.set_objective_bound`).
+    (:func:`~ltv_lstm_mpc.solvers.daqp_native.set_objective_bound`), no larger than
+    ``fval_bound``: the settings' own (DAQP's ``NO_BOUND`` unless they name one).
     """,
     __name__,
 )
@@ -207,9 +211,13 @@ def new_daqp_workspace(**fields: Any) -> Any:
 
 
 @njit(cache=True)
-def _new_daqp_workspace(sense, z, lam, problem, result, settings, tolerance, hessian_floor):  # type: ignore[no-untyped-def]
+def _new_daqp_workspace(  # type: ignore[no-untyped-def]
+    sense, z, lam, problem, result, settings, tolerance, hessian_floor, fval_bound
+):
     """The compiled constructor (no constructor compile at run time; cached)."""
-    return DaqpWorkspace(sense, z, lam, problem, result, settings, tolerance, hessian_floor)
+    return DaqpWorkspace(
+        sense, z, lam, problem, result, settings, tolerance, hessian_floor, fval_bound
+    )
 
 
 @njit(cache=True)
@@ -358,7 +366,7 @@ def _solve_nominal(condensing: Any, daqp: Any) -> tuple[int, int, float]:
     nu = condensing.H.shape[0]
     set_objective_bound(
         daqp.settings, condensing.H, condensing.f, condensing.low[:nu], condensing.high[:nu],
-        daqp.hessian_floor,
+        daqp.hessian_floor, daqp.fval_bound,
     )  # fmt: skip
     flag, iterations = quadprog(
         condensing.H, condensing.f, condensing.A, condensing.high, condensing.low, daqp.sense,
@@ -499,7 +507,7 @@ def policy_feedback(
         if policy == POLICY_PAPER:  # no output and terminal rows (paper, Fig. 5)
             set_objective_bound(
                 daqp.settings, condensing.H, condensing.f, condensing.low[:nu],
-                condensing.high[:nu], daqp.hessian_floor,
+                condensing.high[:nu], daqp.hessian_floor, daqp.fval_bound,
             )  # fmt: skip
             flag, more = quadprog(
                 condensing.H, condensing.f, condensing.A[:0], condensing.high[:nu],
@@ -509,9 +517,9 @@ def policy_feedback(
         else:
             _write_soft_qp(condensing, fallback)
             nz = fallback.H.shape[0]
-            set_objective_bound(  # (NO_BOUND: its slacks are unbounded above)
+            set_objective_bound(  # (its own: the slacks are unbounded above)
                 daqp.settings, fallback.H, fallback.f, fallback.low[:nz], fallback.high[:nz],
-                daqp.hessian_floor,
+                daqp.hessian_floor, daqp.fval_bound,
             )  # fmt: skip
             flag, more = quadprog(
                 fallback.H, fallback.f, fallback.A, fallback.high, fallback.low,

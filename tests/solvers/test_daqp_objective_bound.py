@@ -29,8 +29,8 @@ def box_qp(seed: int, n: int = 8, rows: int = 6, infeasible: bool = False) -> De
     """H = G'G + R (R = r I, r known: the floor), a box on every variable, rows; where
     ``infeasible``, one row asks for more than the box can give."""
     rng = np.random.default_rng(seed)
-    r = 10.0 ** rng.uniform(-3, 1)
-    G = rng.normal(size=(n + 2, n)) * 10.0 ** rng.uniform(-1, 2)
+    r = 10.0 ** rng.uniform(-2, 1)  # (tr H / r below 1e8: DAQP factors H as it is)
+    G = rng.normal(size=(n + 2, n)) * 10.0 ** rng.uniform(-1, 1.5)
     H = G.T @ G + r * np.eye(n)
     f = rng.normal(size=n) * 10.0 ** rng.uniform(-1, 3)
     A = rng.normal(size=(rows, n))
@@ -70,7 +70,7 @@ def test_the_compiled_twin_gives_the_same_bound(seed: int) -> None:
     for floor in (qp.hessian_floor, 0.0):
         for lb in (qp.lb, np.where(np.arange(qp.lb.shape[0]) == 2, -np.inf, qp.lb)):
             expected = daqp_.objective_bound(qp.H, qp.f, lb, qp.ub, floor, 1e-8)
-            found = daqp_native.objective_bound(qp.H, qp.f, lb, qp.ub, floor, 1e-8)
+            found = daqp_native.objective_bound(qp.H, qp.f, lb, qp.ub, floor, 1e-8, 1e-11)
             assert found == pytest.approx(expected, rel=1e-13), (floor, lb)
 
 
@@ -130,17 +130,97 @@ def test_an_infeasible_qp_ends_sooner_on_the_bound() -> None:
     assert with_floor[2] <= 5 < n <= without[2], (with_floor[2], without[2])
 
 
-def test_settings_that_name_their_own_bound_keep_it() -> None:
+def test_the_settings_own_bound_is_kept_where_smaller_and_with_proximal_iterations() -> None:
     qp = box_qp(3)
-    backend = daqp_.DaqpDense("daqp", 1e-8, {"fval_bound": 123.0})
-    backend.setup(qp)
-    assert backend._objective_bound(backend.native) == 123.0
+    computed = daqp_.objective_bound(qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, 1e-8)
+    assert computed < NO_BOUND
+    for own, expected in ((0.5 * computed, 0.5 * computed), (2.0 * computed, computed)):
+        backend = daqp_.DaqpDense("daqp", 1e-8, {"fval_bound": own})
+        backend.setup(qp)
+        assert backend._objective_bound(None) == pytest.approx(expected, rel=1e-13)
     backend = daqp_.DaqpDense("daqp", 1e-8, {"eps_prox": 1e-6})
     backend.setup(qp)
     assert backend._objective_bound(backend.native) == NO_BOUND
-    backend = daqp_.DaqpDense("daqp", 1e-8, {})
-    backend.setup(qp)
-    assert backend._objective_bound(None) < NO_BOUND
+
+
+@needs_binding
+def test_the_compiled_writer_keeps_the_settings_own_bound_where_smaller_or_proximal() -> None:
+    qp = box_qp(4)
+    computed = daqp_native.objective_bound(
+        qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, 1e-8, daqp_.DAQP_ZERO_TOL
+    )
+    for options, own, expected in (
+        ({"primal_tol": 1e-8}, NO_BOUND, computed),
+        ({"primal_tol": 1e-8}, 0.5 * computed, 0.5 * computed),
+        ({"primal_tol": 1e-8, "eps_prox": 1e-6}, 7.0, 7.0),
+        ({"primal_tol": 1e-8, "zero_tol": 10.0 * qp.hessian_floor}, NO_BOUND, NO_BOUND),
+    ):
+        settings = daqp_native.native(options).settings
+        daqp_native.set_objective_bound(settings, qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, own)
+        written = settings.view(np.float64)[daqp_native._S_FVAL]
+        assert written == pytest.approx(expected, rel=1e-15), options
+
+
+def box(H, f, lb, ub, floor: float) -> DenseQP:
+    n = len(f)
+    return DenseQP(
+        H=np.asarray(H, float), f=np.asarray(f, float), A=np.zeros((0, n)), lo=np.zeros(0),
+        up=np.zeros(0), lb=np.asarray(lb, float), ub=np.asarray(ub, float), hessian_floor=floor,
+    )  # fmt: skip
+
+
+def proximal_cases() -> list[tuple[DenseQP, dict]]:
+    """A review's feasible QPs, each with an honest floor, on which DAQP regularizes H (its
+    proximal mode): a small-scale H with a near-null direction; a near-zero diagonal entry
+    beside one of 621 and a fixed variable; a user's automatic eps_prox of -10; a dense H
+    of scale 1e-8 and condition 1e15 with one row."""
+    rng = np.random.default_rng(0)
+    n = 6
+    Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    H = (Q * (1e-8 * np.logspace(0, -15, n))) @ Q.T
+    H = 0.5 * (H + H.T)
+    dense = DenseQP(
+        H=H, f=np.zeros(n), A=np.ones((1, n)), lo=np.array([2.0]), up=np.array([np.inf]),
+        lb=-np.ones(n), ub=np.ones(n), hessian_floor=0.5 * float(np.linalg.eigvalsh(H).min()),
+    )  # fmt: skip
+    fixed = -0.3628015076815992
+    return [
+        (box(np.diag([1e-7, 1e-19]), [0, 0], [-1, 0.9], [1, 1], 1e-19), {}),
+        (
+            box(
+                np.diag([2.069492757894325e-10, 621.128007551889]),
+                [9.112158450462133e-08, -3.755717485415513e-08],
+                [fixed, -0.9816247179629607],
+                [fixed, 0.10381701842065905],
+                1e-10,
+            ),
+            {},
+        ),
+        (box(np.diag([1.0, 1e-12]), [0, 0], [-1, 0.9], [1, 1], 1e-12), {"eps_prox": -10.0}),
+        (dense, {}),
+    ]
+
+
+@pytest.mark.parametrize("case", range(4))
+def test_no_bound_where_daqp_could_regularize_the_hessian(case: int) -> None:
+    """On each (feasible) QP DAQP works on H + eps I, whose objective the bound does not
+    bound: none is given, and the solve is the one without the floor (it was "infeasible"
+    with the bound)."""
+    qp, settings = proximal_cases()[case]
+    assert float(np.linalg.eigvalsh(qp.H).min()) >= qp.hessian_floor
+    tolerance = float(settings.get("zero_tol", daqp_.DAQP_ZERO_TOL))
+    assert daqp_.objective_bound(qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, 1e-8, tolerance) == (
+        NO_BOUND
+    )
+    runs = []
+    for floor in (qp.hessian_floor, 0.0):
+        session = DenseSession("daqp", tolerance=1e-8, **settings)
+        status, z, iterations, _info = session.solve_point(
+            dataclasses.replace(qp, hessian_floor=floor)
+        )
+        runs.append((status.value, iterations, None if z is None else z.tolist()))
+    assert runs[0] == runs[1]
+    assert runs[0][0] == "optimal", runs
 
 
 @pytest.mark.parametrize("floor", [-1.0, np.inf, np.nan])
