@@ -431,14 +431,15 @@ def objective_bound(
     \operatorname{tr} H \le` :data:`~ltv_lstm_mpc.solvers.daqp_native.ROUNDING_MARGIN`
     :math:`\lambda` (its condition test, with a margin) and :math:`\operatorname{tr} H \le`
     :data:`~ltv_lstm_mpc.solvers.daqp_native.CONDITION_LIMIT` :math:`\lambda` (its
-    condition limit with equality elimination). The MPC's condensed QPs (trace over floor
-    of order 1e3-1e5) pass them.
+    condition limit with equality elimination, 1e8, with a margin). The MPC's condensed
+    QPs (trace over floor of order 1e3-1e5) pass them.
 
     Returns :data:`~ltv_lstm_mpc.solvers.daqp_native.NO_BOUND` (DAQP's default, no bound)
     where ``hessian_floor`` is not positive, a bound is infinite or NaN,
     :math:`\operatorname{tr} H < 0`, or a test above fails. The compiled twin is
-    :func:`ltv_lstm_mpc.solvers.daqp_native.objective_bound` (the same terms, summed in
-    order: the same to rounding; the backend calls it where DAQP is bound natively); the C
+    :func:`ltv_lstm_mpc.solvers.daqp_native.objective_bound` (the same terms; the trace,
+    which the tests above read, summed in the same order, the others to rounding; the
+    backend calls it where DAQP is bound natively); the C
     export renders a third (``qp_objective_bound``). Callers give DAQP the smaller of this
     and the settings' own ``fval_bound``.
     """
@@ -450,7 +451,7 @@ def objective_bound(
     if not np.all(radius < np.inf):
         return NO_BOUND
     radius = radius + tolerance
-    trace = float(np.trace(H))
+    trace = float(np.add.accumulate(np.diagonal(H))[-1])  # (in order: the twins' trace)
     epsilon = float(np.finfo(np.float64).eps)
     if not (
         trace >= 0.0

@@ -150,9 +150,9 @@ _EPSILON = float(np.finfo(np.float64).eps)
 #: proximal regularization): n eps tr(H) at most this times the floor (DAQP regularizes
 #: where n eps cond(H) > 0.1, ``DAQP_HESSIAN_COND_EPS``; a margin of 100)...
 ROUNDING_MARGIN = 1e-3
-#: ... and tr(H) at most this times the floor (``DAQP_HESSIAN_COND_MAX``: its limit with
-#: equality elimination).
-CONDITION_LIMIT = 1e8
+#: ... and tr(H) at most this times the floor (DAQP's limit with equality elimination is
+#: 1e8, ``DAQP_HESSIAN_COND_MAX``: a margin of 10 for the rounding of its test).
+CONDITION_LIMIT = 1e7
 
 #: DAQP's "no bound" (``DAQP_INF`` of its headers): the ``fval_bound`` of its default settings.
 NO_BOUND = 1e30
@@ -347,7 +347,8 @@ _CHECKED: bool | None = None
 
 
 def _self_test() -> bool:
-    """The binding and ``daqp.solve`` agree exactly on a small QP (layout check)."""
+    """The binding and ``daqp.solve`` agree exactly on a small QP (layout check); compiles
+    :func:`objective_bound` too."""
     rng = np.random.default_rng(7)
     n, rows = 4, 6
     M = rng.standard_normal((n, n))
@@ -361,6 +362,9 @@ def _self_test() -> bool:
         H, f, A, bupper, blower, sense
     )
     x_ref, _, flag_ref, info = _daqp.solve(H, f, A, bupper, blower, sense, primal_tol=1e-9)
+    # the dense backend's compiled bound beside quadprog: compiled (and cached) with it, so
+    # that a controller whose steps never call it from Python still finds it ready
+    objective_bound(H, f, blower[:n], bupper[:n], 1.0, 1e-9, 1e-11)
     return bool(
         flag == flag_ref
         and iterations == info["iterations"]

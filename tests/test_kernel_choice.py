@@ -178,6 +178,29 @@ CALLEES = {
     "_screen",
     "_sense",
     "_subproblem",
+    "_definite",
+    "_cut_proof",
+    "_store_cuts",
+    "_reduction_proves",
+    # inside the one-call feedbacks (mpc/native_feedback.py) and the failed solve's copy
+    "_accept",
+    "_precheck",
+    "_simulate_plan",
+    "_policy_plan",
+    "_solve_nominal",
+    "_write_soft_qp",
+    "_write_cone_nominal",
+    "_write_cone_policy",
+    "_cone_qp_violation",
+    "bounds_rows_violation",
+    "policy_feedback",
+    "cone_policy_feedback",
+    "snapshot_into",
+    "_put_matrix",
+    "_put_vector",
+    "set_objective_bound",
+    # inside the reference calculator's damped Newton (loop/compiled_reference.py)
+    "_newton_from",
 }
 
 USED = """

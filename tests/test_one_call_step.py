@@ -694,6 +694,12 @@ def test_a_first_step_whose_feedback_declines_is_not_solved_twice(
     assert worst <= TOLERANCE, where
 
 
+def daqp_native_no_bound() -> float:
+    from ltv_lstm_mpc.solvers.daqp_native import NO_BOUND
+
+    return NO_BOUND
+
+
 @pytest.mark.parametrize("own", [None, 50.0])
 def test_the_objective_bound_is_the_same_on_both_engines(own: float | None) -> None:
     """Bench's scenario 3 (infeasible steps) with daqp at N = 20: DAQP's objective bound
@@ -710,3 +716,12 @@ def test_the_objective_bound_is_the_same_on_both_engines(own: float | None) -> N
     worst, where = _worst(fast.records, general.records)
     assert worst <= TOLERANCE, where
     assert any(not r.mpc.feasible for r in fast.records)
+    # the bound is given on the loop's QPs, and the settings' own is the smaller
+    from ltv_lstm_mpc.solvers import daqp_
+
+    problem = general.mpc._problem  # (its last condensed QP)
+    bound = daqp_.objective_bound(
+        problem._H, problem._f, problem._lb, problem._ub, problem.hessian_floor, 1e-8
+    )
+    assert bound < daqp_native_no_bound()
+    assert own is None or own < bound

@@ -81,6 +81,7 @@ def test_the_daqp_socp_form_holds_the_sqp_and_its_workspace() -> None:
     assert form.socp_arrays is socp_sqp.socp_arrays
     assert form.kernels == (
         daqp_native.quadprog,
+        daqp_native.objective_bound,
         socp_sqp.socp_solve,
         socp_sqp.new_socp_workspace_kernel,
     )

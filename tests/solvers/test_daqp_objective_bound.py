@@ -74,6 +74,29 @@ def test_the_compiled_twin_gives_the_same_bound(seed: int) -> None:
             assert found == pytest.approx(expected, rel=1e-13), (floor, lb)
 
 
+@needs_binding
+@pytest.mark.parametrize("seed", range(20))
+def test_the_twins_agree_on_the_gate_at_its_limits(seed: int) -> None:
+    """A diagonal H whose trace is the floor times CONDITION_LIMIT, to the last bits on
+    either side: the numpy and the compiled twin give a bound at the same QPs (the trace
+    summed in the same order)."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(5, 60))
+    H = np.diag(10.0 ** rng.uniform(0, 1, n))
+    f, lb, ub = np.ones(n), -np.ones(n), np.ones(n)
+    limit = float(np.add.accumulate(np.diagonal(H))[-1]) / daqp_native.CONDITION_LIMIT
+    given = []
+    floors = [limit * (1.0 - 1e-9)]
+    floors += [np.nextafter(limit, 0.0), limit, np.nextafter(limit, 1.0)]
+    floors += [limit * (1.0 + 1e-9)]
+    for floor in floors:
+        expected = daqp_.objective_bound(H, f, lb, ub, floor, 1e-8, 1e-14)
+        found = daqp_native.objective_bound(H, f, lb, ub, floor, 1e-8, 1e-14)
+        assert (expected < NO_BOUND) == (found < NO_BOUND), (floor, expected, found)
+        given.append(found < NO_BOUND)
+    assert not given[0] and given[-1]
+
+
 def test_no_bound_where_a_bound_is_infinite_the_floor_zero_or_h_not_semidefinite() -> None:
     qp = box_qp(1)
     args = (qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, 1e-8)
