@@ -70,7 +70,6 @@ _ACTIVE = 1
 _LOWER = 2
 _EQUALITY = 5
 _ACTIVE_TOL = 1e-9
-_DEFAULT_PRIMAL_TOL = 1e-6  # DAQP's default primal_tol (daqp.Model().settings)
 #: DAQP's default ``zero_tol`` (``daqp.Model().settings``).
 DAQP_ZERO_TOL = 1e-11
 #: DAQP sense of a multiplier sign -1, 0, +1: active at the lower bound, free, active at the upper.
@@ -232,6 +231,12 @@ class DaqpDense(DenseBackend):
         from . import daqp_native
 
         self._daqp_native = daqp_native
+        # the settings in effect (DAQP's defaults where not given), read once for the
+        # objective bound of each solve (_objective_bound)
+        effective = {**daqp.Model().settings, **self.options}
+        self._own_bound = float(effective["fval_bound"])
+        self._proximal = float(effective["eps_prox"]) > 0.0
+        self._tolerances = (float(effective["primal_tol"]), float(effective["zero_tol"]))
         self._native: Any = None
         self._native_bound = False
         # The hot-loop solve_point goes through DAQP's C entry point where its compiled call
@@ -283,13 +288,11 @@ class DaqpDense(DenseBackend):
         :data:`~ltv_lstm_mpc.solvers.daqp_native.NO_BOUND` unless they name one) and
         :func:`objective_bound` (compiled where DAQP is bound natively: ``native``); the
         settings' own where they ask for proximal iterations (``eps_prox`` > 0)."""
-        options = self.options
-        own = float(options.get("fval_bound", self._daqp_native.NO_BOUND))
-        if float(options.get("eps_prox", 0.0)) > 0.0:  # proximal iterations: another objective
+        own = self._own_bound
+        if self._proximal:  # proximal iterations: another objective
             return own
         n = self._n
-        tolerance = float(options.get("primal_tol", _DEFAULT_PRIMAL_TOL))
-        zero_tol = float(options.get("zero_tol", DAQP_ZERO_TOL))
+        tolerance, zero_tol = self._tolerances
         lower, upper = self._bl[:n], self._bu[:n]
         if native is not None:
             bound = self._daqp_native.objective_bound(
@@ -366,7 +369,7 @@ class DaqpDense(DenseBackend):
         native = self._native
         bound = self._objective_bound(native)
         if native is not None:
-            self._daqp_native.write_setting(native.settings, "fval_bound", bound)
+            self._daqp_native.write_fval_bound(native.settings, bound)
             x, _lam, flag, iterations = native.solve(
                 self._H, self._f, self._A, self._bu, self._bl, self._cold
             )

@@ -244,10 +244,10 @@ def objective_bound(
         return NO_BOUND
     trace, radius, linear, gradient = 0.0, 0.0, 0.0, 0.0
     for i in range(n):
-        r = max(abs(lower[i]), abs(upper[i]))
-        if not r < np.inf:  # an infinite bound (or NaN): no bound
+        low, high = abs(lower[i]), abs(upper[i])
+        if not (low < np.inf and high < np.inf):  # an infinite bound (or NaN): no bound
             return NO_BOUND
-        r += tolerance
+        r = max(low, high) + tolerance
         trace += H[i, i]
         radius += r * r
         linear += abs(f[i]) * r
@@ -283,9 +283,9 @@ def set_objective_bound(
         s[_S_FVAL] = min(own, bound)
 
 
-def write_setting(settings: NDArray[np.uint8], name: str, value: float) -> None:
-    """Write the float setting ``name`` (a :class:`_Settings` field) into a settings buffer."""
-    settings.view(np.float64)[_slot(_Settings, name, 8)] = value
+def write_fval_bound(settings: NDArray[np.uint8], value: float) -> None:
+    """Write ``fval_bound`` into DAQP's settings buffer ``settings`` (from Python)."""
+    settings.view(np.float64)[_S_FVAL] = value
 
 
 @njit(cache=True)

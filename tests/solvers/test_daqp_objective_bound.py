@@ -97,6 +97,17 @@ def test_the_twins_agree_on_the_gate_at_its_limits(seed: int) -> None:
     assert not given[0] and given[-1]
 
 
+@needs_binding
+@pytest.mark.parametrize("side", ["lower", "upper"])
+def test_the_twins_give_no_bound_at_a_nan_bound_on_either_side(side: str) -> None:
+    qp = box_qp(5)
+    lb, ub = qp.lb.copy(), qp.ub.copy()
+    (lb if side == "lower" else ub)[2] = np.nan
+    assert daqp_.objective_bound(qp.H, qp.f, lb, ub, qp.hessian_floor, 1e-8) == NO_BOUND
+    found = daqp_native.objective_bound(qp.H, qp.f, lb, ub, qp.hessian_floor, 1e-8, 1e-11)
+    assert found == NO_BOUND
+
+
 def test_no_bound_where_a_bound_is_infinite_the_floor_zero_or_h_not_semidefinite() -> None:
     qp = box_qp(1)
     args = (qp.H, qp.f, qp.lb, qp.ub, qp.hessian_floor, 1e-8)
