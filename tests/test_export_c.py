@@ -165,7 +165,13 @@ def test_the_c_reference_calculator_equals_the_library(
     solution = reference.solve_arrays(start.copy(), zero)
     last = np.concatenate([solution.x_bar, solution.u_bar])
     lib.ref_c_reference_start(state, last, start)
-    statuses = set()
+    # the state's layout (double): last_z (size), last_target (p), inverse (size, size), int
+    c_inverse = np.frombuffer(state, np.float64, size * size, 8 * (size + p)).reshape(size, size)
+
+    def c_inverse_valid() -> bool:
+        return int(np.frombuffer(state, np.intc, 1, 8 * (size + p + size * size))[0]) == 1
+
+    statuses, inverses = set(), 0
     for target in _reference_targets(reference, p):
         fallbacks = reference.counts["fallbacks"]
         solution = reference.solve_arrays(target.copy(), zero)
@@ -180,7 +186,12 @@ def test_the_c_reference_calculator_equals_the_library(
         _close(z, expected, rtol=1e-12)
         if admissible:
             assert abs(residual.value - solution.residual) <= 1e-12
+        kept = reference.warm_start()
+        if kept is not None and kept.jinv_valid and c_inverse_valid():
+            inverses += 1  # the chord's kept inverse Jacobian (its Gauss-Jordan), both sides
+            _close(c_inverse, reference.chord_state().jinv, rtol=1e-10)
     assert {0, 2} <= statuses  # the warm chord and the stale reference ran
+    assert inverses >= 10
     if name != "example_delta_iss_n3.npz":
         assert 1 in statuses  # and the damped Newton with restarts
 

@@ -137,29 +137,53 @@ def _pivot(matrix: Any, k: int) -> tuple[int, float]:
 def _invert(matrix: Any, inverse: Any) -> bool:
     """``inverse`` = the inverse of ``matrix`` by Gauss-Jordan elimination with partial
     pivoting, in place (``matrix`` is overwritten): no allocation and no library call in
-    the step. Returns False for an exactly singular matrix (a zero pivot column)."""
+    the step. Returns False for an exactly singular matrix (a zero pivot column).
+
+    The compact form of the elimination: step k scales the pivot row and subtracts its
+    multiples from the other rows, and the column it clears takes the inverse's column
+    that step k opens (the identity's column of the pivot row; the identity's columns
+    still closed hold one 1 and are not stored). Each stored entry is the product and
+    difference of the textbook form with a separate identity (the same pivots; only the
+    operations on its exact zeros are left out), so the inverse is the same to the last
+    bit (``tests/test_kernel.py``) at half the arithmetic; the row interchanges are
+    undone on the columns at the end, their rows kept in ``inverse``'s first row until
+    then."""
     size = matrix.shape[0]
-    for r in range(size):
-        for c in range(size):
-            inverse[r, c] = 1.0 if r == c else 0.0
+    pivots = inverse[0]  # (scratch until the inverse is written)
     for k in range(size):
         pivot_row, largest = _pivot(matrix, k)
+        pivots[k] = pivot_row
         if largest == 0.0:
             return False
         if pivot_row != k:
+            row_k, row_pivot = matrix[k], matrix[pivot_row]
             for c in range(size):
-                matrix[k, c], matrix[pivot_row, c] = matrix[pivot_row, c], matrix[k, c]
-                inverse[k, c], inverse[pivot_row, c] = inverse[pivot_row, c], inverse[k, c]
+                row_k[c], row_pivot[c] = row_pivot[c], row_k[c]
         scale = 1.0 / matrix[k, k]
+        row_k = matrix[k]
         for c in range(size):
-            matrix[k, c] *= scale
-            inverse[k, c] *= scale
+            row_k[c] *= scale
+        row_k[k] = scale  # the opened column: the identity's 1, scaled
         for r in range(size):
-            factor = matrix[r, k]
-            if r != k and factor != 0.0:
+            if r == k:
+                continue
+            row = matrix[r]
+            factor = row[k]
+            if factor != 0.0:
                 for c in range(size):
-                    matrix[r, c] -= factor * matrix[k, c]
-                    inverse[r, c] -= factor * inverse[k, c]
+                    row[c] -= factor * row_k[c]
+                row[k] = 0.0 - factor * scale  # (the identity's 0 there, less factor*scale)
+            else:
+                row[k] = 0.0
+    for k in range(size - 1, -1, -1):  # the interchanges undone on the columns
+        swap = int(pivots[k])
+        if swap != k:
+            for r in range(size):
+                matrix[r, k], matrix[r, swap] = matrix[r, swap], matrix[r, k]
+    for r in range(size):
+        target, source = inverse[r], matrix[r]
+        for c in range(size):
+            target[c] = source[c]
     return True
 
 
