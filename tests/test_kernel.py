@@ -46,6 +46,30 @@ def _activations(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return sigmoid, tanh
 
 
+@pytest.mark.parametrize("n", [1, 3, 5, 8])
+def test_the_cells_activations_are_the_scalar_ones_to_the_last_bit(n: int) -> None:
+    """``lstm_cell`` applies its activations in vectorized loops (one over the 4n gates,
+    one over c+, tanh(c+), h+): sigmoid on f, i, o and tanh on g and c+, each the scalar
+    ``_sigmoid`` / ``_tanh`` to the last bit. Zero weights and c give the gates from
+    ``extra`` alone and c+ = i g exactly, so every output has a scalar value to match."""
+    rng = np.random.default_rng(n)
+    WU = np.zeros((4 * n, n + 2))
+    z = rng.normal(size=n + 2)
+    c = np.zeros(n)
+    for scale in (1e-3, 1.0, 30.0, 400.0):
+        extra = rng.normal(size=4 * n) * scale
+        t, tc = np.empty(4 * n), np.empty(n)
+        c_next, h_next = np.empty(n), np.empty(n)
+        compiled.lstm_cell(WU, z, t, c, c_next, h_next, tc, extra)
+        sigmoid, tanh = _activations(extra)
+        gates = np.concatenate([sigmoid[: 3 * n], tanh[3 * n :]])
+        assert np.array_equal(t, gates)
+        expected_c = gates[n : 2 * n] * gates[3 * n :]
+        assert np.array_equal(c_next, expected_c)
+        assert np.array_equal(tc, _activations(expected_c)[1])
+        assert np.array_equal(h_next, gates[2 * n : 3 * n] * tc)
+
+
 def test_the_compiled_activations_are_within_four_ulps_of_numpy() -> None:
     """The vectorizable sigmoid and tanh of the compiled cell against scipy's expit and
     numpy's tanh: at most 4 ulps over the range where sigmoid is a normal number, also

@@ -128,6 +128,7 @@ def test_a_given_mpc_keeps_the_models_kernel(monkeypatch, auto) -> None:
 CALLEES = {
     "lstm_cell",
     "_exp_parts",
+    "_activation",
     "_sigmoid",
     "_tanh",
     "_hessian_causal",
