@@ -44,14 +44,17 @@ except ImportError:  # pragma: no cover - then native() returns None (see below)
 FloatArray = NDArray[np.float64]
 
 __all__ = [
+    "ACTIVITY_MARGIN",
     "BOUND_VERSIONS",
     "CONDITION_LIMIT",
     "NO_BOUND",
     "ROUNDING_MARGIN",
     "DaqpNative",
+    "activity_infeasible",
     "bound",
     "native",
     "objective_bound",
+    "primal_tolerance",
     "quadprog",
     "ready",
     "set_objective_bound",
@@ -156,6 +159,9 @@ CONDITION_LIMIT = 1e7
 
 #: DAQP's "no bound" (``DAQP_INF`` of its headers): the ``fval_bound`` of its default settings.
 NO_BOUND = 1e30
+#: The rounding margin of :func:`activity_infeasible`, relative to the magnitudes of a
+#: row's terms and bound (their sum's rounding error is below n eps of them).
+ACTIVITY_MARGIN = 1e-9
 
 unavailable_reason = ""
 _LOADED = False
@@ -283,6 +289,44 @@ def set_objective_bound(
         s[_S_FVAL] = min(own, bound)
 
 
+@njit(cache=True)
+def activity_infeasible(A: Any, lower: Any, upper: Any, tolerance: float) -> bool:
+    """The compiled twin of :func:`ltv_lstm_mpc.solvers.daqp_.activity_infeasible` (the same
+    sums in the same order): whether one row of the QP cannot hold, to within
+    ``tolerance``, anywhere in its variables' box (``lower`` / ``upper`` in DAQP's layout,
+    the bounds first): DAQP would end the solve infeasible."""
+    rows, n = A.shape
+    for i in range(rows):
+        smallest, largest, size = 0.0, 0.0, 0.0
+        provable = True
+        row = A[i]
+        for j in range(n):
+            a = row[j]
+            if a == 0.0:
+                continue
+            if not (abs(lower[j]) < NO_BOUND and abs(upper[j]) < NO_BOUND):
+                provable = False
+                break
+            low, high = a * (lower[j] - tolerance), a * (upper[j] + tolerance)
+            smallest += min(low, high)
+            largest += max(low, high)
+            size += max(abs(low), abs(high))
+        if not provable:
+            continue
+        lo, up = lower[n + i], upper[n + i]
+        if up < NO_BOUND and smallest - up > tolerance + ACTIVITY_MARGIN * (size + abs(up)):
+            return True
+        if lo > -NO_BOUND and lo - largest > tolerance + ACTIVITY_MARGIN * (size + abs(lo)):
+            return True
+    return False
+
+
+@njit(cache=True)
+def primal_tolerance(settings: Any) -> float:
+    """The ``primal_tol`` of DAQP's settings buffer ``settings``."""
+    return float(settings.view(np.float64)[_S_PRIMAL])
+
+
 def write_fval_bound(settings: NDArray[np.uint8], value: float) -> None:
     """Write ``fval_bound`` into DAQP's settings buffer ``settings`` (from Python)."""
     settings.view(np.float64)[_S_FVAL] = value
@@ -348,7 +392,7 @@ _CHECKED: bool | None = None
 
 def _self_test() -> bool:
     """The binding and ``daqp.solve`` agree exactly on a small QP (layout check); compiles
-    :func:`objective_bound` too."""
+    :func:`objective_bound` and :func:`activity_infeasible` too."""
     rng = np.random.default_rng(7)
     n, rows = 4, 6
     M = rng.standard_normal((n, n))
@@ -365,6 +409,7 @@ def _self_test() -> bool:
     # the dense backend's compiled bound beside quadprog: compiled (and cached) with it, so
     # that a controller whose steps never call it from Python still finds it ready
     objective_bound(H, f, blower[:n], bupper[:n], 1.0, 1e-9, 1e-11)
+    activity_infeasible(A, blower, bupper, 1e-9)  # (likewise)
     return bool(
         flag == flag_ref
         and iterations == info["iterations"]

@@ -200,6 +200,7 @@ CALLEES = {
     "_put_matrix",
     "_put_vector",
     "set_objective_bound",
+    "primal_tolerance",
     # inside the reference calculator's damped Newton (loop/compiled_reference.py)
     "_newton_from",
 }

@@ -718,6 +718,7 @@ def _mpc_fields(
         hessian_floor=_literal(problem.hessian_floor),
         rounding_margin=_literal(daqp_native.ROUNDING_MARGIN),
         condition_limit=_literal(daqp_native.CONDITION_LIMIT),
+        activity_margin=_literal(daqp_native.ACTIVITY_MARGIN),
         huge_entry=_literal(_precision_value("huge_entry", HUGE_ENTRY, single)),
         slack_regularization=_literal(problem.slack_regularization),
         soft_penalty=_literal(config.soft_penalty),

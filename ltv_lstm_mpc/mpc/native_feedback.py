@@ -42,7 +42,13 @@ from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 
 # compiled code binds its callees when it compiles: the public entry points that the
 # solver layer's compiled forms of daqp and daqp:socp hold (solvers.compiled_form)
-from ltv_lstm_mpc.solvers.daqp_native import quadprog, set_objective_bound, solver_seconds
+from ltv_lstm_mpc.solvers.daqp_native import (
+    activity_infeasible,
+    primal_tolerance,
+    quadprog,
+    set_objective_bound,
+    solver_seconds,
+)
 from ltv_lstm_mpc.solvers.dense import bounds_rows_violation, cone_violation
 from ltv_lstm_mpc.solvers.socp_sqp import (
     MAX_ITERATIONS,
@@ -362,8 +368,13 @@ def nominal_feedback(
 
 @njit(cache=True)
 def _solve_nominal(condensing: Any, daqp: Any) -> tuple[int, int, float]:
-    """DAQP on the nominal condensed QP (state inserted), cold: (flag, iterations, s)."""
+    """DAQP on the nominal condensed QP (state inserted), cold: (flag, iterations, s); -1
+    without DAQP where a row's activity bounds prove the QP infeasible
+    (:func:`~ltv_lstm_mpc.solvers.daqp_native.activity_infeasible`)."""
     nu = condensing.H.shape[0]
+    tolerance = primal_tolerance(daqp.settings)
+    if activity_infeasible(condensing.A, condensing.low, condensing.high, tolerance):
+        return -1, 0, 0.0
     set_objective_bound(
         daqp.settings, condensing.H, condensing.f, condensing.low[:nu], condensing.high[:nu],
         daqp.hessian_floor, daqp.fval_bound,

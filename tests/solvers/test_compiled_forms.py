@@ -56,7 +56,12 @@ def test_the_daqp_form_holds_daqps_entry_point() -> None:
     assert form.solver_seconds is daqp_native.solver_seconds
     from ltv_lstm_mpc.solvers.dense import bounds_rows_violation
 
-    kernels = (daqp_native.quadprog, daqp_native.objective_bound, bounds_rows_violation)
+    kernels = (
+        daqp_native.quadprog,
+        daqp_native.objective_bound,
+        daqp_native.activity_infeasible,
+        bounds_rows_violation,
+    )
     assert form.kernels == (kernels if form.bound else ())
     assert form.violation is bounds_rows_violation
     status, info = form.flag_outcome(-1)
@@ -82,6 +87,7 @@ def test_the_daqp_socp_form_holds_the_sqp_and_its_workspace() -> None:
     assert form.kernels == (
         daqp_native.quadprog,
         daqp_native.objective_bound,
+        daqp_native.activity_infeasible,
         socp_sqp.socp_solve,
         socp_sqp.new_socp_workspace_kernel,
     )
