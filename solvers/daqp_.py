@@ -505,8 +505,8 @@ def activity_infeasible(
     A: FloatArray, lower: FloatArray, upper: FloatArray, tolerance: float
 ) -> bool:
     r"""Whether one row of :math:`lo \le A x \le up` cannot hold, to within DAQP's
-    tolerance, anywhere in the box :math:`lb \le x \le ub`: then DAQP's verdict on the QP
-    is "infeasible" (exit flag -1), which the callers give without calling it.
+    tolerance, anywhere in the box :math:`lb \le x \le ub`: then the QP is infeasible,
+    which the callers report as DAQP reports it (exit flag -1) without calling it.
 
     ``lower`` / ``upper``: DAQP's layout, :math:`[lb; lo]` and :math:`[ub; up]` (one bound
     per variable first; :data:`~ltv_lstm_mpc.solvers.daqp_native.NO_BOUND` or beyond: none).
@@ -518,21 +518,39 @@ def activity_infeasible(
     larger stays below :math:`lo_i - \tau`) by more than a rounding margin
     (:data:`~ltv_lstm_mpc.solvers.daqp_native.ACTIVITY_MARGIN` times the terms' magnitudes
     and the bound's), no point is within DAQP's tolerance: the QP is infeasible, and a
-    solve that would find a point is never ended. A row on a variable without bounds (or
-    with NaN) proves nothing.
+    solve that would find a point is never ended.
 
-    On the MPC's infeasible nominal QPs (the paper's scenario 3, its set-point levels
-    cycled every 40 samples) one row proves it in 33 / 21 / 56 % of them at N = 5 / 20 / 50
-    (the terminal set's rows, beyond the inputs' reach), where DAQP's own proof of a failed
-    nominal QP takes a median of 21 / 4 iterations, 16 / 52 us at N = 20 / 50
-    (docs/benchmarks.md, "Row activity bounds before DAQP"). The compiled twin is :func:`ltv_lstm_mpc.solvers.daqp_native.activity_infeasible`, the C export's
-    ``qp_activity_infeasible``: the same sums in the same order, the same verdict.
+    DAQP itself says -1 there, but on QPs it mishandles (a review's random search: a row so
+    small against :math:`H` that DAQP drops it as a zero row and returns a point violating
+    it; bounds equal to within ``zero_tol``, taken for dependent equalities: -6; cycling:
+    -2). Those QPs are now reported infeasible, which they are; the MPC's are not among
+    them (DAQP said -1 on each of the 35 that ``ltv-lstm-mpc reproduce --solver daqp``
+    proves).
+
+    A row on a variable without bounds (or with NaN) proves nothing, nor one that the
+    origin satisfies where the widened box holds it (a nonnegative ``tolerance``): the
+    check passes over it. On the MPC's nominal steps, whose shifted candidate (the origin
+    of the condensed QP) satisfies every row, it then costs 0.02 / 0.03 / 0.07 us at N = 5
+    / 20 / 50, against 0.1 / 0.5 / 2.6 us for every row. On its infeasible nominal QPs
+    (the paper's scenario 3, its set-point levels cycled every 40 samples) one row proves
+    it in 33 / 21 / 56 % of them at N = 5 / 20 / 50 (the terminal set's rows, beyond the
+    inputs' reach), where DAQP's own proof of a failed nominal QP takes a median of 21 / 4
+    iterations, 16 / 52 us at N = 20 / 50 (docs/benchmarks.md, "Row activity bounds before
+    DAQP"). The compiled twin is
+    :func:`ltv_lstm_mpc.solvers.daqp_native.activity_infeasible`, the C export's
+    ``qp_activity_infeasible`` (in single precision with a margin of at least :math:`(n +
+    2)` float epsilons): the same sums in the same order, the same rows passed over.
     """
     from .daqp_native import ACTIVITY_MARGIN, NO_BOUND
 
     rows, n = A.shape
     if rows == 0:
         return False
+    if n == 0:  # (empty rows: their activity is 0)
+        A = np.zeros((rows, 1))
+        lower = np.concatenate([[0.0], lower])
+        upper = np.concatenate([[0.0], upper])
+        n = 1
     box_low, box_high = lower[:n], upper[:n]
     bounded = (np.abs(box_low) < NO_BOUND) & (np.abs(box_high) < NO_BOUND)
     used = A != 0.0
@@ -542,12 +560,16 @@ def activity_infeasible(
         smallest = np.where(used, np.minimum(low_terms, high_terms), 0.0)
         largest = np.where(used, np.maximum(low_terms, high_terms), 0.0)
         size = np.where(used, np.maximum(np.abs(low_terms), np.abs(high_terms)), 0.0)
-    # (in order, as the twins sum)
-    smallest = np.add.accumulate(smallest, axis=1)[:, -1]
-    largest = np.add.accumulate(largest, axis=1)[:, -1]
-    size = np.add.accumulate(size, axis=1)[:, -1]
+        # (in order, as the twins sum)
+        smallest = np.add.accumulate(smallest, axis=1)[:, -1]
+        largest = np.add.accumulate(largest, axis=1)[:, -1]
+        size = np.add.accumulate(size, axis=1)[:, -1]
     provable = ~np.any(used & ~bounded, axis=1)
     lo, up = lower[n:], upper[n:]
+    # the origin in the widened box: the rows it satisfies prove nothing (their smallest
+    # value is at most 0, a sum of terms at most 0, and their largest at least 0)
+    if tolerance >= 0.0 and np.all((box_low - tolerance <= 0.0) & (0.0 <= box_high + tolerance)):
+        provable &= ~((lo <= 0.0) & (0.0 <= up))
     with np.errstate(invalid="ignore", over="ignore"):
         above = (up < NO_BOUND) & (
             smallest - up > tolerance + ACTIVITY_MARGIN * (size + np.abs(up))

@@ -292,11 +292,17 @@ def set_objective_bound(
 @njit(cache=True)
 def activity_infeasible(A: Any, lower: Any, upper: Any, tolerance: float) -> bool:
     """The compiled twin of :func:`ltv_lstm_mpc.solvers.daqp_.activity_infeasible` (the same
-    sums in the same order): whether one row of the QP cannot hold, to within
-    ``tolerance``, anywhere in its variables' box (``lower`` / ``upper`` in DAQP's layout,
-    the bounds first): DAQP would end the solve infeasible."""
+    sums in the same order, the same rows passed over): whether one row of the QP cannot
+    hold, to within ``tolerance``, anywhere in its variables' box (``lower`` / ``upper`` in
+    DAQP's layout, the bounds first): DAQP would end the solve infeasible."""
     rows, n = A.shape
+    origin = tolerance >= 0.0  # the origin in the widened box: rows it satisfies prove
+    for j in range(n):  # nothing
+        if not (lower[j] - tolerance <= 0.0 <= upper[j] + tolerance):
+            origin = False
     for i in range(rows):
+        if origin and lower[n + i] <= 0.0 <= upper[n + i]:
+            continue
         smallest, largest, size = 0.0, 0.0, 0.0
         provable = True
         row = A[i]

@@ -145,7 +145,8 @@ def _invert(matrix: Any, inverse: Any) -> bool:
     still closed hold one 1 and are not stored). Each stored entry is the product and
     difference of the textbook form with a separate identity (the same pivots; only the
     operations on its exact zeros are left out), so the inverse is the same to the last
-    bit (``tests/test_kernel.py``) at half the arithmetic; the row interchanges are
+    bit (``tests/test_kernel.py``; a zero may differ in sign, which the chord's sums,
+    started at +0.0, cannot see) at half the arithmetic; the row interchanges are
     undone on the columns at the end, their rows kept in ``inverse``'s first row until
     then."""
     size = matrix.shape[0]

@@ -515,6 +515,7 @@ def policy_feedback(
     nu = condensing.H.shape[0]
     if policy == POLICY_PAPER or policy == POLICY_SOFT:
         z = fallback.z
+        called = True  # (DAQP ran: its time counts)
         if policy == POLICY_PAPER:  # no output and terminal rows (paper, Fig. 5)
             set_objective_bound(
                 daqp.settings, condensing.H, condensing.f, condensing.low[:nu],
@@ -532,12 +533,18 @@ def policy_feedback(
                 daqp.settings, fallback.H, fallback.f, fallback.low[:nz], fallback.high[:nz],
                 daqp.hessian_floor, daqp.fval_bound,
             )  # fmt: skip
-            flag, more = quadprog(
-                fallback.H, fallback.f, fallback.A, fallback.high, fallback.low,
-                fallback.sense, z, fallback.lam, daqp.problem, daqp.result, daqp.settings,
-            )  # fmt: skip
+            called = not activity_infeasible(  # (as every QP of the MPC; its slacks' rows
+                fallback.A, fallback.low, fallback.high, primal_tolerance(daqp.settings)
+            )  # prove none)
+            flag, more = -1, 0
+            if called:
+                flag, more = quadprog(
+                    fallback.H, fallback.f, fallback.A, fallback.high, fallback.low,
+                    fallback.sense, z, fallback.lam, daqp.problem, daqp.result, daqp.settings,
+                )  # fmt: skip
         iterations += more
-        seconds += solver_seconds(daqp.result)
+        if called:
+            seconds += solver_seconds(daqp.result)
         finite = True
         size = nu if policy == POLICY_PAPER else z.shape[0]
         for a in range(size):

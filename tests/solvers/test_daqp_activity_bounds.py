@@ -90,10 +90,35 @@ def test_a_row_beyond_the_box_is_infeasible_as_daqp_says(seed: int, beyond: floa
     assert flag == -1
 
 
+def every_row(A: np.ndarray, lower: np.ndarray, upper: np.ndarray, tolerance: float) -> bool:
+    """The definition, row by row, no row passed over (the twins pass over the rows the
+    origin satisfies where the box holds it)."""
+    n = A.shape[1]
+    for i in range(A.shape[0]):
+        used = A[i] != 0.0
+        if np.any(used & ~((np.abs(lower[:n]) < NO_BOUND) & (np.abs(upper[:n]) < NO_BOUND))):
+            continue
+        with np.errstate(invalid="ignore", over="ignore"):
+            p, q = (
+                A[i][used] * (lower[:n][used] - tolerance),
+                A[i][used] * (upper[:n][used] + tolerance),
+            )
+            smallest, largest = np.minimum(p, q).sum(), np.maximum(p, q).sum()
+            size = np.maximum(np.abs(p), np.abs(q)).sum()
+            margin = daqp_native.ACTIVITY_MARGIN
+            lo, up = lower[n + i], upper[n + i]
+            if up < NO_BOUND and smallest - up > tolerance + margin * (size + abs(up)):
+                return True
+            if lo > -NO_BOUND and lo - largest > tolerance + margin * (size + abs(lo)):
+                return True
+    return False
+
+
 @pytest.mark.parametrize("seed", range(20))
 def test_the_twins_agree(seed: int) -> None:
     """The same verdict from the numpy and the compiled twin, infinite and NaN bounds,
-    NaN rows and rows near the margin included."""
+    NaN rows and rows near the margin included, and the definition's (every row, no row
+    passed over: the origin's rows prove nothing)."""
     rng = np.random.default_rng(1000 + seed)
     for _ in range(200):
         n, rows = int(rng.integers(1, 15)), int(rng.integers(0, 6))
@@ -111,10 +136,25 @@ def test_the_twins_agree(seed: int) -> None:
                 values[int(rng.integers(0, values.size))] = rng.choice(
                     [np.inf, -np.inf, np.nan, 2e30, -2e30]
                 )
+        if rng.random() < 0.5:  # the origin in the box, and in some rows
+            lb, ub = np.minimum(lb, 0.0), np.maximum(ub, 0.0)
+            lo[: rows // 2] = np.minimum(lo[: rows // 2], 0.0)
+            up[: rows // 2] = np.maximum(up[: rows // 2], 0.0)
         lower, upper = layout(lb, ub, lo, up)
-        assert daqp_.activity_infeasible(
-            A, lower, upper, TOLERANCE
-        ) == daqp_native.activity_infeasible(A, lower, upper, TOLERANCE)
+        tolerance = rng.choice([TOLERANCE, 0.0, 1e-6, -1e-6])  # (a negative one: no pass)
+        verdict = daqp_.activity_infeasible(A, lower, upper, tolerance)
+        assert verdict == daqp_native.activity_infeasible(A, lower, upper, tolerance)
+        if not np.isnan(A).any():  # (the definition's sums in numpy's order)
+            assert verdict == every_row(A, lower, upper, tolerance)
+
+
+def test_rows_on_no_variable() -> None:
+    """Empty rows (no variable): their activity is 0, proved where 0 is beyond a bound."""
+    for up, expected in ((-1.0, True), (1.0, False)):
+        lower, upper = np.array([-np.inf]), np.array([up])
+        A = np.zeros((1, 0))
+        assert daqp_.activity_infeasible(A, lower, upper, TOLERANCE) is expected
+        assert daqp_native.activity_infeasible(A, lower, upper, TOLERANCE) == expected
 
 
 def test_a_row_on_an_unbounded_variable_or_nan_proves_nothing() -> None:
