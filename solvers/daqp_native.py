@@ -294,7 +294,7 @@ def activity_infeasible(A: Any, lower: Any, upper: Any, tolerance: float) -> boo
     """The compiled twin of :func:`ltv_lstm_mpc.solvers.daqp_.activity_infeasible` (the same
     sums in the same order, the same rows passed over): whether one row of the QP cannot
     hold, to within ``tolerance``, anywhere in its variables' box (``lower`` / ``upper`` in
-    DAQP's layout, the bounds first): DAQP would end the solve infeasible."""
+    DAQP's layout, the bounds first): then the QP is infeasible."""
     rows, n = A.shape
     origin = tolerance >= 0.0  # the origin in the widened box: rows it satisfies prove
     for j in range(n):  # nothing
