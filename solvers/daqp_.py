@@ -335,7 +335,7 @@ class DaqpDense(DenseBackend):
 
     def _activity_infeasible(self, native: Any) -> bool:
         """A row's activity bounds prove the QP infeasible (:func:`activity_infeasible`,
-        compiled where DAQP is bound natively: ``native``): DAQP's verdict, without it."""
+        compiled where DAQP is bound natively: ``native``): no DAQP call is needed."""
         tolerance = self._tolerances[0]
         if native is not None:
             return bool(

@@ -296,6 +296,8 @@ def activity_infeasible(A: Any, lower: Any, upper: Any, tolerance: float) -> boo
     hold, to within ``tolerance``, anywhere in its variables' box (``lower`` / ``upper`` in
     DAQP's layout, the bounds first): then the QP is infeasible."""
     rows, n = A.shape
+    if rows == 0:
+        return False
     origin = tolerance >= 0.0  # the origin in the widened box: rows it satisfies prove
     for j in range(n):  # nothing
         if not (lower[j] - tolerance <= 0.0 <= upper[j] + tolerance):

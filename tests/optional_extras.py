@@ -30,6 +30,7 @@ __all__ = [
     "first_installed",
     "missing_solver",
     "require_solver",
+    "requires_daqp_binding",
     "requires_package",
     "requires_solver",
 ]
@@ -108,3 +109,15 @@ def backend_params(*names: str) -> list[object]:
 def requires_package(package: str, extra: str) -> pytest.MarkDecorator:
     """A mark that skips the test unless ``package`` (of the extra ``extra``) is installed."""
     return pytest.mark.skipif(not _installed(package), reason=f"needs {package} (extra {extra!r})")
+
+
+def requires_daqp_binding() -> pytest.MarkDecorator:
+    """A mark that skips the test unless DAQP's C entry point is bound natively
+    (``solvers.daqp_native``; binding runs its self-test, which compiles on an empty numba
+    cache: call this where the module is already known to import)."""
+    from ltv_lstm_mpc.solvers import daqp_native
+
+    return pytest.mark.skipif(
+        daqp_native.native({}) is None,
+        reason=f"DAQP not bound natively: {daqp_native.unavailable_reason}",
+    )

@@ -7,15 +7,14 @@ import dataclasses
 import numpy as np
 import pytest
 from ltv_lstm_mpc.solvers import DenseQP, DenseSession, available_solvers
+from optional_extras import requires_daqp_binding
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, RobustMPC, load_model
 
 pytestmark = pytest.mark.skipif("daqp" not in available_solvers(), reason="needs daqp")
 
 daqp_native = pytest.importorskip("ltv_lstm_mpc.solvers.daqp_native")
-needs_binding = pytest.mark.skipif(
-    daqp_native.native({}) is None, reason=f"DAQP not bound: {daqp_native.unavailable_reason}"
-)
+needs_binding = requires_daqp_binding()
 
 
 def random_qp(seed: int, n: int = 6, rows: int = 9, feasible: bool = True):

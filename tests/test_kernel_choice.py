@@ -189,6 +189,7 @@ CALLEES = {
     "_simulate_plan",
     "_policy_plan",
     "_solve_nominal",
+    "_solve_qp",
     "_write_soft_qp",
     "_write_cone_nominal",
     "_write_cone_policy",

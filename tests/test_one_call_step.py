@@ -17,18 +17,15 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ltv_lstm_mpc.solvers import available_solvers, daqp_native
-from optional_extras import requires_solver
+from ltv_lstm_mpc.solvers import available_solvers
+from optional_extras import requires_daqp_binding, requires_solver
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, simulate
 from ltv_lstm_mpc.loop import compiled_step
 from ltv_lstm_mpc.loop.engines import OneCallEngine
 from ltv_lstm_mpc.lstm.shipped import load_model
 
-needs_binding = pytest.mark.skipif(
-    daqp_native.native({}) is None,  # binds and self-tests (compiles on an empty cache)
-    reason=f"DAQP not bound natively: {daqp_native.unavailable_reason}",
-)
+needs_binding = requires_daqp_binding()
 pytestmark = needs_binding
 
 TOLERANCE = 1e-12

@@ -156,12 +156,12 @@ def _invert(matrix: Any, inverse: Any) -> bool:
         pivots[k] = pivot_row
         if largest == 0.0:
             return False
+        row_k = matrix[k]
         if pivot_row != k:
-            row_k, row_pivot = matrix[k], matrix[pivot_row]
+            row_pivot = matrix[pivot_row]
             for c in range(size):
                 row_k[c], row_pivot[c] = row_pivot[c], row_k[c]
-        scale = 1.0 / matrix[k, k]
-        row_k = matrix[k]
+        scale = 1.0 / row_k[k]
         for c in range(size):
             row_k[c] *= scale
         row_k[k] = scale  # the opened column: the identity's 1, scaled

@@ -368,21 +368,28 @@ def nominal_feedback(
 
 @njit(cache=True)
 def _solve_nominal(condensing: Any, daqp: Any) -> tuple[int, int, float]:
-    """DAQP on the nominal condensed QP (state inserted), cold: (flag, iterations, s); -1
-    without DAQP where a row's activity bounds prove the QP infeasible
+    """DAQP on the nominal condensed QP (state inserted), cold (:func:`_solve_qp`)."""
+    return _solve_qp(
+        daqp, condensing.H, condensing.f, condensing.A, condensing.high, condensing.low,
+        daqp.sense, daqp.z, daqp.lam,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _solve_qp(
+    daqp: Any, H: Any, f: Any, A: Any, high: Any, low: Any, sense: Any, z: Any, lam: Any
+) -> tuple[int, int, float]:
+    """DAQP, cold, on one of the MPC's QPs (DAQP's layout: the variables' bounds first),
+    with the objective bound of its box: ``(flag, iterations, DAQP's seconds)``; -1, no
+    iteration, where a row's activity bounds prove the QP infeasible without DAQP
     (:func:`~ltv_lstm_mpc.solvers.daqp_native.activity_infeasible`)."""
-    nu = condensing.H.shape[0]
-    tolerance = primal_tolerance(daqp.settings)
-    if activity_infeasible(condensing.A, condensing.low, condensing.high, tolerance):
+    n = H.shape[0]
+    if activity_infeasible(A, low, high, primal_tolerance(daqp.settings)):
         return -1, 0, 0.0
-    set_objective_bound(
-        daqp.settings, condensing.H, condensing.f, condensing.low[:nu], condensing.high[:nu],
-        daqp.hessian_floor, daqp.fval_bound,
-    )  # fmt: skip
+    set_objective_bound(daqp.settings, H, f, low[:n], high[:n], daqp.hessian_floor, daqp.fval_bound)
     flag, iterations = quadprog(
-        condensing.H, condensing.f, condensing.A, condensing.high, condensing.low, daqp.sense,
-        daqp.z, daqp.lam, daqp.problem, daqp.result, daqp.settings,
-    )  # fmt: skip
+        H, f, A, high, low, sense, z, lam, daqp.problem, daqp.result, daqp.settings
+    )
     return flag, iterations, solver_seconds(daqp.result)
 
 
@@ -515,36 +522,19 @@ def policy_feedback(
     nu = condensing.H.shape[0]
     if policy == POLICY_PAPER or policy == POLICY_SOFT:
         z = fallback.z
-        called = True  # (DAQP ran: its time counts)
         if policy == POLICY_PAPER:  # no output and terminal rows (paper, Fig. 5)
-            set_objective_bound(
-                daqp.settings, condensing.H, condensing.f, condensing.low[:nu],
-                condensing.high[:nu], daqp.hessian_floor, daqp.fval_bound,
-            )  # fmt: skip
-            flag, more = quadprog(
-                condensing.H, condensing.f, condensing.A[:0], condensing.high[:nu],
+            flag, more, spent = _solve_qp(
+                daqp, condensing.H, condensing.f, condensing.A[:0], condensing.high[:nu],
                 condensing.low[:nu], fallback.sense[:nu], z[:nu], fallback.lam[:nu],
-                daqp.problem, daqp.result, daqp.settings,
             )  # fmt: skip
-        else:
+        else:  # (the objective bound its own: the slacks are unbounded above)
             _write_soft_qp(condensing, fallback)
-            nz = fallback.H.shape[0]
-            set_objective_bound(  # (its own: the slacks are unbounded above)
-                daqp.settings, fallback.H, fallback.f, fallback.low[:nz], fallback.high[:nz],
-                daqp.hessian_floor, daqp.fval_bound,
+            flag, more, spent = _solve_qp(
+                daqp, fallback.H, fallback.f, fallback.A, fallback.high, fallback.low,
+                fallback.sense, z, fallback.lam,
             )  # fmt: skip
-            called = not activity_infeasible(  # (as every QP of the MPC; its slacks' rows
-                fallback.A, fallback.low, fallback.high, primal_tolerance(daqp.settings)
-            )  # prove none)
-            flag, more = -1, 0
-            if called:
-                flag, more = quadprog(
-                    fallback.H, fallback.f, fallback.A, fallback.high, fallback.low,
-                    fallback.sense, z, fallback.lam, daqp.problem, daqp.result, daqp.settings,
-                )  # fmt: skip
         iterations += more
-        if called:
-            seconds += solver_seconds(daqp.result)
+        seconds += spent
         finite = True
         size = nu if policy == POLICY_PAPER else z.shape[0]
         for a in range(size):

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from ltv_lstm_mpc.solvers import DenseQP, DenseSession, available_solvers
+from optional_extras import requires_daqp_binding
 
 from ltv_lstm_mpc import OffsetFreeController, load_model
 from ltv_lstm_mpc.exceptions import InvalidValueError
@@ -19,9 +20,7 @@ pytestmark = pytest.mark.skipif("daqp" not in available_solvers(), reason="needs
 
 daqp_ = pytest.importorskip("ltv_lstm_mpc.solvers.daqp_")
 daqp_native = pytest.importorskip("ltv_lstm_mpc.solvers.daqp_native")
-needs_binding = pytest.mark.skipif(
-    daqp_native.native({}) is None, reason=f"DAQP not bound: {daqp_native.unavailable_reason}"
-)
+needs_binding = requires_daqp_binding()
 NO_BOUND = daqp_native.NO_BOUND
 
 
