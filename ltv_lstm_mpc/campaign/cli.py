@@ -13,9 +13,13 @@ of M tasks stored in DIR; resume with: ...``, exit code 130) and no worker trace
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shlex
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -184,6 +188,29 @@ def _resume_command(args: argparse.Namespace) -> str:
     return shlex.join(words)
 
 
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``kill PID``, a batch scheduler's time limit) stops the campaign as Ctrl-C does.
+
+    The cluster is closed and the one line says what is stored and how to resume, instead
+    of the process dying with its workers' semaphores leaked. A campaign started in the
+    background of a script ignores SIGINT (the shell sets it so), and SIGTERM is how it is
+    stopped. No-op outside the main thread, where Python cannot set handlers.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def campaign_command(args: argparse.Namespace) -> int:
     """``ltv-lstm-mpc campaign``: run (or estimate) a campaign; returns the exit status."""
     from ltv_lstm_mpc.campaign.runner import CampaignInterrupted, estimate_campaign, run_campaign
@@ -219,19 +246,20 @@ def campaign_command(args: argparse.Namespace) -> int:
         )
         return 0
     try:
-        run = run_campaign(
-            spec,
-            args.out,
-            scheduler=args.scheduler,
-            workers=args.workers,
-            serial=args.serial,
-            retry_errors=args.retry_errors,
-            progress=not args.no_progress,
-            report=not args.no_report,
-            log=lambda message: print(message, file=sys.stderr),
-            beta=args.beta,
-            offset_tolerance=args.offset_tolerance,
-        )
+        with _terminate_as_interrupt():
+            run = run_campaign(
+                spec,
+                args.out,
+                scheduler=args.scheduler,
+                workers=args.workers,
+                serial=args.serial,
+                retry_errors=args.retry_errors,
+                progress=not args.no_progress,
+                report=not args.no_report,
+                log=lambda message: print(message, file=sys.stderr),
+                beta=args.beta,
+                offset_tolerance=args.offset_tolerance,
+            )
     except CampaignInterrupted as interrupted:
         # one line, printed by the command line's KeyboardInterrupt handler
         raise KeyboardInterrupt(
