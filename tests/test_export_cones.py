@@ -41,23 +41,48 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-@pytest.fixture(scope="module")
-def c_sqp(tmp_path_factory: pytest.TempPathFactory) -> tuple[CController, Any, Any]:
+def _c_sqp(folder: Any, cones: int = 3) -> tuple[CController, Any, Any]:
     """A cone controller's C library (pH, N = 5, the soft policy: the largest problem,
     12 variables, 8 rows, 12 cone rows), its ``<prefix>_socp_solve``, and the DAQP
-    buffers of the library's SQP with the same settings."""
+    buffers of the library's SQP with the same settings. ``cones``: the cones its
+    ``<prefix>_socp`` has room for (the controller's problems have 3; more, for test
+    problems with more, by sizing the export's buffers as
+    :func:`~ltv_lstm_mpc.export.socp_struct.socp_sizes` would for that many)."""
+    from ltv_lstm_mpc.export import c_model
+    from ltv_lstm_mpc.export.socp_struct import socp_sizes
+
+    def sizes(*args: Any) -> dict[str, int]:
+        room = socp_sizes(*args)
+        room["k"] += cones - room["c"]
+        room["r"] = room["R"] * cones
+        room["c"] = cones
+        return room
+
     model = load_model("ph_lstm_n5.npz")
     config = MPCConfig(N=5, solver="daqp:socp", infeasibility_policy="soft")
     controller = OffsetFreeController(model, config, kernels="numpy", one_call_step=False)
-    folder = tmp_path_factory.mktemp("cones")
-    exported = export_model_c(model, folder, controller=controller, prefix="ctl")
-    assert exported.socp_sizes[:3] == (12, 8, 12)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(c_model, "socp_sizes", sizes)
+        exported = export_model_c(model, folder, controller=controller, prefix="ctl")
+    assert exported.socp_sizes[:4] == (12, 8, 12, cones)
     c = CController(compile_controller(exported), exported)
     solve = c.library.ctl_socp_solve
     solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [ctypes.c_void_p] * 3
     solve.restype = ctypes.c_int
     buffers = native(solver_options("daqp", config.tolerance, dict(config.solver_settings)))
     return c, solve, buffers
+
+
+@pytest.fixture(scope="module")
+def c_sqp(tmp_path_factory: pytest.TempPathFactory) -> tuple[CController, Any, Any]:
+    """:func:`_c_sqp`: the controller's C SQP, room for its 3 cones."""
+    return _c_sqp(tmp_path_factory.mktemp("cones"))
+
+
+@pytest.fixture(scope="module")
+def c_sqp_four_cones(tmp_path_factory: pytest.TempPathFactory) -> tuple[CController, Any, Any]:
+    """:func:`_c_sqp` with room for 4 cones (``badly_scaled_epigraph_socp(0)``'s)."""
+    return _c_sqp(tmp_path_factory.mktemp("four_cones"), cones=4)
 
 
 def write_c(c: CController, qp: Any) -> Any:
@@ -297,17 +322,23 @@ def test_the_c_sqp_ends_on_a_reduced_subproblems_verdict_as_the_library(
         np.testing.assert_allclose(z, arrays["z"], rtol=0, atol=1e-12)
 
 
-def test_the_c_sqp_solves_badly_scaled_reduced_subproblems_whole(c_sqp: Any) -> None:
-    """solvers.testing.badly_scaled_epigraph_socp(1) (the other has more cones than this
-    controller's buffers): the C SQP declines its reduced subproblems' verdicts beyond
-    SQP_REDUCTION_SCALE and SQP_REDUCED_HESSIAN_LIMIT as the library does, and converges
+@pytest.mark.parametrize("which", [0, 1])
+def test_the_c_sqp_solves_badly_scaled_reduced_subproblems_whole(
+    c_sqp: Any, c_sqp_four_cones: Any, which: int
+) -> None:
+    """solvers.testing.badly_scaled_epigraph_socp (0: 4 cones, in the fixture with room for
+    them, a reduced Hessian of order 1e12 against 1; 1: 3 cones, 1e5 times W's largest
+    entry): the C SQP declines its reduced subproblems' verdicts beyond
+    SQP_REDUCED_HESSIAN_LIMIT and SQP_REDUCTION_SCALE as the library does, and converges
     with it: the same exit flag and SQP iterations, the point within 1e-6 (relative; DAQP's
     iterations on such a problem differ between the daqp package's build the library calls
-    and the C's)."""
+    and the C's). On 0 both tests decline, each enough alone (the C with both off fails
+    here); on 1 the Hessian's. The row's test alone is tested on the library's twin
+    (tests/test_daqp_socp.py)."""
     from ltv_lstm_mpc.solvers.testing import badly_scaled_epigraph_socp
 
-    c, solve, buffers = c_sqp
-    qp = badly_scaled_epigraph_socp(1)
+    c, solve, buffers = c_sqp_four_cones if which == 0 else c_sqp
+    qp = badly_scaled_epigraph_socp(which)
     pointer = write_c(c, qp)
     ws, arrays = library_workspace(qp, buffers)
     flag, sqp, _total, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
