@@ -25,6 +25,10 @@ prints per run:
   say what set the max (a set-point step whose warm chord fails runs the damped Newton
   in the reference calculator; an infeasible step the policy in the MPC).
 
+With ``--parts``, each ``daqp:socp`` run also prints its fallback steps split: the failed
+nominal SQP and the paper policy's SQP, each re-solved cold from the step's record
+(:func:`fallback_parts`), against the fallback steps' median.
+
 Per solver and horizon it also prints the first steps: the first step after the
 controller's construction and the one after it, then the same after a ``reset()`` (the
 median of 5 resets), and which engine ran them (the first step has run in the one call
@@ -65,6 +69,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="closed-loop steps of scenario 3 (at most its 2400; bench's scenario 1: 300)",
     )
     parser.add_argument("--repeats", type=int, default=1, help="closed loops per run, pooled")
+    parser.add_argument(
+        "--parts",
+        action="store_true",
+        help="daqp:socp: also split the fallback steps of each run (failed SQP, policy's SQP)",
+    )
     return parser
 
 
@@ -82,6 +91,8 @@ from ltv_lstm_mpc.paper.scenarios import paper_scenarios  # noqa: E402
 from ltv_lstm_mpc.solver_comparison.harness import bench_scenarios  # noqa: E402
 
 SKIP = 10
+#: The controller of the last closed loop (``--parts`` reads its failed solves' records).
+records_owner: list[Any] = []
 
 
 def closed_loop(scenario: Any, model: Any, solver: str, N: int, steps: int) -> tuple[Any, Any]:
@@ -105,6 +116,7 @@ def closed_loop(scenario: Any, model: Any, solver: str, N: int, steps: int) -> t
             y = plant.step(u, None if np.isnan(d) else d)
     finally:
         gc.enable()
+    records_owner[:] = [controller]
     return times[SKIP:], controller.records[SKIP:]
 
 
@@ -198,6 +210,89 @@ def quiet(times: Any, loops: Any) -> None:
     )
 
 
+def fallback_parts(scenario: Any, model: Any, N: int, steps: int) -> str:
+    """``daqp:socp``'s fallback steps split (``--parts``; the ``"paper"`` policy, the
+    scenarios' own): one more closed loop, then each failed nominal solve re-solved cold
+    from its record's copy of the SQP's arrays (the problem, and the epigraph prediction
+    the copy keeps) and the paper policy's problem (the same cost and bounds, the cones
+    ``c_N``, ``h_N`` alone: no output rows, no terminal set), each the smallest time of 5
+    solves, the first ``SKIP`` steps aside as in the table. One line: their medians (us),
+    the SQP and DAQP iterations of the failed ones, and the fallback steps' median with its
+    remainder (the preparation, the policy's plan, the records, and what the step's own
+    solves cost beyond the cold re-solves: the engine's SQP starts from the row screening
+    of its solve before)."""
+    from ltv_lstm_mpc.solvers.daqp_socp import native, snapshot_qp
+    from ltv_lstm_mpc.solvers.dense import DenseQP
+    from ltv_lstm_mpc.solvers.socp_sqp import (
+        FAILURE_FIELDS,
+        MAX_ITERATIONS,
+        new_socp_workspace,
+        snapshot_views,
+        socp_arrays,
+        socp_solve,
+    )
+    from ltv_lstm_mpc.solvers.tolerances import solver_options
+
+    config = replace(scenario.config, solver="daqp:socp", N=N)
+    if config.infeasibility_policy != "paper":
+        return f"  (--parts: the paper policy only, not {config.infeasibility_policy!r})"
+    times, records = closed_loop(scenario, model, "daqp:socp", N, steps)
+    controller = records_owner[0]
+    options = solver_options("daqp", config.tolerance, dict(config.solver_settings))
+    buffers = native(options)
+    template = controller.mpc.one_call_parts().socp_arrays
+
+    def timed(qp: Any, first_active: Any) -> tuple[float, tuple[int, int, int]]:
+        best, outcome = float("inf"), (0, 0, 0)
+        for _ in range(5):
+            sizes = [int(cone.F.shape[0]) for cone in qp.cones]
+            arrays = socp_arrays(qp.H.shape[0], qp.A.shape[0], sizes, buffers)
+            for name in ("H", "f", "A", "lb", "ub", "lo", "up"):
+                arrays[name][...] = getattr(qp, name)
+            arrays["F"][...] = np.vstack([cone.F for cone in qp.cones])
+            arrays["g"][...] = np.concatenate([cone.g for cone in qp.cones])
+            arrays["e"][...] = np.vstack([cone.e for cone in qp.cones])
+            arrays["offsets"][...] = [cone.f for cone in qp.cones]
+            if first_active is not None:
+                arrays["first_active"][...] = first_active
+            ws = new_socp_workspace(**arrays)
+            start = time.perf_counter()
+            flag, sqp, iterations, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
+            best = min(best, time.perf_counter() - start)
+            outcome = (int(flag), int(sqp), int(iterations))
+        return best, outcome
+
+    failed, policy, outcomes = [], [], []
+    for k, (real, integer) in controller.records.extras.items():
+        if k < SKIP:  # (as the steps timed)
+            continue
+        views = snapshot_views(real, integer, template)
+        assert set(FAILURE_FIELDS) <= set(views)
+        qp = snapshot_qp(views)
+        seconds, outcome = timed(qp, views["first_active"])
+        failed.append(seconds)
+        outcomes.append(outcome)
+        paper = DenseQP(
+            H=qp.H, f=qp.f, A=np.zeros((0, qp.H.shape[0])), lo=np.zeros(0), up=np.zeros(0),
+            lb=qp.lb, ub=qp.ub, cones=qp.cones[:2],
+        )  # fmt: skip
+        policy.append(timed(paper, None)[0])
+    if not failed:
+        return "  fallback parts: no failed nominal solve"
+    fallback = np.array([not r.mpc.feasible for r in records])
+    step = float(np.median(times[fallback])) * 1e6 if fallback.any() else float("nan")
+    us_failed, us_policy = np.median(failed) * 1e6, np.median(policy) * 1e6
+    sqp = [o[1] for o in outcomes]
+    daqp = [o[2] for o in outcomes]
+    return (
+        f"  fallback parts (us, medians of {len(failed)}): failed nominal SQP {us_failed:.1f} "
+        f"({min(sqp)}-{max(sqp)} SQP, {min(daqp)}-{max(daqp)} DAQP iterations), paper "
+        f"policy's SQP {us_policy:.1f}; the fallback step's median {step:.1f} (its remainder "
+        f"{step - us_failed - us_policy:.1f}), the nominal one's "
+        f"{float(np.median(times[~fallback])) * 1e6:.1f}"
+    )
+
+
 def main() -> None:
     args = build_parser().parse_args()
     model = load_model("ph_lstm_n5.npz")
@@ -226,6 +321,8 @@ def main() -> None:
                 report(f"{solver} N={N} {name}", times, records, steps - SKIP)
                 if args.repeats >= 3:
                     quiet(np.stack([t for t, _ in pooled]), [rs for _, rs in pooled])
+                if args.parts and solver == "daqp:socp":
+                    print(fallback_parts(scenario, model, N, steps))
 
 
 if __name__ == "__main__":

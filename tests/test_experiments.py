@@ -192,8 +192,8 @@ SMOKE = {
         needs=("daqp", "clarabel"),
     ),
     "worst_case.py": Smoke(
-        ("--N", "5", "--steps", "40", "--solvers", "daqp"),
-        ("p99/", "daqp N=5 scenario 3", "daqp N=5 bench 1"),
+        ("--N", "5", "--steps", "80", "--solvers", "daqp", "daqp:socp", "--parts"),
+        ("p99/", "daqp N=5 scenario 3", "daqp N=5 bench 1", "failed nominal SQP"),
     ),
     "train_fidelity.py": Smoke(
         (
