@@ -663,28 +663,31 @@ def test_fallback_columns_by_policy_add_up(tmp_path) -> None:
     assert row["truncated"] is False
 
 
-@pytest.mark.parametrize("how", ["ctrl-c", "kill"])
-@pytest.mark.parametrize("where", [["--workers", "2"], ["--serial"]], ids=["dask", "serial"])
-def test_ctrl_c_prints_one_line_and_no_worker_traceback(tmp_path, where, how) -> None:
-    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or ``kill PID``
-    (SIGTERM to the campaign's process alone, as a batch scheduler's time limit sends it)
-    once the first task is stored: one line saying what is stored and how to resume, no
-    traceback from any process (the LocalCluster's workers included), no leaked
-    semaphore, exit code 130."""
-    import os
-    import re
-    import signal
-    import time
+#: Tasks of the interrupted campaigns: about 0.1 s each after the first, so seconds for a
+#: signal to land before the campaign ends (it is interrupted: the number costs nothing).
+INTERRUPTED_TASKS = 200
 
-    if where[0] == "--workers":
-        pytest.importorskip("distributed")
+
+def _interrupted_campaign(
+    tmp_path, where, signal_it, prelude: str = ""
+) -> tuple[int, str, int, Any]:
+    """Start ``ltv-lstm-mpc campaign`` (its own process group, as a terminal's job, with a
+    terminal's SIGINT disposition; ``prelude``: Python run first in its process), call
+    ``signal_it(process, out)`` (which signals it), and return (exit code, stderr, tasks
+    stored when signalled, the output folder)."""
+    import os
+    import signal
+
     spec = tmp_path / "spec.toml"
     spec.write_text(
         '[campaign]\nsteps = 200\nsetpoints = [7.4, 7.2]\nsolver = "daqp"\n'
-        f"[factors]\nseed = {list(range(48))}\n"
+        f"[factors]\nseed = {list(range(INTERRUPTED_TASKS))}\n"
     )
     out = tmp_path / "out"
-    script = "import sys; from ltv_lstm_mpc.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    script = (
+        prelude + "\nimport sys\nfrom ltv_lstm_mpc.cli.main import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
     command = ["campaign", str(spec), "--out", str(out), *where, "--no-progress", "--no-report"]
     process = subprocess.Popen(
         [sys.executable, "-c", script, *command],
@@ -692,11 +695,64 @@ def test_ctrl_c_prints_one_line_and_no_worker_traceback(tmp_path, where, how) ->
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,  # its own process group, signalled like a terminal's
-        # a test runner started in the background of a script ignores SIGINT, and so would
-        # the campaign (Python keeps an inherited SIG_IGN): give it a terminal's default
+        # a test runner started with & from a script ignores SIGINT, and so would the
+        # campaign (Python keeps an inherited SIG_IGN): give it a terminal's default
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
+        signal_it(process, out)
+        signalled = len(list(out.glob("tasks/*.json")))
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    return process.returncode, stderr, signalled, out
+
+
+def _check_one_line(code: int, stderr: str, signalled: int, out: Any, where) -> int:
+    """Exit code 130, no traceback from any process (the LocalCluster's workers included),
+    no leaked semaphore, and last the one line saying what is stored and how to resume;
+    returns the tasks stored."""
+    import re
+
+    stored_now = len(list(out.glob("tasks/*.json")))
+    assert code == 130, (
+        f"{stored_now} of {INTERRUPTED_TASKS} tasks stored, {signalled} when signalled; "
+        f"stderr: {stderr}"
+    )
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert "Exception ignored" not in stderr, stderr  # (e.g. a half-built cluster at exit)
+    assert "leaked" not in stderr, stderr  # no resource-tracker warning from a killed worker
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert sum("interrupted" in line for line in lines) == 1, stderr
+    match = re.fullmatch(
+        rf"ltv-lstm-mpc campaign: interrupted; (\d+) of {INTERRUPTED_TASKS} tasks stored in "
+        r"(.+); resume with: ltv-lstm-mpc campaign (.+)",
+        lines[-1],
+    )
+    assert match, stderr
+    stored = [json.loads(p.read_text()) for p in out.glob("tasks/*.json")]
+    assert int(match[1]) == len(stored)
+    assert all(row["status"] == "ok" for row in stored)
+    assert f"--out {out}" in match[3] and where[0] in match[3]
+    return len(stored)
+
+
+@pytest.mark.parametrize("how", ["ctrl-c", "kill"])
+@pytest.mark.parametrize("where", [["--workers", "2"], ["--serial"]], ids=["dask", "serial"])
+def test_ctrl_c_prints_one_line_and_no_worker_traceback(tmp_path, where, how) -> None:
+    """Once the first task is stored: Ctrl-C (SIGINT to the whole process group, as a
+    terminal sends it) or ``kill PID`` (SIGTERM to the campaign's process alone): the one
+    line, exit code 130, no traceback. (SIGTERM to the whole group, as a batch scheduler
+    sends it, also reaches the Dask workers, which may log their end.)"""
+    import os
+    import signal
+    import time
+
+    if where[0] == "--workers":
+        pytest.importorskip("distributed")
+
+    def signal_it(process, out) -> None:
         deadline = time.monotonic() + 120
         while not list(out.glob("tasks/*.json")) and time.monotonic() < deadline:
             assert process.poll() is None, process.communicate()
@@ -705,30 +761,42 @@ def test_ctrl_c_prints_one_line_and_no_worker_traceback(tmp_path, where, how) ->
             os.killpg(process.pid, signal.SIGINT)
         else:
             os.kill(process.pid, signal.SIGTERM)
-        signalled = len(list(out.glob("tasks/*.json")))
-        _, stderr = process.communicate(timeout=120)
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-    # 48 tasks of about 0.1 s each after the first: seconds for the signal to land
-    assert process.returncode == 130, (
-        f"{len(list(out.glob('tasks/*.json')))} of 48 tasks stored, {signalled} when "
-        f"signalled; stderr: {stderr}"
+
+    code, stderr, signalled, out = _interrupted_campaign(tmp_path, where, signal_it)
+    assert _check_one_line(code, stderr, signalled, out, where) >= 1
+
+
+def test_kill_while_the_cluster_starts_closes_it_whole(tmp_path) -> None:
+    """SIGTERM while the LocalCluster starts (sent from inside its start, once: the
+    campaign's process signals itself from the cluster's state correction): deferred
+    until the cluster is up, then it is closed as on Ctrl-C. Without the deferral the
+    KeyboardInterrupt raised inside the cluster's start left it half-built, and its
+    close at exit printed an "Exception ignored" traceback."""
+    pytest.importorskip("distributed")
+    where = ["--workers", "2"]
+    prelude = textwrap.dedent(
+        """
+        import os, signal
+        from distributed.deploy import spec
+
+        correct = spec.SpecCluster._correct_state_internal
+        sent = []
+
+        def signalling(self, *args, **kwargs):
+            if not sent:
+                sent.append(1)
+                os.kill(os.getpid(), signal.SIGTERM)
+            return correct(self, *args, **kwargs)
+
+        spec.SpecCluster._correct_state_internal = signalling
+        """
     )
-    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
-    assert "leaked" not in stderr, stderr  # no resource-tracker warning from a killed worker
-    lines = [line for line in stderr.splitlines() if line.strip()]
-    assert sum("interrupted" in line for line in lines) == 1, stderr
-    match = re.fullmatch(
-        r"ltv-lstm-mpc campaign: interrupted; (\d+) of 48 tasks stored in (.+); "
-        r"resume with: ltv-lstm-mpc campaign (.+)",
-        lines[-1],
-    )
-    assert match, stderr
-    stored = [json.loads(p.read_text()) for p in out.glob("tasks/*.json")]
-    assert int(match[1]) == len(stored) >= 1
-    assert all(row["status"] == "ok" for row in stored)
-    assert f"--out {out}" in match[3] and where[0] in match[3]
+
+    def signal_it(process, out) -> None:
+        pass  # (it signals itself)
+
+    code, stderr, signalled, out = _interrupted_campaign(tmp_path, where, signal_it, prelude)
+    assert _check_one_line(code, stderr, signalled, out, where) == 0
 
 
 def test_report_plots_name_the_plant_output_unit() -> None:

@@ -6,8 +6,9 @@
 (:func:`~ltv_lstm_mpc.campaign.statements.loops_needed`) without running it. A bad spec
 is a usage error (exit code 2, the message names the entry); a library error is exit
 code 1; tasks that fail are recorded, not fatal (exit code 0, their count on stderr).
-Dask is imported only when the tasks run on it. Ctrl-C prints one line (``interrupted; N
-of M tasks stored in DIR; resume with: ...``, exit code 130) and no worker traceback.
+Dask is imported only when the tasks run on it. Ctrl-C, or SIGTERM (``kill PID``), prints
+one line (``interrupted; N of M tasks stored in DIR; resume with: ...``, exit code 130)
+and no worker traceback.
 """
 
 from __future__ import annotations
@@ -190,12 +191,15 @@ def _resume_command(args: argparse.Namespace) -> str:
 
 @contextlib.contextmanager
 def _terminate_as_interrupt() -> Iterator[None]:
-    """SIGTERM (``kill PID``, a batch scheduler's time limit) stops the campaign as Ctrl-C does.
+    """SIGTERM (``kill PID``) stops the campaign as Ctrl-C does.
 
     The cluster is closed and the one line says what is stored and how to resume, instead
-    of the process dying with its workers' semaphores leaked. A campaign started in the
-    background of a script ignores SIGINT (the shell sets it so), and SIGTERM is how it is
-    stopped. No-op outside the main thread, where Python cannot set handlers.
+    of the process dying with its workers' semaphores leaked (a SIGTERM while the
+    LocalCluster starts is deferred until it can be closed whole:
+    :func:`~ltv_lstm_mpc.campaign.runner.dask_client`). A campaign started with ``&``
+    from a script ignores SIGINT (the shell sets it so), and SIGTERM is how it is
+    stopped. POSIX: on Windows the handler is set but ``kill`` ends a process without
+    running it. No-op outside the main thread, where Python cannot set handlers.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -208,7 +212,8 @@ def _terminate_as_interrupt() -> Iterator[None]:
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if previous is not None:  # (None: a handler set outside Python, not restorable)
+            signal.signal(signal.SIGTERM, previous)
 
 
 def campaign_command(args: argparse.Namespace) -> int:

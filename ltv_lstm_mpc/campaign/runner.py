@@ -100,7 +100,11 @@ def _interrupt_only_this_thread() -> Iterator[None]:
     process that of the thread that spawns it, so with SIGINT blocked here while the
     cluster starts, its threads (which later restart dead workers too) and its worker
     processes never receive it. This thread unblocks it at the end: a Ctrl-C during the
-    start is delivered then, not lost. No-op where threads cannot mask signals.
+    start is delivered then, not lost. A Python handler of SIGTERM (the command line's,
+    which stops a campaign as Ctrl-C does) is deferred the same way: a SIGTERM during the
+    start runs it at the end, once the cluster can be closed whole (SIGTERM itself is not
+    blocked: the worker processes would inherit the mask, and their nannies stop them
+    with SIGTERM). No-op where threads cannot mask signals.
     """
     if not hasattr(signal, "pthread_sigmask") or (
         threading.current_thread() is not threading.main_thread()
@@ -112,11 +116,19 @@ def _interrupt_only_this_thread() -> Iterator[None]:
     from multiprocessing import resource_tracker
 
     resource_tracker.ensure_running()
+    terminate = signal.getsignal(signal.SIGTERM)
+    deferred: list[int] = []
+    if callable(terminate):
+        signal.signal(signal.SIGTERM, lambda signum, frame: deferred.append(signum))
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        if callable(terminate):
+            signal.signal(signal.SIGTERM, terminate)
+    if deferred and callable(terminate):
+        terminate(signal.SIGTERM, None)
 
 
 @dataclass(frozen=True)
