@@ -212,19 +212,21 @@ def quiet(times: Any, loops: Any) -> None:
 
 def fallback_parts(scenario: Any, model: Any, N: int, steps: int) -> str:
     """``daqp:socp``'s fallback steps split (``--parts``; the ``"paper"`` policy, the
-    scenarios' own): one more closed loop, then each failed nominal solve re-solved cold
-    from its record's copy of the SQP's arrays (the problem, and the epigraph prediction
-    the copy keeps) and the paper policy's problem (the same cost and bounds, the cones
-    ``c_N``, ``h_N`` alone: no output rows, no terminal set), each the smallest time of 5
-    solves, the first ``SKIP`` steps aside as in the table. One line: their medians (us),
-    the SQP and DAQP iterations of the failed ones, and the fallback steps' median with its
-    remainder (the preparation, the policy's plan, the records, and what the step's own
-    solves cost beyond the cold re-solves: the engine's SQP starts from the row screening
-    of its solve before)."""
+    scenarios' own): one more closed loop, then, in step order, each failed nominal solve
+    re-solved cold from its record's copy of the SQP's arrays (the problem, and the
+    epigraph prediction the copy keeps, the one its solve left), and the paper policy's
+    problem (the same cost and bounds, the cones ``c_N``, ``h_N`` alone: no output rows, no
+    terminal set) from the prediction the policy's solve before left, as the step's
+    session carries it. Each time is the smallest of 5 solves; the first ``SKIP`` steps
+    are left out, as in the table. One line: their medians (us), the SQP and DAQP
+    iterations, how many nominal re-solves end as the step's solve did (its exit flag
+    and SQP iterations in the record), and the fallback steps' median with the rest of it:
+    the preparation, the pre-check, writing the two problems, the policy's plan, the
+    failure's copy and the record, and what separates a step's own solves from the best of
+    5 cold re-solves (caches)."""
     from ltv_lstm_mpc.solvers.daqp_socp import native, snapshot_qp
     from ltv_lstm_mpc.solvers.dense import DenseQP
     from ltv_lstm_mpc.solvers.socp_sqp import (
-        FAILURE_FIELDS,
         MAX_ITERATIONS,
         new_socp_workspace,
         snapshot_views,
@@ -232,6 +234,8 @@ def fallback_parts(scenario: Any, model: Any, N: int, steps: int) -> str:
         socp_solve,
     )
     from ltv_lstm_mpc.solvers.tolerances import solver_options
+
+    from ltv_lstm_mpc.loop.compiled_step import FAILURE_FLAG_COLUMN, FAILURE_SQP_COLUMN
 
     config = replace(scenario.config, solver="daqp:socp", N=N)
     if config.infeasibility_policy != "paper":
@@ -241,9 +245,12 @@ def fallback_parts(scenario: Any, model: Any, N: int, steps: int) -> str:
     options = solver_options("daqp", config.tolerance, dict(config.solver_settings))
     buffers = native(options)
     template = controller.mpc.one_call_parts().socp_arrays
+    integer = controller.records.rows.integer
 
-    def timed(qp: Any, first_active: Any) -> tuple[float, tuple[int, int, int]]:
-        best, outcome = float("inf"), (0, 0, 0)
+    def timed(qp: Any, first_active: Any) -> tuple[float, tuple[int, int, int], Any]:
+        """(the smallest time of 5 cold solves, (flag, SQP, DAQP iterations), the
+        epigraph prediction the solve leaves)."""
+        best, outcome, left = float("inf"), (0, 0, 0), first_active
         for _ in range(5):
             sizes = [int(cone.F.shape[0]) for cone in qp.cones]
             arrays = socp_arrays(qp.H.shape[0], qp.A.shape[0], sizes, buffers)
@@ -253,30 +260,35 @@ def fallback_parts(scenario: Any, model: Any, N: int, steps: int) -> str:
             arrays["g"][...] = np.concatenate([cone.g for cone in qp.cones])
             arrays["e"][...] = np.vstack([cone.e for cone in qp.cones])
             arrays["offsets"][...] = [cone.f for cone in qp.cones]
-            if first_active is not None:
-                arrays["first_active"][...] = first_active
+            arrays["first_active"][...] = first_active
             ws = new_socp_workspace(**arrays)
             start = time.perf_counter()
             flag, sqp, iterations, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
             best = min(best, time.perf_counter() - start)
-            outcome = (int(flag), int(sqp), int(iterations))
-        return best, outcome
+            outcome, left = (int(flag), int(sqp), int(iterations)), arrays["first_active"].copy()
+        return best, outcome, left
 
-    failed, policy, outcomes = [], [], []
-    for k, (real, integer) in controller.records.extras.items():
-        if k < SKIP:  # (as the steps timed)
-            continue
-        views = snapshot_views(real, integer, template)
-        assert set(FAILURE_FIELDS) <= set(views)
+    failed, policy, outcomes, policy_sqp = [], [], [], []
+    same = 0
+    prediction = np.zeros(2, dtype=np.int64)  # the policy's session starts without one
+    for k in sorted(controller.records.extras):
+        real, copied = controller.records.extras[k]
+        views = snapshot_views(real, copied, template)
         qp = snapshot_qp(views)
-        seconds, outcome = timed(qp, views["first_active"])
-        failed.append(seconds)
-        outcomes.append(outcome)
         paper = DenseQP(
             H=qp.H, f=qp.f, A=np.zeros((0, qp.H.shape[0])), lo=np.zeros(0), up=np.zeros(0),
             lb=qp.lb, ub=qp.ub, cones=qp.cones[:2],
         )  # fmt: skip
-        policy.append(timed(paper, None)[0])
+        spent, policy_outcome, prediction = timed(paper, prediction)
+        if k < SKIP:  # (as the steps timed; the policy's prediction carried on)
+            continue
+        seconds, outcome, _ = timed(qp, views["first_active"])
+        failed.append(seconds)
+        outcomes.append(outcome)
+        recorded = (int(integer[k, FAILURE_FLAG_COLUMN]), int(integer[k, FAILURE_SQP_COLUMN]))
+        same += outcome[:2] == recorded
+        policy.append(spent)
+        policy_sqp.append(policy_outcome[1])
     if not failed:
         return "  fallback parts: no failed nominal solve"
     fallback = np.array([not r.mpc.feasible for r in records])
@@ -286,8 +298,9 @@ def fallback_parts(scenario: Any, model: Any, N: int, steps: int) -> str:
     daqp = [o[2] for o in outcomes]
     return (
         f"  fallback parts (us, medians of {len(failed)}): failed nominal SQP {us_failed:.1f} "
-        f"({min(sqp)}-{max(sqp)} SQP, {min(daqp)}-{max(daqp)} DAQP iterations), paper "
-        f"policy's SQP {us_policy:.1f}; the fallback step's median {step:.1f} (its remainder "
+        f"({min(sqp)}-{max(sqp)} SQP, {min(daqp)}-{max(daqp)} DAQP iterations; {same} end as "
+        f"the step's), paper policy's SQP {us_policy:.1f} ({min(policy_sqp)}-"
+        f"{max(policy_sqp)} SQP iterations); the fallback step's median {step:.1f} (the rest "
         f"{step - us_failed - us_policy:.1f}), the nominal one's "
         f"{float(np.median(times[~fallback])) * 1e6:.1f}"
     )

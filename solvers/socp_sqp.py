@@ -257,9 +257,10 @@ CUT_MARGIN = 1e-6
 #: largest. Reviews found feasible problems whose reduced QPs DAQP called infeasible: a
 #: cone :math:`\|F z + g\| \le 10^{-4} t` with :math:`F` of order 1e2 (:math:`\tau` about
 #: 1e6, a reduced Hessian of 1e12 against 1), and cones :math:`\|F z + g\| \le 0.1 t`
-#: with a cost of 1e6 on :math:`t` (:math:`|\tau|` about 300-500, the reduced Hessian 1e5
-#: times :math:`W_k`'s largest entry); the whole subproblem is solved there instead. On the
-#: MPC's problems :math:`\tau` holds the terminal states' sensitivities (order 1).
+#: with a cost of 1e6 on :math:`t` (:math:`|\tau|` about 300-500, the reduced Hessian
+#: 1.7e12, 100 times :math:`W_k`'s largest entry: :data:`REDUCED_HESSIAN_LIMIT` declines
+#: it); the whole subproblem is solved there instead. On the MPC's problems :math:`\tau`
+#: holds the terminal states' sensitivities (order 1).
 REDUCTION_SCALE = 1e3
 #: ... nor where a diagonal entry of the reduced Hessian exceeds this: DAQP's tests are
 #: absolute (its ``zero_tol``, 1e-11, against squared norms of rows times the inverse

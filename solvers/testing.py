@@ -488,8 +488,9 @@ def badly_scaled_epigraph_socp(which: int) -> DenseQP:
     (and :math:`10^{-3}`) with :math:`F_j` of order 1e2 (:math:`|\tau|` about 1e6, a
     reduced Hessian of order 1e12 against 1); 1: 4 variables, cones :math:`\|F_j z +
     g_j\| \le 0.1 t_j` (0.3) with :math:`F_j` of order 1e2 and a cost of 1e6 on the
-    :math:`t_j` (:math:`|\tau|` about 300-500, the reduced Hessian about 1e5 times
-    :math:`W_k`'s largest entry). The SQP converges on both without the elimination."""
+    :math:`t_j` (:math:`|\tau|` about 300-500, the reduced Hessian 1.7e12, 100 times
+    :math:`W_k`'s largest entry, beyond ``REDUCED_HESSIAN_LIMIT``). The SQP converges on
+    both without the elimination."""
     if which == 0:
         H = np.array([
             [4.341275886412793, -0.3863839346431118, -1.0791870356921582, 1.9361512976893152,

@@ -324,20 +324,21 @@ def test_the_c_sqp_ends_on_a_reduced_subproblems_verdict_as_the_library(
 
 @pytest.mark.parametrize("which", [0, 1])
 def test_the_c_sqp_solves_badly_scaled_reduced_subproblems_whole(
-    c_sqp: Any, c_sqp_four_cones: Any, which: int
+    request: pytest.FixtureRequest, which: int
 ) -> None:
     """solvers.testing.badly_scaled_epigraph_socp (0: 4 cones, in the fixture with room for
-    them, a reduced Hessian of order 1e12 against 1; 1: 3 cones, 1e5 times W's largest
-    entry): the C SQP declines its reduced subproblems' verdicts beyond
+    them, a reduced Hessian of order 1e12 against 1; 1: 3 cones, 1.7e12, 100 times W's
+    largest entry): the C SQP declines its reduced subproblems' verdicts beyond
     SQP_REDUCED_HESSIAN_LIMIT and SQP_REDUCTION_SCALE as the library does, and converges
     with it: the same exit flag and SQP iterations, the point within 1e-6 (relative; DAQP's
     iterations on such a problem differ between the daqp package's build the library calls
-    and the C's). On 0 both tests decline, each enough alone (the C with both off fails
-    here); on 1 the Hessian's. The row's test alone is tested on the library's twin
+    and the C's). On 0 the row's test and the Hessian's both decline, each enough alone
+    (the C with both off fails here); on 1 the Hessian's absolute limit. The row's test
+    alone and the Hessian's relative one are tested on the library's twin
     (tests/test_daqp_socp.py)."""
     from ltv_lstm_mpc.solvers.testing import badly_scaled_epigraph_socp
 
-    c, solve, buffers = c_sqp_four_cones if which == 0 else c_sqp
+    c, solve, buffers = request.getfixturevalue("c_sqp_four_cones" if which == 0 else "c_sqp")
     qp = badly_scaled_epigraph_socp(which)
     pointer = write_c(c, qp)
     ws, arrays = library_workspace(qp, buffers)
