@@ -29,6 +29,7 @@ from .problem import ConvexProblem, SecondOrderCone, SolverStatus
 __all__ = [
     "FAULTS",
     "PREDICTED_EPIGRAPH_KINDS",
+    "REDUCTION_SCALE_CASES",
     "SOCP_KINDS",
     "MpcLayout",
     "apex_socp",
@@ -44,6 +45,7 @@ __all__ = [
     "random_mpc_problem",
     "random_qp",
     "random_socp",
+    "write_reduction_case",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -433,6 +435,38 @@ def apex_socp(seed: int) -> DenseQP:
         ub=np.concatenate([np.full(p, 5.0), [0.0]]),
         cones=(DenseCone(np.hstack([np.eye(p), np.zeros((p, 1))]), -a, e, 0.0),),
     )  # fmt: skip
+
+
+#: Cases of the epigraph elimination's scale tests (``_reduction_proves`` in
+#: :mod:`~ltv_lstm_mpc.solvers.socp_sqp`, ``sqp_reduction_proves`` in the C export), each
+#: ``(name, epsilon, W_xx, W_tt, proves)`` for one eliminated cone's linearized row
+#: :math:`x - \epsilon t \le 0` (:math:`t = x / \epsilon`, :math:`\tau = 1 / \epsilon`)
+#: and :math:`W = \mathrm{diag}(W_{xx}, W_{tt})`: its reduced Hessian is :math:`W_{xx} +
+#: \tau^2 W_{tt}`. Within scale the verdict is taken; each other case breaks one test
+#: alone (REDUCTION_SCALE = 1e3, REDUCED_HESSIAN_LIMIT = 1e6): the row's entries 1e4
+#: times :math:`|\gamma|` with a reduced Hessian of 1.1; the reduced Hessian 1e4 times
+#: W's largest with the row's 1e2; the reduced Hessian 1.01e6, beyond the absolute limit,
+#: 101 times W's largest.
+REDUCTION_SCALE_CASES = (
+    ("in_scale", 1e-2, 1.0, 1e-9, True),
+    ("row_beyond_scale", 1e-4, 1.0, 1e-9, False),
+    ("hessian_beyond_scale", 1e-2, 1.0, 1.0, False),
+    ("hessian_beyond_limit", 1e-2, 1e4, 100.0, False),
+)
+
+
+def write_reduction_case(arrays: Any, epsilon: float, cost_x: float, cost_t: float) -> None:
+    r"""The state the SQP's reduced solve leaves for a :data:`REDUCTION_SCALE_CASES` case,
+    into ``arrays`` (a workspace's of :func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_arrays`
+    for 2 variables, no row and the one cone :math:`|x| \le \epsilon t`, or views of the
+    C export's ``<prefix>_socp`` fields by the same names and shapes): W_k, the cone's
+    linearized row (the subproblem's only row), its bound, the eliminated cone, tau."""
+    arrays["hessian"][...] = np.diag([cost_x, cost_t])
+    arrays["A_k"][0] = [1.0, -epsilon]
+    arrays["bupper"][2], arrays["blower"][2] = 0.0, -np.inf
+    arrays["epigraph"][0], arrays["eliminated"][0] = 1, 1
+    arrays["reduced_index"][0] = 0
+    arrays["tau"][0, 0] = 1.0 / epsilon
 
 
 #: The kinds of :func:`predicted_epigraph_socp`: an infeasible problem, and feasible ones

@@ -16,6 +16,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from ltv_lstm_mpc.solvers import DenseSession, SolverStatus
 from ltv_lstm_mpc.solvers.socp_sqp import FULL_STEPS
+from ltv_lstm_mpc.solvers.testing import REDUCTION_SCALE_CASES, write_reduction_case
 from optional_extras import requires_solver
 
 from ltv_lstm_mpc import OffsetFreeController
@@ -505,33 +506,30 @@ def test_a_badly_scaled_reduced_subproblems_verdict_does_not_end_the_solve(which
 
 
 @pytest.mark.parametrize(
-    ("epsilon", "cost_t", "proves"),
-    [(1e-2, 1e-9, True), (1e-4, 1e-9, False), (1e-2, 1.0, False)],
-    ids=["in_scale", "row_beyond_scale", "hessian_beyond_scale"],
+    ("epsilon", "cost_x", "cost_t", "proves"),
+    [case[1:] for case in REDUCTION_SCALE_CASES],
+    ids=[case[0] for case in REDUCTION_SCALE_CASES],
 )
 def test_a_reduced_verdict_is_taken_only_within_the_reduction_scale(
-    epsilon: float, cost_t: float, proves: bool
+    epsilon: float, cost_x: float, cost_t: float, proves: bool
 ) -> None:
-    """_reduction_proves on one eliminated cone's row x - epsilon t <= 0 (t = x / epsilon,
-    tau = 1 / epsilon), W = diag(1, cost_t): the reduced verdict is taken where the row's
-    entries stay within REDUCTION_SCALE of its coefficient on t and the reduced Hessian
-    1 + tau^2 cost_t within REDUCTION_SCALE of W's largest entry; declined beyond either
-    (each test alone: the row's 1e4 with a reduced Hessian of 1.1; the Hessian's 1e4 with
-    the row's 1e2)."""
-    from ltv_lstm_mpc.solvers.socp_sqp import REDUCTION_SCALE, _reduction_proves
+    """_reduction_proves on one eliminated cone's row x - epsilon t <= 0 (t = x / epsilon),
+    W = diag(cost_x, cost_t) (solvers.testing.REDUCTION_SCALE_CASES): the reduced verdict
+    is taken within scale and declined where one of the three tests fails alone (the row's
+    entries against its coefficient on t; the reduced Hessian against W's largest entry,
+    and against REDUCED_HESSIAN_LIMIT)."""
+    from ltv_lstm_mpc.solvers.socp_sqp import _reduction_proves
 
-    assert 1.0 / 1e-2 < REDUCTION_SCALE < 1.0 / 1e-4
-    cone = (np.array([[1.0, 0.0]]), np.zeros(1), epsilon * np.array([0.0, 1.0]), 0.0)
-    problem = (np.eye(2), np.zeros(2), np.zeros((0, 2)), np.zeros(0), np.zeros(0),
-               np.full(2, -np.inf), np.full(2, np.inf), [cone])  # fmt: skip
-    arrays, ws = _workspace(*problem)
-    arrays["hessian"][...] = np.diag([1.0, cost_t])
-    arrays["A_k"][0] = [1.0, -epsilon]  # the cone's linearized row, its only row
-    arrays["bupper"][2], arrays["blower"][2] = 0.0, -np.inf
-    arrays["epigraph"][0], arrays["eliminated"][0] = 1, 1
-    arrays["reduced_index"][0] = 0
-    arrays["tau"][0, 0] = 1.0 / epsilon
+    arrays, ws = _workspace(*reduction_case_problem(epsilon))
+    write_reduction_case(arrays, epsilon, cost_x, cost_t)
     assert _reduction_proves(ws, 1) is proves
+
+
+def reduction_case_problem(epsilon: float):
+    """The problem of a REDUCTION_SCALE_CASES case: x, t free, the cone |x| <= epsilon t."""
+    cone = (np.array([[1.0, 0.0]]), np.zeros(1), epsilon * np.array([0.0, 1.0]), 0.0)
+    return (np.eye(2), np.zeros(2), np.zeros((0, 2)), np.zeros(0), np.zeros(0),
+            np.full(2, -np.inf), np.full(2, np.inf), [cone])  # fmt: skip
 
 
 def test_no_elimination_where_a_cone_holds_another_ones_variable() -> None:

@@ -25,8 +25,10 @@ from ltv_lstm_mpc.solvers.socp_sqp import (
 )
 from ltv_lstm_mpc.solvers.testing import (
     PREDICTED_EPIGRAPH_KINDS,
+    REDUCTION_SCALE_CASES,
     SOCP_KINDS,
     controller_socp,
+    write_reduction_case,
 )
 from ltv_lstm_mpc.solvers.tolerances import solver_options
 
@@ -65,7 +67,8 @@ def _c_sqp(folder: Any, cones: int = 3) -> tuple[CController, Any, Any]:
         patch.setattr(c_model, "socp_sizes", sizes)
         exported = export_model_c(model, folder, controller=controller, prefix="ctl")
     assert exported.socp_sizes[:4] == (12, 8, 12, cones)
-    c = CController(compile_controller(exported), exported)
+    # (-DCTL_TEST_HOOKS: the C guards' test entry points beside the exported code)
+    c = CController(compile_controller(exported, extra_flags=("-DCTL_TEST_HOOKS",)), exported)
     solve = c.library.ctl_socp_solve
     solve.argtypes = [ctypes.c_void_p, ctypes.c_void_p] + [ctypes.c_void_p] * 3
     solve.restype = ctypes.c_int
@@ -333,9 +336,8 @@ def test_the_c_sqp_solves_badly_scaled_reduced_subproblems_whole(
     with it: the same exit flag and SQP iterations, the point within 1e-6 (relative; DAQP's
     iterations on such a problem differ between the daqp package's build the library calls
     and the C's). On 0 the row's test and the Hessian's both decline, each enough alone
-    (the C with both off fails here); on 1 the Hessian's absolute limit. The row's test
-    alone and the Hessian's relative one are tested on the library's twin
-    (tests/test_daqp_socp.py)."""
+    (the C with both off fails here); on 1 the Hessian's absolute limit. Each test alone:
+    test_the_c_reduction_takes_a_verdict_only_within_scale_as_the_library."""
     from ltv_lstm_mpc.solvers.testing import badly_scaled_epigraph_socp
 
     c, solve, buffers = request.getfixturevalue("c_sqp_four_cones" if which == 0 else "c_sqp")
@@ -349,3 +351,37 @@ def test_the_c_sqp_solves_badly_scaled_reduced_subproblems_whole(
     n = qp.H.shape[0]
     z = np.ctypeslib.as_array(pointer.contents.z)[:n]
     np.testing.assert_allclose(z, arrays["z"], rtol=0, atol=1e-6 * (1 + np.abs(z).max()))
+
+
+@pytest.mark.parametrize(
+    ("epsilon", "cost_x", "cost_t", "proves"),
+    [case[1:] for case in REDUCTION_SCALE_CASES],
+    ids=[case[0] for case in REDUCTION_SCALE_CASES],
+)
+def test_the_c_reduction_takes_a_verdict_only_within_scale_as_the_library(
+    c_sqp: Any, epsilon: float, cost_x: float, cost_t: float, proves: bool
+) -> None:
+    """sqp_reduction_proves (through the test build's ctl_test_reduction_proves) on the
+    state of solvers.testing.REDUCTION_SCALE_CASES, written into the controller's
+    <prefix>_socp: each of its three scale tests declines alone where the library's
+    _reduction_proves does (the row's entries, the reduced Hessian against W's largest
+    entry and against SQP_REDUCED_HESSIAN_LIMIT), and the verdict is taken within scale."""
+    c, _solve, _buffers = c_sqp
+    s = c._socp(c.state_buffer, 1).contents
+    s.n, s.m, s.cones = 2, 0, 1
+    s.cone_rows[0], s.cone_rows[1] = 0, 1
+    views = {
+        "hessian": np.ctypeslib.as_array(s.hessian)[:4].reshape(2, 2),
+        "A_k": np.ctypeslib.as_array(s.A_k)[:2].reshape(1, 2),
+        "bupper": np.ctypeslib.as_array(s.bupper),
+        "blower": np.ctypeslib.as_array(s.blower),
+        "epigraph": np.ctypeslib.as_array(s.epigraph),
+        "eliminated": np.ctypeslib.as_array(s.eliminated),
+        "reduced_index": np.ctypeslib.as_array(s.reduced_index),
+        "tau": np.ctypeslib.as_array(s.tau)[:2].reshape(1, 2),
+    }
+    write_reduction_case(views, epsilon, cost_x, cost_t)
+    proves_c = c.library.ctl_test_reduction_proves
+    proves_c.argtypes = [ctypes.c_void_p, ctypes.c_int]
+    proves_c.restype = ctypes.c_int
+    assert bool(proves_c(ctypes.addressof(s), 1)) is proves
