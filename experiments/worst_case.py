@@ -224,13 +224,11 @@ def fallback_parts(scenario: Any, model: Any, N: int, steps: int) -> str:
     the preparation, the pre-check, writing the two problems, the policy's plan, the
     failure's copy and the record, and what separates a step's own solves from the best of
     5 cold re-solves (caches)."""
-    from ltv_lstm_mpc.solvers.daqp_socp import native, snapshot_qp
+    from ltv_lstm_mpc.solvers.daqp_socp import native, problem_workspace, snapshot_qp
     from ltv_lstm_mpc.solvers.dense import DenseQP
     from ltv_lstm_mpc.solvers.socp_sqp import (
         MAX_ITERATIONS,
-        new_socp_workspace,
         snapshot_views,
-        socp_arrays,
         socp_solve,
     )
     from ltv_lstm_mpc.solvers.tolerances import solver_options
@@ -252,16 +250,8 @@ def fallback_parts(scenario: Any, model: Any, N: int, steps: int) -> str:
         epigraph prediction the solve leaves)."""
         best, outcome, left = float("inf"), (0, 0, 0), first_active
         for _ in range(5):
-            sizes = [int(cone.F.shape[0]) for cone in qp.cones]
-            arrays = socp_arrays(qp.H.shape[0], qp.A.shape[0], sizes, buffers)
-            for name in ("H", "f", "A", "lb", "ub", "lo", "up"):
-                arrays[name][...] = getattr(qp, name)
-            arrays["F"][...] = np.vstack([cone.F for cone in qp.cones])
-            arrays["g"][...] = np.concatenate([cone.g for cone in qp.cones])
-            arrays["e"][...] = np.vstack([cone.e for cone in qp.cones])
-            arrays["offsets"][...] = [cone.f for cone in qp.cones]
+            ws, arrays = problem_workspace(qp, buffers)
             arrays["first_active"][...] = first_active
-            ws = new_socp_workspace(**arrays)
             start = time.perf_counter()
             flag, sqp, iterations, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
             best = min(best, time.perf_counter() - start)

@@ -52,8 +52,10 @@ __all__ = [
     "failure_outcome",
     "local_solution",
     "make_dense",
+    "problem_workspace",
     "snapshot_qp",
     "warm_up",
+    "write_problem",
 ]
 
 # The problem's data and DAQP's buffers in the workspace's arrays (clear_state keeps them).
@@ -114,18 +116,7 @@ class DaqpSocpDense(DenseBackend):
     def update(self, qp: DenseQP) -> None:
         """Copy the values of ``qp`` into the workspace."""
         self._qp = qp  # read only on the rare paths (certificates)
-        arrays = self._arrays
-        for name, value in (("H", qp.H), ("f", qp.f), ("A", qp.A), ("lb", qp.lb),
-                            ("ub", qp.ub), ("lo", qp.lo), ("up", qp.up)):  # fmt: skip
-            arrays[name][...] = value
-        start = 0
-        for j, cone in enumerate(qp.cones):
-            k = int(cone.F.shape[0])
-            arrays["F"][start : start + k] = cone.F
-            arrays["g"][start : start + k] = cone.g
-            arrays["e"][j] = cone.e
-            arrays["offsets"][j] = cone.f
-            start += k
+        write_problem(self._arrays, qp)
 
     def _run(self, warm_start: WarmStart | None) -> Outcome:
         """One SQP solve; (status, native status, iterations, wall time, certificate): the
@@ -198,6 +189,32 @@ class DaqpSocpDense(DenseBackend):
         status, native_status, iterations, _wall, _certificate = self._run(None)
         z = self._arrays["z"].copy() if status.has_solution else None
         return status, z, iterations, native_status
+
+
+def write_problem(arrays: Mapping[str, Any], qp: DenseQP) -> None:
+    """The values of ``qp`` (its cost, rows, bounds and cones) into the SQP's ``arrays``
+    (:func:`~ltv_lstm_mpc.solvers.socp_sqp.socp_arrays`, sized for ``qp``)."""
+    for name, value in (("H", qp.H), ("f", qp.f), ("A", qp.A), ("lb", qp.lb),
+                        ("ub", qp.ub), ("lo", qp.lo), ("up", qp.up)):  # fmt: skip
+        arrays[name][...] = value
+    start = 0
+    for j, cone in enumerate(qp.cones):
+        k = int(cone.F.shape[0])
+        arrays["F"][start : start + k] = cone.F
+        arrays["g"][start : start + k] = cone.g
+        arrays["e"][j] = cone.e
+        arrays["offsets"][j] = cone.f
+        start += k
+
+
+def problem_workspace(qp: DenseQP, buffers: Any) -> tuple[Any, dict[str, Any]]:
+    """A fresh SQP workspace holding ``qp`` (:func:`write_problem`) on DAQP's struct
+    ``buffers`` (:class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative`): ``(workspace,
+    its arrays)``; everything else zero, as a cold solve starts."""
+    sizes = [int(cone.F.shape[0]) for cone in qp.cones]
+    arrays = socp_arrays(qp.n_variables, qp.n_rows, sizes, buffers)
+    write_problem(arrays, qp)
+    return new_socp_workspace(**arrays), arrays
 
 
 def failure_outcome(

@@ -16,11 +16,10 @@ from typing import Any
 import numpy as np
 import pytest
 from ltv_lstm_mpc.solvers.daqp_native import native
+from ltv_lstm_mpc.solvers.daqp_socp import problem_workspace
 from ltv_lstm_mpc.solvers.socp_sqp import (
     FULL_STEPS,
     MAX_ITERATIONS,
-    new_socp_workspace,
-    socp_arrays,
     socp_solve,
 )
 from ltv_lstm_mpc.solvers.testing import (
@@ -113,19 +112,6 @@ def write_c(c: CController, qp: Any) -> Any:
     return pointer
 
 
-def library_workspace(qp: Any, buffers: Any) -> tuple[Any, dict[str, Any]]:
-    """``qp`` in a workspace of the library's SQP."""
-    sizes = [int(cone.F.shape[0]) for cone in qp.cones]
-    arrays = socp_arrays(qp.H.shape[0], qp.A.shape[0], sizes, buffers)
-    for name in ("H", "f", "A", "lb", "ub", "lo", "up"):
-        arrays[name][...] = getattr(qp, name)
-    arrays["F"][...] = np.vstack([cone.F for cone in qp.cones])
-    arrays["g"][...] = np.concatenate([cone.g for cone in qp.cones])
-    arrays["e"][...] = np.vstack([cone.e for cone in qp.cones])
-    arrays["offsets"][...] = [cone.f for cone in qp.cones]
-    return new_socp_workspace(**arrays), arrays
-
-
 def c_solve(solve: Any, c: CController, pointer: Any) -> tuple[int, int, int, float]:
     """One cold ``<prefix>_socp_solve`` on the controller's buffers."""
     sqp, total, violation = ctypes.c_int(), ctypes.c_int(), ctypes.c_double()
@@ -156,7 +142,7 @@ def test_the_c_sqp_equals_the_librarys_on_random_socps(c_sqp: Any) -> None:
     for seed, kind, linear in CASES:
         qp = controller_socp(seed, kind, bool(linear))
         pointer = write_c(c, qp)
-        ws, arrays = library_workspace(qp, buffers)
+        ws, arrays = problem_workspace(qp, buffers)
         s = pointer.contents
         n, cones = qp.H.shape[0], len(qp.cones)
         for solve_index in range(2):
@@ -231,7 +217,7 @@ def test_the_c_sqp_ends_the_mpcs_infeasible_problems_where_the_library_does(c_sq
                 ub=arrays["ub"].copy(), cones=cones,
             )  # fmt: skip
             pointer = write_c(c, qp)
-            ws, library = library_workspace(qp, buffers)
+            ws, library = problem_workspace(qp, buffers)
             flag, sqp, *_ = socp_solve(ws, False, MAX_ITERATIONS)
             c_flag, c_sqp_iterations, *_ = c_solve(solve, c, pointer)
             s = pointer.contents
@@ -266,7 +252,7 @@ def test_the_c_sqp_runs_the_check_as_the_library(
     c, solve, buffers = c_sqp
     qp = controller_socp(seed, kind, bool(linear))
     pointer = write_c(c, qp)
-    ws, arrays = library_workspace(qp, buffers)
+    ws, arrays = problem_workspace(qp, buffers)
     flag, sqp, total, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
     c_flag, c_iterations, c_total, _c_violation = c_solve(solve, c, pointer)
     s = pointer.contents
@@ -292,7 +278,7 @@ def test_the_c_check_keeps_a_feasible_problem_at_a_cones_apex_feasible(
     c, solve, buffers = c_sqp
     qp = apex_socp(seed)
     pointer = write_c(c, qp)
-    ws, arrays = library_workspace(qp, buffers)
+    ws, arrays = problem_workspace(qp, buffers)
     socp_solve(ws, False, MAX_ITERATIONS)
     c_solve(solve, c, pointer)
     s = pointer.contents
@@ -313,7 +299,7 @@ def test_the_c_sqp_ends_on_a_reduced_subproblems_verdict_as_the_library(
     qp = predicted_epigraph_socp(kind)
     pointer = write_c(c, qp)
     pointer.contents.first_active[0] = 1
-    ws, arrays = library_workspace(qp, buffers)
+    ws, arrays = problem_workspace(qp, buffers)
     arrays["first_active"][0] = 1
     flag, sqp, total, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
     c_flag, c_iterations, c_total, _c_violation = c_solve(solve, c, pointer)
@@ -343,7 +329,7 @@ def test_the_c_sqp_solves_badly_scaled_reduced_subproblems_whole(
     c, solve, buffers = request.getfixturevalue("c_sqp_four_cones" if which == 0 else "c_sqp")
     qp = badly_scaled_epigraph_socp(which)
     pointer = write_c(c, qp)
-    ws, arrays = library_workspace(qp, buffers)
+    ws, arrays = problem_workspace(qp, buffers)
     flag, sqp, _total, _violation, _seconds = socp_solve(ws, False, MAX_ITERATIONS)
     c_flag, c_iterations, _c_total, _c_violation = c_solve(solve, c, pointer)
     assert (c_flag, c_iterations) == (flag, sqp)
