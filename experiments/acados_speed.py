@@ -285,10 +285,8 @@ def scenario_of(name: str, model: Any) -> Any:
     """The closed loop named by ``--scenario`` (``SCENARIOS``)."""
     if name == "bench1":
         return bench_scenarios(model)[0]
-    from worst_case import denser  # experiments/ is the script's folder, on sys.path
-
     scenario3 = paper_scenarios(model)[2]
-    return scenario3 if name == "paper3" else denser(scenario3, 40)
+    return scenario3 if name == "paper3" else scenario3.cycled(40)
 
 
 def run(

@@ -149,18 +149,6 @@ def first_steps(scenario: Any, model: Any, solver: str, N: int, resets: int = 5)
     )
 
 
-def denser(scenario: Any, period: int) -> Any:
-    """``scenario`` with its set-point levels cycled every ``period`` samples (its
-    disturbance schedule kept): more set-point steps, so more infeasible instants."""
-    setpoints = np.asarray(scenario.setpoints, dtype=float)
-    levels = [float(setpoints[0])]
-    for value in setpoints[1:].tolist():
-        if value != levels[-1]:
-            levels.append(value)
-    cycled = np.array([levels[(k // period) % len(levels)] for k in range(setpoints.shape[0])])
-    return replace(scenario, setpoints=cycled)
-
-
 def report(label: str, times: Any, records: Any, per_loop: int) -> None:
     """One row of the table (module docstring); ``per_loop``: timed steps per closed loop."""
     us = times * 1e6
@@ -302,7 +290,7 @@ def main() -> None:
     scenario3 = paper_scenarios(model)[2]
     runs = [
         ("scenario 3", scenario3, args.steps),
-        ("scenario 3, steps/40", denser(scenario3, 40), args.steps),
+        ("scenario 3, steps/40", scenario3.cycled(40), args.steps),
         ("bench 1", bench_scenarios(model)[0], min(args.steps, 300)),
     ]
     print(

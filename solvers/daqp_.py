@@ -620,16 +620,7 @@ def compiled_form(name: str) -> CompiledForm:
     bound = daqp_native.bound()
     return CompiledForm(
         name=name,
-        kernels=(
-            (
-                daqp_native.quadprog,
-                daqp_native.objective_bound,
-                daqp_native.activity_infeasible,
-                bounds_rows_violation,
-            )
-            if bound
-            else ()
-        ),
+        kernels=((*daqp_native.SELF_TEST_KERNELS, bounds_rows_violation) if bound else ()),
         bound=bound,
         quadprog=daqp_native.quadprog,
         solver_seconds=daqp_native.solver_seconds,

@@ -47,16 +47,23 @@ __all__ = [
     "ACTIVITY_MARGIN",
     "BOUND_VERSIONS",
     "CONDITION_LIMIT",
+    "KEEP_FROM",
     "NO_BOUND",
     "ROUNDING_MARGIN",
+    "SELF_TEST_KERNELS",
+    "WORKSPACE_BYTES",
+    "WORKSPACE_SETTINGS_OFFSET",
     "DaqpNative",
     "activity_infeasible",
     "bound",
+    "box_quadprog_from",
     "native",
     "objective_bound",
     "primal_tolerance",
     "quadprog",
+    "quadprog_kept",
     "ready",
+    "release_workspace",
     "set_objective_bound",
     "solver_seconds",
     "unavailable_reason",
@@ -148,7 +155,24 @@ _R_FLAG, _R_ITER = _slot(_Result, "exitflag", 4), _slot(_Result, "iter", 4)
 _R_SOLVE, _R_SETUP = _slot(_Result, "solve_time", 8), _slot(_Result, "setup_time", 8)
 _S_PRIMAL, _S_FVAL = _slot(_Settings, "primal_tol", 8), _slot(_Settings, "fval_bound", 8)
 _S_PROX, _S_ZERO = _slot(_Settings, "eps_prox", 8), _slot(_Settings, "zero_tol", 8)
+_R_SETUP_BYTE = _Result.setup_time.offset
 _EPSILON = float(np.finfo(np.float64).eps)
+
+#: Bytes reserved for a caller-owned ``DAQPWorkspace`` (types.h of the release in
+#: :data:`BOUND_VERSIONS`: 328 bytes) ...
+WORKSPACE_BYTES = 512
+#: ... and the byte offset of its ``settings`` pointer there (``tests/test_daqp_native.py``
+#: compiles the vendored headers of that release and checks both).
+WORKSPACE_SETTINGS_OFFSET = 224
+_W_SETTINGS = WORKSPACE_SETTINGS_OFFSET // 8
+#: The fewest variables from which a caller keeps the workspace of a QP for the next one
+#: (:func:`quadprog_kept`): below it re-factoring H costs less than what a kept
+#: workspace adds where the next QP's unconstrained optimum holds (a fresh solve after
+#: the kept one); measured by ``experiments/daqp_kept_workspace.py``.
+KEEP_FROM = 20
+# DAQP's update masks (constants.h): the working set; the unconstrained check; the
+# elimination of equality rows (daqp_quadprog's set-up asks for the last two)
+_UPDATE_SENSE, _UPDATE_UNCONSTRAINED, _UPDATE_ELIMINATE = 16, 64, 128
 #: :func:`objective_bound` is given only where DAQP provably factors H as it is (no
 #: proximal regularization): n eps tr(H) at most this times the floor (DAQP regularizes
 #: where n eps cond(H) > 0.1, ``DAQP_HESSIAN_COND_EPS``; a margin of 100)...
@@ -166,6 +190,12 @@ ACTIVITY_MARGIN = 1e-9
 unavailable_reason = ""
 _LOADED = False
 _daqp_quadprog: Any = None
+_setup_daqp_main: Any = None
+_daqp_solve: Any = None
+_daqp_update_ldp: Any = None
+_daqp_deactivate_constraints: Any = None
+_free_daqp_workspace: Any = None
+_free_daqp_ldp: Any = None
 try:
     import daqp as _daqp
     import llvmlite.binding as _llvm
@@ -184,6 +214,22 @@ try:
         _daqp_quadprog = types.ExternalFunction(
             "daqp_quadprog", types.void(types.voidptr, types.voidptr, types.voidptr)
         )
+        # daqp_quadprog's own steps (api.c), for a workspace kept between two QPs
+        _setup_daqp_main = types.ExternalFunction(
+            "setup_daqp_main",
+            types.int32(types.voidptr, types.voidptr, types.voidptr, types.int32),
+        )
+        _daqp_solve = types.ExternalFunction("daqp_solve", types.void(types.voidptr, types.voidptr))
+        _daqp_update_ldp = types.ExternalFunction(
+            "daqp_update_ldp", types.int32(types.int32, types.voidptr, types.voidptr)
+        )
+        _daqp_deactivate_constraints = types.ExternalFunction(
+            "daqp_deactivate_constraints", types.void(types.voidptr)
+        )
+        _free_daqp_workspace = types.ExternalFunction(
+            "free_daqp_workspace", types.void(types.voidptr)
+        )
+        _free_daqp_ldp = types.ExternalFunction("free_daqp_ldp", types.void(types.voidptr))
         _LOADED = True
 except Exception as error:  # pragma: no cover - depends on the installation
     unavailable_reason = f"DAQP's C library could not be bound: {type(error).__name__}: {error}"
@@ -209,6 +255,19 @@ def quadprog(
     simple bounds of ``x``; ``x`` (n) and ``lam`` (ms + rows) receive the solution;
     ``problem``/``result``/``settings`` are :class:`DaqpNative`'s struct buffers.
     """
+    _write_problem(H, f, A, bupper, blower, sense, x, lam, problem, result)
+    _daqp_quadprog(result.ctypes.data, problem.ctypes.data, settings.ctypes.data)
+    r32 = result.view(np.int32)
+    return int(r32[_R_FLAG]), int(r32[_R_ITER])
+
+
+@njit(cache=True)
+def _write_problem(
+    H: Any, f: Any, A: Any, bupper: Any, blower: Any, sense: Any, x: Any, lam: Any,
+    problem: Any, result: Any,
+) -> None:  # fmt: skip
+    """The ``DAQPProblem`` of :func:`quadprog`'s arguments into ``problem``, and the
+    solution's arrays into ``result``."""
     p32 = problem.view(np.int32)
     p64 = problem.view(np.int64)
     m = bupper.shape[0]
@@ -227,9 +286,103 @@ def quadprog(
     r64 = result.view(np.int64)
     r64[_R_X] = x.ctypes.data
     r64[_R_LAM] = lam.ctypes.data
-    _daqp_quadprog(result.ctypes.data, problem.ctypes.data, settings.ctypes.data)
+
+
+@njit(cache=True)
+def quadprog_kept(
+    H: Any, f: Any, A: Any, bupper: Any, blower: Any, sense: Any, x: Any, lam: Any,
+    problem: Any, result: Any, settings: Any, work: Any, keep: bool,
+) -> tuple[int, int, bool]:  # fmt: skip
+    """:func:`quadprog` as ``daqp_quadprog``'s own steps (api.c: ``setup_daqp_main`` with
+    the unconstrained check and equality elimination, ``daqp_solve``, the frees) on the
+    caller's ``DAQPWorkspace`` ``work`` (:data:`WORKSPACE_BYTES`, 8-byte aligned): the same
+    steps, so the same result to the last bit. Returns ``(exit flag, iterations, kept)``.
+
+    Kept (``work`` still set up, for one :func:`box_quadprog_from`, which frees it) where
+    ``keep``, DAQP proved the QP infeasible (exit flag -1) and no row is an equality
+    DAQP would eliminate (upper - lower below the settings' ``zero_tol``): the
+    Cholesky factor of H, its inverse and the linear term stay formed. ``keep`` is the
+    caller's word that DAQP factored H unregularized (no proximal iterations: the
+    settings' ``eps_prox`` is 0 and :func:`objective_bound` is finite for H).
+    """
+    _write_problem(H, f, A, bupper, blower, sense, x, lam, problem, result)
+    words = work.view(np.int64)
+    words[:] = 0
+    words[_W_SETTINGS] = settings.ctypes.data  # the caller's settings (never freed)
     r32 = result.view(np.int32)
-    return int(r32[_R_FLAG]), int(r32[_R_ITER])
+    flag = _setup_daqp_main(
+        problem.ctypes.data, work.ctypes.data, result[_R_SETUP_BYTE:].ctypes.data,
+        _UPDATE_UNCONSTRAINED | _UPDATE_ELIMINATE,
+    )  # fmt: skip
+    r32[_R_FLAG] = flag
+    if flag < 0:  # (daqp_quadprog frees nothing then)
+        return flag, int(r32[_R_ITER]), False
+    _daqp_solve(result.ctypes.data, work.ctypes.data)
+    flag, iterations = int(r32[_R_FLAG]), int(r32[_R_ITER])
+    if keep and flag == -1:
+        rows = A.shape[0]
+        ms = bupper.shape[0] - rows
+        zero_tol = settings.view(np.float64)[_S_ZERO]
+        for i in range(ms, ms + rows):
+            if bupper[i] - blower[i] < zero_tol:
+                keep = False
+        if keep:
+            return flag, iterations, True
+    release_workspace(work)
+    return flag, iterations, False
+
+
+@njit(cache=True)
+def box_quadprog_from(
+    work: Any,
+    H: Any,
+    f: Any,
+    A: Any,
+    bupper: Any,
+    blower: Any,
+    sense: Any,
+    x: Any,
+    lam: Any,
+    problem: Any,
+    result: Any,
+    settings: Any,
+) -> tuple[int, int]:
+    """:func:`quadprog` on a QP with no rows (``A`` has none: bounds on ``x`` alone, the
+    first of the kept QP's), the same H and f as the QP :func:`quadprog_kept` kept in
+    ``work``, on that workspace: its working set dropped
+    (``daqp_deactivate_constraints``), the new bounds and working set installed
+    (``daqp_update_ldp`` of the working set: H's factor and the linear term kept),
+    ``daqp_solve``; ``work`` freed. The same result as :func:`quadprog`, bit for bit
+    (the self-test at the first :func:`native`; ``tests/test_daqp_native.py``), without
+    factoring H again. Where the new QP's unconstrained optimum holds (one iteration) a
+    fresh :func:`quadprog` gives the result instead: DAQP's set-up computes that point by
+    triangular solves, the kept workspace by H's formed inverse (other last bits).
+    Returns ``(exit flag, iterations)``."""  # fmt: skip
+    if A.shape[0] > 0:  # (not the QP this is for)
+        release_workspace(work)
+        return quadprog(H, f, A, bupper, blower, sense, x, lam, problem, result, settings)
+    _write_problem(H, f, A, bupper, blower, sense, x, lam, problem, result)
+    _daqp_deactivate_constraints(work.ctypes.data)
+    updated = _daqp_update_ldp(_UPDATE_SENSE, work.ctypes.data, problem.ctypes.data)
+    flag, iterations = 0, 0
+    if updated >= 0:
+        result.view(np.float64)[_R_SETUP] = 0.0  # (no set-up: DAQP's clock for the solve)
+        _daqp_solve(result.ctypes.data, work.ctypes.data)
+        r32 = result.view(np.int32)
+        flag, iterations = int(r32[_R_FLAG]), int(r32[_R_ITER])
+    release_workspace(work)
+    if updated < 0 or iterations == 1:  # (a failed update: DAQP's own words, fresh)
+        return quadprog(H, f, A, bupper, blower, sense, x, lam, problem, result, settings)
+    return flag, iterations
+
+
+@njit(cache=True)
+def release_workspace(work: Any) -> None:
+    """Free what DAQP allocated in the kept workspace ``work`` (api.c's frees), the
+    caller's settings left alone."""
+    work.view(np.int64)[_W_SETTINGS] = 0
+    _free_daqp_workspace(work.ctypes.data)
+    _free_daqp_ldp(work.ctypes.data)
 
 
 @njit(cache=True)
@@ -275,18 +428,22 @@ def objective_bound(
 @njit(cache=True)
 def set_objective_bound(
     settings: Any, H: Any, f: Any, lower: Any, upper: Any, hessian_floor: float, own: float
-) -> None:
+) -> float:
     """Write the smaller of ``own`` (the settings' own ``fval_bound``: :data:`NO_BOUND`
     unless they name one) and :func:`objective_bound` (with the settings' ``primal_tol``
     and ``zero_tol``) into the ``fval_bound`` of DAQP's settings buffer ``settings`` for
     the next :func:`quadprog`; ``own`` where the settings ask for proximal iterations
-    (``eps_prox`` > 0). Every call writes: no bound of another QP stays behind."""
+    (``eps_prox`` > 0). Every call writes: no bound of another QP stays behind.
+
+    Returns :func:`objective_bound` (:data:`NO_BOUND` where the settings ask for proximal
+    iterations): finite only where DAQP factors H as it is (no regularization)."""
     s = settings.view(np.float64)
     if s[_S_PROX] > 0.0:
         s[_S_FVAL] = own
-    else:
-        bound = objective_bound(H, f, lower, upper, hessian_floor, s[_S_PRIMAL], s[_S_ZERO])
-        s[_S_FVAL] = min(own, bound)
+        return NO_BOUND
+    bound = objective_bound(H, f, lower, upper, hessian_floor, s[_S_PRIMAL], s[_S_ZERO])
+    s[_S_FVAL] = min(own, bound)
+    return bound
 
 
 @njit(cache=True)
@@ -368,6 +525,10 @@ class DaqpNative:
         self.settings = _buffer(ctypes.string_at(ctypes.byref(settings), ctypes.sizeof(settings)))
         self.problem = _buffer(bytes(ctypes.sizeof(_Problem)))
         self.result = _buffer(bytes(ctypes.sizeof(_Result)))
+        #: A caller-owned ``DAQPWorkspace`` for :func:`quadprog_kept` and
+        #: :func:`box_quadprog_from` (no bytes where their self-test failed: then nothing
+        #: is kept).
+        self.work = _buffer(bytes(WORKSPACE_BYTES if _KEEPS else 0))
 
     def solve(
         self,
@@ -395,7 +556,14 @@ def _buffer(data: bytes) -> NDArray[np.uint8]:
     return raw
 
 
+#: The compiled functions the binding's self-tests at the first :func:`native` compile
+#: (or load from numba's cache): on the kernel lists of the compiled forms that bind it.
+SELF_TEST_KERNELS = (quadprog, quadprog_kept, box_quadprog_from, objective_bound,
+                     activity_infeasible)  # fmt: skip
+
 _CHECKED: bool | None = None
+#: :func:`box_quadprog_from` gave :func:`quadprog`'s result bit for bit in the self-test.
+_KEEPS = False
 
 
 def _self_test() -> bool:
@@ -426,6 +594,53 @@ def _self_test() -> bool:
     )
 
 
+def _keep_self_test() -> bool:
+    """A kept workspace (:func:`quadprog_kept`) and :func:`box_quadprog_from` give a fresh
+    :func:`quadprog`'s result bit for bit on two QPs (a row no point of the box satisfies,
+    so the QP with it is infeasible; the box QP's unconstrained optimum outside the box,
+    then inside it); the workspace's layout and DAQP's update steps are as bound."""
+    rng = np.random.default_rng(11)
+    n, rows = 6, 4
+    M = rng.standard_normal((n, n))
+    H = M @ M.T + 0.5 * np.eye(n)
+    A = rng.standard_normal((rows, n))
+    bupper = np.concatenate([np.full(n, 1.0), np.full(rows, 2.0)])
+    blower = -bupper
+    blower[n + 1] = 1.5 * np.abs(A[1]).sum()  # beyond the row's reach in the box
+    bupper[n + 1] = 2.0 * blower[n + 1]
+    sense = np.zeros(n + rows, dtype=np.intc)
+    buffers = DaqpNative({"primal_tol": 1e-9})
+    work = _buffer(bytes(WORKSPACE_BYTES))
+    for scale in (30.0, 0.01):  # the box QP's optimum on the box's faces, then inside it
+        f = scale * rng.standard_normal(n)
+        x, lam = np.empty(n), np.empty(n + rows)
+        kept_flag, _, kept = quadprog_kept(
+            H, f, A, bupper, blower, sense, x, lam, buffers.problem, buffers.result,
+            buffers.settings, work, True,
+        )  # fmt: skip
+        if not (kept and kept_flag == -1):
+            return False
+        box = (bupper[:n].copy(), blower[:n].copy(), sense[:n].copy())
+        x_from, lam_from = np.empty(n), np.empty(n)
+        flag, iterations = box_quadprog_from(
+            work, H, f, A[:0], *box, x_from, lam_from, buffers.problem, buffers.result,
+            buffers.settings,
+        )  # fmt: skip
+        x_ref, lam_ref = np.empty(n), np.empty(n)
+        flag_ref, iterations_ref = quadprog(
+            H, f, A[:0], *box, x_ref, lam_ref, buffers.problem, buffers.result,
+            buffers.settings,
+        )  # fmt: skip
+        if not (
+            flag == flag_ref
+            and iterations == iterations_ref
+            and np.array_equal(x_from, x_ref)
+            and np.array_equal(lam_from, lam_ref)
+        ):
+            return False
+    return True
+
+
 def bound() -> bool:
     """DAQP's C library is bound (a release in :data:`BOUND_VERSIONS`); the self-test still
     runs at the first :func:`native`."""
@@ -440,7 +655,7 @@ def ready() -> bool:
 
     return (
         _LOADED
-        and (_CHECKED is not None or compiled_ready([quadprog]))
+        and (_CHECKED is not None or compiled_ready(list(SELF_TEST_KERNELS[:3])))
         and compiled_ready([objective_bound])
     )
 
@@ -450,7 +665,7 @@ def native(options: Mapping[str, Any]) -> DaqpNative | None:
 
     The first call runs the layout self-test; a failure disables the binding for the process.
     """
-    global _CHECKED, unavailable_reason
+    global _CHECKED, _KEEPS, unavailable_reason
     if not _LOADED:
         return None
     if _CHECKED is None:
@@ -462,6 +677,11 @@ def native(options: Mapping[str, Any]) -> DaqpNative | None:
         else:
             if not _CHECKED:  # pragma: no cover
                 unavailable_reason = "DAQP binding self-test: results differ from daqp.solve"
+        if _CHECKED:  # a kept workspace only where it gives the same bits (else: fresh)
+            try:
+                _KEEPS = _keep_self_test()
+            except Exception:  # pragma: no cover - a broken binding of the update steps
+                _KEEPS = False
     if not _CHECKED:
         return None
     try:

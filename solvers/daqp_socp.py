@@ -25,13 +25,7 @@ from ._compiled import bounds_rows_violation, cone_violation
 from .acceptance import ProblemView
 from .compiled_forms import CompiledForm
 from .daqp_ import native_buffers
-from .daqp_native import (
-    activity_infeasible,
-    native,
-    objective_bound,
-    quadprog,
-    solver_seconds,
-)
+from .daqp_native import SELF_TEST_KERNELS, native, quadprog, solver_seconds
 from .dense import DenseBackend, DenseCone, DenseQP
 from .problem import SolverStatus
 from .socp_certificates import cone_multipliers, failure_status, max_iter_status
@@ -313,15 +307,8 @@ def compiled_form(name: str) -> CompiledForm:
     the SQP, its workspace, DAQP's buffers; no numpy twin (it compiles at first use)."""
     return CompiledForm(
         name=name,
-        # (objective_bound, activity_infeasible: DAQP's binding compiles them with quadprog,
-        # at its self-test)
-        kernels=(
-            quadprog,
-            objective_bound,
-            activity_infeasible,
-            socp_solve,
-            new_socp_workspace_kernel,
-        ),
+        # (DAQP's binding compiles its kernels at its self-test)
+        kernels=(*SELF_TEST_KERNELS, socp_solve, new_socp_workspace_kernel),
         bound=True,
         compiled_only=True,
         quadprog=quadprog,

@@ -77,3 +77,24 @@ def test_both_benchmarks_refuse_an_unknown_scenario_alike(bench: Benchmark) -> N
         bench.select(model, ["nothing"], short=True)
     assert str(names) in str(error.value)
     assert bench.plant in ("ph", "quadtank")
+
+
+def test_a_scenario_cycles_its_setpoint_levels() -> None:
+    """Scenario.cycled(period): the schedule's levels in order, each held for ``period``
+    samples, then again; the disturbances kept; a period that is not a whole number of
+    samples >= 1 is refused, named."""
+    import numpy as np
+
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+    scenario = paper_scenarios(load_model("ph_lstm_n5.npz"))[2]
+    levels = list(dict.fromkeys(np.asarray(scenario.setpoints).tolist()))  # (each once here)
+    cycled = scenario.cycled(40)
+    assert cycled.steps == scenario.steps
+    np.testing.assert_array_equal(cycled.disturbances, scenario.disturbances)
+    assert [cycled.setpoints[40 * k] for k in range(len(levels))] == levels
+    assert cycled.setpoints[40 * len(levels)] == levels[0]
+    assert len(set(cycled.setpoints[:40].tolist())) == 1
+    for period in (0, 2.5, "40"):
+        with pytest.raises(InvalidValueError, match=f"got {period!r}"):
+            scenario.cycled(period)  # type: ignore[arg-type]

@@ -197,3 +197,181 @@ def test_without_numba_the_numpy_path_and_daqp_solve_run() -> None:
     assert result.stdout.split() == ["optimal", "False", "True", "True", "True"]
     # said once, however many kernels are built
     assert result.stderr.count("numba cannot be imported: the controller runs its numpy") == 1
+
+
+# --- a kept DAQP workspace (quadprog_kept, box_quadprog_from) ---------------------------
+
+#: Byte offsets in DAQP's workspace the tests read (types.h of the vendored release,
+#: checked by test_kept_workspace_fits_the_vendored_layout): its sizes n and m.
+_W_N, _W_M = 8, 12
+
+
+def _keep_case(seed: int, n: int, scale: float, rows: int = 5):
+    """A QP with a row no point of the box satisfies (infeasible: DAQP proves it, exit
+    flag -1) and its box QP, whose unconstrained optimum lies outside the box for a large
+    ``scale`` of f and inside it for a small one."""
+    rng = np.random.default_rng(seed)
+    G = rng.normal(size=(n, n))
+    H = G @ G.T + rng.uniform(1e-3, 1.0) * np.eye(n)
+    f = scale * rng.normal(size=n)
+    A = rng.normal(size=(rows, n))
+    upper = np.concatenate([rng.uniform(0.5, 1.5, n), rng.uniform(2.0, 3.0, rows)])
+    lower = -np.concatenate([rng.uniform(0.5, 1.5, n), rng.uniform(2.0, 3.0, rows)])
+    reach = np.abs(A[rows - 1]) @ np.maximum(upper[:n], -lower[:n])
+    lower[-1], upper[-1] = 1.01 * reach + 0.1, 2.0 * reach + 1.0
+    return H, f, A, upper, lower, np.zeros(n + rows, dtype=np.intc)
+
+
+def _kept_then_box(buffers, H, f, A, upper, lower, sense):
+    """quadprog_kept on the QP, then box_quadprog_from on its box QP (if kept)."""
+    n = H.shape[0]
+    work = np.zeros(daqp_native.WORKSPACE_BYTES // 8, dtype=np.int64).view(np.uint8)
+    structs = (buffers.problem, buffers.result, buffers.settings)
+    x, lam = np.empty(n), np.empty(upper.shape[0])
+    flag, _, kept = daqp_native.quadprog_kept(
+        H, f, A, upper, lower, sense, x, lam, *structs, work, True
+    )
+    if not kept:
+        return flag, kept, None
+    box_x, box_lam = np.empty(n), np.empty(n)
+    box_flag, iterations = daqp_native.box_quadprog_from(
+        work, H, f, A[:0], upper[:n].copy(), lower[:n].copy(), sense[:n].copy(), box_x,
+        box_lam, *structs,
+    )  # fmt: skip
+    assert work.view(np.int32)[_W_M // 4] == n  # the box QP was installed on the kept one
+    return flag, kept, (box_x, box_lam, box_flag, iterations)
+
+
+@needs_binding
+def test_kept_workspace_fits_the_vendored_layout(tmp_path) -> None:
+    """WORKSPACE_BYTES holds DAQP's workspace and WORKSPACE_SETTINGS_OFFSET (and the
+    offsets these tests read) are its fields', compiled from the vendored headers of the
+    bound release."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    import ltv_lstm_mpc.export
+    from ltv_lstm_mpc.export.c_model import DAQP_VENDORED
+
+    compiler = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    if compiler is None:
+        pytest.skip("no C compiler")
+    assert DAQP_VENDORED in daqp_native.BOUND_VERSIONS  # the headers of the bound release
+    vendor = Path(ltv_lstm_mpc.export.__file__).parent / "vendor" / "daqp"
+    source = tmp_path / "layout.c"
+    source.write_text(
+        '#include <stddef.h>\n#include <stdio.h>\n#include "types.h"\n'
+        'int main(void) { printf("%zu %zu %zu %zu\\n", sizeof(DAQPWorkspace),\n'
+        "  offsetof(DAQPWorkspace, settings), offsetof(DAQPWorkspace, n),\n"
+        "  offsetof(DAQPWorkspace, m)); return 0; }\n"
+    )
+    program = tmp_path / "layout"
+    subprocess.run(
+        [compiler, f"-I{vendor / 'include'}", str(source), "-o", str(program)], check=True
+    )
+    size, settings, n, m = map(int, subprocess.run(
+        [str(program)], check=True, capture_output=True, text=True
+    ).stdout.split())  # fmt: skip
+    assert size <= daqp_native.WORKSPACE_BYTES
+    assert settings == daqp_native.WORKSPACE_SETTINGS_OFFSET
+    assert (n, m) == (_W_N, _W_M)
+
+
+@needs_binding
+@pytest.mark.parametrize("n", [1, 3, 8, 20, 35])
+@pytest.mark.parametrize("scale", [0.01, 1.0, 30.0])
+@pytest.mark.parametrize("seed", range(4))
+def test_the_box_qp_on_a_kept_workspace_is_a_fresh_solve_bit_for_bit(
+    seed: int, scale: float, n: int
+) -> None:
+    """After DAQP proves a QP infeasible on a kept workspace, its box QP solved there
+    gives the fresh solve's point, multipliers, exit flag and iterations to the last bit,
+    with the box's unconstrained optimum inside the box (one iteration: redone fresh) and
+    outside it (iterations on the kept factor of H)."""
+    buffers = daqp_native.native({"primal_tol": 1e-9})
+    assert buffers.work.shape[0] == daqp_native.WORKSPACE_BYTES  # the self-test passed
+    H, f, A, upper, lower, sense = _keep_case(seed, n, scale)
+    flag, kept, box = _kept_then_box(buffers, H, f, A, upper, lower, sense)
+    assert flag == -1 and kept
+    fresh_x, fresh_lam = np.empty(n), np.empty(n)
+    fresh = daqp_native.quadprog(
+        H, f, A[:0], upper[:n].copy(), lower[:n].copy(), sense[:n].copy(), fresh_x,
+        fresh_lam, buffers.problem, buffers.result, buffers.settings,
+    )  # fmt: skip
+    box_x, box_lam, box_flag, iterations = box
+    assert (box_flag, iterations) == fresh
+    np.testing.assert_array_equal(box_x, fresh_x)
+    np.testing.assert_array_equal(box_lam, fresh_lam)
+
+
+@needs_binding
+def test_a_workspace_is_kept_only_for_an_infeasible_qp_without_equalities() -> None:
+    """Kept: DAQP said -1, the caller asked, no row's bounds closer than zero_tol (an
+    equality DAQP would eliminate); otherwise freed at once (a feasible QP, keep False, an
+    equality row)."""
+    buffers = daqp_native.native({"primal_tol": 1e-9})
+    H, f, A, upper, lower, sense = _keep_case(0, 6, 30.0)
+    assert _kept_then_box(buffers, H, f, A, upper, lower, sense)[:2] == (-1, True)
+    feasible = _keep_case(0, 6, 30.0)
+    feasible[4][-1], feasible[3][-1] = -3.0, 3.0
+    assert _kept_then_box(buffers, *feasible)[:2] == (1, False)
+    equality = list(_keep_case(0, 6, 30.0))
+    equality[3][-2] = equality[4][-2] = 0.0  # a row held at 0: an equality
+    assert _kept_then_box(buffers, *equality)[1] is False
+    n = H.shape[0]
+    work = np.zeros(daqp_native.WORKSPACE_BYTES // 8, dtype=np.int64).view(np.uint8)
+    out = daqp_native.quadprog_kept(
+        H, f, A, upper, lower, sense, np.empty(n), np.empty(upper.shape[0]), buffers.problem,
+        buffers.result, buffers.settings, work, False,
+    )  # fmt: skip
+    assert out[0] == -1 and out[2] is False
+    assert work.view(np.int64)[daqp_native.WORKSPACE_SETTINGS_OFFSET // 8] == 0  # freed
+
+
+@needs_binding
+@pytest.mark.parametrize("N", [15, 20])
+def test_the_one_call_paper_policy_keeps_daqps_workspace_from_keep_from(
+    N: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The one-call step's "paper" QP runs on the failed nominal QP's DAQP workspace from
+    KEEP_FROM variables on (not below), and the closed loop's records are those of a
+    controller that never keeps it, bit for bit (the paper's scenario 3, set-points cycled
+    every 40 samples, 600 steps)."""
+    from ltv_lstm_mpc.paper.scenarios import paper_scenarios
+
+    model = load_model("ph_lstm_n5.npz")
+    scenario = paper_scenarios(model)[2].cycled(40)
+    setpoints = scenario.setpoints
+    config = dataclasses.replace(scenario.config, solver="daqp", N=N, infeasibility_policy="paper")
+
+    def loop(keeps: bool):
+        monkeypatch.setattr(daqp_native, "_KEEPS", keeps)
+        controller = OffsetFreeController(
+            model, config, setpoint_rate_limit=scenario.setpoint_rate_limit, kernels="compiled"
+        )
+        work = controller.mpc._problem._sessions["nominal"].native.work
+        assert work.shape[0] == (daqp_native.WORKSPACE_BYTES if keeps else 0)
+        plant = scenario.make_plant(model)
+        y = plant.output()
+        kept = 0
+        for k in range(600):
+            work[:] = 0
+            u = controller.step(y, setpoints[k])
+            kept += work.shape[0] > 0 and work.view(np.int32)[_W_M // 4] == N  # the box QP's m
+            d = scenario.disturbances[k]
+            y = plant.step(u, None if np.isnan(d) else d)
+        assert all(record.engine == "one-call" for record in controller.records)
+        return controller.records, kept
+
+    records, kept = loop(True)
+    plain, none = loop(False)
+    assert none == 0
+    if N >= daqp_native.KEEP_FROM:
+        assert kept >= 10
+    else:
+        assert kept == 0
+    assert sum(not r.mpc.feasible for r in records) >= 20
+    for a, b in zip(records, plain, strict=True):
+        np.testing.assert_array_equal(a.u, b.u)
+        _same_solutions(a.mpc, b.mpc)

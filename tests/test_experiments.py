@@ -114,6 +114,9 @@ SMOKE = {
         ("--repeats", "3", "--n", "5", "--N", "5"),
         ("forward us", "diagonal   5  1   5", "    full   5  1   5"),
     ),
+    "daqp_kept_workspace.py": Smoke(
+        ("--N", "20", "--steps", "200", "--repeats", "2"), ("kept / fresh", "same bits")
+    ),
     "dense_session_scaling.py": Smoke(
         ("--solvers", "daqp", "--n", "10", "--json", "{tmp}/rows.json"),
         ("first s", "OPTIMAL"),

@@ -114,14 +114,17 @@ def capture(controller: OffsetFreeController) -> list[dict[str, Any]]:
 
 
 def closed_loop(
-    plant_name: str, policy: str, N: int, steps: int, solver: str = "daqp"
+    plant_name: str, policy: str, N: int, steps: int, solver: str = "daqp", period: int = 0
 ) -> tuple[OffsetFreeController, list[dict[str, Any]]]:
     """A closed loop with infeasible instants on the reference engine (every step through
-    ``RobustMPC.feedback``) with ``policy``: the paper's scenario 3 on the pH plant, or the
-    quadruple tank's set-point changes."""
+    ``RobustMPC.feedback``) with ``policy``: the paper's scenario 3 on the pH plant (its
+    set-point levels cycled every ``period`` samples where given), or the quadruple tank's
+    set-point changes."""
     if plant_name == "ph":
         model = load_model("ph_lstm_n5.npz")
         scenario: Any = paper_scenarios(model)[2]
+        if period:
+            scenario = scenario.cycled(period)
         plant = None
     else:
         model = load_model("quadtank_lstm_n8.npz")
@@ -217,6 +220,42 @@ def test_the_c_picks_the_librarys_condensing_form(N: int, backward: str, tmp_pat
     cmpc.bind_u(offset)
     found = compare(cmpc, rows)
     assert found["u"] <= 1e-9 and found["cost"] <= 1e-9, found
+
+
+@needs_compiler
+@pytest.mark.parametrize("N", [15, 20])
+def test_the_c_paper_qp_keeps_daqps_workspace_from_keep_from(N: int, tmp_path: Path) -> None:
+    """Where DAQP proves the nominal QP infeasible the C's paper QP runs on its set-up
+    (qp_solve_box_from, the library's box_quadprog_from) from KEEP_FROM variables on
+    (counted in a -DCTL_TEST_HOOKS build), not below; every step as RobustMPC.feedback
+    gives it (statuses, policies, the DAQP iterations of both QPs), and bit for bit as the
+    same C with nothing kept (scenario 3, set-points cycled every 40 samples: 2400 steps,
+    in which some box QPs' unconstrained optimum holds: one iteration, redone fresh)."""
+    from ltv_lstm_mpc.solvers.daqp_native import KEEP_FROM
+
+    controller, rows = closed_loop("ph", "paper", N, 2400 if N >= KEEP_FROM else 200, period=40)
+    exported = export(controller, tmp_path)
+    compiler = COMPILERS[0]
+    offset, _, _ = u_offset(tmp_path, "ctl", compiler)
+    library = compile_controller(exported, compiler, extra_flags=("-DCTL_TEST_HOOKS",))
+    cmpc = CMPC(library, "ctl", exported, N)
+    cmpc.bind_u(offset)
+    found = compare(cmpc, rows)
+    assert found["u"] <= 1e-9 and found["cost"] <= 1e-9, found
+    assert found["policies"].get("paper", 0) >= 10, found
+    if N < KEEP_FROM:  # (not compiled in below KEEP_FROM)
+        with pytest.raises(ValueError):
+            ctypes.c_long.in_dll(cmpc.lib, "ctl_test_kept_solves")
+        return
+    assert ctypes.c_long.in_dll(cmpc.lib, "ctl_test_kept_solves").value >= 100
+    kept = [cmpc.solve(entry) for entry in rows]  # (the plan's inputs copied)
+    ctypes.c_int.in_dll(cmpc.lib, "ctl_test_keep_off").value = 1
+    solved = ctypes.c_long.in_dll(cmpc.lib, "ctl_test_kept_solves").value
+    for entry, (result, u) in zip(rows, kept, strict=True):
+        fresh, fresh_u = cmpc.solve(entry)
+        np.testing.assert_array_equal(u, fresh_u)
+        assert bytes(result) == bytes(fresh)  # every field, to the last bit
+    assert ctypes.c_long.in_dll(cmpc.lib, "ctl_test_kept_solves").value == solved
 
 
 @needs_compiler

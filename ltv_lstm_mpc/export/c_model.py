@@ -719,6 +719,7 @@ def _mpc_fields(
         rounding_margin=_literal(daqp_native.ROUNDING_MARGIN),
         condition_limit=_literal(daqp_native.CONDITION_LIMIT),
         activity_margin=_literal(daqp_native.ACTIVITY_MARGIN),
+        keep_from=str(daqp_native.KEEP_FROM),
         huge_entry=_literal(_precision_value("huge_entry", HUGE_ENTRY, single)),
         slack_regularization=_literal(problem.slack_regularization),
         soft_penalty=_literal(config.soft_penalty),

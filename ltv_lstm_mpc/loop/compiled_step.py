@@ -272,8 +272,8 @@ def placeholder_daqp() -> Any:
     empty = np.zeros(8, dtype=np.uint8)
     return new_daqp_workspace(
         sense=np.zeros(1, dtype=np.intc), z=np.zeros(1), lam=np.zeros(1), problem=empty,
-        result=empty.copy(), settings=empty.copy(), tolerance=0.0, hessian_floor=0.0,
-        fval_bound=0.0,
+        result=empty.copy(), settings=empty.copy(), work=empty[:0].copy(), tolerance=0.0,
+        hessian_floor=0.0, fval_bound=0.0,
     )  # fmt: skip
 
 

@@ -246,6 +246,7 @@ class CondensedTranscription(TranscriptionBase):
                 problem=native.problem,
                 result=native.result,
                 settings=native.settings,
+                work=native.work,  # (DAQP's workspace, kept for the paper QP)
                 tolerance=self.tolerance,
                 hessian_floor=self.hessian_floor,
                 fval_bound=float(settings.get("fval_bound", NO_BOUND)),  # (the settings' own)

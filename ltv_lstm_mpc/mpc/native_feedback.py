@@ -43,9 +43,15 @@ from ltv_lstm_mpc.numba_support import build_workspace, njit, workspace_type
 # compiled code binds its callees when it compiles: the public entry points that the
 # solver layer's compiled forms of daqp and daqp:socp hold (solvers.compiled_form)
 from ltv_lstm_mpc.solvers.daqp_native import (
+    KEEP_FROM,
+    NO_BOUND,
+    WORKSPACE_BYTES,
     activity_infeasible,
+    box_quadprog_from,
     primal_tolerance,
     quadprog,
+    quadprog_kept,
+    release_workspace,
     set_objective_bound,
     solver_seconds,
 )
@@ -188,8 +194,8 @@ new_fallback_workspace_kernel = _new_fallback_workspace
 
 #: Fields of :data:`DaqpWorkspace`, in the order of its compiled constructor.
 DAQP_FIELDS = (
-    "sense", "z", "lam", "problem", "result", "settings", "tolerance", "hessian_floor",
-    "fval_bound",
+    "sense", "z", "lam", "problem", "result", "settings", "work", "tolerance",
+    "hessian_floor", "fval_bound",
 )  # fmt: skip
 
 DaqpWorkspace = workspace_type(
@@ -199,7 +205,10 @@ DaqpWorkspace = workspace_type(
 
     ``sense`` (int32): the working set (cold: zeros); ``z``, ``lam``: the point and the
     multipliers; ``problem``, ``result``, ``settings``: the C structs of
-    :class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative`; ``tolerance``: the acceptance
+    :class:`~ltv_lstm_mpc.solvers.daqp_native.DaqpNative`; ``work``: its ``DAQPWorkspace``,
+    kept from a nominal QP DAQP proved infeasible for the ``"paper"`` QP (the same H:
+    :func:`~ltv_lstm_mpc.solvers.daqp_native.box_quadprog_from`; no bytes: never
+    kept); ``tolerance``: the acceptance
     tolerance of the point (:func:`~ltv_lstm_mpc.solvers.feasibility_tolerance`);
     ``hessian_floor``: the QPs' (``CondensedTranscription.hessian_floor``), from which each
     DAQP call's objective bound is written into ``settings``
@@ -218,11 +227,11 @@ def new_daqp_workspace(**fields: Any) -> Any:
 
 @njit(cache=True)
 def _new_daqp_workspace(  # type: ignore[no-untyped-def]
-    sense, z, lam, problem, result, settings, tolerance, hessian_floor, fval_bound
+    sense, z, lam, problem, result, settings, work, tolerance, hessian_floor, fval_bound
 ):
     """The compiled constructor (no constructor compile at run time; cached)."""
     return DaqpWorkspace(
-        sense, z, lam, problem, result, settings, tolerance, hessian_floor, fval_bound
+        sense, z, lam, problem, result, settings, work, tolerance, hessian_floor, fval_bound
     )
 
 
@@ -352,7 +361,7 @@ def nominal_feedback(
     if _precheck(condensing.W_y, condensing.b_y, x_hat, lower, upper, alpha) != PRECHECK_PASSED:
         return 0, 0, 0.0, 0.0
     insert_state(condensing, x_hat)
-    flag, iterations, seconds = _solve_nominal(condensing, daqp)
+    flag, iterations, seconds, _ = _solve_nominal(condensing, daqp, False)
     if flag != 1 and flag != 2:
         return 0, iterations, 0.0, seconds
     high = condensing.high
@@ -367,29 +376,68 @@ def nominal_feedback(
 
 
 @njit(cache=True)
-def _solve_nominal(condensing: Any, daqp: Any) -> tuple[int, int, float]:
+def _solve_nominal(condensing: Any, daqp: Any, keep: bool) -> tuple[int, int, float, bool]:
     """DAQP on the nominal condensed QP (state inserted), cold (:func:`_solve_qp`)."""
     return _solve_qp(
         daqp, condensing.H, condensing.f, condensing.A, condensing.high, condensing.low,
-        daqp.sense, daqp.z, daqp.lam,
+        daqp.sense, daqp.z, daqp.lam, keep,
     )  # fmt: skip
 
 
 @njit(cache=True)
 def _solve_qp(
-    daqp: Any, H: Any, f: Any, A: Any, high: Any, low: Any, sense: Any, z: Any, lam: Any
-) -> tuple[int, int, float]:
+    daqp: Any, H: Any, f: Any, A: Any, high: Any, low: Any, sense: Any, z: Any, lam: Any,
+    keep: bool,
+) -> tuple[int, int, float, bool]:  # fmt: skip
     """DAQP, cold, on one of the MPC's QPs (DAQP's layout: the variables' bounds first),
-    with the objective bound of its box: ``(flag, iterations, DAQP's seconds)``; -1, no
-    iteration, where a row's activity bounds prove the QP infeasible without DAQP
-    (:func:`~ltv_lstm_mpc.solvers.daqp_native.activity_infeasible`)."""
+    with the objective bound of its box: ``(flag, iterations, DAQP's seconds, kept)``; -1,
+    no iteration, where a row's activity bounds prove the QP infeasible without DAQP
+    (:func:`~ltv_lstm_mpc.solvers.daqp_native.activity_infeasible`). ``keep``: where DAQP
+    proves the QP infeasible, keep its workspace in ``daqp.work`` for :func:`_solve_paper`
+    (``kept``), where DAQP factored H unregularized (a finite objective bound) and H has
+    at least :data:`~ltv_lstm_mpc.solvers.daqp_native.KEEP_FROM` rows (below, factoring
+    H again is cheaper than a kept workspace's cost where the paper QP's unconstrained
+    optimum holds)."""
     n = H.shape[0]
     if activity_infeasible(A, low, high, primal_tolerance(daqp.settings)):
-        return -1, 0, 0.0
-    set_objective_bound(daqp.settings, H, f, low[:n], high[:n], daqp.hessian_floor, daqp.fval_bound)
-    flag, iterations = quadprog(
-        H, f, A, high, low, sense, z, lam, daqp.problem, daqp.result, daqp.settings
+        return -1, 0, 0.0, False
+    bound = set_objective_bound(
+        daqp.settings, H, f, low[:n], high[:n], daqp.hessian_floor, daqp.fval_bound
     )
+    kept = False
+    if keep and n >= KEEP_FROM and bound < NO_BOUND and daqp.work.shape[0] >= WORKSPACE_BYTES:
+        flag, iterations, kept = quadprog_kept(
+            H, f, A, high, low, sense, z, lam, daqp.problem, daqp.result, daqp.settings,
+            daqp.work, True,
+        )  # fmt: skip
+    else:
+        flag, iterations = quadprog(
+            H, f, A, high, low, sense, z, lam, daqp.problem, daqp.result, daqp.settings
+        )
+    return flag, iterations, solver_seconds(daqp.result), kept
+
+
+@njit(cache=True)
+def _solve_paper(condensing: Any, daqp: Any, fallback: Any, kept: bool) -> tuple[int, int, float]:
+    """The ``"paper"`` policy's QP (no output and terminal rows, paper Fig. 5) into
+    ``fallback.z``: :func:`_solve_qp`, or, where the nominal QP's workspace was ``kept``
+    (the same H and f, its bounds on the variables), on that workspace
+    (:func:`~ltv_lstm_mpc.solvers.daqp_native.box_quadprog_from`: the same bits, H not
+    factored again). ``(flag, iterations, DAQP's seconds)``."""
+    H, f = condensing.H, condensing.f
+    nu = H.shape[0]
+    high, low = condensing.high[:nu], condensing.low[:nu]
+    z, lam, sense = fallback.z[:nu], fallback.lam[:nu], fallback.sense[:nu]
+    if not kept:
+        flag, iterations, seconds, _ = _solve_qp(
+            daqp, H, f, condensing.A[:0], high, low, sense, z, lam, False
+        )
+        return flag, iterations, seconds
+    set_objective_bound(daqp.settings, H, f, low, high, daqp.hessian_floor, daqp.fval_bound)
+    flag, iterations = box_quadprog_from(
+        daqp.work, H, f, condensing.A[:0], high, low, sense, z, lam, daqp.problem,
+        daqp.result, daqp.settings,
+    )  # fmt: skip
     return flag, iterations, solver_seconds(daqp.result)
 
 
@@ -499,8 +547,10 @@ def policy_feedback(
         return 0, 0, 0.0, 0.0
     insert_state(condensing, x_hat)
     iterations, seconds = 0, 0.0
+    policy = fallback.policy
+    kept = False  # (the nominal QP's workspace, for the paper QP: _solve_paper frees it)
     if status == PRECHECK_PASSED:
-        flag, iterations, seconds = _solve_nominal(condensing, daqp)
+        flag, iterations, seconds, kept = _solve_nominal(condensing, daqp, policy == POLICY_PAPER)
         if flag == 1 or flag == 2:
             high = condensing.high
             violation = expand_point(condensing, daqp.z, high.shape[0], x_linear, u)
@@ -514,24 +564,22 @@ def policy_feedback(
             codes[STATUS_CODE], codes[POLICY_CODE], codes[PLAN_ITERATIONS] = flag, POLICY_NOMINAL, 1
             return flag, iterations, step, seconds
         if not _MIN_FAILURE_FLAG <= flag <= -1:  # an unknown flag: the session's words
+            if kept:  # (kept only at -1: never here)
+                release_workspace(daqp.work)
             return 0, iterations, 0.0, seconds
         status = flag
-    policy = fallback.policy
     linear = False
     step = 0.0
     nu = condensing.H.shape[0]
     if policy == POLICY_PAPER or policy == POLICY_SOFT:
         z = fallback.z
         if policy == POLICY_PAPER:  # no output and terminal rows (paper, Fig. 5)
-            flag, more, spent = _solve_qp(
-                daqp, condensing.H, condensing.f, condensing.A[:0], condensing.high[:nu],
-                condensing.low[:nu], fallback.sense[:nu], z[:nu], fallback.lam[:nu],
-            )  # fmt: skip
+            flag, more, spent = _solve_paper(condensing, daqp, fallback, kept)
         else:  # (the objective bound its own: the slacks are unbounded above)
             _write_soft_qp(condensing, fallback)
-            flag, more, spent = _solve_qp(
+            flag, more, spent, _ = _solve_qp(
                 daqp, fallback.H, fallback.f, fallback.A, fallback.high, fallback.low,
-                fallback.sense, z, fallback.lam,
+                fallback.sense, z, fallback.lam, False,
             )  # fmt: skip
         iterations += more
         seconds += spent

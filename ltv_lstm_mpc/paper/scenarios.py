@@ -186,6 +186,24 @@ class Scenario:
             engine=engine,
         )  # fmt: skip
 
+    def cycled(self, period: int) -> Scenario:
+        """This scenario with its set-point levels (each value its schedule moves to, in
+        order) cycled every ``period`` samples, its disturbance schedule kept: more
+        set-point steps, so more infeasible instants (the worst-case benchmarks' dense
+        schedule: ``experiments/worst_case.py``)."""
+        if not (isinstance(period, int | np.integer) and period >= 1):
+            raise InvalidValueError(
+                f"period must be a whole number of samples >= 1, got {period!r}"
+            )
+        setpoints = np.asarray(self.setpoints, dtype=float)
+        levels = [float(setpoints[0])]
+        for value in setpoints[1:].tolist():
+            if value != levels[-1]:
+                levels.append(value)
+        steps = setpoints.shape[0]
+        cycled = np.array([levels[(k // period) % len(levels)] for k in range(steps)])
+        return replace(self, setpoints=cycled)
+
 
 @dataclass(frozen=True)
 class ScenarioResult:

@@ -58,6 +58,8 @@ def test_the_daqp_form_holds_daqps_entry_point() -> None:
 
     kernels = (
         daqp_native.quadprog,
+        daqp_native.quadprog_kept,
+        daqp_native.box_quadprog_from,
         daqp_native.objective_bound,
         daqp_native.activity_infeasible,
         bounds_rows_violation,
@@ -86,6 +88,8 @@ def test_the_daqp_socp_form_holds_the_sqp_and_its_workspace() -> None:
     assert form.socp_arrays is socp_sqp.socp_arrays
     assert form.kernels == (
         daqp_native.quadprog,
+        daqp_native.quadprog_kept,
+        daqp_native.box_quadprog_from,
         daqp_native.objective_bound,
         daqp_native.activity_infeasible,
         socp_sqp.socp_solve,
