@@ -133,10 +133,10 @@ def time_both(qp: tuple[Any, ...], daqp: Any, repeats: int) -> tuple[float, floa
             start = time.perf_counter()
             run()
             best[i] = min(best[i], time.perf_counter() - start)
-    _, iterations = fresh()
-    _, kept_iterations = kept()
+    flag, iterations = fresh()
+    kept_flag, kept_iterations = kept()
     same = (
-        kept_iterations == iterations
+        (kept_flag, kept_iterations) == (flag, iterations)
         and np.array_equal(fresh_x, kept_x)
         and np.array_equal(fresh_lam, kept_lam)
     )

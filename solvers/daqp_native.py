@@ -299,11 +299,13 @@ def quadprog_kept(
     steps, so the same result to the last bit. Returns ``(exit flag, iterations, kept)``.
 
     Kept (``work`` still set up, for one :func:`box_quadprog_from`, which frees it) where
-    ``keep``, DAQP proved the QP infeasible (exit flag -1) and no row is an equality
-    DAQP would eliminate (upper - lower below the settings' ``zero_tol``): the
-    Cholesky factor of H, its inverse and the linear term stay formed. ``keep`` is the
-    caller's word that DAQP factored H unregularized (no proximal iterations: the
-    settings' ``eps_prox`` is 0 and :func:`objective_bound` is finite for H).
+    ``keep``, DAQP proved the QP infeasible (exit flag -1) and no row has bounds closer
+    than the settings' ``zero_tol`` (DAQP would eliminate it, or make it an immutable
+    active row, which skips the unconstrained check that forms the bounds' LDP terms the
+    box QP reuses): the Cholesky factor of H, its inverse and the linear term stay
+    formed. ``keep`` is the caller's word that DAQP factored H unregularized (no proximal
+    iterations: the settings' ``eps_prox`` is not positive and :func:`objective_bound` is
+    finite for H).
     """
     _write_problem(H, f, A, bupper, blower, sense, x, lam, problem, result)
     words = work.view(np.int64)
@@ -347,18 +349,24 @@ def box_quadprog_from(
     result: Any,
     settings: Any,
 ) -> tuple[int, int]:
-    """:func:`quadprog` on a QP with no rows (``A`` has none: bounds on ``x`` alone, the
-    first of the kept QP's), the same H and f as the QP :func:`quadprog_kept` kept in
-    ``work``, on that workspace: its working set dropped
-    (``daqp_deactivate_constraints``), the new bounds and working set installed
-    (``daqp_update_ldp`` of the working set: H's factor and the linear term kept),
-    ``daqp_solve``; ``work`` freed. The same result as :func:`quadprog`, bit for bit
-    (the self-test at the first :func:`native`; ``tests/test_daqp_native.py``), without
-    factoring H again. Where the new QP's unconstrained optimum holds (one iteration) a
-    fresh :func:`quadprog` gives the result instead: DAQP's set-up computes that point by
-    triangular solves, the kept workspace by H's formed inverse (other last bits).
-    Returns ``(exit flag, iterations)``."""  # fmt: skip
-    if A.shape[0] > 0:  # (not the QP this is for)
+    """:func:`quadprog` on a QP with no rows (``A`` has none) whose bounds on ``x`` are
+    the first of the kept QP's (``bupper``/``blower``: the same values; the kept LDP terms
+    of the bounds are reused, not formed from these) and whose H and f are the QP's that
+    :func:`quadprog_kept` kept in ``work``, cold (``sense`` zeros), on that workspace: its
+    working set dropped (``daqp_deactivate_constraints``), the QP's size and the cold
+    working set installed (``daqp_update_ldp`` of the working set alone: H's factor, its
+    inverse, the linear term and the bounds' terms kept), ``daqp_solve``; ``work`` freed.
+    The same result as :func:`quadprog`, bit for bit (the self-test at the first
+    :func:`native`; ``tests/test_daqp_native.py``), without factoring H again. Where the
+    new QP's unconstrained optimum holds (one iteration), a fresh :func:`quadprog` gives
+    the result instead: DAQP's set-up computes that point by triangular solves, the kept
+    workspace by H's formed inverse (other last bits); likewise for rows or a warm
+    working set (not what this is for). Returns ``(exit flag, iterations)``."""  # fmt: skip
+    warm = False
+    for i in range(sense.shape[0]):
+        if sense[i] != 0:
+            warm = True
+    if A.shape[0] > 0 or warm:  # (not the QP this is for: a fresh solve)
         release_workspace(work)
         return quadprog(H, f, A, bupper, blower, sense, x, lam, problem, result, settings)
     _write_problem(H, f, A, bupper, blower, sense, x, lam, problem, result)

@@ -306,6 +306,34 @@ def test_the_box_qp_on_a_kept_workspace_is_a_fresh_solve_bit_for_bit(
 
 
 @needs_binding
+@pytest.mark.parametrize("seed", range(3))
+def test_a_warm_box_qp_on_a_kept_workspace_is_solved_fresh(seed: int) -> None:
+    """A box QP with a warm working set (an active bound in sense) is not what a kept
+    workspace is for: box_quadprog_from frees it and solves fresh, the same bits as
+    quadprog with that working set."""
+    buffers = daqp_native.native({"primal_tol": 1e-9})
+    n = 8
+    H, f, A, upper, lower, sense = _keep_case(seed, n, 30.0)
+    work = np.zeros(daqp_native.WORKSPACE_BYTES // 8, dtype=np.int64).view(np.uint8)
+    structs = (buffers.problem, buffers.result, buffers.settings)
+    kept = daqp_native.quadprog_kept(
+        H, f, A, upper, lower, sense, np.empty(n), np.empty(upper.shape[0]), *structs, work,
+        True,
+    )  # fmt: skip
+    assert kept[2]
+    warm = np.zeros(n, dtype=np.intc)
+    warm[0] = 1  # the first variable's upper bound active
+    x, lam, x_ref, lam_ref = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    box = (upper[:n].copy(), lower[:n].copy())
+    out = daqp_native.box_quadprog_from(work, H, f, A[:0], *box, warm.copy(), x, lam, *structs)
+    assert work.view(np.int64)[daqp_native.WORKSPACE_SETTINGS_OFFSET // 8] == 0  # freed
+    ref = daqp_native.quadprog(H, f, A[:0], *box, warm.copy(), x_ref, lam_ref, *structs)
+    assert out == ref
+    np.testing.assert_array_equal(x, x_ref)
+    np.testing.assert_array_equal(lam, lam_ref)
+
+
+@needs_binding
 def test_a_workspace_is_kept_only_for_an_infeasible_qp_without_equalities() -> None:
     """Kept: DAQP said -1, the caller asked, no row's bounds closer than zero_tol (an
     equality DAQP would eliminate); otherwise freed at once (a feasible QP, keep False, an

@@ -256,6 +256,23 @@ def test_the_c_paper_qp_keeps_daqps_workspace_from_keep_from(N: int, tmp_path: P
         np.testing.assert_array_equal(u, fresh_u)
         assert bytes(result) == bytes(fresh)  # every field, to the last bit
     assert ctypes.c_long.in_dll(cmpc.lib, "ctl_test_kept_solves").value == solved
+    # an output row with equal bounds (DAQP makes it an immutable active row, which leaves
+    # the bounds' LDP terms formed otherwise): never kept, the same bits as nothing kept
+    ctypes.c_int.in_dll(cmpc.lib, "ctl_test_keep_off").value = 0
+    equal = []
+    for entry, (result, _) in zip(rows, kept, strict=True):
+        if POLICIES[result.policy] != "paper":
+            continue
+        entry = dict(entry, lower=entry["lower"].copy(), upper=entry["upper"].copy())
+        entry["lower"][-1] = entry["upper"][-1] = 0.5 * (entry["lower"][-1] + entry["upper"][-1])
+        equal.append((entry, cmpc.solve(entry)))
+    assert ctypes.c_long.in_dll(cmpc.lib, "ctl_test_kept_solves").value == solved
+    assert sum(POLICIES[result.policy] == "paper" for _, (result, _) in equal) >= 10
+    ctypes.c_int.in_dll(cmpc.lib, "ctl_test_keep_off").value = 1
+    for entry, (result, u) in equal:
+        fresh, fresh_u = cmpc.solve(entry)
+        np.testing.assert_array_equal(u, fresh_u)
+        assert bytes(result) == bytes(fresh)
 
 
 @needs_compiler

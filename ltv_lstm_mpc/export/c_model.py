@@ -626,7 +626,7 @@ def _daqp_settings(config: Any, single: bool = False) -> str:
     for name, kind in settings._fields_:
         value = getattr(settings, name)
         if name == "eq_reduction":
-            value = -1  # DAQP_EQ_REDUCTION_OFF: the QPs have no equality rows
+            value = -1  # DAQP_EQ_REDUCTION_OFF (daqp_wiring.c.in says why)
         if name in SINGLE_PRECISION_FLOORS:
             value = _precision_value(name, value, single)
         text = str(int(value)) if kind is ctypes.c_int else _literal(value)
