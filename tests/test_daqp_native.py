@@ -10,6 +10,7 @@ from ltv_lstm_mpc.solvers import DenseQP, DenseSession, available_solvers
 from optional_extras import requires_daqp_binding
 
 from ltv_lstm_mpc import MPCConfig, OffsetFreeController, RobustMPC, load_model
+from ltv_lstm_mpc.export.sil import find_c_compiler
 
 pytestmark = pytest.mark.skipif("daqp" not in available_solvers(), reason="needs daqp")
 
@@ -17,12 +18,13 @@ daqp_native = pytest.importorskip("ltv_lstm_mpc.solvers.daqp_native")
 needs_binding = requires_daqp_binding()
 
 
-def random_qp(seed: int, n: int = 6, rows: int = 9, feasible: bool = True):
-    """Dense QP data in DAQP's layout (simple bounds first); infeasible rows when asked."""
+def random_qp(seed: int, n: int = 6, rows: int = 9, feasible: bool = True, scale: float = 3.0):
+    """Dense QP data in DAQP's layout (simple bounds first); infeasible rows when asked;
+    ``scale``: of f (small: the box QP's unconstrained optimum inside the box)."""
     rng = np.random.default_rng(seed)
     G = rng.normal(size=(n, n))
     H = G @ G.T + 0.1 * np.eye(n)
-    f = 3.0 * rng.normal(size=n)
+    f = scale * rng.normal(size=n)
     A = rng.normal(size=(rows, n))
     upper = np.concatenate([np.full(n, 0.5), rng.uniform(0.0, 0.4, rows)])
     lower = -upper
@@ -206,22 +208,6 @@ def test_without_numba_the_numpy_path_and_daqp_solve_run() -> None:
 _W_N, _W_M = 8, 12
 
 
-def _keep_case(seed: int, n: int, scale: float, rows: int = 5):
-    """A QP with a row no point of the box satisfies (infeasible: DAQP proves it, exit
-    flag -1) and its box QP, whose unconstrained optimum lies outside the box for a large
-    ``scale`` of f and inside it for a small one."""
-    rng = np.random.default_rng(seed)
-    G = rng.normal(size=(n, n))
-    H = G @ G.T + rng.uniform(1e-3, 1.0) * np.eye(n)
-    f = scale * rng.normal(size=n)
-    A = rng.normal(size=(rows, n))
-    upper = np.concatenate([rng.uniform(0.5, 1.5, n), rng.uniform(2.0, 3.0, rows)])
-    lower = -np.concatenate([rng.uniform(0.5, 1.5, n), rng.uniform(2.0, 3.0, rows)])
-    reach = np.abs(A[rows - 1]) @ np.maximum(upper[:n], -lower[:n])
-    lower[-1], upper[-1] = 1.01 * reach + 0.1, 2.0 * reach + 1.0
-    return H, f, A, upper, lower, np.zeros(n + rows, dtype=np.intc)
-
-
 def _kept_then_box(buffers, H, f, A, upper, lower, sense):
     """quadprog_kept on the QP, then box_quadprog_from on its box QP (if kept)."""
     n = H.shape[0]
@@ -243,20 +229,18 @@ def _kept_then_box(buffers, H, f, A, upper, lower, sense):
 
 
 @needs_binding
+@pytest.mark.skipif(find_c_compiler() is None, reason="no C compiler (cc, gcc or clang)")
 def test_kept_workspace_fits_the_vendored_layout(tmp_path) -> None:
     """WORKSPACE_BYTES holds DAQP's workspace and WORKSPACE_SETTINGS_OFFSET (and the
     offsets these tests read) are its fields', compiled from the vendored headers of the
     bound release."""
-    import shutil
     import subprocess
     from pathlib import Path
 
     import ltv_lstm_mpc.export
     from ltv_lstm_mpc.export.c_model import DAQP_VENDORED
 
-    compiler = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
-    if compiler is None:
-        pytest.skip("no C compiler")
+    compiler = find_c_compiler()
     assert DAQP_VENDORED in daqp_native.BOUND_VERSIONS  # the headers of the bound release
     vendor = Path(ltv_lstm_mpc.export.__file__).parent / "vendor" / "daqp"
     source = tmp_path / "layout.c"
@@ -291,7 +275,7 @@ def test_the_box_qp_on_a_kept_workspace_is_a_fresh_solve_bit_for_bit(
     outside it (iterations on the kept factor of H)."""
     buffers = daqp_native.native({"primal_tol": 1e-9})
     assert buffers.work.shape[0] == daqp_native.WORKSPACE_BYTES  # the self-test passed
-    H, f, A, upper, lower, sense = _keep_case(seed, n, scale)
+    H, f, A, upper, lower, sense = random_qp(seed, n, feasible=False, scale=scale)
     flag, kept, box = _kept_then_box(buffers, H, f, A, upper, lower, sense)
     assert flag == -1 and kept
     fresh_x, fresh_lam = np.empty(n), np.empty(n)
@@ -313,7 +297,7 @@ def test_a_warm_box_qp_on_a_kept_workspace_is_solved_fresh(seed: int) -> None:
     quadprog with that working set."""
     buffers = daqp_native.native({"primal_tol": 1e-9})
     n = 8
-    H, f, A, upper, lower, sense = _keep_case(seed, n, 30.0)
+    H, f, A, upper, lower, sense = random_qp(seed, n, feasible=False, scale=30.0)
     work = np.zeros(daqp_native.WORKSPACE_BYTES // 8, dtype=np.int64).view(np.uint8)
     structs = (buffers.problem, buffers.result, buffers.settings)
     kept = daqp_native.quadprog_kept(
@@ -339,13 +323,11 @@ def test_a_workspace_is_kept_only_for_an_infeasible_qp_without_equalities() -> N
     equality DAQP would eliminate); otherwise freed at once (a feasible QP, keep False, an
     equality row)."""
     buffers = daqp_native.native({"primal_tol": 1e-9})
-    H, f, A, upper, lower, sense = _keep_case(0, 6, 30.0)
+    H, f, A, upper, lower, sense = random_qp(0, feasible=False, scale=30.0)
     assert _kept_then_box(buffers, H, f, A, upper, lower, sense)[:2] == (-1, True)
-    feasible = _keep_case(0, 6, 30.0)
-    feasible[4][-1], feasible[3][-1] = -3.0, 3.0
-    assert _kept_then_box(buffers, *feasible)[:2] == (1, False)
-    equality = list(_keep_case(0, 6, 30.0))
-    equality[3][-2] = equality[4][-2] = 0.0  # a row held at 0: an equality
+    assert _kept_then_box(buffers, *random_qp(0, scale=30.0))[:2] == (1, False)
+    equality = random_qp(0, feasible=False, scale=30.0)
+    equality[3][-1] = equality[4][-1] = 0.0  # a row held at 0: an equality
     assert _kept_then_box(buffers, *equality)[1] is False
     n = H.shape[0]
     work = np.zeros(daqp_native.WORKSPACE_BYTES // 8, dtype=np.int64).view(np.uint8)

@@ -51,7 +51,6 @@ from ltv_lstm_mpc.solvers.daqp_native import (
     primal_tolerance,
     quadprog,
     quadprog_kept,
-    release_workspace,
     set_objective_bound,
     solver_seconds,
 )
@@ -433,7 +432,7 @@ def _solve_paper(condensing: Any, daqp: Any, fallback: Any, kept: bool) -> tuple
             daqp, H, f, condensing.A[:0], high, low, sense, z, lam, False
         )
         return flag, iterations, seconds
-    set_objective_bound(daqp.settings, H, f, low, high, daqp.hessian_floor, daqp.fval_bound)
+    # (the settings hold the nominal QP's objective bound: the same H, f and box)
     flag, iterations = box_quadprog_from(
         daqp.work, H, f, condensing.A[:0], high, low, sense, z, lam, daqp.problem,
         daqp.result, daqp.settings,
@@ -564,9 +563,7 @@ def policy_feedback(
             codes[STATUS_CODE], codes[POLICY_CODE], codes[PLAN_ITERATIONS] = flag, POLICY_NOMINAL, 1
             return flag, iterations, step, seconds
         if not _MIN_FAILURE_FLAG <= flag <= -1:  # an unknown flag: the session's words
-            if kept:  # (kept only at -1: never here)
-                release_workspace(daqp.work)
-            return 0, iterations, 0.0, seconds
+            return 0, iterations, 0.0, seconds  # (never kept: kept only at -1)
         status = flag
     linear = False
     step = 0.0
